@@ -1,0 +1,329 @@
+// ag.c: direct dynamics by the Armstrong-Green recursion (paper §3.1), in its exact O(n) form:
+// an inbound pass (leaves to root) accumulates each body's articulated inertia IA and bias
+// wrench pA, an outbound pass (root to leaves) yields the accelerations. Where Armstrong and Green
+// assume a 3-dof joint and the paper projects with eq. 3.1, this divides by the articulated
+// inertia about the joint's own free axes, D = S' IA S (at most 3x3), which is exact for 1-, 2-
+// and 3-dof joints (Featherstone's articulated-body algorithm; his names: S, c, IA, pA, U, D, u).
+//
+// Spatial vectors are (angular; linear) at the body origin in the body frame. IA is stored as
+// three 3x3 blocks [A B; B' C] with A and C symmetric (xx yy zz xy xz yz) and B full.
+#include "servodyn.h"
+#include "sd_joint.h"
+
+// full 3x3 from symmetric storage
+static inline void sym_to_full(sd_real M[9], const sd_real S[6]) {
+  M[0] = S[0]; M[1] = S[3]; M[2] = S[4];
+  M[3] = S[3]; M[4] = S[1]; M[5] = S[5];
+  M[6] = S[4]; M[7] = S[5]; M[8] = S[2];
+}
+
+// r = R' M R
+static inline void rotate_back(sd_real r[9], const sd_real R[9], const sd_real M[9]) {
+  sd_real MR[9];
+  sd_mulmm(MR, M, R);
+  for (int i = 0; i < 3; i++) {
+    for (int j = 0; j < 3; j++) {
+      r[3*i+j] = R[i]*MR[j] + R[3+i]*MR[3+j] + R[6+i]*MR[6+j];
+    }
+  }
+}
+
+// r = P M with P the cross-product matrix of p (P v = p x v)
+static inline void cross_mul(sd_real r[9], const sd_real p[3], const sd_real M[9]) {
+  for (int j = 0; j < 3; j++) {
+    sd_real col[3] = {M[j], M[3+j], M[6+j]}, pc[3];
+    sd_cross(pc, p, col);
+    r[j] = pc[0]; r[3+j] = pc[1]; r[6+j] = pc[2];
+  }
+}
+
+// IA_parent += X' Ia X for the joint of rotation R (body_R_parent) at p in the parent:
+// rotate to the parent's axes, then move the origin by p:
+//   C_p = C', B_p = B' + P C', A_p = A' + P B'' + (P B'')' - P C' P
+static void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21], const sd_real R[9],
+                                    const sd_real p[3]) {
+  sd_real full[9], A[9], B[9], C[9];
+  sd_real PC[9], PBt[9], Bt[9], PCP[9];
+  sym_to_full(full, Ia);
+  rotate_back(A, R, full);
+  rotate_back(B, R, Ia + 6);
+  sym_to_full(full, Ia + 15);
+  rotate_back(C, R, full);
+
+  cross_mul(PC, p, C);
+  for (int i = 0; i < 3; i++) {
+    for (int j = 0; j < 3; j++) {
+      Bt[3*i+j] = B[3*j+i];
+    }
+  }
+  cross_mul(PBt, p, Bt);
+  // P C' P = -(P (P C')')' since P' = -P; computed as P applied to the rows of PC
+  for (int i = 0; i < 3; i++) {
+    sd_real row[3] = {PC[3*i], PC[3*i+1], PC[3*i+2]}, rp[3];
+    sd_cross(rp, row, p);  // (PC)_i P = row x p ... as a row vector times P: r P = (P' r')' = -(p x r) = r x p
+    PCP[3*i] = rp[0]; PCP[3*i+1] = rp[1]; PCP[3*i+2] = rp[2];
+  }
+
+  sd_real* Ap = IAp;
+  sd_real* Bp = IAp + 6;
+  sd_real* Cp = IAp + 15;
+  static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
+  for (int k = 0; k < 6; k++) {
+    int r = sym_row[k], c = sym_col[k];
+    Ap[k] += A[3*r+c] + PBt[3*r+c] + PBt[3*c+r] - PCP[3*r+c];
+    Cp[k] += C[3*r+c];
+  }
+  for (int k = 0; k < 9; k++) {
+    Bp[k] += B[k] + PC[k];
+  }
+}
+
+// Cholesky factor D = L L' of the symmetric positive definite n x n (n <= 3, stride 3) matrix D,
+// stored with the reciprocals of the diagonal; 0 if D is not positive definite. Solving with the
+// factor keeps the precision an explicit inverse loses when a joint's axes are nearly parallel.
+static int cholesky(sd_real L[9], const sd_real D[9], int n) {
+  for (int j = 0; j < n; j++) {
+    sd_real diag = D[4*j];
+    for (int k = 0; k < j; k++) {
+      diag -= L[3*j + k] * L[3*j + k];
+    }
+    if (!(diag > 0)) {
+      return 0;
+    }
+    sd_real ljj = sd_sqrt(diag);
+    L[4*j] = SD_R(1) / ljj;
+    for (int i = j + 1; i < n; i++) {
+      sd_real s = D[3*i + j];
+      for (int k = 0; k < j; k++) {
+        s -= L[3*i + k] * L[3*j + k];
+      }
+      L[3*i + j] = s / ljj;
+    }
+  }
+  return 1;
+}
+
+// x = D^-1 x from the factor of cholesky()
+static inline void cholesky_solve(const sd_real L[9], int n, sd_real x[3]) {
+  for (int i = 0; i < n; i++) {
+    for (int k = 0; k < i; k++) {
+      x[i] -= L[3*i + k] * x[k];
+    }
+    x[i] *= L[4*i];
+  }
+  for (int i = n - 1; i >= 0; i--) {
+    for (int k = i + 1; k < n; k++) {
+      x[i] -= L[3*k + i] * x[k];
+    }
+    x[i] *= L[4*i];
+  }
+}
+
+void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
+                const sd_real* tau, const sd_real* f_ext, sd_real* qdd) {
+  static const sd_real zero[3] = {0, 0, 0};
+
+  // outbound pass: velocities, velocity-product accelerations c, rigid inertias, bias wrenches
+  for (int i = 0; i < m->nbody; i++) {
+    int parent = m->body_parent[i];
+    const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
+    const sd_real* vp = parent < 0 ? zero : d->body_v[parent];
+    const sd_real* p = m->body_pos[i];
+    sd_real* w = d->body_w[i];
+    sd_real* v = d->body_v[i];
+    sd_real* c = d->body_c[i];
+    sd_joint_kinematics(m, d, i, q);
+    const sd_real* R = d->body_R[i];
+
+    // v = R (v_p + w_p x p); w = R w_p + sum z qd, with c_ang = sum w_(k-1) x z_k qd_k
+    sd_real t[3];
+    sd_cross(t, wp, p);
+    t[0] += vp[0]; t[1] += vp[1]; t[2] += vp[2];
+    sd_mulmv(v, R, t);
+    sd_mulmv(w, R, wp);
+    sd_real wjoint[3] = {0, 0, 0};
+    c[0] = c[1] = c[2] = 0;
+    int adr = m->body_dofadr[i];
+    for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
+      const sd_real* z = d->dof_axis[j];
+      sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
+      sd_addcross(c, w, zqd);
+      w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+      wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+    }
+    // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
+    sd_cross(c + 3, v, wjoint);
+
+    // rigid-body inertia [I h x; (h x)' m] and bias wrench v x* (I v) - f_ext
+    const sd_real* h = m->body_mcom[i];
+    const sd_real* I = m->body_inertia0[i];
+    sd_real mass = m->body_mass[i];
+    sd_real* IA = d->body_IA[i];
+    for (int k = 0; k < 6; k++) {
+      IA[k] = I[k];
+    }
+    IA[6] = 0;     IA[7] = -h[2]; IA[8] = h[1];
+    IA[9] = h[2];  IA[10] = 0;    IA[11] = -h[0];
+    IA[12] = -h[1]; IA[13] = h[0]; IA[14] = 0;
+    IA[15] = IA[16] = IA[17] = mass;
+    IA[18] = IA[19] = IA[20] = 0;
+
+    sd_real hang[3], hlin[3];
+    sd_mulsym(hang, I, w);
+    sd_addcross(hang, h, v);
+    sd_cross(hlin, w, h);
+    hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
+    sd_real* pA = d->body_pA[i];
+    sd_cross(pA, w, hang);
+    sd_addcross(pA, v, hlin);
+    sd_cross(pA + 3, w, hlin);
+    if (f_ext) {
+      for (int k = 0; k < 6; k++) {
+        pA[k] -= f_ext[6*i + k];
+      }
+    }
+  }
+
+  // inbound pass: articulated inertias and bias wrenches from the leaves to the root
+  for (int i = m->nbody - 1; i >= 0; i--) {
+    int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+    sd_real* IA = d->body_IA[i];
+    sd_real* pA = d->body_pA[i];
+    const sd_real* A = IA;
+    const sd_real* B = IA + 6;
+    sd_real W[3][6];  // U D^-1, column per dof
+
+    if (nd > 0) {
+      // U = IA S = (A z; B' z), D = S' U, u = tau - S' pA
+      sd_real D[9];
+      for (int k = 0; k < nd; k++) {
+        const sd_real* z = d->dof_axis[adr + k];
+        sd_real* U = d->dof_U[adr + k];
+        sd_mulsym(U, A, z);
+        sd_mulmtv(U + 3, B, z);
+        d->dof_u[adr + k] = tau[adr + k] - sd_dot(z, pA);
+      }
+      for (int k = 0; k < nd; k++) {
+        for (int l = 0; l < nd; l++) {
+          D[3*k + l] = sd_dot(d->dof_axis[adr + k], d->dof_U[adr + l]);
+        }
+      }
+      sd_real* L = d->body_L[i];
+      if (!cholesky(L, D, nd)) {
+        d->warning[SD_WARN_SINGULAR]++;
+        for (int k = 0; k < 9; k++) {
+          L[k] = 0;
+        }
+      }
+      // W = U D^-1, one row of U at a time (D is symmetric)
+      for (int e = 0; e < 6; e++) {
+        sd_real row[3];
+        for (int k = 0; k < nd; k++) {
+          row[k] = d->dof_U[adr + k][e];
+        }
+        cholesky_solve(L, nd, row);
+        for (int k = 0; k < nd; k++) {
+          W[k][e] = row[k];
+        }
+      }
+    }
+
+    int parent = m->body_parent[i];
+    if (parent < 0) {
+      continue;
+    }
+
+    // Ia = IA - U D^-1 U', pa = pA + Ia c + U D^-1 u
+    sd_real Ia[21], pa[6];
+    for (int k = 0; k < 21; k++) {
+      Ia[k] = IA[k];
+    }
+    static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
+    for (int k = 0; k < nd; k++) {
+      const sd_real* U = d->dof_U[adr + k];
+      const sd_real* Wk = W[k];
+      for (int e = 0; e < 6; e++) {
+        Ia[e] -= Wk[sym_row[e]] * U[sym_col[e]];
+        Ia[15 + e] -= Wk[3 + sym_row[e]] * U[3 + sym_col[e]];
+      }
+      for (int r = 0; r < 3; r++) {
+        for (int s = 0; s < 3; s++) {
+          Ia[6 + 3*r + s] -= Wk[r] * U[3 + s];
+        }
+      }
+    }
+    const sd_real* c = d->body_c[i];
+    sd_real Ac[3], Cc[3];
+    sd_mulsym(Ac, Ia, c);
+    sd_mulsym(Cc, Ia + 15, c + 3);
+    for (int r = 0; r < 3; r++) {
+      const sd_real* Br = Ia + 6 + 3*r;
+      pa[r] = pA[r] + Ac[r] + Br[0]*c[3] + Br[1]*c[4] + Br[2]*c[5];
+      pa[3 + r] = pA[3 + r] + Cc[r] + Ia[6 + r]*c[0] + Ia[9 + r]*c[1] + Ia[12 + r]*c[2];
+    }
+    for (int k = 0; k < nd; k++) {
+      sd_real uk = d->dof_u[adr + k];
+      for (int e = 0; e < 6; e++) {
+        pa[e] += W[k][e] * uk;
+      }
+    }
+
+    // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
+    const sd_real* R = d->body_R[i];
+    add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i]);
+    sd_real fp[3], np[3];
+    sd_mulmtv(fp, R, pa + 3);
+    sd_mulmtv(np, R, pa);
+    sd_addcross(np, m->body_pos[i], fp);
+    sd_real* pAp = d->body_pA[parent];
+    for (int k = 0; k < 3; k++) {
+      pAp[k] += np[k];
+      pAp[3 + k] += fp[k];
+    }
+  }
+
+  // outbound pass: accelerations from the root; the base accelerates upwards at -g
+  sd_real base_acc[6] = {0, 0, 0, -m->gravity[0], -m->gravity[1], -m->gravity[2]};
+  for (int i = 0; i < m->nbody; i++) {
+    int parent = m->body_parent[i];
+    const sd_real* ap = parent < 0 ? base_acc : d->body_a[parent];
+    const sd_real* R = d->body_R[i];
+    const sd_real* c = d->body_c[i];
+    sd_real* a = d->body_a[i];
+
+    // a' = X a_p + c = (R dw_p; R (a_p + dw_p x p)) + c
+    sd_real t[3];
+    sd_cross(t, ap, m->body_pos[i]);
+    t[0] += ap[3]; t[1] += ap[4]; t[2] += ap[5];
+    sd_mulmv(a, R, ap);
+    sd_mulmv(a + 3, R, t);
+    for (int k = 0; k < 6; k++) {
+      a[k] += c[k];
+    }
+
+    // qdd = D^-1 (u - U' a'), then a = a' + S qdd
+    int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+    sd_real rhs[3];
+    for (int k = 0; k < nd; k++) {
+      const sd_real* U = d->dof_U[adr + k];
+      rhs[k] = d->dof_u[adr + k] - (sd_dot(U, a) + sd_dot(U + 3, a + 3));
+    }
+    cholesky_solve(d->body_L[i], nd, rhs);
+    for (int k = 0; k < nd; k++) {
+      qdd[adr + k] = rhs[k];
+    }
+    for (int k = 0; k < nd; k++) {
+      const sd_real* z = d->dof_axis[adr + k];
+      sd_real acc = qdd[adr + k];
+      a[0] += z[0]*acc; a[1] += z[1]*acc; a[2] += z[2]*acc;
+    }
+  }
+
+  // a non-finite input gives zero acceleration and a warning, never a NaN
+  if (!sd_allfinite(qdd, m->ndof)) {
+    d->warning[SD_WARN_NONFINITE]++;
+    for (int j = 0; j < m->ndof; j++) {
+      qdd[j] = 0;
+    }
+  }
+}

@@ -1,0 +1,56 @@
+// sd_joint.h: the position kinematics of one joint, shared by sd_rnea and sd_forward.
+#ifndef SD_JOINT_H
+#define SD_JOINT_H
+
+#include "servodyn.h"
+#include "sd_math.h"
+
+// Compute body_R_parent of body i at q and the axes of its dofs in the body frame.
+// A joint's dof frames are chained: parent_R_body = body_rot Rz(q1) dof_rot2 Rz(q2) dof_rot3 Rz(q3),
+// so body_R_parent is built from the last dof inwards by pre-multiplying Rz(qk)' dof_rotk'.
+static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, const sd_real* q) {
+  int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+  sd_real* R = d->body_R[i];
+
+  // a welded body: the fixed rotation alone
+  if (nd == 0) {
+    for (int k = 0; k < 9; k++) {
+      R[k] = m->body_rotT[i][k];
+    }
+    return;
+  }
+
+  // first dof: R = Rz(q1)' body_rot'
+  sd_real c = sd_cos(q[adr]), s = sd_sin(q[adr]);
+  if (m->body_ident[i]) {
+    R[0] = c;  R[1] = s; R[2] = 0;
+    R[3] = -s; R[4] = c; R[5] = 0;
+    R[6] = 0;  R[7] = 0; R[8] = 1;
+  } else {
+    sd_rotz_t_mul(R, c, s, m->body_rotT[i]);
+  }
+  d->dof_axis[adr][0] = 0;
+  d->dof_axis[adr][1] = 0;
+  d->dof_axis[adr][2] = 1;
+
+  // further dofs: B = Rz(qk)' dof_rotk' maps the previous dof frame into this one
+  for (int k = 1; k < nd; k++) {
+    int j = adr + k;
+    sd_real B[9], prev[9];
+    c = sd_cos(q[j]);
+    s = sd_sin(q[j]);
+    sd_rotz_t_mul(B, c, s, m->dof_rotT[j]);
+    for (int e = 0; e < 9; e++) {
+      prev[e] = R[e];
+    }
+    sd_mulmm(R, B, prev);
+    for (int l = adr; l < j; l++) {
+      sd_mulmv(d->dof_axis[l], B, d->dof_axis[l]);
+    }
+    d->dof_axis[j][0] = 0;
+    d->dof_axis[j][1] = 0;
+    d->dof_axis[j][2] = 1;
+  }
+}
+
+#endif  // SD_JOINT_H

@@ -1,0 +1,440 @@
+// _core.c: the CPython binding of the servodyn C core.
+//
+// Built twice by setup.py from this one file: servodyn._core with sd_real = double and
+// servodyn._core32 with sd_real = float (-DSD_SINGLE), so the MCU's arithmetic can be checked
+// from Python. Arrays in and out are float64; a leading batch axis is looped over here, in C.
+#define PY_SSIZE_T_CLEAN
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#include <Python.h>
+#include <numpy/arrayobject.h>
+#include <string.h>
+
+#include "servodyn.h"
+
+#ifndef SD_MODULE_NAME
+#define SD_MODULE_NAME _core
+#endif
+#define SD_STR2(x) #x
+#define SD_STR(x) SD_STR2(x)
+#define SD_CAT2(a, b) a##b
+#define SD_CAT(a, b) SD_CAT2(a, b)
+
+typedef struct {
+  PyObject_HEAD
+  sd_model model;
+  sd_data data;
+} CoreObject;
+
+//---------------------------------- array helpers ------------------------------------------------
+
+// a float64 C-contiguous view of obj whose trailing shape is `tail` (ntail dims), with an optional
+// leading batch axis; *nrow gets the batch size (1 when unbatched), *batched whether it had one
+static PyArrayObject* as_rows(PyObject* obj, const char* name, const npy_intp* tail, int ntail,
+                              npy_intp* nrow, int* batched) {
+  PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
+      obj, NPY_DOUBLE, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
+  if (!arr) {
+    return NULL;
+  }
+  int nd = PyArray_NDIM(arr);
+  int ok = (nd == ntail || nd == ntail + 1);
+  for (int k = 0; ok && k < ntail; k++) {
+    ok = PyArray_DIM(arr, nd - ntail + k) == tail[k];
+  }
+  if (!ok) {
+    PyErr_Format(PyExc_ValueError, "%s must have shape (%ld%s) or (N, %ld%s), got %d dimensions",
+                 name, (long)tail[0], ntail == 2 ? ", 6" : "", (long)tail[0],
+                 ntail == 2 ? ", 6" : "", nd);
+    Py_DECREF(arr);
+    return NULL;
+  }
+  *batched = (nd == ntail + 1);
+  *nrow = *batched ? PyArray_DIM(arr, 0) : 1;
+  // every number must be finite: a NaN never reaches the core from here
+  const double* x = (const double*)PyArray_DATA(arr);
+  npy_intp total = PyArray_SIZE(arr);
+  for (npy_intp k = 0; k < total; k++) {
+    if (!isfinite(x[k])) {
+      npy_intp width = total / (*nrow > 0 ? *nrow : 1);
+      PyErr_Format(PyExc_ValueError, "%s has a non-finite value (row %ld, column %ld)", name,
+                   (long)(width ? k / width : 0), (long)(width ? k % width : 0));
+      Py_DECREF(arr);
+      return NULL;
+    }
+  }
+  return arr;
+}
+
+static void load_row(sd_real* dst, const double* src, int n) {
+  for (int k = 0; k < n; k++) {
+    dst[k] = (sd_real)src[k];
+  }
+}
+
+static void store_row(double* dst, const sd_real* src, int n) {
+  for (int k = 0; k < n; k++) {
+    dst[k] = (double)src[k];
+  }
+}
+
+// copy a float64 array of exactly `count` numbers into dst
+static int fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name) {
+  PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
+      obj, NPY_DOUBLE, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
+  if (!arr) {
+    return -1;
+  }
+  if (PyArray_SIZE(arr) != count) {
+    PyErr_Format(PyExc_ValueError, "%s must hold %ld numbers, got %ld", name, (long)count,
+                 (long)PyArray_SIZE(arr));
+    Py_DECREF(arr);
+    return -1;
+  }
+  load_row(dst, (const double*)PyArray_DATA(arr), (int)count);
+  Py_DECREF(arr);
+  return 0;
+}
+
+static int fill_int(int* dst, PyObject* obj, npy_intp count, const char* name) {
+  PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
+      obj, NPY_LONG, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
+  if (!arr) {
+    return -1;
+  }
+  if (PyArray_SIZE(arr) != count) {
+    PyErr_Format(PyExc_ValueError, "%s must hold %ld integers, got %ld", name, (long)count,
+                 (long)PyArray_SIZE(arr));
+    Py_DECREF(arr);
+    return -1;
+  }
+  const long* src = (const long*)PyArray_DATA(arr);
+  for (npy_intp k = 0; k < count; k++) {
+    dst[k] = (int)src[k];
+  }
+  Py_DECREF(arr);
+  return 0;
+}
+
+//---------------------------------- construction -------------------------------------------------
+
+static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
+  static char* kwlist[] = {"parent", "dofnum", "pos", "rot", "dof_rot", "mass", "com",
+                           "inertia", "gravity", NULL};
+  PyObject *parent, *dofnum, *pos, *rot, *dof_rot, *mass, *com, *inertia, *gravity;
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO", kwlist, &parent, &dofnum, &pos,
+                                   &rot, &dof_rot, &mass, &com, &inertia, &gravity)) {
+    return -1;
+  }
+  sd_model* m = &self->model;
+  memset(m, 0, sizeof(*m));
+  memset(&self->data, 0, sizeof(self->data));
+  Py_ssize_t nbody = PyObject_Length(parent);
+  if (nbody < 1 || nbody > SD_MAX_BODY) {
+    PyErr_Format(PyExc_ValueError, "a model needs 1 to %d bodies, got %zd", SD_MAX_BODY, nbody);
+    return -1;
+  }
+  m->nbody = (int)nbody;
+  if (fill_int(m->body_parent, parent, nbody, "parent") ||
+      fill_int(m->body_dofnum, dofnum, nbody, "dofnum")) {
+    return -1;
+  }
+  int ndof = 0;
+  for (int i = 0; i < m->nbody; i++) {
+    m->body_dofadr[i] = ndof;
+    if (m->body_dofnum[i] < 0 || m->body_dofnum[i] > SD_MAX_JOINT_DOF) {
+      PyErr_Format(PyExc_ValueError, "body %d: a joint has 0 to 3 dofs, got %d", i,
+                   m->body_dofnum[i]);
+      return -1;
+    }
+    ndof += m->body_dofnum[i];
+  }
+  if (ndof > SD_MAX_DOF) {
+    PyErr_Format(PyExc_ValueError, "the model has %d dofs, this build allows %d", ndof, SD_MAX_DOF);
+    return -1;
+  }
+  m->ndof = ndof;
+  if (fill(&m->body_pos[0][0], pos, 3 * nbody, "pos") ||
+      fill(&m->body_rot[0][0], rot, 9 * nbody, "rot") ||
+      fill(&m->dof_rot[0][0], dof_rot, 9 * (npy_intp)ndof, "dof_rot") ||
+      fill(m->body_mass, mass, nbody, "mass") ||
+      fill(&m->body_com[0][0], com, 3 * nbody, "com") ||
+      fill(&m->body_inertia[0][0], inertia, 6 * nbody, "inertia") ||
+      fill(m->gravity, gravity, 3, "gravity")) {
+    return -1;
+  }
+  int bad = -1;
+  int err = sd_model_setup(m, &bad);
+  if (err != SD_OK) {
+    PyErr_Format(PyExc_ValueError, "body %d: %s", bad, sd_strerror(err));
+    return -1;
+  }
+  return 0;
+}
+
+//---------------------------------- algorithms ---------------------------------------------------
+
+typedef void (*sd_dynamics_fn)(const sd_model*, sd_data*, const sd_real*, const sd_real*,
+                               const sd_real*, const sd_real*, sd_real*);
+
+// shared body of rnea and forward: three (N x ndof) inputs, optional f_ext, one output
+static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn fn,
+                              const char* third) {
+  PyObject *oq, *oqd, *ox, *ofext = Py_None;
+  if (!PyArg_ParseTuple(args, "OOO|O", &oq, &oqd, &ox, &ofext)) {
+    return NULL;
+  }
+  const sd_model* m = &self->model;
+  npy_intp tail[2] = {m->ndof, 6}, ftail[2] = {m->nbody, 6};
+  npy_intp nq, nqd, nx, nf = 0;
+  int bq, bqd, bx, bf = 0;
+  PyArrayObject *aq = NULL, *aqd = NULL, *ax = NULL, *af = NULL, *out = NULL;
+  aq = as_rows(oq, "q", tail, 1, &nq, &bq);
+  if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (aqd) ax = as_rows(ox, third, tail, 1, &nx, &bx);
+  if (ax && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
+  if (!ax || (ofext != Py_None && !af)) goto done;
+  if (bqd != bq || bx != bq || (af && bf && !bq) || nqd != nq || nx != nq ||
+      (af && bf && nf != nq)) {
+    PyErr_SetString(PyExc_ValueError, "inputs must all be single states or batches of one length N");
+    goto done;
+  }
+  out = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
+  if (!out) goto done;
+  {
+    const double* q = PyArray_DATA(aq);
+    const double* qd = PyArray_DATA(aqd);
+    const double* x = PyArray_DATA(ax);
+    const double* fe = af ? PyArray_DATA(af) : NULL;
+    double* y = PyArray_DATA(out);
+    int n = m->ndof, nfe = 6 * m->nbody;
+    sd_real rq[SD_MAX_DOF], rqd[SD_MAX_DOF], rx[SD_MAX_DOF], ry[SD_MAX_DOF];
+    sd_real rf[6 * SD_MAX_BODY];
+    for (npy_intp r = 0; r < nq; r++) {
+      load_row(rq, q + r * n, n);
+      load_row(rqd, qd + r * n, n);
+      load_row(rx, x + r * n, n);
+      if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
+      fn(m, &self->data, rq, rqd, rx, fe ? rf : NULL, ry);
+      store_row(y + r * n, ry, n);
+    }
+  }
+done:
+  Py_XDECREF(aq);
+  Py_XDECREF(aqd);
+  Py_XDECREF(ax);
+  Py_XDECREF(af);
+  return (PyObject*)out;
+}
+
+static PyObject* Core_rnea(CoreObject* self, PyObject* args) {
+  return run_dynamics(self, args, sd_rnea, "qdd");
+}
+
+static PyObject* Core_forward(CoreObject* self, PyObject* args) {
+  return run_dynamics(self, args, sd_forward, "tau");
+}
+
+// step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd): nsteps steps with tau held
+static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
+  static char* kwlist[] = {"q", "qd", "tau", "dt", "integrator", "nsteps", "f_ext", NULL};
+  PyObject *oq, *oqd, *otau, *ofext = Py_None;
+  double dt;
+  int integrator, nsteps = 1;
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOdi|iO", kwlist, &oq, &oqd, &otau, &dt,
+                                   &integrator, &nsteps, &ofext)) {
+    return NULL;
+  }
+  if (!(dt > 0) || !isfinite(dt) || nsteps < 1) {
+    PyErr_SetString(PyExc_ValueError, "dt must be positive and finite, nsteps at least 1");
+    return NULL;
+  }
+  if (integrator != SD_RK4 && integrator != SD_EULER) {
+    PyErr_SetString(PyExc_ValueError, "integrator must be rk4 or euler");
+    return NULL;
+  }
+  const sd_model* m = &self->model;
+  npy_intp tail[2] = {m->ndof, 6}, ftail[2] = {m->nbody, 6};
+  npy_intp nq, nqd, nt, nf = 0;
+  int bq, bqd, bt, bf = 0;
+  PyArrayObject *aq = NULL, *aqd = NULL, *at = NULL, *af = NULL, *oq2 = NULL, *oqd2 = NULL;
+  PyObject* result = NULL;
+  aq = as_rows(oq, "q", tail, 1, &nq, &bq);
+  if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (aqd) at = as_rows(otau, "tau", tail, 1, &nt, &bt);
+  if (at && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
+  if (!at || (ofext != Py_None && !af)) goto done;
+  if (bqd != bq || bt != bq || (af && bf && !bq) || nqd != nq || nt != nq ||
+      (af && bf && nf != nq)) {
+    PyErr_SetString(PyExc_ValueError, "inputs must all be single states or batches of one length N");
+    goto done;
+  }
+  oq2 = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
+  oqd2 = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
+  if (!oq2 || !oqd2) goto done;
+  {
+    int n = m->ndof, nfe = 6 * m->nbody;
+    const double* fe = af ? PyArray_DATA(af) : NULL;
+    sd_real rq[SD_MAX_DOF], rqd[SD_MAX_DOF], rt[SD_MAX_DOF], rf[6 * SD_MAX_BODY];
+    for (npy_intp r = 0; r < nq; r++) {
+      load_row(rq, (const double*)PyArray_DATA(aq) + r * n, n);
+      load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
+      load_row(rt, (const double*)PyArray_DATA(at) + r * n, n);
+      if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
+      for (int s = 0; s < nsteps; s++) {
+        sd_step(m, &self->data, rq, rqd, rt, fe ? rf : NULL, (sd_real)dt, integrator);
+      }
+      store_row((double*)PyArray_DATA(oq2) + r * n, rq, n);
+      store_row((double*)PyArray_DATA(oqd2) + r * n, rqd, n);
+    }
+  }
+  result = PyTuple_Pack(2, (PyObject*)oq2, (PyObject*)oqd2);
+done:
+  Py_XDECREF(aq);
+  Py_XDECREF(aqd);
+  Py_XDECREF(at);
+  Py_XDECREF(af);
+  Py_XDECREF(oq2);
+  Py_XDECREF(oqd2);
+  return result;
+}
+
+// the model struct's bytes, for tools that load the core without Python (the benchmark)
+static PyObject* Core_model_bytes(CoreObject* self, PyObject* Py_UNUSED(ignored)) {
+  return PyBytes_FromStringAndSize((const char*)&self->model, sizeof(sd_model));
+}
+
+static PyObject* Core_warnings(CoreObject* self, void* Py_UNUSED(closure)) {
+  return Py_BuildValue("{s:i,s:i}", "nonfinite", self->data.warning[SD_WARN_NONFINITE],
+                       "singular", self->data.warning[SD_WARN_SINGULAR]);
+}
+
+static PyObject* Core_get_gravity(CoreObject* self, void* Py_UNUSED(closure)) {
+  const sd_real* g = self->model.gravity;
+  return Py_BuildValue("(ddd)", (double)g[0], (double)g[1], (double)g[2]);
+}
+
+static int Core_set_gravity(CoreObject* self, PyObject* value, void* Py_UNUSED(closure)) {
+  sd_real g[3];
+  if (!value || fill(g, value, 3, "gravity")) {
+    if (!value) PyErr_SetString(PyExc_TypeError, "gravity cannot be deleted");
+    return -1;
+  }
+  for (int k = 0; k < 3; k++) {
+    if (!isfinite((double)g[k])) {
+      PyErr_SetString(PyExc_ValueError, "gravity must be finite");
+      return -1;
+    }
+  }
+  memcpy(self->model.gravity, g, sizeof(g));
+  return 0;
+}
+
+static PyObject* Core_get_int(CoreObject* self, void* closure) {
+  return PyLong_FromLong(closure ? self->model.nbody : self->model.ndof);
+}
+
+static PyMethodDef Core_methods[] = {
+    {"rnea", (PyCFunction)Core_rnea, METH_VARARGS,
+     "rnea(q, qd, qdd, f_ext=None) -> tau: inverse dynamics, one state or a batch"},
+    {"forward", (PyCFunction)Core_forward, METH_VARARGS,
+     "forward(q, qd, tau, f_ext=None) -> qdd: direct dynamics, one state or a batch"},
+    {"step", (PyCFunction)(void (*)(void))Core_step, METH_VARARGS | METH_KEYWORDS,
+     "step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd)"},
+    {"model_bytes", (PyCFunction)Core_model_bytes, METH_NOARGS, "the sd_model struct as bytes"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyGetSetDef Core_getset[] = {
+    {"warnings", (getter)Core_warnings, NULL, "warning counters of the core", NULL},
+    {"gravity", (getter)Core_get_gravity, (setter)Core_set_gravity, "gravity (m/s^2)", NULL},
+    {"nbody", (getter)Core_get_int, NULL, "number of bodies", (void*)1},
+    {"ndof", (getter)Core_get_int, NULL, "number of dofs", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject CoreType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "servodyn." SD_STR(SD_MODULE_NAME) ".Core",
+    .tp_basicsize = sizeof(CoreObject),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "A validated model and its data, as the C core holds them.",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Core_init,
+    .tp_methods = Core_methods,
+    .tp_getset = Core_getset,
+};
+
+// solid_inertia(kind, mass, dims) -> (com_z, (xx, yy, zz, xy, xz, yz)) about the com, axis along z
+static PyObject* solid_inertia(PyObject* Py_UNUSED(module), PyObject* args) {
+  const char* kind;
+  double mass;
+  PyObject* odims;
+  if (!PyArg_ParseTuple(args, "sdO", &kind, &mass, &odims)) {
+    return NULL;
+  }
+  sd_real dims[3] = {0, 0, 0}, inertia[6], com_z = 0;
+  PyObject* seq = PySequence_Fast(odims, "dims must be a sequence of numbers");
+  if (!seq) {
+    return NULL;
+  }
+  Py_ssize_t nd = PySequence_Fast_GET_SIZE(seq);
+  for (Py_ssize_t k = 0; k < nd && k < 3; k++) {
+    dims[k] = (sd_real)PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, k));
+  }
+  Py_DECREF(seq);
+  if (PyErr_Occurred()) {
+    return NULL;
+  }
+  int err;
+  if (!strcmp(kind, "cylinder") && nd == 2) {          // radius, length
+    err = sd_inertia_cylinder((sd_real)mass, dims[0], dims[1], inertia);
+    com_z = dims[1] / 2;
+  } else if (!strcmp(kind, "sphere") && nd == 1) {     // radius
+    err = sd_inertia_sphere((sd_real)mass, dims[0], inertia);
+  } else if (!strcmp(kind, "ellipsoid") && nd == 3) {  // semi-axes a, b, c
+    err = sd_inertia_ellipsoid((sd_real)mass, dims[0], dims[1], dims[2], inertia);
+  } else if (!strcmp(kind, "frustum") && nd == 3) {    // r0, r1, length
+    err = sd_inertia_frustum((sd_real)mass, dims[0], dims[1], dims[2], &com_z, inertia);
+  } else {
+    PyErr_Format(PyExc_ValueError, "unknown solid '%s' with %zd dimensions", kind, nd);
+    return NULL;
+  }
+  if (err) {
+    PyErr_Format(PyExc_ValueError, "%s: mass and dimensions must be positive", kind);
+    return NULL;
+  }
+  return Py_BuildValue("d(dddddd)", (double)com_z, (double)inertia[0], (double)inertia[1],
+                       (double)inertia[2], (double)inertia[3], (double)inertia[4],
+                       (double)inertia[5]);
+}
+
+static PyMethodDef module_methods[] = {
+    {"solid_inertia", solid_inertia, METH_VARARGS,
+     "solid_inertia(kind, mass, dims) -> (com_z, inertia6): cylinder (r, L), sphere (r,), "
+     "ellipsoid (a, b, c), frustum (r0, r1, L)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef core_module = {
+    PyModuleDef_HEAD_INIT, SD_STR(SD_MODULE_NAME), "The servodyn C dynamics core.", -1,
+    module_methods,
+};
+
+PyMODINIT_FUNC SD_CAT(PyInit_, SD_MODULE_NAME)(void) {
+  import_array();
+  if (PyType_Ready(&CoreType) < 0) {
+    return NULL;
+  }
+  PyObject* mod = PyModule_Create(&core_module);
+  if (!mod) {
+    return NULL;
+  }
+  Py_INCREF(&CoreType);
+  PyModule_AddObject(mod, "Core", (PyObject*)&CoreType);
+  PyModule_AddIntConstant(mod, "RK4", SD_RK4);
+  PyModule_AddIntConstant(mod, "EULER", SD_EULER);
+  PyModule_AddIntConstant(mod, "MAX_BODY", SD_MAX_BODY);
+  PyModule_AddIntConstant(mod, "MAX_DOF", SD_MAX_DOF);
+  PyModule_AddIntConstant(mod, "REAL_BYTES", (int)sizeof(sd_real));
+  return mod;
+}

@@ -1,0 +1,281 @@
+"""The servodyn model: a tree of rigid bodies joined by 0-3-dof rotational joints (paper §2).
+
+A model is described body by body in *user frames* — the frames a model file or a URDF speaks
+of: each body frame at q = 0 sits at `pos` with orientation `rot` in its parent's frame, and
+the joint turns it about `axes` given in that frame, applied in sequence:
+
+    parent_R_body(q) = rot · Rot(axis_1, q_1) · Rot(axis_2, q_2) · Rot(axis_3, q_3) · post
+
+(`post` is a fixed rotation a URDF can leave between the last joint and its link; identity
+otherwise). The C core wants each dof to turn about the z axis of its own frame (paper Fig. 3),
+so `Model` compiles the description into that form once, keeping for every body the fixed
+rotation `frame_rot` (user frame ← core body frame) to translate wrenches at the API.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core, _core32
+from .rotations import frame_with_z, rot_z
+
+INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+
+
+class ModelError(ValueError):
+    """A model description that cannot be built; the message names the body or key."""
+
+
+@dataclass
+class Dof:
+    name: str
+    axis: np.ndarray
+    lower: float = -math.inf
+    upper: float = math.inf
+
+
+@dataclass
+class Body:
+    name: str
+    parent: int                                   # -1 for the fixed base
+    pos: np.ndarray                               # joint origin in the parent's user frame (m)
+    rot: np.ndarray                               # parent_R_body at q = 0, before post
+    dofs: list[Dof] = field(default_factory=list)
+    mass: float = 0.0                             # kg
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))           # user frame (m)
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the com
+    post: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+
+def _sym6(I: np.ndarray) -> list[float]:
+    return [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+
+
+def _as_state(x, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(x, dtype=float)
+    if arr.shape[-1:] != (n,) or arr.ndim > 2:
+        raise ValueError(f"{name} must have shape ({n},) or (N, {n}), got {arr.shape}")
+    return arr
+
+
+class Model:
+    """A validated model and the C core that computes its dynamics (double and float builds)."""
+
+    def __init__(self, bodies: list[Body], name: str = "model", gravity=DEFAULT_GRAVITY,
+                 description: str = "", source: str = ""):
+        self.name = name
+        self.description = description
+        self.source = source
+        self.bodies = list(bodies)
+        self._check_names()
+        self._compile(np.asarray(gravity, dtype=float))
+
+    # ------------------------------------------------------------------ description
+    def _check_names(self):
+        seen_bodies, seen_dofs = set(), set()
+        for i, body in enumerate(self.bodies):
+            if body.name in seen_bodies:
+                raise ModelError(f"body '{body.name}': the name is used twice")
+            seen_bodies.add(body.name)
+            if not -1 <= body.parent < i:
+                raise ModelError(f"body '{body.name}': its parent must come before it")
+            if len(body.dofs) > 3:
+                raise ModelError(f"body '{body.name}': a joint has at most 3 dofs, got {len(body.dofs)}")
+            for dof in body.dofs:
+                if dof.name in seen_dofs:
+                    raise ModelError(f"dof '{dof.name}': the name is used twice")
+                seen_dofs.add(dof.name)
+                if not np.all(np.isfinite(dof.axis)) or np.linalg.norm(dof.axis) < 1e-9:
+                    raise ModelError(f"dof '{dof.name}': the axis must be a finite non-zero vector")
+                if not dof.lower <= dof.upper:
+                    raise ModelError(f"dof '{dof.name}': lower limit above upper limit")
+
+    def _compile(self, gravity: np.ndarray):
+        """Turn the user-frame description into the core's z-axis dof frames and build the core."""
+        nb = len(self.bodies)
+        frame_rot = []                 # user_R_core for each body
+        pos, rot, dof_rot, com, inertia, dofnum = [], [], [], [], [], []
+        for body in self.bodies:
+            parent_F = frame_rot[body.parent] if body.parent >= 0 else np.eye(3)
+            # M_k sends z to axis_k, so Rot(a, q) = M Rz(q) M' and the chain becomes
+            # rot M1 Rz(q1) (M1' M2) Rz(q2) (M2' M3) Rz(q3) (M3' post)
+            frames = [frame_with_z(d.axis) for d in body.dofs]
+            if frames:
+                first = body.rot @ frames[0]
+                F = body.post.T @ frames[-1]
+            else:
+                first = body.rot @ body.post
+                F = np.eye(3)
+            rot.append(parent_F.T @ first)
+            dof_rot.extend([np.eye(3)] + [frames[k - 1].T @ frames[k] for k in range(1, len(frames))])
+            frame_rot.append(F)
+            pos.append(parent_F.T @ np.asarray(body.pos, dtype=float))
+            com.append(F.T @ np.asarray(body.com, dtype=float))
+            inertia.append(_sym6(F.T @ np.asarray(body.inertia, dtype=float) @ F))
+            dofnum.append(len(body.dofs))
+        self.frame_rot = np.array(frame_rot)
+        args = dict(parent=[b.parent for b in self.bodies], dofnum=dofnum, pos=pos, rot=rot,
+                    dof_rot=dof_rot if dof_rot else np.zeros((0, 9)),
+                    mass=[b.mass for b in self.bodies], com=com, inertia=inertia, gravity=gravity)
+        try:
+            self.core = _core.Core(**args)
+            self.core32 = _core32.Core(**args)
+        except ValueError as err:
+            message = str(err)
+            if message.startswith("body ") and ":" in message:
+                index, reason = message[5:].split(":", 1)
+                if index.strip().lstrip("-").isdigit() and int(index) >= 0:
+                    message = f"body '{self.bodies[int(index)].name}':{reason}"
+            raise ModelError(message) from None
+        self._arrays = args
+        self.nbody = nb
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def dof_names(self) -> tuple[str, ...]:
+        return tuple(d.name for b in self.bodies for d in b.dofs)
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        return tuple(b.name for b in self.bodies)
+
+    @property
+    def nq(self) -> int:
+        return self.core.ndof
+
+    @property
+    def nv(self) -> int:
+        return self.core.ndof
+
+    @property
+    def gravity(self) -> np.ndarray:
+        return np.array(self.core.gravity)
+
+    @gravity.setter
+    def gravity(self, g):
+        g = np.asarray(g, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError("gravity must be 3 finite numbers (m/s^2)")
+        self.core.gravity = g
+        self.core32.gravity = g
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([d.lower for b in self.bodies for d in b.dofs])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([d.upper for b in self.bodies for d in b.dofs])
+
+    @property
+    def total_mass(self) -> float:
+        return float(sum(b.mass for b in self.bodies))
+
+    def __repr__(self) -> str:
+        return f"<servodyn.Model '{self.name}': {self.nbody} bodies, {self.nq} dofs>"
+
+    # ------------------------------------------------------------------ dynamics
+    def _core_fext(self, f_ext):
+        """External wrenches (nbody x 6: torque about the body origin, force; user body frames)
+        into the core's body frames. A leading batch axis is allowed."""
+        if f_ext is None:
+            return None
+        f = np.asarray(f_ext, dtype=float)
+        if f.shape[-2:] != (self.nbody, 6) or f.ndim > 3:
+            raise ValueError(f"f_ext must have shape ({self.nbody}, 6) or (N, {self.nbody}, 6), got {f.shape}")
+        torque = np.einsum("bji,...bj->...bi", self.frame_rot, f[..., :3])
+        force = np.einsum("bji,...bj->...bi", self.frame_rot, f[..., 3:])
+        return np.concatenate([torque, force], axis=-1)
+
+    def _pick(self, precision: str):
+        if precision == "double":
+            return self.core
+        if precision == "float":
+            return self.core32
+        raise ValueError("precision must be 'double' or 'float'")
+
+    def inverse_dynamics(self, q, qd, qdd, f_ext=None, precision="double") -> np.ndarray:
+        """Joint torques (N·m) that produce qdd at (q, qd) under gravity and f_ext.
+
+        f_ext: wrenches acting on each body, (nbody, 6) as (torque about the body origin, force)
+        in the body's frame; the paper's end-effector load (f_{n+1}, n_{n+1}) is minus that on
+        the last body. Arrays may carry a leading batch axis, computed in C in one call.
+        """
+        n = self.nq
+        return self._pick(precision).rnea(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
+                                          _as_state(qdd, n, "qdd"), self._core_fext(f_ext))
+
+    def forward_dynamics(self, q, qd, tau, f_ext=None, precision="double") -> np.ndarray:
+        """Joint accelerations (rad/s²) under torques tau, gravity and f_ext (as inverse_dynamics)."""
+        n = self.nq
+        return self._pick(precision).forward(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
+                                             _as_state(tau, n, "tau"), self._core_fext(f_ext))
+
+    def step(self, q, qd, tau, dt, integrator="rk4", nsteps=1, f_ext=None, precision="double"):
+        """Advance (q, qd) by nsteps fixed steps of dt seconds with tau held; returns (q, qd)."""
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got '{integrator}'")
+        n = self.nq
+        return self._pick(precision).step(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
+                                          _as_state(tau, n, "tau"), float(dt),
+                                          INTEGRATORS[integrator], int(nsteps),
+                                          self._core_fext(f_ext))
+
+    def mass_matrix(self, q) -> np.ndarray:
+        """The joint-space inertia matrix M(q), column by column from inverse dynamics."""
+        q = np.asarray(q, dtype=float)
+        n = self.nq
+        g = self.gravity
+        self.core.gravity = (0.0, 0.0, 0.0)
+        try:
+            M = self.core.rnea(np.tile(q, (n, 1)), np.zeros((n, n)), np.eye(n))
+        finally:
+            self.core.gravity = g
+        return M.T
+
+    # ------------------------------------------------------------------ kinematics and energy
+    def body_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations (nbody, 3, 3) and origins (nbody, 3) of the core body frames at q."""
+        q = np.asarray(q, dtype=float)
+        a = self._arrays
+        R_world = np.zeros((self.nbody, 3, 3))
+        p_world = np.zeros((self.nbody, 3))
+        dof_rot = np.asarray(a["dof_rot"], dtype=float).reshape(-1, 3, 3)
+        k = 0
+        for i, body in enumerate(self.bodies):
+            R = np.asarray(a["rot"][i], dtype=float).reshape(3, 3)
+            for j in range(len(body.dofs)):
+                R = R @ dof_rot[k] @ rot_z(q[k])
+                k += 1
+            p = np.asarray(a["pos"][i], dtype=float)
+            if body.parent >= 0:
+                p_world[i] = p_world[body.parent] + R_world[body.parent] @ p
+                R_world[i] = R_world[body.parent] @ R
+            else:
+                p_world[i], R_world[i] = p, R
+        return R_world, p_world
+
+    def com_positions(self, q) -> np.ndarray:
+        """World positions (nbody, 3) of every body's centre of mass."""
+        R, p = self.body_poses(q)
+        com = np.asarray(self._arrays["com"], dtype=float)
+        return p + np.einsum("bij,bj->bi", R, com)
+
+    def energy(self, q, qd) -> tuple[float, float]:
+        """(kinetic, potential) energy in joules; potential is zero at the base origin."""
+        qd = np.asarray(qd, dtype=float)
+        kinetic = 0.5 * float(qd @ self.mass_matrix(q) @ qd)
+        masses = np.array([b.mass for b in self.bodies])
+        potential = -float(np.sum(masses * (self.com_positions(q) @ self.gravity)))
+        return kinetic, potential
+
+    # ------------------------------------------------------------------ export
+    def to_urdf(self, path) -> None:
+        """Write the model as URDF (one revolute joint per dof, massless links between the dofs
+        of one joint), loadable by Pinocchio, MuJoCo and RViz."""
+        from .urdf import write_urdf
+        write_urdf(self, path)

@@ -1,0 +1,69 @@
+"""Rotation helpers for building models: roll-pitch-yaw, axis-angle, and frames aligned to an axis."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rpy_to_matrix(rpy) -> np.ndarray:
+    """URDF roll-pitch-yaw (fixed axes x, then y, then z) to a rotation matrix Rz(y) Ry(p) Rx(r)."""
+    r, p, y = (float(v) for v in rpy)
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def matrix_to_rpy(R) -> np.ndarray:
+    """The inverse of rpy_to_matrix; at pitch = ±90° the roll is set to zero."""
+    R = np.asarray(R, dtype=float)
+    pitch = np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0]))
+    if np.hypot(R[0, 0], R[1, 0]) < 1e-12:
+        return np.array([0.0, pitch, np.arctan2(-R[0, 1], R[1, 1])])
+    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
+
+
+def axis_angle(axis, angle) -> np.ndarray:
+    """Rotation by `angle` about the unit vector `axis` (Rodrigues)."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+
+
+def rot_z(angle) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def frame_with_z(axis) -> np.ndarray:
+    """The smallest rotation M with M e_z = axis: a frame whose z axis is `axis`.
+
+    It is the identity when the axis already is z, which keeps the core on its fast path.
+    """
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    z = np.array([0.0, 0.0, 1.0])
+    cos_t = float(a @ z)
+    if cos_t > 1 - 1e-15:
+        return np.eye(3)
+    if cos_t < -1 + 1e-15:
+        return np.diag([1.0, -1.0, -1.0])  # half a turn about x
+    v = np.cross(z, a)
+    return axis_angle(v, np.arctan2(np.linalg.norm(v), cos_t))
+
+
+def orthonormalize(R) -> np.ndarray:
+    """The nearest rotation to R (polar decomposition), to clean rounding from parsed files."""
+    u, _, vt = np.linalg.svd(np.asarray(R, dtype=float))
+    M = u @ vt
+    if np.linalg.det(M) < 0:
+        u[:, -1] *= -1
+        M = u @ vt
+    return M
+
+
+def skew(v) -> np.ndarray:
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=float)

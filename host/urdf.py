@@ -1,0 +1,159 @@
+"""URDF in and out, through yourdfpy.
+
+In: a revolute or continuous joint is one dof named after the joint; a fixed joint merges its
+child link into the parent body; consecutive revolute joints whose origins coincide, with
+massless links between them, form one multi-dof joint (paper Fig. 3). The root link is the fixed
+base. Out: one revolute joint per dof, with massless links between the dofs of one joint.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .model import Body, Dof, Model, ModelError
+from .modelfile import combine
+from .rotations import orthonormalize
+
+MASSLESS = 1e-12   # kg: below this a link is a connector between the dofs of one joint
+
+
+def _inertial(link):
+    """(mass, com, inertia about com) of a URDF link in the link frame."""
+    inertial = link.inertial
+    if inertial is None or not inertial.mass:
+        return 0.0, np.zeros(3), np.zeros((3, 3))
+    T = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, dtype=float)
+    R = T[:3, :3]
+    I = np.zeros((3, 3)) if inertial.inertia is None else np.asarray(inertial.inertia, dtype=float)
+    return float(inertial.mass), T[:3, 3].copy(), R @ I @ R.T
+
+
+def _moved(part, R, p):
+    mass, com, inertia = part
+    return mass, R @ com + p, R @ inertia @ R.T
+
+
+def load_urdf(path: str | Path) -> Model:
+    import yourdfpy
+    path = Path(path)
+    try:
+        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False,
+                                  build_collision_scene_graph=False, load_collision_meshes=False)
+    except Exception as err:  # yourdfpy raises many kinds; all mean "not a usable URDF"
+        raise ModelError(f"{path}: cannot read URDF ({type(err).__name__}: {err})") from None
+    robot = urdf.robot
+    links = {link.name: link for link in robot.links}
+    children: dict[str, list] = {name: [] for name in links}
+    has_parent = set()
+    for joint in robot.joints:
+        if joint.parent not in links or joint.child not in links:
+            raise ModelError(f"joint '{joint.name}': links '{joint.parent}' or '{joint.child}' do not exist")
+        children[joint.parent].append(joint)
+        has_parent.add(joint.child)
+    roots = [name for name in links if name not in has_parent]
+    if len(roots) != 1:
+        raise ModelError(f"{path}: a URDF needs exactly one root link, found {roots}")
+
+    bodies: list[Body] = []
+    parts: dict[int, list] = {}
+
+    def origin(joint):
+        T = np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float)
+        return orthonormalize(T[:3, :3]), T[:3, 3].copy()
+
+    def attach(link_name, body, R, p):
+        """Merge a link (at R, p in the body frame) and its fixed descendants into body; start
+        new bodies at its moving joints."""
+        if body >= 0:
+            parts[body].append(_moved(_inertial(links[link_name]), R, p))
+        for joint in children[link_name]:
+            Rj, pj = origin(joint)
+            R_child, p_child = R @ Rj, R @ pj + p
+            if joint.type == "fixed":
+                attach(joint.child, body, R_child, p_child)
+            elif joint.type in ("revolute", "continuous"):
+                start_joint(joint, body, R_child, p_child)
+            else:
+                raise ModelError(f"joint '{joint.name}': type '{joint.type}' is not supported "
+                                 "(servodyn joints are rotational: revolute, continuous, fixed)")
+
+    def start_joint(joint, parent, R0, p0):
+        """A body whose joint begins with `joint`; absorb following revolute joints at the same
+        origin behind massless links into the same multi-dof joint."""
+        dofs, post = [], np.eye(3)
+        while True:
+            axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, dtype=float)
+            lower, upper = -math.inf, math.inf
+            if joint.type == "revolute" and joint.limit is not None:
+                lower = -math.inf if joint.limit.lower is None else float(joint.limit.lower)
+                upper = math.inf if joint.limit.upper is None else float(joint.limit.upper)
+            # an axis behind the fixed rotation P of the connectors moves in front of it: P Rot(a) = Rot(P a) P
+            dofs.append(Dof(joint.name, post @ axis, lower, upper))
+            link = joint.child
+            nxt = children[link]
+            if (len(dofs) < 3 and _inertial(links[link])[0] < MASSLESS and len(nxt) == 1
+                    and nxt[0].type in ("revolute", "continuous")
+                    and np.allclose(origin(nxt[0])[1], 0.0, atol=1e-12)):
+                joint = nxt[0]
+                post = post @ origin(joint)[0]
+                continue
+            break
+        index = len(bodies)
+        bodies.append(Body(name=link, parent=parent, pos=p0, rot=R0, dofs=dofs, post=post))
+        parts[index] = []
+        attach(link, index, np.eye(3), np.zeros(3))
+
+    # the root link is the base; its own inertia does not move
+    attach(roots[0], -1, np.eye(3), np.zeros(3))
+    if not bodies:
+        raise ModelError(f"{path}: the URDF has no moving joint")
+    for index, body in enumerate(bodies):
+        body.mass, body.com, body.inertia = combine(parts[index])
+        if body.mass <= 0:
+            raise ModelError(f"link '{body.name}': a moving link needs a positive mass")
+    return Model(bodies, name=robot.name or path.stem)
+
+
+def write_urdf(model: Model, path: str | Path) -> None:
+    import yourdfpy
+    from yourdfpy.urdf import Inertial, Joint, Limit, Link, Robot
+    links = [Link(name="base")]
+    joints = []
+
+    def pose(R, p):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, p
+        return T
+
+    for body in model.bodies:
+        parent = "base" if body.parent < 0 else model.bodies[body.parent].name
+        if not body.dofs:
+            joints.append(Joint(name=f"{body.name}_weld", type="fixed", parent=parent, child=body.name,
+                                origin=pose(body.rot @ body.post, body.pos)))
+        for k, dof in enumerate(body.dofs):
+            # the last dof's child is the body itself unless a fixed rotation still follows
+            last = k == len(body.dofs) - 1
+            child = body.name if last and np.allclose(body.post, np.eye(3)) else f"{body.name}__dof{k + 1}"
+            origin = pose(body.rot, body.pos) if k == 0 else np.eye(4)
+            bounded = math.isfinite(dof.lower) and math.isfinite(dof.upper)
+            joints.append(Joint(name=dof.name, type="revolute" if bounded else "continuous",
+                                parent=parent, child=child, origin=origin,
+                                axis=np.asarray(dof.axis, dtype=float) / np.linalg.norm(dof.axis),
+                                limit=Limit(effort=1e3, velocity=1e3,
+                                            lower=dof.lower if bounded else None,
+                                            upper=dof.upper if bounded else None)))
+            if child != body.name:
+                links.append(Link(name=child))
+            parent = child
+        if body.dofs and parent != body.name:
+            joints.append(Joint(name=f"{body.name}_post", type="fixed", parent=parent, child=body.name,
+                                origin=pose(body.post, np.zeros(3))))
+        links.append(Link(name=body.name, inertial=Inertial(origin=pose(np.eye(3), body.com),
+                                                            mass=body.mass, inertia=body.inertia)))
+    urdf = yourdfpy.URDF(robot=Robot(name=model.name, links=links, joints=joints),
+                         build_scene_graph=False, load_meshes=False)
+    urdf.write_xml_file(str(path))
+

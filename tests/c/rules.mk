@@ -1,0 +1,25 @@
+# tests/c/rules.mk: the C unit tests of the core, built twice (included by the top Makefile).
+#
+#   build/c-double/test_core   sd_real = double, as in the host and the simulation
+#   build/c-float/test_core    sd_real = float, as on the microcontroller (-DSD_SINGLE)
+
+CC ?= cc
+CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core -Itests/c
+CTEST_FLOAT_CFLAGS := -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion
+CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C)
+CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H)
+
+build/c-double/test_core: $(CTEST_DEPS)
+	@mkdir -p $(@D)
+	$(CC) $(CTEST_CFLAGS) -o $@ $(CTEST_SRC) -lm
+
+build/c-float/test_core: $(CTEST_DEPS)
+	@mkdir -p $(@D)
+	$(CC) $(CTEST_CFLAGS) $(CTEST_FLOAT_CFLAGS) -o $@ $(CTEST_SRC) -lm
+
+.PHONY: test-c
+test-c: build/c-double/test_core build/c-float/test_core
+	@echo "== C unit tests, double"
+	@build/c-double/test_core
+	@echo "== C unit tests, float (-DSD_SINGLE)"
+	@build/c-float/test_core
