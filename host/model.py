@@ -111,7 +111,8 @@ class Model:
                 first = body.rot @ body.post
                 F = np.eye(3)
             rot.append(parent_F.T @ first)
-            dof_rot.extend([np.eye(3)] + [frames[k - 1].T @ frames[k] for k in range(1, len(frames))])
+            if frames:
+                dof_rot.extend([np.eye(3)] + [frames[k - 1].T @ frames[k] for k in range(1, len(frames))])
             frame_rot.append(F)
             pos.append(parent_F.T @ np.asarray(body.pos, dtype=float))
             com.append(F.T @ np.asarray(body.com, dtype=float))

@@ -103,14 +103,19 @@ static int cholesky(sd_real L[9], const sd_real D[9], int n) {
   return 1;
 }
 
-// x = D^-1 x from the factor of cholesky()
-static inline void cholesky_solve(const sd_real L[9], int n, sd_real x[3]) {
+// x = L^-1 x, the first half of a solve with the factor of cholesky()
+static inline void cholesky_forward(const sd_real L[9], int n, sd_real x[3]) {
   for (int i = 0; i < n; i++) {
     for (int k = 0; k < i; k++) {
       x[i] -= L[3*i + k] * x[k];
     }
     x[i] *= L[4*i];
   }
+}
+
+// x = D^-1 x = L'^-1 L^-1 x
+static inline void cholesky_solve(const sd_real L[9], int n, sd_real x[3]) {
+  cholesky_forward(L, n, x);
   for (int i = n - 1; i >= 0; i--) {
     for (int k = i + 1; k < n; k++) {
       x[i] -= L[3*k + i] * x[k];
@@ -191,7 +196,8 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
     sd_real* pA = d->body_pA[i];
     const sd_real* A = IA;
     const sd_real* B = IA + 6;
-    sd_real W[3][6];  // U D^-1, column per dof
+    sd_real V[3][6];  // U L'^-1, column per dof: U D^-1 U' = V V' without the growth of D^-1
+    sd_real v[3];     // L^-1 u, so that U D^-1 u = V v
 
     if (nd > 0) {
       // U = IA S = (A z; B' z), D = S' U, u = tau - S' pA
@@ -215,17 +221,21 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
           L[k] = 0;
         }
       }
-      // W = U D^-1, one row of U at a time (D is symmetric)
+      // V = U L'^-1, one row of U at a time, and v = L^-1 u
       for (int e = 0; e < 6; e++) {
         sd_real row[3];
         for (int k = 0; k < nd; k++) {
           row[k] = d->dof_U[adr + k][e];
         }
-        cholesky_solve(L, nd, row);
+        cholesky_forward(L, nd, row);
         for (int k = 0; k < nd; k++) {
-          W[k][e] = row[k];
+          V[k][e] = row[k];
         }
       }
+      for (int k = 0; k < nd; k++) {
+        v[k] = d->dof_u[adr + k];
+      }
+      cholesky_forward(L, nd, v);
     }
 
     int parent = m->body_parent[i];
@@ -233,22 +243,21 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
       continue;
     }
 
-    // Ia = IA - U D^-1 U', pa = pA + Ia c + U D^-1 u
+    // Ia = IA - U D^-1 U' = IA - V V', pa = pA + Ia c + U D^-1 u = pA + Ia c + V v
     sd_real Ia[21], pa[6];
     for (int k = 0; k < 21; k++) {
       Ia[k] = IA[k];
     }
     static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
     for (int k = 0; k < nd; k++) {
-      const sd_real* U = d->dof_U[adr + k];
-      const sd_real* Wk = W[k];
+      const sd_real* Vk = V[k];
       for (int e = 0; e < 6; e++) {
-        Ia[e] -= Wk[sym_row[e]] * U[sym_col[e]];
-        Ia[15 + e] -= Wk[3 + sym_row[e]] * U[3 + sym_col[e]];
+        Ia[e] -= Vk[sym_row[e]] * Vk[sym_col[e]];
+        Ia[15 + e] -= Vk[3 + sym_row[e]] * Vk[3 + sym_col[e]];
       }
       for (int r = 0; r < 3; r++) {
         for (int s = 0; s < 3; s++) {
-          Ia[6 + 3*r + s] -= Wk[r] * U[3 + s];
+          Ia[6 + 3*r + s] -= Vk[r] * Vk[3 + s];
         }
       }
     }
@@ -262,9 +271,8 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
       pa[3 + r] = pA[3 + r] + Cc[r] + Ia[6 + r]*c[0] + Ia[9 + r]*c[1] + Ia[12 + r]*c[2];
     }
     for (int k = 0; k < nd; k++) {
-      sd_real uk = d->dof_u[adr + k];
       for (int e = 0; e < 6; e++) {
-        pa[e] += W[k][e] * uk;
+        pa[e] += V[k][e] * v[k];
       }
     }
 

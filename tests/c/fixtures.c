@@ -42,6 +42,10 @@ void sdt_inertia(sd_real dst[6], double a, double b, double c, const double R[9]
   sdt_put(dst, packed, 6);
 }
 
+#define SDT_HALF_PI 1.5707963267948966
+
+static void mulmm(double r[9], const double A[9], const double B[9]);
+
 static void identity(double R[9]) {
   memset(R, 0, 9 * sizeof(double));
   R[0] = R[4] = R[8] = 1;
@@ -84,10 +88,13 @@ void sdt_fill_chain3(sd_model* m) {
   put_body(m, 1, 0, 2, 0.01, -0.02, -0.30, r1, 1.2, -0.01, 0.03, -0.12, 0.009, 0.011, 0.004, r2);
   put_body(m, 2, 1, 1, 0.00, 0.03, -0.25, r2, 0.6, 0.04, 0.00, -0.05, 0.002, 0.0015, 0.001, r0);
   m->nbody = 3;
-  // later dofs of a joint sit in turned frames, like a gimbal
-  double rx[9], rg[9];
-  sdt_rotation(rx, 1, 0, 0, -1.5707963267948966);
-  sdt_rotation(rg, 0.3, -1, 0.5, 1.1);
+  // later dofs of a joint sit in turned frames, like a gimbal: the ball joint's axes z0, z1, z2
+  // are independent unless q1 = +-pi/2 (gimbal lock), its third frame also turned about z2
+  double rx[9], ry[9], rz[9], rg[9];
+  sdt_rotation(rx, 1, 0, 0, -SDT_HALF_PI);
+  sdt_rotation(ry, 0, 1, 0, SDT_HALF_PI);
+  sdt_rotation(rz, 0, 0, 1, 0.4);
+  mulmm(rg, ry, rz);
   sdt_put_rot(m->dof_rot[1], rx);
   sdt_put_rot(m->dof_rot[2], rg);
   sdt_rotation(rg, 1, 0, 0.2, 1.4);
@@ -124,10 +131,13 @@ int sdt_model_tree6(sd_model* m) {
   put_body(m, 4, 3, 1, 0.00, 0.00, 0.12, r2, 0.5, 0.00, 0.00, 0.08, 0.0015, 0.0015, 0.0005, eye);
   put_body(m, 5, -1, 1, 0.30, 0.10, 0.00, r0, 1.0, 0.10, 0.00, 0.01, 0.001, 0.004, 0.004, r1);
   m->nbody = 6;
-  double rx[9], rg[9];
-  sdt_rotation(rx, 0, 1, 0, 1.5707963267948966);
-  sdt_rotation(rg, -0.7, 0.2, 1, 0.5);
-  sdt_put_rot(m->dof_rot[1], rx);
+  // the ball joint locks at q1 = +-pi/2, as in chain3
+  double ry[9], rx[9], rz[9], rg[9];
+  sdt_rotation(ry, 0, 1, 0, SDT_HALF_PI);
+  sdt_rotation(rx, 1, 0, 0, SDT_HALF_PI);
+  sdt_rotation(rz, 0, 0, 1, -0.5);
+  mulmm(rg, rx, rz);
+  sdt_put_rot(m->dof_rot[1], ry);
   sdt_put_rot(m->dof_rot[2], rg);
   sdt_put_rot(m->dof_rot[4], r1);
   return setup_checked(m, "tree6");

@@ -19,7 +19,7 @@ static void forward_inverts_rnea(void) {
       int with_wrench = trial % 2;
       sd_real q[SDT_MAXN], qd[SDT_MAXN], qdd[SDT_MAXN], tau[SDT_MAXN], back[SDT_MAXN];
       sd_real f_ext[6 * SDT_MAXN];
-      sdt_random_vector(&seed, -3, 3, n, q, NULL);
+      sdt_random_vector(&seed, -SDT_QMAX, SDT_QMAX, n, q, NULL);
       sdt_random_vector(&seed, -3, 3, n, qd, NULL);
       sdt_random_vector(&seed, -3, 3, n, qdd, NULL);
       sdt_random_vector(&seed, -4, 4, 6 * nb, f_ext, NULL);
@@ -29,7 +29,9 @@ static void forward_inverts_rnea(void) {
       // qdd -> tau -> qdd
       sd_rnea(&g_model, &g_data, q, qd, qdd, f, tau);
       sd_forward(&g_model, &g_data, q, qd, tau, f, back);
-      EXPECT_LE(sdt_maxdiff(back, qdd, n), SDT_TOL_INVERSE,
+      // relative to the accelerations: float keeps 7 digits and the joint-space inertia of
+      // these models has a condition number near 1e3 (a float dense solve does no better)
+      EXPECT_LE(sdt_maxdiff(back, qdd, n), SDT_TOL_INVERSE * (1 + sdt_maxabs(qdd, n)),
                 "forward(rnea(qdd)) == qdd: the two algorithms solve the same equations");
       // tau -> qdd -> tau
       sdt_random_vector(&seed, -5, 5, n, tau, NULL);
@@ -51,8 +53,8 @@ static double kinetic(const sd_model* m, const double* q, const double* qd) {
 
 static void power_balance(void) {
   // along the motion qdd = forward(q, qd, tau): dT/dt = qd . (tau - G(q)) + power of f_ext,
-  // the velocity-product terms doing no work; dT/dt by a central difference on the path
-  const double h = 1e-4;
+  // the velocity-product terms doing no work; dT/dt by a five-point difference on the path
+  const double h = 1e-5;
   unsigned seed = 22;
   for (int model = 0; model < SDT_NMODEL; model++) {
     const char* name;
@@ -63,7 +65,7 @@ static void power_balance(void) {
       sd_real q[SDT_MAXN], qd[SDT_MAXN], qdd[SDT_MAXN], tau[SDT_MAXN], g[SDT_MAXN];
       sd_real zero[SDT_MAXN], f_ext[6 * SDT_MAXN];
       double qx[SDT_MAXN], qdx[SDT_MAXN];
-      sdt_random_vector(&seed, -2, 2, n, q, qx);
+      sdt_random_vector(&seed, -SDT_QMAX, SDT_QMAX, n, q, qx);
       sdt_random_vector(&seed, -3, 3, n, qd, qdx);
       sdt_random_vector(&seed, -5, 5, n, tau, NULL);
       sdt_random_vector(&seed, -4, 4, 6 * nb, f_ext, NULL);
@@ -72,16 +74,17 @@ static void power_balance(void) {
       memset(&g_data, 0, sizeof g_data);
       sd_forward(&g_model, &g_data, q, qd, tau, f, qdd);
       sd_rnea(&g_model, &g_data, q, zero, zero, NULL, g);
-      double ke[2];
-      for (int side = 0; side < 2; side++) {
-        double t = side ? h : -h, qt[SDT_MAXN], qdt[SDT_MAXN];
+      double ke[4];
+      const double at[4] = {-2 * h, -h, h, 2 * h};
+      for (int side = 0; side < 4; side++) {
+        double t = at[side], qt[SDT_MAXN], qdt[SDT_MAXN];
         for (int j = 0; j < n; j++) {
           qt[j] = qx[j] + t * qdx[j] + 0.5 * t * t * (double)qdd[j];
           qdt[j] = qdx[j] + t * (double)qdd[j];
         }
         ke[side] = kinetic(&g_model, qt, qdt);
       }
-      double rate = (ke[1] - ke[0]) / (2 * h), power = 0;
+      double rate = (ke[0] - 8 * ke[1] + 8 * ke[2] - ke[3]) / (12 * h), power = 0;
       for (int j = 0; j < n; j++) power += qdx[j] * ((double)tau[j] - (double)g[j]);
       if (f) {
         static sdt_kin kin;

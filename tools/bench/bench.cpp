@@ -35,6 +35,8 @@ namespace {
 
 const double kTolerance = 1e-8;   // largest accepted relative disagreement
 const double kDt = 1e-3;          // integration step of all three RK4 steps
+// Pinocchio's aba in the world convention: about 10% faster here than the default local one
+const pinocchio::Convention kAbaConvention = pinocchio::Convention::WORLD;
 
 [[noreturn]] void die(const std::string& message) {
   std::fprintf(stderr, "bench: %s\n", message.c_str());
@@ -327,7 +329,7 @@ struct Libraries {
     return pinocchio::rnea(pin_m, pin_d, CVec(q, n), CVec(qd, n), CVec(qdd, n));
   }
   const Eigen::VectorXd& pin_direct(const double* q, const double* qd, const double* tau) {
-    return pinocchio::aba(pin_m, pin_d, CVec(q, n), CVec(qd, n), CVec(tau, n));
+    return pinocchio::aba(pin_m, pin_d, CVec(q, n), CVec(qd, n), CVec(tau, n), kAbaConvention);
   }
   // classical RK4 on (q, qd) from four aba calls; all joints are revolute, so q += dt * qd
   void pin_rk4(double* q_io, double* qd_io, const double* tau_in) {
@@ -335,14 +337,14 @@ struct Libraries {
     CVec tau(tau_in, n);
     const double stage_dt[3] = {kDt / 2, kDt / 2, kDt};
     const double weight[4] = {kDt / 6, kDt / 3, kDt / 3, kDt / 6};
-    const Eigen::VectorXd* acc = &pinocchio::aba(pin_m, pin_d, q, v, tau);
+    const Eigen::VectorXd* acc = &pinocchio::aba(pin_m, pin_d, q, v, tau, kAbaConvention);
     k_q = weight[0] * v;
     k_v = weight[0] * *acc;
     v_stage = v;
     for (int s = 0; s < 3; s++) {
       q_stage = q + stage_dt[s] * v_stage;
       v_stage = v + stage_dt[s] * *acc;
-      acc = &pinocchio::aba(pin_m, pin_d, q_stage, v_stage, tau);
+      acc = &pinocchio::aba(pin_m, pin_d, q_stage, v_stage, tau, kAbaConvention);
       k_q += weight[s + 1] * v_stage;
       k_v += weight[s + 1] * *acc;
     }
@@ -400,6 +402,13 @@ struct Comparison {
     pin_mj.add(pin, mj);
   }
   double worst() const { return std::max({sd_pin.rel, sd_mj.rel, pin_mj.rel}); }
+  // the library that disagrees with both others 100 times more than they disagree together
+  const char* odd_one_out() const {
+    if (100 * pin_mj.rel < std::min(sd_pin.rel, sd_mj.rel)) return "servodyn";
+    if (100 * sd_mj.rel < std::min(sd_pin.rel, pin_mj.rel)) return "Pinocchio";
+    if (100 * sd_pin.rel < std::min(sd_mj.rel, pin_mj.rel)) return "MuJoCo";
+    return nullptr;
+  }
   std::string json() const {
     return std::string("\"") + name + "\":{\"sd_vs_pin\":" + sd_pin.json() + ",\"sd_vs_mj\":" +
            sd_mj.json() + ",\"pin_vs_mj\":" + pin_mj.json() + "}";
@@ -451,10 +460,13 @@ std::string check_agreement(Libraries& lib, const States& s, int count, bool* ok
   for (const Comparison* c : {&inverse, &direct, &step}) {
     if (c->worst() > kTolerance) {
       *ok = false;
+      const char* odd = c->odd_one_out();
       std::fprintf(stderr,
                    "bench: WARNING: %s disagrees beyond %g: relative sd-pin %.3g, sd-mj %.3g, "
-                   "pin-mj %.3g\n",
-                   c->name, kTolerance, c->sd_pin.rel, c->sd_mj.rel, c->pin_mj.rel);
+                   "pin-mj %.3g; %s%s\n",
+                   c->name, kTolerance, c->sd_pin.rel, c->sd_mj.rel, c->pin_mj.rel,
+                   odd ? odd : "no library stands out (ill-conditioned model or states?)",
+                   odd ? " is the odd one out" : "");
     }
   }
   return "{\"states\":" + std::to_string(count) + ",\"tolerance\":" + num(kTolerance) + "," +

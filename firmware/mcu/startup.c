@@ -1,0 +1,93 @@
+// startup.c: reset, vector table, faults and semihosting for the MPS2 AN386 (Cortex-M4F).
+//
+// The reset handler enables the FPU (every float instruction faults until CPACR grants
+// coprocessors 10 and 11), copies .data from flash, zeroes .bss, runs main and stops with its
+// return value. A fault stops with code 99, so a crash under QEMU ends the run at once.
+#include <stdint.h>
+
+#include "board.h"
+
+int main(void);
+
+// symbols of the linker script
+extern uint32_t __data_start[], __data_end[], __data_load[], __bss_start[], __bss_end[];
+extern uint32_t __stack_bottom[], __stack_top[];
+
+#define CPACR (*(volatile uint32_t*)0xE000ED88u)
+#define SEMIHOSTING_SYS_WRITE0 0x04
+#define SEMIHOSTING_SYS_EXIT_EXTENDED 0x20
+#define ADP_STOPPED_APPLICATION_EXIT 0x20026
+#define FAULT_CODE 99
+#define STACK_PAINT 0xA5A5A5A5u
+
+static int semihost(int op, const void* arg) {
+  register int r0 __asm__("r0") = op;
+  register const void* r1 __asm__("r1") = arg;
+  __asm__ volatile("bkpt 0xAB" : "+r"(r0) : "r"(r1) : "memory");
+  return r0;
+}
+
+void board_write(const char* text) {
+  semihost(SEMIHOSTING_SYS_WRITE0, text);
+}
+
+void board_write_int(long value) {
+  char text[24], *p = text + sizeof text - 1;
+  unsigned long magnitude = value < 0 ? 0ul - (unsigned long)value : (unsigned long)value;
+  *p = 0;
+  do {
+    *--p = (char)('0' + magnitude % 10);
+    magnitude /= 10;
+  } while (magnitude);
+  if (value < 0) *--p = '-';
+  board_write(p);
+}
+
+void board_stop(int code) {
+  const uint32_t block[2] = {ADP_STOPPED_APPLICATION_EXIT, (uint32_t)code};
+  for (;;) semihost(SEMIHOSTING_SYS_EXIT_EXTENDED, block);
+}
+
+// paint from the bottom of the stack to a little below the current frame
+void board_stack_paint(void) {
+  uint32_t* sp;
+  __asm__ volatile("mov %0, sp" : "=r"(sp));
+  for (uint32_t* p = __stack_bottom; p < sp - 16; p++) *p = STACK_PAINT;
+}
+
+unsigned board_stack_used(void) {
+  const uint32_t* p = __stack_bottom;
+  while (p < __stack_top && *p == STACK_PAINT) p++;
+  return (unsigned)((uintptr_t)__stack_top - (uintptr_t)p);
+}
+
+void mcu_reset(void) {
+  CPACR |= 0xFu << 20;
+  __asm__ volatile("dsb\n\tisb" ::: "memory");
+  for (uint32_t *src = __data_load, *dst = __data_start; dst < __data_end;) *dst++ = *src++;
+  for (uint32_t* dst = __bss_start; dst < __bss_end;) *dst++ = 0;
+  board_stop(main());
+}
+
+static void mcu_fault(void) {
+  board_write("servodyn-mcu: fault\n");
+  board_stop(FAULT_CODE);
+}
+
+// the Cortex-M vector table: initial stack pointer, then the handlers
+__attribute__((section(".vectors"), used))
+static void (*const g_vectors[16])(void) = {
+  (void (*)(void))(uintptr_t)__stack_top,
+  mcu_reset,    // reset
+  mcu_fault,    // NMI
+  mcu_fault,    // hard fault
+  mcu_fault,    // memory management fault
+  mcu_fault,    // bus fault
+  mcu_fault,    // usage fault
+  0, 0, 0, 0,   // reserved
+  mcu_fault,    // SVCall
+  mcu_fault,    // debug monitor
+  0,            // reserved
+  mcu_fault,    // PendSV
+  mcu_fault,    // SysTick
+};

@@ -1,0 +1,114 @@
+"""The `servodyn` command line."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import builtin_models, load_model
+from .model import ModelError
+from .trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
+
+
+class CliError(Exception):
+    """A user-facing failure: printed as one line, exit status 2."""
+
+
+def _load(name: str):
+    try:
+        return load_model(name)
+    except ModelError as err:
+        raise CliError(str(err)) from None
+
+
+def cmd_models(args) -> None:
+    print(f"{'name':<12} {'bodies':>6} {'dofs':>5} {'mass kg':>8}  dofs")
+    for name in builtin_models():
+        model = load_model(name)
+        print(f"{name:<12} {model.nbody:>6} {model.nq:>5} {model.total_mass:>8.2f}  {', '.join(model.dof_names)}")
+
+
+def cmd_torques(args) -> None:
+    model = _load(args.model)
+    try:
+        traj = read_trajectory_csv(args.trajectory, model.dof_names)
+    except TrajectoryError as err:
+        raise CliError(str(err)) from None
+    start = time.perf_counter()
+    tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
+    elapsed = time.perf_counter() - start
+    write_columns_csv(args.output, traj.t, "tau", model.dof_names, tau)
+    how = "qd, qdd from a C2 spline of q" if traj.derived else "qd, qdd from the file"
+    print(f"{len(traj.t)} samples, {model.nq} dofs ({how}): inverse dynamics in "
+          f"{elapsed * 1e3:.2f} ms ({elapsed / len(traj.t) * 1e6:.2f} us per sample) -> {args.output}")
+    peak = np.abs(tau).max(axis=0)
+    for name, value in sorted(zip(model.dof_names, peak), key=lambda x: -x[1])[:args.top]:
+        print(f"  peak |tau| {name:<24} {value:9.3f} N·m")
+
+
+def cmd_export(args) -> None:
+    model = _load(args.model)
+    out = Path(args.output)
+    if out.suffix.lower() != ".urdf":
+        raise CliError(f"{out}: export writes URDF; name the file .urdf")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    model.to_urdf(out)
+    print(f"{model.name}: {model.nbody} bodies, {model.nq} dofs -> {out}")
+
+
+def cmd_demo(args) -> None:
+    from .demo import run_demo
+    run_demo(args.model, Path(args.out))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="servodyn",
+        description="Closed-form inverse and direct dynamics for a servo-driven humanoid arm.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("models", help="list the built-in models")
+    p.set_defaults(func=cmd_models)
+
+    p = sub.add_parser("torques", help="offline inverse dynamics of a trajectory CSV",
+                       description="Feed-forward joint torques of a trajectory. The CSV has a header "
+                       "t, q_<dof> for every dof, and optionally qd_<dof>, qdd_<dof> (otherwise "
+                       "derived from a C2 cubic spline of q). SI units.")
+    p.add_argument("model", help="built-in model name, .urdf or .toml file")
+    p.add_argument("trajectory", help="trajectory CSV")
+    p.add_argument("-o", "--output", required=True, help="torque CSV to write (t, tau_<dof>)")
+    p.add_argument("--top", type=int, default=7, help="how many peak torques to print (default 7)")
+    p.set_defaults(func=cmd_torques)
+
+    p = sub.add_parser("export", help="write a model as URDF")
+    p.add_argument("model", help="built-in model name, .urdf or .toml file")
+    p.add_argument("output", help="URDF file to write")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
+    p.add_argument("--model", default="human_arm", help="model (default human_arm)")
+    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (CliError, ModelError, TrajectoryError) as err:
+        print(f"servodyn: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("servodyn: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
