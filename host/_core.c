@@ -282,6 +282,15 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
       if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
       for (int s = 0; s < nsteps; s++) {
         sd_step(m, &self->data, rq, rqd, rt, fe ? rf : NULL, (sd_real)dt, integrator);
+        // a diverging integration is an error the caller must see, never a silent inf or NaN
+        for (int j = 0; j < n; j++) {
+          if (!isfinite((double)rq[j]) || !isfinite((double)rqd[j])) {
+            PyErr_Format(PyExc_FloatingPointError,
+                         "the integration diverged: non-finite state after step %d of row %ld",
+                         s + 1, (long)r);
+            goto done;
+          }
+        }
       }
       store_row((double*)PyArray_DATA(oq2) + r * n, rq, n);
       store_row((double*)PyArray_DATA(oqd2) + r * n, rqd, n);

@@ -78,17 +78,26 @@ static void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21], const
   }
 }
 
-// Cholesky factor D = L L' of the symmetric positive definite n x n (n <= 3, stride 3) matrix D,
-// stored with the reciprocals of the diagonal; 0 if D is not positive definite. Solving with the
-// factor keeps the precision an explicit inverse loses when a joint's axes are nearly parallel.
+// Cholesky factor D = L L' of the symmetric positive semidefinite n x n (n <= 3, stride 3)
+// matrix D, stored with the reciprocals of the diagonal. Solving with the factor keeps the
+// precision an explicit inverse loses when a joint's axes are nearly parallel. At a gimbal lock
+// two axes of a joint coincide and D is singular: the pivot of the later axis vanishes, and that
+// dof is dropped (zero reciprocal and column, so its acceleration is 0) while the others carry
+// the motion exactly. Returns the number of dofs dropped.
 static int cholesky(sd_real L[9], const sd_real D[9], int n) {
+  int dropped = 0;
   for (int j = 0; j < n; j++) {
     sd_real diag = D[4*j];
     for (int k = 0; k < j; k++) {
       diag -= L[3*j + k] * L[3*j + k];
     }
-    if (!(diag > 0)) {
-      return 0;
+    if (!(diag > SD_R(64) * SD_EPS * D[4*j])) {
+      dropped++;
+      L[4*j] = 0;
+      for (int i = j + 1; i < n; i++) {
+        L[3*i + j] = 0;
+      }
+      continue;
     }
     sd_real ljj = sd_sqrt(diag);
     L[4*j] = SD_R(1) / ljj;
@@ -100,7 +109,7 @@ static int cholesky(sd_real L[9], const sd_real D[9], int n) {
       L[3*i + j] = s / ljj;
     }
   }
-  return 1;
+  return dropped;
 }
 
 // x = L^-1 x, the first half of a solve with the factor of cholesky()
@@ -215,11 +224,8 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
         }
       }
       sd_real* L = d->body_L[i];
-      if (!cholesky(L, D, nd)) {
+      if (cholesky(L, D, nd)) {
         d->warning[SD_WARN_SINGULAR]++;
-        for (int k = 0; k < 9; k++) {
-          L[k] = 0;
-        }
       }
       // V = U L'^-1, one row of U at a time, and v = L^-1 u
       for (int e = 0; e < 6; e++) {

@@ -18,12 +18,13 @@ MCU_OBJ := $(patsubst %.c,$(MCU_DIR)/%.o,$(MCU_SRC))
 
 $(MCU_DIR)/%.o: %.c $(CORE_H) $(wildcard firmware/mcu/*.h)
 	@mkdir -p $(@D)
-	$(MCU_CC) $(MCU_CFLAGS) -c -o $@ $<
+	@$(MCU_CC) $(MCU_CFLAGS) -c -o $@ $<
 
 $(MCU_ELF): $(MCU_OBJ) firmware/mcu/mps2-an386.ld
-	$(MCU_CC) $(MCU_LDFLAGS) -o $@ $(MCU_OBJ) -lm
+	@echo "   arm-none-eabi-gcc $@ (-DSD_SINGLE, Cortex-M4F, -O2)"
+	@$(MCU_CC) $(MCU_LDFLAGS) -o $@ $(MCU_OBJ) -lm
 
 .PHONY: test-mcu
 test-mcu: $(MCU_ELF)
-	@echo "== Cortex-M4F link check and QEMU run (mps2-an386)"
+	@echo "== Cortex-M4F build of the core: link check and QEMU run (mps2-an386)"
 	@scripts/check-mcu.sh $(MCU_ELF) $(MCU_DIR)

@@ -11,15 +11,17 @@ CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H)
 
 build/c-double/test_core: $(CTEST_DEPS)
 	@mkdir -p $(@D)
-	$(CC) $(CTEST_CFLAGS) -o $@ $(CTEST_SRC) -lm
+	@echo "   cc $@"
+	@$(CC) $(CTEST_CFLAGS) -o $@ $(CTEST_SRC) -lm
 
 build/c-float/test_core: $(CTEST_DEPS)
 	@mkdir -p $(@D)
-	$(CC) $(CTEST_CFLAGS) $(CTEST_FLOAT_CFLAGS) -o $@ $(CTEST_SRC) -lm
+	@echo "   cc $@ (-DSD_SINGLE)"
+	@$(CC) $(CTEST_CFLAGS) $(CTEST_FLOAT_CFLAGS) -o $@ $(CTEST_SRC) -lm
 
 .PHONY: test-c
 test-c: build/c-double/test_core build/c-float/test_core
-	@echo "== C unit tests, double"
+	@echo "== C unit tests, sd_real = double"
 	@build/c-double/test_core
-	@echo "== C unit tests, float (-DSD_SINGLE)"
+	@echo "== C unit tests, sd_real = float"
 	@build/c-float/test_core

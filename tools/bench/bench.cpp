@@ -5,7 +5,7 @@
 //   STATES.bin  int32 N, int32 ndof, then N*ndof doubles each of q, qd, qdd, tau (row-major)
 //   --strict    exit with status 3 when any relative disagreement exceeds 1e-8
 //   --check K   compare the three libraries on the first K states (default 10)
-//   --reps R    timed repetitions over all N states; the median is reported (default 7)
+//   --reps R    timed repetitions over all N states; the median is reported (default 21)
 //
 // The same model is built in Pinocchio (a chain of RZ joints per servodyn joint) and in MuJoCo
 // (generated MJCF, up to 3 hinges per body). One JSON object goes to stdout; problems go to stderr.
@@ -55,8 +55,9 @@ std::vector<char> read_bytes(const char* path) {
 void load_model(const char* path, sd_model* model) {
   std::vector<char> bytes = read_bytes(path);
   if (bytes.size() != sizeof(sd_model)) {
-    die(std::string(path) + ": " + std::to_string(bytes.size()) + " bytes, but sizeof(sd_model) is " +
-        std::to_string(sizeof(sd_model)) + " (double build, SD_MAX_BODY " +
+    die(std::string(path) + ": " + std::to_string(bytes.size()) +
+        " bytes, but sizeof(sd_model) is " + std::to_string(sizeof(sd_model)) +
+        " (double build, SD_MAX_BODY " +
         std::to_string(SD_MAX_BODY) + ", SD_MAX_DOF " + std::to_string(SD_MAX_DOF) + ")");
   }
   std::memcpy(model, bytes.data(), sizeof(sd_model));
@@ -113,6 +114,13 @@ States load_states(const char* path, int ndof) {
                 count * sizeof(double));
   }
   return s;
+}
+
+// a number as text, exact by default
+std::string num(double x, int digits = 17) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.*g", digits, x);
+  return buf;
 }
 
 //---------------------------------- rotations ---------------------------------------------------
@@ -173,8 +181,8 @@ pinocchio::Model build_pinocchio(const sd_model* m) {
     pinocchio::JointIndex joint = parent_joint;
     for (int k = 0; k < m->body_dofnum[i]; k++) {
       int dof = m->body_dofadr[i] + k;
-      pinocchio::SE3 place = k == 0 ? joint_place
-                                    : pinocchio::SE3(mat3(m->dof_rot[dof]), Eigen::Vector3d::Zero());
+      pinocchio::SE3 place =
+          k == 0 ? joint_place : pinocchio::SE3(mat3(m->dof_rot[dof]), Eigen::Vector3d::Zero());
       joint = model.addJoint(joint, pinocchio::JointModelRZ(), place,
                              "b" + std::to_string(i) + "_d" + std::to_string(k));
       if (model.joints[joint].idx_v() != dof) {
@@ -191,12 +199,6 @@ pinocchio::Model build_pinocchio(const sd_model* m) {
 }
 
 //---------------------------------- mujoco model ------------------------------------------------
-
-std::string num(double x) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.17g", x);
-  return buf;
-}
 
 // one <body> per servodyn body with frame Q = body_rot*D2*D3 and hinge axes (D2*D3)'z, D3'z, z,
 // so that the MuJoCo body frame is the servodyn body frame
@@ -388,7 +390,7 @@ struct Diff {
     abs = std::max(abs, diff);
     rel = std::max(rel, scale > 0 ? diff / scale : 0.0);
   }
-  std::string json() const { return "{\"abs\":" + num(abs) + ",\"rel\":" + num(rel) + "}"; }
+  std::string json() const { return "{\"abs\":" + num(abs, 3) + ",\"rel\":" + num(rel, 3) + "}"; }
 };
 
 // the pairwise differences of one quantity computed by the three libraries
@@ -499,7 +501,7 @@ double time_us(int reps, int nstates, const std::function<void(int, double*)>& c
 int main(int argc, char** argv) {
   // command line
   bool strict = false;
-  int check = 10, reps = 7;
+  int check = 10, reps = 21;
   std::vector<const char*> paths;
   for (int a = 1; a < argc; a++) {
     std::string arg = argv[a];
@@ -576,7 +578,7 @@ int main(int argc, char** argv) {
   std::string us;
   for (const Timing& t : timings) {
     us += std::string(us.empty() ? "" : ",") + "\"" + t.name + "\":" +
-          num(time_us(reps, s.n, t.call));
+          num(time_us(reps, s.n, t.call), 4);
   }
 
   // servodyn counts bad numbers instead of failing; report any
@@ -587,7 +589,7 @@ int main(int argc, char** argv) {
     }
   }
 
-  std::printf("{\"ndof\":%d,\"nbody\":%d,\"nstates\":%d,\"reps\":%d,\"agreement\":%s,\"us\":{%s}}\n",
-              n, model.nbody, s.n, reps, agreement.c_str(), us.c_str());
+  std::printf("{\"ndof\":%d,\"nbody\":%d,\"nstates\":%d,\"reps\":%d,\"agreement\":%s,"
+              "\"us\":{%s}}\n", n, model.nbody, s.n, reps, agreement.c_str(), us.c_str());
   return strict && !ok ? 3 : 0;
 }

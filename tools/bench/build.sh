@@ -38,7 +38,8 @@ EOF
 eigen_dir=${EIGEN3_INCLUDE_DIR:-$eigen_dir}
 [ -n "$eigen_dir" ] || { [ -d /usr/include/eigen3/Eigen ] && eigen_dir=/usr/include/eigen3; }
 [ -n "$eigen_dir" ] && [ -d "$eigen_dir/Eigen" ] ||
-  fail "Eigen 3 headers not found: pip install cmeel-eigen into the venv of $python, apt-get install libeigen3-dev, or set EIGEN3_INCLUDE_DIR"
+  fail "Eigen 3 headers not found: pip install cmeel-eigen into the venv of $python" \
+    "(or apt-get install libeigen3-dev, or set EIGEN3_INCLUDE_DIR)"
 mj_lib=$(ls "$mj_dir"/libmujoco.so.* 2>/dev/null | head -n 1)
 [ -n "$mj_lib" ] && [ -f "$mj_dir/include/mujoco/mujoco.h" ] ||
   fail "libmujoco.so.* or include/mujoco/mujoco.h missing under $mj_dir"

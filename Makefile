@@ -1,0 +1,75 @@
+# servodyn: set-up, tests, demo and benchmark.
+#
+#   make test    every test: the C core (double and float), the Cortex-M4F build under QEMU,
+#                then the Python tests
+#   make demo    the main job on the simulated servo bus
+#   make bench   timings against Pinocchio and MuJoCo
+#   make clean   remove what the build made (keeps .venv; make distclean removes it too)
+#
+# On a fresh Debian machine the targets install what is missing: the virtual environment in
+# .venv with the project, and from Debian's packages a C compiler, the Python headers, the
+# arm-none-eabi toolchain and QEMU (scripts/install-*.sh).
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.stamp
+
+CORE_C := $(wildcard firmware/core/*.c)
+CORE_H := $(wildcard firmware/core/*.h)
+HOST_C := $(wildcard host/*.c host/*/*.c)
+
+.DEFAULT_GOAL := test
+.PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean
+
+test: venv toolchain
+	@$(MAKE) --no-print-directory test-c test-mcu test-python
+
+demo: venv
+	@echo "== servodyn demo"
+	@$(VENV)/bin/servodyn demo
+
+bench: venv
+	@echo "== servodyn benchmark"
+	@$(VENV)/bin/python -m servodyn.tools.bench
+
+#---------------------------------- set-up -------------------------------------------------------
+
+venv: $(STAMP)
+
+# reinstall (and so rebuild the C extension) when the packaging or any C source changes
+$(STAMP): pyproject.toml $(wildcard setup.py) $(CORE_C) $(CORE_H) $(HOST_C)
+	@echo "== Python environment: installing servodyn into $(VENV)"
+	@PYTHON=$(PYTHON) scripts/install-host-deps.sh
+	@if [ ! -x $(VENV)/bin/python ]; then \
+	  $(PYTHON) -m venv $(VENV) >/dev/null 2>&1 || { rm -rf $(VENV); \
+	    scripts/apt-install.sh python3-venv && $(PYTHON) -m venv $(VENV); }; \
+	fi
+	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	@touch $@
+
+toolchain:
+	@scripts/install-toolchain.sh
+
+#---------------------------------- tests --------------------------------------------------------
+
+include tests/c/rules.mk
+include firmware/mcu/rules.mk
+
+# the cross build needs the toolchain first; toolchain is quick when it is installed
+$(MCU_OBJ): | toolchain
+
+test-python: venv
+	@echo "== Python tests"
+	@status=0; $(VENV)/bin/python -m pytest -q tests || status=$$?; \
+	if [ $$status -eq 5 ]; then echo "no Python tests collected yet"; else exit $$status; fi
+
+#---------------------------------- clean --------------------------------------------------------
+
+clean:
+	rm -rf build out dist *.egg-info .pytest_cache $(STAMP)
+	find . -path ./$(VENV) -prune -o \( -name __pycache__ -o -name '*.so' \) -print0 | \
+	  xargs -0 rm -rf
+
+distclean: clean
+	rm -rf $(VENV)
