@@ -45,7 +45,10 @@ $(STAMP): pyproject.toml $(wildcard setup.py) $(CORE_C) $(CORE_H) $(HOST_C)
 	  $(PYTHON) -m venv $(VENV) >/dev/null 2>&1 || { rm -rf $(VENV); \
 	    scripts/apt-install.sh python3-venv && $(PYTHON) -m venv $(VENV); }; \
 	fi
-	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	@echo "   pip install -e '.[test]' (log: $(VENV)/pip-install.log)"
+	@$(VENV)/bin/python -m pip install --disable-pip-version-check -e '.[test]' \
+	    >$(VENV)/pip-install.log 2>&1 || { tail -n 30 $(VENV)/pip-install.log; \
+	    echo "venv: pip install failed, full log in $(VENV)/pip-install.log"; exit 1; }
 	@touch $@
 
 toolchain:

@@ -85,6 +85,9 @@ class Model:
                 raise ModelError(f"body '{body.name}': its parent must come before it")
             if len(body.dofs) > 3:
                 raise ModelError(f"body '{body.name}': a joint has at most 3 dofs, got {len(body.dofs)}")
+            for key in ("pos", "rot", "com", "inertia", "post"):
+                if not np.all(np.isfinite(np.asarray(getattr(body, key), dtype=float))):
+                    raise ModelError(f"body '{body.name}': a NaN or infinite number in '{key}'")
             for dof in body.dofs:
                 if dof.name in seen_dofs:
                     raise ModelError(f"dof '{dof.name}': the name is used twice")

@@ -9,6 +9,7 @@ set -euo pipefail
 fail() { echo "build.sh: $*" >&2; exit 1; }
 
 [ $# -eq 2 ] || fail "usage: tools/bench/build.sh PYTHON OUTDIR"
+command -v gcc >/dev/null && command -v g++ >/dev/null || fail "gcc and g++ are needed"
 python=$1
 out=$2
 root=$(cd "$(dirname "$0")/../.." && pwd)
@@ -31,17 +32,20 @@ print(os.path.join(eigen[0], "include", "eigen3") if eigen else "")
 print(mj)
 EOF
 ) || fail "cannot run $python"
-{ read -r pin_prefix; read -r eigen_dir; read -r mj_dir; } <<<"$paths"
+mapfile -t found <<<"$paths"
+pin_prefix=${found[0]:-}
+eigen_dir=${EIGEN3_INCLUDE_DIR:-${found[1]:-}}
+mj_dir=${found[2]:-}
+if [ -z "$eigen_dir" ] && [ -d /usr/include/eigen3/Eigen ]; then eigen_dir=/usr/include/eigen3; fi
 
 [ -n "$pin_prefix" ] || fail "Pinocchio headers not found: pip install pin into the venv of $python"
 [ -n "$mj_dir" ] || fail "mujoco not importable: pip install mujoco into the venv of $python"
-eigen_dir=${EIGEN3_INCLUDE_DIR:-$eigen_dir}
-[ -n "$eigen_dir" ] || { [ -d /usr/include/eigen3/Eigen ] && eigen_dir=/usr/include/eigen3; }
 [ -n "$eigen_dir" ] && [ -d "$eigen_dir/Eigen" ] ||
   fail "Eigen 3 headers not found: pip install cmeel-eigen into the venv of $python" \
     "(or apt-get install libeigen3-dev, or set EIGEN3_INCLUDE_DIR)"
-mj_lib=$(ls "$mj_dir"/libmujoco.so.* 2>/dev/null | head -n 1)
-[ -n "$mj_lib" ] && [ -f "$mj_dir/include/mujoco/mujoco.h" ] ||
+mj_libs=("$mj_dir"/libmujoco.so.*)
+mj_lib=${mj_libs[0]}
+[ -f "$mj_lib" ] && [ -f "$mj_dir/include/mujoco/mujoco.h" ] ||
   fail "libmujoco.so.* or include/mujoco/mujoco.h missing under $mj_dir"
 
 # compile the core as C, the benchmark as C++17 (Boost.MPL limits as Pinocchio's CMake sets them)
@@ -52,6 +56,7 @@ for src in "$root"/firmware/core/*.c; do
   gcc -O3 -std=c11 -ffp-contract=off -Wall -c "$src" -o "$obj" || fail "core does not compile: $src"
   objs+=("$obj")
 done
+echo "build.sh: compiling bench.cpp (the Pinocchio headers take a minute or two)"
 g++ -std=c++17 -O3 -DNDEBUG -Wall \
   -DBOOST_MPL_LIMIT_LIST_SIZE=30 -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 \
   -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \

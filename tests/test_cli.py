@@ -1,0 +1,131 @@
+"""The `servodyn` command line: torques, models, export, and one clear line for bad input."""
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import servodyn
+from servodyn.demo import reach_motion
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "servodyn.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=120, cwd=cwd)
+
+
+def read_csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return rows[0], np.array(rows[1:], dtype=float)
+
+
+def write_traj(path, t, names, q, qd=None, qdd=None):
+    header = ["t"] + [f"q_{n}" for n in names]
+    cols = [t[:, None], q]
+    if qd is not None:
+        header += [f"qd_{n}" for n in names]
+        cols.append(qd)
+    if qdd is not None:
+        header += [f"qdd_{n}" for n in names]
+        cols.append(qdd)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(np.hstack(cols).tolist())
+
+
+def test_torques_with_full_state_equal_the_api(tmp_path):
+    arm = servodyn.load_model("human_arm")
+    t, q, qd, qdd = reach_motion(arm)
+    write_traj(tmp_path / "traj.csv", t, arm.dof_names, q, qd, qdd)
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 0, res.stderr
+    assert "2001 samples" in res.stdout
+    header, data = read_csv(tmp_path / "tau.csv")
+    assert header == ["t"] + [f"tau_{n}" for n in arm.dof_names]
+    assert np.array_equal(data[:, 0], t)
+    assert np.array_equal(data[:, 1:], arm.inverse_dynamics(q, qd, qdd)), "full precision in the CSV"
+
+
+def test_torques_derive_velocity_and_acceleration_from_a_spline(tmp_path):
+    """Given only q of the smooth reach at 1 ms, the spline's qd and qdd reproduce the
+    torques of the exact derivatives within 1e-3 relative (the ends excepted: a not-a-knot
+    spline cannot know the motion starts at rest)."""
+    arm = servodyn.load_model("human_arm")
+    t, q, qd, qdd = reach_motion(arm)
+    write_traj(tmp_path / "traj.csv", t, arm.dof_names, q)
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 0, res.stderr
+    _, data = read_csv(tmp_path / "tau.csv")
+    exact = arm.inverse_dynamics(q, qd, qdd)
+    inner = slice(50, -50)
+    err = np.abs(data[inner, 1:] - exact[inner]).max() / np.abs(exact).max()
+    assert err <= 1e-3, f"spline-derived torques differ by {err:.2e}"
+
+
+def test_models_lists_the_builtins():
+    res = run("models")
+    assert res.returncode == 0
+    assert "human_arm" in res.stdout and "human15" in res.stdout
+
+
+def test_export_loads_in_pinocchio(tmp_path):
+    import pinocchio as pin
+    res = run("export", "human_arm", tmp_path / "arm.urdf")
+    assert res.returncode == 0, res.stderr
+    model = pin.buildModelFromUrdf(str(tmp_path / "arm.urdf"))
+    assert model.nq == 7
+    assert sum(i.mass for i in model.inertias) == pytest.approx(3.5)
+
+
+GOOD_HEADER = "t," + ",".join(f"q_{n}" for n in servodyn.load_model("human_arm").dof_names)
+
+
+@pytest.mark.parametrize("content,message", [
+    ("", "empty file"),
+    ("time,q_a\n0,1\n", "first column must be 't'"),
+    (GOOD_HEADER + ",q_elbow\n", "unknown column 'q_elbow'"),
+    ("t,q_r_shoulder_flexion\n0,0\n", "missing column q_r_shoulder_abduction"),
+    (GOOD_HEADER + "\n", "no data rows"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,0,0,0,0\n", "row 3 has 7 values"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,x,0,0,0,0\n", "row 3, column 'q_r_shoulder_rotation': 'x' is not a number"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,nan,0,0,0,0\n", "not finite"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0,0,0,0,0,0,0,0\n", "time must increase"),
+])
+def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    res = run("torques", "human_arm", path, "-o", tmp_path / "out.csv")
+    assert res.returncode == 2
+    assert message in res.stderr
+    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
+    assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (("torques", "no_such_model", "x.csv", "-o", "y.csv"), "not a built-in model"),
+    (("torques", "human_arm", "missing.csv", "-o", "y.csv"), "cannot read"),
+    (("export", "human_arm", "arm.txt"), "name the file .urdf"),
+])
+def test_bad_arguments_give_one_line(tmp_path, args, message):
+    res = run(*args, cwd=tmp_path)
+    assert res.returncode == 2
+    assert message in res.stderr and "Traceback" not in res.stderr
+
+
+def test_bad_model_file_gives_one_line(tmp_path):
+    (tmp_path / "m.toml").write_text("[[body]]\nname='a'\n[body.solid]\ntype='sphere'\nradius=0\nmass=1\n")
+    res = run("export", tmp_path / "m.toml", tmp_path / "m.urdf")
+    assert res.returncode == 2
+    assert "dimensions must be positive" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_demo_prints_the_torque_profile(tmp_path):
+    res = run("demo", "--out", tmp_path / "demo")
+    assert res.returncode == 0, res.stderr
+    assert "peak" in res.stdout and "inverse dynamics" in res.stdout
+    for name in ("torques.csv", "motion.csv", "torques.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 0
