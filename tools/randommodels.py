@@ -1,5 +1,5 @@
-"""Random valid models for differential tests: trees and chains of 1-3-dof joints with arbitrary
-axes and placements and full (off-diagonal) inertias."""
+"""Random valid models for differential tests and benchmarks: trees and chains of 1-3-dof joints
+with arbitrary axes and placements and full (off-diagonal) inertias."""
 
 from __future__ import annotations
 
