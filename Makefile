@@ -31,6 +31,7 @@ demo: venv
 
 bench: venv
 	@echo "== servodyn benchmark"
+	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench
 
 #---------------------------------- set-up -------------------------------------------------------

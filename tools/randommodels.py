@@ -49,6 +49,6 @@ def serial_chain(ndof: int, joint_dof: int = 1) -> Model:
         axes = [np.eye(3)[(i + k) % 3] for k in range(nd)]
         bodies.append(Body(name=f"link{len(bodies)}", parent=len(bodies) - 1,
                            pos=np.array([0.0, 0.0, 0.3 if bodies else 0.0]), rot=np.eye(3),
-                           dofs=[Dof(f"q{i + k}", axes[k]) for k in range(nd)], mass=1.0,
+                           dofs=[Dof(f"q{i + k}", axes[k], -4.0, 4.0) for k in range(nd)], mass=1.0,
                            com=np.array([0.0, 0.0, 0.15]), inertia=random_inertia(rng, 1.0)))
     return Model(bodies, name=f"chain{ndof}")

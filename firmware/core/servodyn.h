@@ -86,7 +86,7 @@ int sd_inertia_frustum(sd_real mass, sd_real r0, sd_real r1, sd_real length,
 
 // Warning counters: events the math met and survived.
 enum sd_warning_ {
-  SD_WARN_NONFINITE = 0,     // a non-finite input or result; the output was set to zero
+  SD_WARN_NONFINITE = 0,     // a non-finite result (from a non-finite input); output set to 0
   SD_WARN_SINGULAR,          // a joint at a gimbal lock (or massless): a redundant dof got qdd = 0
   SD_NWARNING
 };

@@ -1,11 +1,12 @@
 // bench.cpp: check servodyn against Pinocchio and MuJoCo on one model, then time all three.
 //
-// usage: bench [--strict] [--check K] [--reps R] MODEL.bin STATES.bin
+// usage: bench [--strict] [--check K] [--reps R] [--mjcf OUT.xml] MODEL.bin STATES.bin
 //   MODEL.bin   the raw bytes of one sd_model (double build, after sd_model_setup)
 //   STATES.bin  int32 N, int32 ndof, then N*ndof doubles each of q, qd, qdd, tau (row-major)
 //   --strict    exit with status 3 when any relative disagreement exceeds 1e-8
 //   --check K   compare the three libraries on the first K states (default 10)
 //   --reps R    timed repetitions over all N states; the median is reported (default 21)
+//   --mjcf OUT  also write the generated MJCF, for timing MuJoCo from Python on the same model
 //
 // The same model is built in Pinocchio (a chain of RZ joints per servodyn joint) and in MuJoCo
 // (generated MJCF, up to 3 hinges per body). One JSON object goes to stdout; problems go to stderr.
@@ -503,10 +504,13 @@ int main(int argc, char** argv) {
   bool strict = false;
   int check = 10, reps = 21;
   std::vector<const char*> paths;
+  const char* mjcf_out = nullptr;
   for (int a = 1; a < argc; a++) {
     std::string arg = argv[a];
     if (arg == "--strict") {
       strict = true;
+    } else if (arg == "--mjcf" && a + 1 < argc) {
+      mjcf_out = argv[++a];
     } else if ((arg == "--check" || arg == "--reps") && a + 1 < argc) {
       (arg == "--check" ? check : reps) = std::atoi(argv[++a]);
     } else {
@@ -514,7 +518,7 @@ int main(int argc, char** argv) {
     }
   }
   if (paths.size() != 2 || check < 1 || reps < 1) {
-    die("usage: bench [--strict] [--check K] [--reps R] MODEL.bin STATES.bin");
+    die("usage: bench [--strict] [--check K] [--reps R] [--mjcf OUT.xml] MODEL.bin STATES.bin");
   }
 
   // inputs and the three models
@@ -523,6 +527,9 @@ int main(int argc, char** argv) {
   States s = load_states(paths[1], model.ndof);
   Libraries lib(&model);
   int n = s.ndof;
+  if (mjcf_out) {
+    std::ofstream(mjcf_out) << mjcf_text(&model);
+  }
 
   // agreement on the first states
   bool ok = true;
