@@ -65,8 +65,7 @@ $(MCU_OBJ): | toolchain
 
 test-python: venv
 	@echo "== Python tests"
-	@status=0; $(VENV)/bin/python -m pytest -q tests || status=$$?; \
-	if [ $$status -eq 5 ]; then echo "no Python tests collected yet"; else exit $$status; fi
+	@$(VENV)/bin/python -m pytest -q tests
 
 #---------------------------------- clean --------------------------------------------------------
 

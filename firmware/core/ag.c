@@ -10,68 +10,67 @@
 #include "servodyn.h"
 #include "sd_joint.h"
 
-// full 3x3 from symmetric storage
-static inline void sym_to_full(sd_real M[9], const sd_real S[6]) {
-  M[0] = S[0]; M[1] = S[3]; M[2] = S[4];
-  M[3] = S[3]; M[4] = S[1]; M[5] = S[5];
-  M[6] = S[4]; M[7] = S[5]; M[8] = S[2];
-}
+static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
 
-// r = R' M R
-static inline void rotate_back(sd_real r[9], const sd_real R[9], const sd_real M[9]) {
-  sd_real MR[9];
-  sd_mulmm(MR, M, R);
-  for (int i = 0; i < 3; i++) {
-    for (int j = 0; j < 3; j++) {
-      r[3*i+j] = R[i]*MR[j] + R[3+i]*MR[3+j] + R[6+i]*MR[6+j];
-    }
+// r = R' S R for a symmetric S (xx yy zz xy xz yz), into the same storage
+static inline void rotate_sym(sd_real r[6], const sd_real R[9], const sd_real S[6]) {
+  sd_real T[9];
+  for (int j = 0; j < 3; j++) {
+    T[j] = S[0]*R[j] + S[3]*R[3+j] + S[4]*R[6+j];
+    T[3+j] = S[3]*R[j] + S[1]*R[3+j] + S[5]*R[6+j];
+    T[6+j] = S[4]*R[j] + S[5]*R[3+j] + S[2]*R[6+j];
+  }
+  for (int e = 0; e < 6; e++) {
+    int i = sym_row[e], j = sym_col[e];
+    r[e] = R[i]*T[j] + R[3+i]*T[3+j] + R[6+i]*T[6+j];
   }
 }
 
-// r = P M with P the cross-product matrix of p (P v = p x v)
-static inline void cross_mul(sd_real r[9], const sd_real p[3], const sd_real M[9]) {
-  for (int j = 0; j < 3; j++) {
-    sd_real col[3] = {M[j], M[3+j], M[6+j]}, pc[3];
-    sd_cross(pc, p, col);
-    r[j] = pc[0]; r[3+j] = pc[1]; r[6+j] = pc[2];
+// r = R' M R for a full M
+static inline void rotate_full(sd_real r[9], const sd_real R[9], const sd_real M[9]) {
+  sd_real T[9];
+  sd_mulmm(T, M, R);
+  for (int i = 0; i < 3; i++) {
+    for (int j = 0; j < 3; j++) {
+      r[3*i+j] = R[i]*T[j] + R[3+i]*T[3+j] + R[6+i]*T[6+j];
+    }
   }
 }
 
 // IA_parent += X' Ia X for the joint of rotation R (body_R_parent) at p in the parent:
-// rotate to the parent's axes, then move the origin by p:
-//   C_p = C', B_p = B' + P C', A_p = A' + P B'' + (P B'')' - P C' P
+// rotate the blocks to the parent's axes (A', B', C'), then move the origin by p, with P the
+// cross-product matrix of p:
+//   C_p = C', B_p = B' + P C', A_p = A' + P M' + M P' where M = B' + P C' / 2
+// (the last is A' + P B'' + B' P' + P C' P', written to need one product fewer)
 static void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21], const sd_real R[9],
                                     const sd_real p[3]) {
-  sd_real full[9], A[9], B[9], C[9];
-  sd_real PC[9], PBt[9], Bt[9], PCP[9];
-  sym_to_full(full, Ia);
-  rotate_back(A, R, full);
-  rotate_back(B, R, Ia + 6);
-  sym_to_full(full, Ia + 15);
-  rotate_back(C, R, full);
+  sd_real A[6], B[9], C[6], PC[9], M[9], N[9];
+  rotate_sym(A, R, Ia);
+  rotate_full(B, R, Ia + 6);
+  rotate_sym(C, R, Ia + 15);
 
-  cross_mul(PC, p, C);
-  for (int i = 0; i < 3; i++) {
-    for (int j = 0; j < 3; j++) {
-      Bt[3*i+j] = B[3*j+i];
-    }
+  // P C': p crossed with the columns of C'
+  sd_real c0[3] = {C[0], C[3], C[4]}, c1[3] = {C[3], C[1], C[5]}, c2[3] = {C[4], C[5], C[2]};
+  sd_real pc[3];
+  sd_cross(pc, p, c0); PC[0] = pc[0]; PC[3] = pc[1]; PC[6] = pc[2];
+  sd_cross(pc, p, c1); PC[1] = pc[0]; PC[4] = pc[1]; PC[7] = pc[2];
+  sd_cross(pc, p, c2); PC[2] = pc[0]; PC[5] = pc[1]; PC[8] = pc[2];
+  for (int k = 0; k < 9; k++) {
+    M[k] = B[k] + SD_R(0.5) * PC[k];
   }
-  cross_mul(PBt, p, Bt);
-  // P C' P = -(P (P C')')' since P' = -P; computed as P applied to the rows of PC
-  for (int i = 0; i < 3; i++) {
-    sd_real row[3] = {PC[3*i], PC[3*i+1], PC[3*i+2]}, rp[3];
-    sd_cross(rp, row, p);  // (PC)_i P = row x p ... as a row vector times P: r P = (P' r')' = -(p x r) = r x p
-    PCP[3*i] = rp[0]; PCP[3*i+1] = rp[1]; PCP[3*i+2] = rp[2];
+  // N = P M': column j is p x (row j of M)
+  for (int j = 0; j < 3; j++) {
+    sd_cross(pc, p, M + 3*j);
+    N[j] = pc[0]; N[3+j] = pc[1]; N[6+j] = pc[2];
   }
 
   sd_real* Ap = IAp;
   sd_real* Bp = IAp + 6;
   sd_real* Cp = IAp + 15;
-  static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
-  for (int k = 0; k < 6; k++) {
-    int r = sym_row[k], c = sym_col[k];
-    Ap[k] += A[3*r+c] + PBt[3*r+c] + PBt[3*c+r] - PCP[3*r+c];
-    Cp[k] += C[3*r+c];
+  for (int e = 0; e < 6; e++) {
+    int i = sym_row[e], j = sym_col[e];
+    Ap[e] += A[e] + N[3*i+j] + N[3*j+i];
+    Cp[e] += C[e];
   }
   for (int k = 0; k < 9; k++) {
     Bp[k] += B[k] + PC[k];
@@ -201,21 +200,39 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
   // inbound pass: articulated inertias and bias wrenches from the leaves to the root
   for (int i = m->nbody - 1; i >= 0; i--) {
     int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+    int parent = m->body_parent[i];
     sd_real* IA = d->body_IA[i];
     sd_real* pA = d->body_pA[i];
-    const sd_real* A = IA;
-    const sd_real* B = IA + 6;
-    sd_real V[3][6];  // U L'^-1, column per dof: U D^-1 U' = V V' without the growth of D^-1
-    sd_real v[3];     // L^-1 u, so that U D^-1 u = V v
+    // U D^-1 U' = W X' and U D^-1 u = W v: W = X = U L'^-1 and v = L^-1 u (no growth of D^-1);
+    // for one dof simply W = U / D, X = U, v = u
+    sd_real W[3][6], X[3][6], v[3];
 
-    if (nd > 0) {
+    if (nd == 1) {
+      // one dof about z: U = IA S is IA's third column, D = S' U its zz entry
+      sd_real* U = d->dof_U[adr];
+      U[0] = IA[4]; U[1] = IA[5]; U[2] = IA[2];
+      U[3] = IA[12]; U[4] = IA[13]; U[5] = IA[14];
+      d->dof_u[adr] = tau[adr] - pA[2];
+      sd_real Dinv = 0;
+      if (U[2] > 0) {
+        Dinv = SD_R(1) / U[2];
+      } else {
+        d->warning[SD_WARN_SINGULAR]++;
+      }
+      d->body_L[i][0] = Dinv;
+      for (int e = 0; e < 6; e++) {
+        W[0][e] = U[e] * Dinv;
+        X[0][e] = U[e];
+      }
+      v[0] = d->dof_u[adr];
+    } else if (nd > 1) {
       // U = IA S = (A z; B' z), D = S' U, u = tau - S' pA
       sd_real D[9];
       for (int k = 0; k < nd; k++) {
         const sd_real* z = d->dof_axis[adr + k];
         sd_real* U = d->dof_U[adr + k];
-        sd_mulsym(U, A, z);
-        sd_mulmtv(U + 3, B, z);
+        sd_mulsym(U, IA, z);
+        sd_mulmtv(U + 3, IA + 6, z);
         d->dof_u[adr + k] = tau[adr + k] - sd_dot(z, pA);
       }
       for (int k = 0; k < nd; k++) {
@@ -227,7 +244,7 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
       if (cholesky(L, D, nd)) {
         d->warning[SD_WARN_SINGULAR]++;
       }
-      // V = U L'^-1, one row of U at a time, and v = L^-1 u
+      // W = X = U L'^-1, one row of U at a time, and v = L^-1 u
       for (int e = 0; e < 6; e++) {
         sd_real row[3];
         for (int k = 0; k < nd; k++) {
@@ -235,7 +252,7 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
         }
         cholesky_forward(L, nd, row);
         for (int k = 0; k < nd; k++) {
-          V[k][e] = row[k];
+          W[k][e] = X[k][e] = row[k];
         }
       }
       for (int k = 0; k < nd; k++) {
@@ -244,43 +261,41 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
       cholesky_forward(L, nd, v);
     }
 
-    int parent = m->body_parent[i];
     if (parent < 0) {
       continue;
     }
 
-    // Ia = IA - U D^-1 U' = IA - V V', pa = pA + Ia c + U D^-1 u = pA + Ia c + V v
-    sd_real Ia[21], pa[6];
-    for (int k = 0; k < 21; k++) {
-      Ia[k] = IA[k];
-    }
-    static const int sym_row[6] = {0, 1, 2, 0, 0, 1}, sym_col[6] = {0, 1, 2, 1, 2, 2};
+    // in place, IA becomes Ia = IA - U D^-1 U' = IA - W X' and pA becomes
+    // pa = pA + Ia c + U D^-1 u = pA + Ia c + W v
     for (int k = 0; k < nd; k++) {
-      const sd_real* Vk = V[k];
+      const sd_real* Wk = W[k];
+      const sd_real* Xk = X[k];
       for (int e = 0; e < 6; e++) {
-        Ia[e] -= Vk[sym_row[e]] * Vk[sym_col[e]];
-        Ia[15 + e] -= Vk[3 + sym_row[e]] * Vk[3 + sym_col[e]];
+        IA[e] -= Wk[sym_row[e]] * Xk[sym_col[e]];
+        IA[15 + e] -= Wk[3 + sym_row[e]] * Xk[3 + sym_col[e]];
       }
       for (int r = 0; r < 3; r++) {
         for (int s = 0; s < 3; s++) {
-          Ia[6 + 3*r + s] -= Vk[r] * Vk[3 + s];
+          IA[6 + 3*r + s] -= Wk[r] * Xk[3 + s];
         }
       }
     }
     const sd_real* c = d->body_c[i];
     sd_real Ac[3], Cc[3];
-    sd_mulsym(Ac, Ia, c);
-    sd_mulsym(Cc, Ia + 15, c + 3);
+    sd_mulsym(Ac, IA, c);
+    sd_mulsym(Cc, IA + 15, c + 3);
     for (int r = 0; r < 3; r++) {
-      const sd_real* Br = Ia + 6 + 3*r;
-      pa[r] = pA[r] + Ac[r] + Br[0]*c[3] + Br[1]*c[4] + Br[2]*c[5];
-      pa[3 + r] = pA[3 + r] + Cc[r] + Ia[6 + r]*c[0] + Ia[9 + r]*c[1] + Ia[12 + r]*c[2];
+      const sd_real* Br = IA + 6 + 3*r;
+      pA[r] += Ac[r] + Br[0]*c[3] + Br[1]*c[4] + Br[2]*c[5];
+      pA[3 + r] += Cc[r] + IA[6 + r]*c[0] + IA[9 + r]*c[1] + IA[12 + r]*c[2];
     }
     for (int k = 0; k < nd; k++) {
       for (int e = 0; e < 6; e++) {
-        pa[e] += V[k][e] * v[k];
+        pA[e] += W[k][e] * v[k];
       }
     }
+    const sd_real* Ia = IA;
+    const sd_real* pa = pA;
 
     // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
     const sd_real* R = d->body_R[i];
@@ -317,6 +332,13 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
 
     // qdd = D^-1 (u - U' a'), then a = a' + S qdd
     int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+    if (nd == 1) {
+      const sd_real* U = d->dof_U[adr];
+      sd_real acc = d->body_L[i][0] * (d->dof_u[adr] - sd_dot(U, a) - sd_dot(U + 3, a + 3));
+      qdd[adr] = acc;
+      a[2] += acc;
+      continue;
+    }
     sd_real rhs[3];
     for (int k = 0; k < nd; k++) {
       const sd_real* U = d->dof_U[adr + k];

@@ -109,8 +109,8 @@ typedef struct sd_data_ {
   sd_real body_IA[SD_MAX_BODY][21];       // (nbody x 21) articulated inertia: A(6) B(9) C(6)
   sd_real body_pA[SD_MAX_BODY][6];        // (nbody x 6) articulated bias wrench
   sd_real dof_U[SD_MAX_DOF][6];           // (ndof x 6) IA * S
-  sd_real body_L[SD_MAX_BODY][9];      // (nbody x 9) Cholesky factor of D = S' IA S, with
-                                          //   reciprocal diagonal (dofnum x dofnum)
+  sd_real body_L[SD_MAX_BODY][9];         // (nbody x 9) Cholesky factor of D = S' IA S with
+                                          //   reciprocal diagonal; 1/D itself for one dof
   sd_real dof_u[SD_MAX_DOF];              // (ndof) tau - S' pA
   sd_real body_a[SD_MAX_BODY][6];         // (nbody x 6) spatial acceleration
 
