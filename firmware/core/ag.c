@@ -132,183 +132,255 @@ static inline void cholesky_solve(const sd_real L[9], int n, sd_real x[3]) {
   }
 }
 
-void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
-                const sd_real* tau, const sd_real* f_ext, sd_real* qdd) {
-  static const sd_real zero[3] = {0, 0, 0};
+// One step of the inbound pass for body i, whose joint has nd dofs: project the joint out of
+// the articulated inertia and bias wrench, and hand what remains to the parent. Called with a
+// literal nd, so each joint size gets its own unrolled copy.
+static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_real* tau,
+                                const int nd) {
+  int adr = m->body_dofadr[i];
+  int parent = m->body_parent[i];
+  sd_real* IA = d->body_IA[i];
+  sd_real* pA = d->body_pA[i];
+  // U D^-1 U' = W X' and U D^-1 u = W v: W = X = U L'^-1 and v = L^-1 u (no growth of D^-1);
+  // for one dof simply W = U / D, X = U, v = u
+  sd_real W[3][6], X[3][6], v[3];
 
-  // outbound pass: velocities, velocity-product accelerations c, rigid inertias, bias wrenches
-  for (int i = 0; i < m->nbody; i++) {
-    int parent = m->body_parent[i];
-    const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
-    const sd_real* vp = parent < 0 ? zero : d->body_v[parent];
-    const sd_real* p = m->body_pos[i];
-    sd_real* w = d->body_w[i];
-    sd_real* v = d->body_v[i];
-    sd_real* c = d->body_c[i];
-    sd_joint_kinematics(m, d, i, q);
-    const sd_real* R = d->body_R[i];
-
-    // v = R (v_p + w_p x p); w = R w_p + sum z qd, with c_ang = sum w_(k-1) x z_k qd_k
-    sd_real t[3];
-    sd_cross(t, wp, p);
-    t[0] += vp[0]; t[1] += vp[1]; t[2] += vp[2];
-    sd_mulmv(v, R, t);
-    sd_mulmv(w, R, wp);
-    sd_real wjoint[3] = {0, 0, 0};
-    c[0] = c[1] = c[2] = 0;
-    int adr = m->body_dofadr[i];
-    for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
-      const sd_real* z = d->dof_axis[j];
-      sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
-      sd_addcross(c, w, zqd);
-      w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
-      wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+  if (nd == 1) {
+    // one dof about z: U = IA S is IA's third column, D = S' U its zz entry
+    sd_real* U = d->dof_U[adr];
+    U[0] = IA[4]; U[1] = IA[5]; U[2] = IA[2];
+    U[3] = IA[12]; U[4] = IA[13]; U[5] = IA[14];
+    d->dof_u[adr] = tau[adr] - pA[2];
+    sd_real Dinv = 0;
+    if (U[2] > 0) {
+      Dinv = SD_R(1) / U[2];
+    } else {
+      d->warning[SD_WARN_SINGULAR]++;
     }
-    // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
-    sd_cross(c + 3, v, wjoint);
-
-    // rigid-body inertia [I h x; (h x)' m] and bias wrench v x* (I v) - f_ext
-    const sd_real* h = m->body_mcom[i];
-    const sd_real* I = m->body_inertia0[i];
-    sd_real mass = m->body_mass[i];
-    sd_real* IA = d->body_IA[i];
-    for (int k = 0; k < 6; k++) {
-      IA[k] = I[k];
+    d->body_L[i][0] = Dinv;
+    for (int e = 0; e < 6; e++) {
+      W[0][e] = U[e] * Dinv;
+      X[0][e] = U[e];
     }
-    IA[6] = 0;     IA[7] = -h[2]; IA[8] = h[1];
-    IA[9] = h[2];  IA[10] = 0;    IA[11] = -h[0];
-    IA[12] = -h[1]; IA[13] = h[0]; IA[14] = 0;
-    IA[15] = IA[16] = IA[17] = mass;
-    IA[18] = IA[19] = IA[20] = 0;
-
-    sd_real hang[3], hlin[3];
-    sd_mulsym(hang, I, w);
-    sd_addcross(hang, h, v);
-    sd_cross(hlin, w, h);
-    hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
-    sd_real* pA = d->body_pA[i];
-    sd_cross(pA, w, hang);
-    sd_addcross(pA, v, hlin);
-    sd_cross(pA + 3, w, hlin);
-    if (f_ext) {
-      for (int k = 0; k < 6; k++) {
-        pA[k] -= f_ext[6*i + k];
+    v[0] = d->dof_u[adr];
+  } else if (nd > 1) {
+    // U = IA S = (A z; B' z), D = S' U, u = tau - S' pA
+    sd_real D[9];
+    for (int k = 0; k < nd - 1; k++) {
+      const sd_real* z = d->dof_axis[adr + k];
+      sd_real* U = d->dof_U[adr + k];
+      sd_mulsym(U, IA, z);
+      sd_mulmtv(U + 3, IA + 6, z);
+      d->dof_u[adr + k] = tau[adr + k] - sd_dot(z, pA);
+    }
+    // the last dof turns about z: its U is IA's third column
+    sd_real* Uz = d->dof_U[adr + nd - 1];
+    Uz[0] = IA[4]; Uz[1] = IA[5]; Uz[2] = IA[2];
+    Uz[3] = IA[12]; Uz[4] = IA[13]; Uz[5] = IA[14];
+    d->dof_u[adr + nd - 1] = tau[adr + nd - 1] - pA[2];
+    for (int k = 0; k < nd; k++) {
+      for (int l = 0; l < nd; l++) {
+        D[3*k + l] = sd_dot(d->dof_axis[adr + k], d->dof_U[adr + l]);
       }
     }
+    sd_real* L = d->body_L[i];
+    if (cholesky(L, D, nd)) {
+      d->warning[SD_WARN_SINGULAR]++;
+    }
+    // W = X = U L'^-1, one row of U at a time, and v = L^-1 u
+    for (int e = 0; e < 6; e++) {
+      sd_real row[3];
+      for (int k = 0; k < nd; k++) {
+        row[k] = d->dof_U[adr + k][e];
+      }
+      cholesky_forward(L, nd, row);
+      for (int k = 0; k < nd; k++) {
+        W[k][e] = X[k][e] = row[k];
+      }
+    }
+    for (int k = 0; k < nd; k++) {
+      v[k] = d->dof_u[adr + k];
+    }
+    cholesky_forward(L, nd, v);
+  }
+
+  if (parent < 0) {
+    return;
+  }
+
+  // in place, IA becomes Ia = IA - U D^-1 U' = IA - W X' and pA becomes
+  // pa = pA + Ia c + U D^-1 u = pA + Ia c + W v
+  for (int k = 0; k < nd; k++) {
+    const sd_real* Wk = W[k];
+    const sd_real* Xk = X[k];
+    for (int e = 0; e < 6; e++) {
+      IA[e] -= Wk[sym_row[e]] * Xk[sym_col[e]];
+      IA[15 + e] -= Wk[3 + sym_row[e]] * Xk[3 + sym_col[e]];
+    }
+    for (int r = 0; r < 3; r++) {
+      for (int s = 0; s < 3; s++) {
+        IA[6 + 3*r + s] -= Wk[r] * Xk[3 + s];
+      }
+    }
+  }
+  const sd_real* c = d->body_c[i];
+  sd_real Ac[3], Cc[3];
+  sd_mulsym(Ac, IA, c);
+  sd_mulsym(Cc, IA + 15, c + 3);
+  for (int r = 0; r < 3; r++) {
+    const sd_real* Br = IA + 6 + 3*r;
+    pA[r] += Ac[r] + Br[0]*c[3] + Br[1]*c[4] + Br[2]*c[5];
+    pA[3 + r] += Cc[r] + IA[6 + r]*c[0] + IA[9 + r]*c[1] + IA[12 + r]*c[2];
+  }
+  for (int k = 0; k < nd; k++) {
+    for (int e = 0; e < 6; e++) {
+      pA[e] += W[k][e] * v[k];
+    }
+  }
+  const sd_real* Ia = IA;
+  const sd_real* pa = pA;
+
+  // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
+  const sd_real* R = d->body_R[i];
+  add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i]);
+  sd_real fp[3], np[3];
+  sd_mulmtv(fp, R, pa + 3);
+  sd_mulmtv(np, R, pa);
+  sd_addcross(np, m->body_pos[i], fp);
+  sd_real* pAp = d->body_pA[parent];
+  for (int k = 0; k < 3; k++) {
+    pAp[k] += np[k];
+    pAp[3 + k] += fp[k];
+  }
+}
+
+// One step of the first outbound pass for body i with an nd-dof joint: position kinematics,
+// velocities, the velocity-product acceleration c, the rigid inertia and the bias wrench.
+static inline void outbound_body(const sd_model* m, sd_data* d, int i, const sd_real* q,
+                                 const sd_real* qd, const sd_real* f_ext, const int nd) {
+  static const sd_real zero[3] = {0, 0, 0};
+  int parent = m->body_parent[i];
+  const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
+  const sd_real* vp = parent < 0 ? zero : d->body_v[parent];
+  const sd_real* p = m->body_pos[i];
+  sd_real* w = d->body_w[i];
+  sd_real* v = d->body_v[i];
+  sd_real* c = d->body_c[i];
+  sd_joint_kinematics(m, d, i, q, nd);
+  const sd_real* R = d->body_R[i];
+
+  // v = R (v_p + w_p x p); w = R w_p + sum z qd, with c_ang = sum w_(k-1) x z_k qd_k
+  sd_real t[3];
+  sd_cross(t, wp, p);
+  t[0] += vp[0]; t[1] += vp[1]; t[2] += vp[2];
+  sd_mulmv(v, R, t);
+  sd_mulmv(w, R, wp);
+  sd_real wjoint[3] = {0, 0, 0};
+  c[0] = c[1] = c[2] = 0;
+  int adr = m->body_dofadr[i];
+  for (int k = 0; k < nd; k++) {
+    const sd_real* z = d->dof_axis[adr + k];
+    sd_real rate = qd[adr + k];
+    sd_real zqd[3] = {z[0]*rate, z[1]*rate, z[2]*rate};
+    sd_addcross(c, w, zqd);
+    w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+    wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+  }
+  // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
+  sd_cross(c + 3, v, wjoint);
+
+  // rigid-body inertia [I h x; (h x)' m] and bias wrench v x* (I v) - f_ext
+  const sd_real* h = m->body_mcom[i];
+  const sd_real* I = m->body_inertia0[i];
+  sd_real mass = m->body_mass[i];
+  sd_real* IA = d->body_IA[i];
+  for (int k = 0; k < 6; k++) {
+    IA[k] = I[k];
+  }
+  IA[6] = 0;      IA[7] = -h[2]; IA[8] = h[1];
+  IA[9] = h[2];   IA[10] = 0;    IA[11] = -h[0];
+  IA[12] = -h[1]; IA[13] = h[0]; IA[14] = 0;
+  IA[15] = IA[16] = IA[17] = mass;
+  IA[18] = IA[19] = IA[20] = 0;
+
+  sd_real hang[3], hlin[3];
+  sd_mulsym(hang, I, w);
+  sd_addcross(hang, h, v);
+  sd_cross(hlin, w, h);
+  hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
+  sd_real* pA = d->body_pA[i];
+  sd_cross(pA, w, hang);
+  sd_addcross(pA, v, hlin);
+  sd_cross(pA + 3, w, hlin);
+  if (f_ext) {
+    for (int k = 0; k < 6; k++) {
+      pA[k] -= f_ext[6*i + k];
+    }
+  }
+}
+
+// One step of the last outbound pass for body i with an nd-dof joint: a' = X a_p + c,
+// qdd = D^-1 (u - U' a'), a = a' + S qdd.
+static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const sd_real* ap,
+                                     sd_real* qdd, const int nd) {
+  const sd_real* R = d->body_R[i];
+  const sd_real* c = d->body_c[i];
+  sd_real* a = d->body_a[i];
+
+  // a' = (R dw_p; R (a_p + dw_p x p)) + c
+  sd_real t[3];
+  sd_cross(t, ap, m->body_pos[i]);
+  t[0] += ap[3]; t[1] += ap[4]; t[2] += ap[5];
+  sd_mulmv(a, R, ap);
+  sd_mulmv(a + 3, R, t);
+  for (int k = 0; k < 6; k++) {
+    a[k] += c[k];
+  }
+  if (nd == 0) {
+    return;
+  }
+
+  int adr = m->body_dofadr[i];
+  sd_real rhs[3];
+  for (int k = 0; k < nd; k++) {
+    const sd_real* U = d->dof_U[adr + k];
+    rhs[k] = d->dof_u[adr + k] - (sd_dot(U, a) + sd_dot(U + 3, a + 3));
+  }
+  if (nd == 1) {
+    rhs[0] *= d->body_L[i][0];
+  } else {
+    cholesky_solve(d->body_L[i], nd, rhs);
+  }
+  for (int k = 0; k < nd; k++) {
+    const sd_real* z = d->dof_axis[adr + k];
+    qdd[adr + k] = rhs[k];
+    a[0] += z[0]*rhs[k]; a[1] += z[1]*rhs[k]; a[2] += z[2]*rhs[k];
+  }
+}
+
+// dispatch on the joint size with a literal, so every size gets an unrolled copy
+#define SD_BY_DOFNUM(nd, call)                         \
+  switch (nd) {                                        \
+    case 0: call(0); break;                            \
+    case 1: call(1); break;                            \
+    case 2: call(2); break;                            \
+    default: call(3); break;                           \
+  }
+
+void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
+                const sd_real* tau, const sd_real* f_ext, sd_real* qdd) {
+  // outbound pass: velocities, velocity-product accelerations c, rigid inertias, bias wrenches
+  for (int i = 0; i < m->nbody; i++) {
+#define SD_OUTBOUND(nd) outbound_body(m, d, i, q, qd, f_ext, nd)
+    SD_BY_DOFNUM(m->body_dofnum[i], SD_OUTBOUND)
+#undef SD_OUTBOUND
   }
 
   // inbound pass: articulated inertias and bias wrenches from the leaves to the root
   for (int i = m->nbody - 1; i >= 0; i--) {
-    int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
-    int parent = m->body_parent[i];
-    sd_real* IA = d->body_IA[i];
-    sd_real* pA = d->body_pA[i];
-    // U D^-1 U' = W X' and U D^-1 u = W v: W = X = U L'^-1 and v = L^-1 u (no growth of D^-1);
-    // for one dof simply W = U / D, X = U, v = u
-    sd_real W[3][6], X[3][6], v[3];
-
-    if (nd == 1) {
-      // one dof about z: U = IA S is IA's third column, D = S' U its zz entry
-      sd_real* U = d->dof_U[adr];
-      U[0] = IA[4]; U[1] = IA[5]; U[2] = IA[2];
-      U[3] = IA[12]; U[4] = IA[13]; U[5] = IA[14];
-      d->dof_u[adr] = tau[adr] - pA[2];
-      sd_real Dinv = 0;
-      if (U[2] > 0) {
-        Dinv = SD_R(1) / U[2];
-      } else {
-        d->warning[SD_WARN_SINGULAR]++;
-      }
-      d->body_L[i][0] = Dinv;
-      for (int e = 0; e < 6; e++) {
-        W[0][e] = U[e] * Dinv;
-        X[0][e] = U[e];
-      }
-      v[0] = d->dof_u[adr];
-    } else if (nd > 1) {
-      // U = IA S = (A z; B' z), D = S' U, u = tau - S' pA
-      sd_real D[9];
-      for (int k = 0; k < nd; k++) {
-        const sd_real* z = d->dof_axis[adr + k];
-        sd_real* U = d->dof_U[adr + k];
-        sd_mulsym(U, IA, z);
-        sd_mulmtv(U + 3, IA + 6, z);
-        d->dof_u[adr + k] = tau[adr + k] - sd_dot(z, pA);
-      }
-      for (int k = 0; k < nd; k++) {
-        for (int l = 0; l < nd; l++) {
-          D[3*k + l] = sd_dot(d->dof_axis[adr + k], d->dof_U[adr + l]);
-        }
-      }
-      sd_real* L = d->body_L[i];
-      if (cholesky(L, D, nd)) {
-        d->warning[SD_WARN_SINGULAR]++;
-      }
-      // W = X = U L'^-1, one row of U at a time, and v = L^-1 u
-      for (int e = 0; e < 6; e++) {
-        sd_real row[3];
-        for (int k = 0; k < nd; k++) {
-          row[k] = d->dof_U[adr + k][e];
-        }
-        cholesky_forward(L, nd, row);
-        for (int k = 0; k < nd; k++) {
-          W[k][e] = X[k][e] = row[k];
-        }
-      }
-      for (int k = 0; k < nd; k++) {
-        v[k] = d->dof_u[adr + k];
-      }
-      cholesky_forward(L, nd, v);
-    }
-
-    if (parent < 0) {
-      continue;
-    }
-
-    // in place, IA becomes Ia = IA - U D^-1 U' = IA - W X' and pA becomes
-    // pa = pA + Ia c + U D^-1 u = pA + Ia c + W v
-    for (int k = 0; k < nd; k++) {
-      const sd_real* Wk = W[k];
-      const sd_real* Xk = X[k];
-      for (int e = 0; e < 6; e++) {
-        IA[e] -= Wk[sym_row[e]] * Xk[sym_col[e]];
-        IA[15 + e] -= Wk[3 + sym_row[e]] * Xk[3 + sym_col[e]];
-      }
-      for (int r = 0; r < 3; r++) {
-        for (int s = 0; s < 3; s++) {
-          IA[6 + 3*r + s] -= Wk[r] * Xk[3 + s];
-        }
-      }
-    }
-    const sd_real* c = d->body_c[i];
-    sd_real Ac[3], Cc[3];
-    sd_mulsym(Ac, IA, c);
-    sd_mulsym(Cc, IA + 15, c + 3);
-    for (int r = 0; r < 3; r++) {
-      const sd_real* Br = IA + 6 + 3*r;
-      pA[r] += Ac[r] + Br[0]*c[3] + Br[1]*c[4] + Br[2]*c[5];
-      pA[3 + r] += Cc[r] + IA[6 + r]*c[0] + IA[9 + r]*c[1] + IA[12 + r]*c[2];
-    }
-    for (int k = 0; k < nd; k++) {
-      for (int e = 0; e < 6; e++) {
-        pA[e] += W[k][e] * v[k];
-      }
-    }
-    const sd_real* Ia = IA;
-    const sd_real* pa = pA;
-
-    // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
-    const sd_real* R = d->body_R[i];
-    add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i]);
-    sd_real fp[3], np[3];
-    sd_mulmtv(fp, R, pa + 3);
-    sd_mulmtv(np, R, pa);
-    sd_addcross(np, m->body_pos[i], fp);
-    sd_real* pAp = d->body_pA[parent];
-    for (int k = 0; k < 3; k++) {
-      pAp[k] += np[k];
-      pAp[3 + k] += fp[k];
-    }
+#define SD_INBOUND(nd) inbound_body(m, d, i, tau, nd)
+    SD_BY_DOFNUM(m->body_dofnum[i], SD_INBOUND)
+#undef SD_INBOUND
   }
 
   // outbound pass: accelerations from the root; the base accelerates upwards at -g
@@ -316,43 +388,9 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
   for (int i = 0; i < m->nbody; i++) {
     int parent = m->body_parent[i];
     const sd_real* ap = parent < 0 ? base_acc : d->body_a[parent];
-    const sd_real* R = d->body_R[i];
-    const sd_real* c = d->body_c[i];
-    sd_real* a = d->body_a[i];
-
-    // a' = X a_p + c = (R dw_p; R (a_p + dw_p x p)) + c
-    sd_real t[3];
-    sd_cross(t, ap, m->body_pos[i]);
-    t[0] += ap[3]; t[1] += ap[4]; t[2] += ap[5];
-    sd_mulmv(a, R, ap);
-    sd_mulmv(a + 3, R, t);
-    for (int k = 0; k < 6; k++) {
-      a[k] += c[k];
-    }
-
-    // qdd = D^-1 (u - U' a'), then a = a' + S qdd
-    int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
-    if (nd == 1) {
-      const sd_real* U = d->dof_U[adr];
-      sd_real acc = d->body_L[i][0] * (d->dof_u[adr] - sd_dot(U, a) - sd_dot(U + 3, a + 3));
-      qdd[adr] = acc;
-      a[2] += acc;
-      continue;
-    }
-    sd_real rhs[3];
-    for (int k = 0; k < nd; k++) {
-      const sd_real* U = d->dof_U[adr + k];
-      rhs[k] = d->dof_u[adr + k] - (sd_dot(U, a) + sd_dot(U + 3, a + 3));
-    }
-    cholesky_solve(d->body_L[i], nd, rhs);
-    for (int k = 0; k < nd; k++) {
-      qdd[adr + k] = rhs[k];
-    }
-    for (int k = 0; k < nd; k++) {
-      const sd_real* z = d->dof_axis[adr + k];
-      sd_real acc = qdd[adr + k];
-      a[0] += z[0]*acc; a[1] += z[1]*acc; a[2] += z[2]*acc;
-    }
+#define SD_ACCELERATION(nd) acceleration_body(m, d, i, ap, qdd, nd)
+    SD_BY_DOFNUM(m->body_dofnum[i], SD_ACCELERATION)
+#undef SD_ACCELERATION
   }
 
   // a non-finite input gives zero acceleration and a warning, never a NaN

@@ -26,7 +26,7 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
     sd_real* w = d->body_w[i];
     sd_real* dw = d->body_dw[i];
     sd_real* a = d->body_acc[i];
-    sd_joint_kinematics(m, d, i, q);
+    sd_joint_kinematics(m, d, i, q, m->body_dofnum[i]);
     const sd_real* R = d->body_R[i];
 
     // linear acceleration of the origin: a = R (a_p + dw_p x p + w_p x (w_p x p))

@@ -8,8 +8,10 @@
 // Compute body_R_parent of body i at q and the axes of its dofs in the body frame.
 // A joint's dof frames are chained: parent_R_body = body_rot Rz(q1) dof_rot2 Rz(q2) dof_rot3 Rz(q3),
 // so body_R_parent is built from the last dof inwards by pre-multiplying Rz(qk)' dof_rotk'.
-static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, const sd_real* q) {
-  int nd = m->body_dofnum[i], adr = m->body_dofadr[i];
+// nd is the joint's dof count, passed as a literal by callers that unroll per joint size.
+static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, const sd_real* q,
+                                       const int nd) {
+  int adr = m->body_dofadr[i];
   sd_real* R = d->body_R[i];
 
   // a welded body: the fixed rotation alone
