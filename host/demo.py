@@ -21,29 +21,22 @@ REACH = {
     "r_wrist_flexion": -0.4,
     "r_wrist_deviation": 0.2,
 }
-DURATION = 2.0        # s: 1 s out, 1 s back
+DURATION = 2.0        # s: out and back
 SMALL_TIME_STEP = 1e-3
 REPLAY_BANDWIDTH = 20.0   # rad/s of the replay's joint PD
 
 
-def min_jerk(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The minimum-jerk blend 10s³ - 15s⁴ + 6s⁵ on [0, 1] and its first two derivatives in s."""
-    return (10 * s**3 - 15 * s**4 + 6 * s**5, 30 * s**2 - 60 * s**3 + 30 * s**4,
-            60 * s - 180 * s**2 + 120 * s**3)
-
-
 def reach_motion(model, duration: float = DURATION, dt: float = SMALL_TIME_STEP):
-    """q, qd, qdd of the out-and-back reach, sampled every dt."""
+    """q, qd, qdd of the out-and-back reach q = target sin⁴(π t / duration), sampled every dt:
+    smooth, at rest with zero acceleration at both ends."""
     target = np.array([REACH.get(name, 0.5) for name in model.dof_names])
     target = np.clip(target, model.lower, model.upper)
     t = np.arange(0.0, duration + dt / 2, dt)
-    half = duration / 2
-    s = np.where(t <= half, t / half, (duration - t) / half)
-    sign = np.where(t <= half, 1.0, -1.0)
-    b, bd, bdd = min_jerk(s)
-    q = np.outer(b, target)
-    qd = np.outer(sign * bd / half, target)
-    qdd = np.outer(bdd / half**2, target)
+    w = np.pi / duration
+    s, c = np.sin(w * t), np.cos(w * t)
+    q = np.outer(s**4, target)
+    qd = np.outer(4 * w * s**3 * c, target)
+    qdd = np.outer(w**2 * (12 * s**2 * c**2 - 4 * s**4), target)
     return t, q, qd, qdd
 
 

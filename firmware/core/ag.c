@@ -37,16 +37,54 @@ static inline void rotate_full(sd_real r[9], const sd_real R[9], const sd_real M
   }
 }
 
+// r = R' S R for a symmetric S whose third row and column are zero (xx yy xy only)
+static inline void rotate_sym_xy(sd_real r[6], const sd_real R[9], const sd_real S[6]) {
+  sd_real T[6];
+  for (int j = 0; j < 3; j++) {
+    T[j] = S[0]*R[j] + S[3]*R[3+j];
+    T[3+j] = S[3]*R[j] + S[1]*R[3+j];
+  }
+  for (int e = 0; e < 6; e++) {
+    int i = sym_row[e], j = sym_col[e];
+    r[e] = R[i]*T[j] + R[3+i]*T[3+j];
+  }
+}
+
+// r = R' M R for an M whose third row is zero
+static inline void rotate_rows01(sd_real r[9], const sd_real R[9], const sd_real M[9]) {
+  sd_real T[6];
+  for (int j = 0; j < 3; j++) {
+    T[j] = M[0]*R[j] + M[1]*R[3+j] + M[2]*R[6+j];
+    T[3+j] = M[3]*R[j] + M[4]*R[3+j] + M[5]*R[6+j];
+  }
+  for (int i = 0; i < 3; i++) {
+    for (int j = 0; j < 3; j++) {
+      r[3*i+j] = R[i]*T[j] + R[3+i]*T[3+j];
+    }
+  }
+}
+
 // IA_parent += X' Ia X for the joint of rotation R (body_R_parent) at p in the parent:
 // rotate the blocks to the parent's axes (A', B', C'), then move the origin by p, with P the
 // cross-product matrix of p:
 //   C_p = C', B_p = B' + P C', A_p = A' + P M' + M P' where M = B' + P C' / 2
-// (the last is A' + P B'' + B' P' + P C' P', written to need one product fewer)
-static void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21], const sd_real R[9],
-                                    const sd_real p[3]) {
-  sd_real A[6], B[9], C[6], PC[9], M[9], N[9];
-  rotate_sym(A, R, Ia);
-  rotate_full(B, R, Ia + 6);
+// (the last is A' + P B'' + B' P' + P C' P', written to need one product fewer).
+// Ia S = 0 for the joint's motion S, which zeroes blocks that then need no rotation: behind a
+// 1-dof joint (about z) A's third row and column and B's third row, behind a 3-dof joint well
+// away from its lock (complete) all of A and B; nd is a literal, so each case compiles to its
+// own code.
+static inline void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21],
+                                           const sd_real R[9], const sd_real p[3], const int nd,
+                                           int complete) {
+  sd_real A[6] = {0, 0, 0, 0, 0, 0}, B[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+  sd_real C[6], PC[9], M[9], N[9];
+  if (nd == 1) {
+    rotate_sym_xy(A, R, Ia);
+    rotate_rows01(B, R, Ia + 6);
+  } else if (nd != 3 || !complete) {
+    rotate_sym(A, R, Ia);
+    rotate_full(B, R, Ia + 6);
+  }
   rotate_sym(C, R, Ia + 15);
 
   // P C': p crossed with the columns of C'
@@ -82,9 +120,11 @@ static void add_articulated_inertia(sd_real IAp[21], const sd_real Ia[21], const
 // precision an explicit inverse loses when a joint's axes are nearly parallel. At a gimbal lock
 // two axes of a joint coincide and D is singular: the pivot of the later axis vanishes, and that
 // dof is dropped (zero reciprocal and column, so its acceleration is 0) while the others carry
-// the motion exactly. Returns the number of dofs dropped.
-static int cholesky(sd_real L[9], const sd_real D[9], int n) {
+// the motion exactly. Returns the number of dofs dropped; *min_pivot gets the smallest pivot
+// relative to its diagonal entry (1 for orthogonal axes, near 0 near a lock).
+static int cholesky(sd_real L[9], const sd_real D[9], int n, sd_real* min_pivot) {
   int dropped = 0;
+  *min_pivot = 1;
   for (int j = 0; j < n; j++) {
     sd_real diag = D[4*j];
     for (int k = 0; k < j; k++) {
@@ -97,6 +137,9 @@ static int cholesky(sd_real L[9], const sd_real D[9], int n) {
         L[3*i + j] = 0;
       }
       continue;
+    }
+    if (diag < *min_pivot * D[4*j]) {
+      *min_pivot = diag / D[4*j];
     }
     sd_real ljj = sd_sqrt(diag);
     L[4*j] = SD_R(1) / ljj;
@@ -144,6 +187,7 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
   // U D^-1 U' = W X' and U D^-1 u = W v: W = X = U L'^-1 and v = L^-1 u (no growth of D^-1);
   // for one dof simply W = U / D, X = U, v = u
   sd_real W[3][6], X[3][6], v[3];
+  int complete = 1;  // every dof projected out cleanly (well away from a gimbal lock)
 
   if (nd == 1) {
     // one dof about z: U = IA S is IA's third column, D = S' U its zz entry
@@ -158,6 +202,7 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
       d->warning[SD_WARN_SINGULAR]++;
     }
     d->body_L[i][0] = Dinv;
+    complete = Dinv > 0;
     for (int e = 0; e < 6; e++) {
       W[0][e] = U[e] * Dinv;
       X[0][e] = U[e];
@@ -184,9 +229,13 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
       }
     }
     sd_real* L = d->body_L[i];
-    if (cholesky(L, D, nd)) {
+    sd_real min_pivot;
+    if (cholesky(L, D, nd, &min_pivot)) {
       d->warning[SD_WARN_SINGULAR]++;
     }
+    // far from a lock the projection zeroes Ia's rotational blocks to rounding; near one the
+    // computed blocks carry the rounding that keeps Ia consistent with L, so they are kept
+    complete = min_pivot > SD_R(1e-3);
     // W = X = U L'^-1, one row of U at a time, and v = L^-1 u
     for (int e = 0; e < 6; e++) {
       sd_real row[3];
@@ -242,7 +291,7 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
 
   // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
   const sd_real* R = d->body_R[i];
-  add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i]);
+  add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i], nd, complete);
   sd_real fp[3], np[3];
   sd_mulmtv(fp, R, pa + 3);
   sd_mulmtv(np, R, pa);
