@@ -7,6 +7,7 @@
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <Python.h>
 #include <numpy/arrayobject.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "servodyn.h"
@@ -42,9 +43,15 @@ static PyArrayObject* as_rows(PyObject* obj, const char* name, const npy_intp* t
     ok = PyArray_DIM(arr, nd - ntail + k) == tail[k];
   }
   if (!ok) {
-    PyErr_Format(PyExc_ValueError, "%s must have shape (%ld%s) or (N, %ld%s), got %d dimensions",
-                 name, (long)tail[0], ntail == 2 ? ", 6" : "", (long)tail[0],
-                 ntail == 2 ? ", 6" : "", nd);
+    char got[96] = "";
+    int len = 0;
+    for (int k = 0; k < nd && k < 4 && len < 80; k++) {
+      len += snprintf(got + len, sizeof(got) - (size_t)len, k ? ", %ld" : "%ld",
+                      (long)PyArray_DIM(arr, k));
+    }
+    PyErr_Format(PyExc_ValueError, "%s must have shape (%ld%s) or (N, %ld%s), got (%s%s)", name,
+                 (long)tail[0], ntail == 2 ? ", 6" : ",", (long)tail[0], ntail == 2 ? ", 6" : "",
+                 got, nd == 1 ? "," : "");
     Py_DECREF(arr);
     return NULL;
   }

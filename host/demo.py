@@ -54,6 +54,15 @@ def replay(model, t, q, qd, tau, bandwidth: float) -> np.ndarray:
     return drift
 
 
+def _abbreviate(name: str) -> str:
+    name = name.removeprefix("r_")
+    for long, brief in (("shoulder", "sh"), ("flexion", "flex"),
+                        ("abduction", "abd"), ("rotation", "rot"), ("forearm_", ""),
+                        ("pronation", "pron"), ("deviation", "dev")):
+        name = name.replace(long, brief)
+    return name[:10]
+
+
 def run_demo(model_name: str, out: Path) -> None:
     model = load_model(model_name)
     t, q, qd, qdd = reach_motion(model)
@@ -68,7 +77,7 @@ def run_demo(model_name: str, out: Path) -> None:
           f"= {elapsed / len(t) * 1e6:.2f} us per sample\n")
 
     # the torque profile, a row every 0.2 s
-    short = [name.replace("r_", "").replace("shoulder_", "sh_")[:10] for name in model.dof_names]
+    short = [_abbreviate(name) for name in model.dof_names]
     print("  t (s) " + " ".join(f"{s:>10}" for s in short) + "   [N·m]")
     for k in range(0, len(t), int(round(0.2 / SMALL_TIME_STEP))):
         print(f"  {t[k]:5.2f} " + " ".join(f"{v:10.3f}" for v in tau[k]))

@@ -55,13 +55,6 @@ def _sym6(I: np.ndarray) -> list[float]:
     return [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
 
 
-def _as_state(x, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
-    if arr.shape[-1:] != (n,) or arr.ndim > 2:
-        raise ValueError(f"{name} must have shape ({n},) or (N, {n}), got {arr.shape}")
-    return arr
-
-
 class Model:
     """A validated model and the C core that computes its dynamics (double and float builds)."""
 
@@ -202,6 +195,7 @@ class Model:
             return self.core32
         raise ValueError("precision must be 'double' or 'float'")
 
+    # the C binding checks shapes and finiteness itself: no Python-side copies on the way in
     def inverse_dynamics(self, q, qd, qdd, f_ext=None, precision="double") -> np.ndarray:
         """Joint torques (N·m) that produce qdd at (q, qd) under gravity and f_ext.
 
@@ -209,25 +203,18 @@ class Model:
         in the body's frame; the paper's end-effector load (f_{n+1}, n_{n+1}) is minus that on
         the last body. Arrays may carry a leading batch axis, computed in C in one call.
         """
-        n = self.nq
-        return self._pick(precision).rnea(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
-                                          _as_state(qdd, n, "qdd"), self._core_fext(f_ext))
+        return self._pick(precision).rnea(q, qd, qdd, None if f_ext is None else self._core_fext(f_ext))
 
     def forward_dynamics(self, q, qd, tau, f_ext=None, precision="double") -> np.ndarray:
         """Joint accelerations (rad/s²) under torques tau, gravity and f_ext (as inverse_dynamics)."""
-        n = self.nq
-        return self._pick(precision).forward(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
-                                             _as_state(tau, n, "tau"), self._core_fext(f_ext))
+        return self._pick(precision).forward(q, qd, tau, None if f_ext is None else self._core_fext(f_ext))
 
     def step(self, q, qd, tau, dt, integrator="rk4", nsteps=1, f_ext=None, precision="double"):
         """Advance (q, qd) by nsteps fixed steps of dt seconds with tau held; returns (q, qd)."""
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got '{integrator}'")
-        n = self.nq
-        return self._pick(precision).step(_as_state(q, n, "q"), _as_state(qd, n, "qd"),
-                                          _as_state(tau, n, "tau"), float(dt),
-                                          INTEGRATORS[integrator], int(nsteps),
-                                          self._core_fext(f_ext))
+        return self._pick(precision).step(q, qd, tau, float(dt), INTEGRATORS[integrator], int(nsteps),
+                                          None if f_ext is None else self._core_fext(f_ext))
 
     def mass_matrix(self, q) -> np.ndarray:
         """The joint-space inertia matrix M(q), column by column from inverse dynamics."""
