@@ -33,31 +33,23 @@ class PinocchioTwin:
         out[self.index] = x
         return out
 
-    def rnea(self, q, qd, qdd, f_ext=None):
-        fext = None
+    def _call(self, algorithm, q, qd, x, f_ext):
+        """Pinocchio's algorithm on servodyn-ordered arrays; wrenches go to each body's last joint."""
+        args = [self.model, self.data, self.to_pin(q), self.to_pin(qd), self.to_pin(x)]
         if f_ext is not None:
             fext = [self.pin.Force.Zero() for _ in range(self.model.njoints)]
             for body, jid in enumerate(self.body_joint):
                 assert jid is not None or not np.any(f_ext[body]), "welded bodies take no wrench here"
                 if jid is not None:
                     fext[jid] = self.pin.Force(f_ext[body, 3:], f_ext[body, :3])
-        args = (self.to_pin(q), self.to_pin(qd), self.to_pin(qdd))
-        tau = self.pin.rnea(self.model, self.data, *args) if fext is None else \
-            self.pin.rnea(self.model, self.data, *args, fext)
-        return tau[self.index]
+            args.append(fext)
+        return algorithm(*args)[self.index]
+
+    def rnea(self, q, qd, qdd, f_ext=None):
+        return self._call(self.pin.rnea, q, qd, qdd, f_ext)
 
     def aba(self, q, qd, tau, f_ext=None):
-        fext = None
-        if f_ext is not None:
-            fext = [self.pin.Force.Zero() for _ in range(self.model.njoints)]
-            for body, jid in enumerate(self.body_joint):
-                assert jid is not None or not np.any(f_ext[body]), "welded bodies take no wrench here"
-                if jid is not None:
-                    fext[jid] = self.pin.Force(f_ext[body, 3:], f_ext[body, :3])
-        args = (self.to_pin(q), self.to_pin(qd), self.to_pin(tau))
-        qdd = self.pin.aba(self.model, self.data, *args) if fext is None else \
-            self.pin.aba(self.model, self.data, *args, fext)
-        return qdd[self.index]
+        return self._call(self.pin.aba, q, qd, tau, f_ext)
 
 
 @pytest.fixture
