@@ -18,6 +18,8 @@ from .modelfile import combine
 from .rotations import orthonormalize
 
 MASSLESS = 1e-12   # kg: below this a link is a connector between the dofs of one joint
+MUJOCO_EXTENSION = ('  <mujoco>\n    <compiler boundmass="1e-9" boundinertia="1e-12" fusestatic="false" '
+                    'discardvisual="false"/>\n  </mujoco>\n')
 
 
 def _inertial(link):
@@ -156,4 +158,11 @@ def write_urdf(model: Model, path: str | Path) -> None:
     urdf = yourdfpy.URDF(robot=Robot(name=model.name, links=links, joints=joints),
                          build_scene_graph=False, load_meshes=False)
     urdf.write_xml_file(str(path))
+    # MuJoCo refuses massless moving bodies: its URDF extension lets the connector links between
+    # the dofs of one joint carry a negligible bound mass instead (others ignore the element)
+    text = Path(path).read_text()
+    start = text.index("<robot")
+    end = text.index(">", start) + 1
+    text = text[:end] + "\n" + MUJOCO_EXTENSION.rstrip("\n") + text[end:]
+    Path(path).write_text(text)
 

@@ -226,3 +226,23 @@ def test_multi_dof_axes_follow_each_other():
     q = np.array([0.7, -1.1])
     expected = rot @ axis_angle(a1, q[0]) @ axis_angle(a2, q[1]) @ com
     assert np.allclose(model.com_positions(q)[0], expected, atol=1e-14)
+
+
+def test_export_loads_in_mujoco(tmp_path):
+    """MuJoCo refuses massless moving bodies; the export's MuJoCo extension bounds the connector
+    links' mass at 1e-9 kg, so MuJoCo's inverse dynamics match servodyn's to 1e-7 relative."""
+    import mujoco
+    model = servodyn.load_model("human15")
+    model.to_urdf(tmp_path / "h15.urdf")
+    mj = mujoco.MjModel.from_xml_path(str(tmp_path / "h15.urdf"))
+    mj.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT   # joint limits are no forces here
+    data = mujoco.MjData(mj)
+    names = [mj.joint(j).name for j in range(mj.njnt)]
+    order = np.array([names.index(n) for n in model.dof_names])   # MuJoCo's qpos order per dof
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        q, qd, qdd = rng.uniform(-1, 1, model.nq), rng.normal(size=model.nq), rng.normal(size=model.nq)
+        data.qpos[order], data.qvel[order], data.qacc[order] = q, qd, qdd
+        mujoco.mj_inverse(mj, data)
+        tau = model.inverse_dynamics(q, qd, qdd)
+        assert np.abs(data.qfrc_inverse[order] - tau).max() <= 1e-7 * np.abs(tau).max()
