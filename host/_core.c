@@ -7,6 +7,7 @@
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
 #include <Python.h>
 #include <numpy/arrayobject.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -126,10 +127,11 @@ static int fill_int(int* dst, PyObject* obj, npy_intp count, const char* name) {
 
 static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"parent", "dofnum", "pos", "rot", "dof_rot", "mass", "com",
-                           "inertia", "gravity", NULL};
+                           "inertia", "gravity", "free_root", NULL};
   PyObject *parent, *dofnum, *pos, *rot, *dof_rot, *mass, *com, *inertia, *gravity;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO", kwlist, &parent, &dofnum, &pos,
-                                   &rot, &dof_rot, &mass, &com, &inertia, &gravity)) {
+  int free_root = 0;
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO|p", kwlist, &parent, &dofnum, &pos,
+                                   &rot, &dof_rot, &mass, &com, &inertia, &gravity, &free_root)) {
     return -1;
   }
   sd_model* m = &self->model;
@@ -141,6 +143,7 @@ static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
     return -1;
   }
   m->nbody = (int)nbody;
+  m->free_root = free_root;
   if (fill_int(m->body_parent, parent, nbody, "parent") ||
       fill_int(m->body_dofnum, dofnum, nbody, "dofnum")) {
     return -1;
@@ -148,7 +151,8 @@ static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
   int ndof = 0;
   for (int i = 0; i < m->nbody; i++) {
     m->body_dofadr[i] = ndof;
-    if (m->body_dofnum[i] < 0 || m->body_dofnum[i] > SD_MAX_JOINT_DOF) {
+    int free = free_root && i == 0;
+    if (!free && (m->body_dofnum[i] < 0 || m->body_dofnum[i] > SD_MAX_JOINT_DOF)) {
       PyErr_Format(PyExc_ValueError, "body %d: a joint has 0 to 3 dofs, got %d", i,
                    m->body_dofnum[i]);
       return -1;
@@ -191,11 +195,11 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
     return NULL;
   }
   const sd_model* m = &self->model;
-  npy_intp tail[2] = {m->ndof, 6}, ftail[2] = {m->nbody, 6};
+  npy_intp tail[2] = {m->ndof, 6}, qtail[1] = {m->nq}, ftail[2] = {m->nbody, 6};
   npy_intp nq, nqd, nx, nf = 0;
   int bq, bqd, bx, bf = 0;
   PyArrayObject *aq = NULL, *aqd = NULL, *ax = NULL, *af = NULL, *out = NULL;
-  aq = as_rows(oq, "q", tail, 1, &nq, &bq);
+  aq = as_rows(oq, "q", qtail, 1, &nq, &bq);
   if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
   if (aqd) ax = as_rows(ox, third, tail, 1, &nx, &bx);
   if (ax && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
@@ -205,7 +209,7 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
     PyErr_SetString(PyExc_ValueError, "inputs must all be single states or batches of one length N");
     goto done;
   }
-  out = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
+  out = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aqd), PyArray_DIMS(aqd), NPY_DOUBLE);
   if (!out) goto done;
   {
     const double* q = PyArray_DATA(aq);
@@ -213,11 +217,11 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
     const double* x = PyArray_DATA(ax);
     const double* fe = af ? PyArray_DATA(af) : NULL;
     double* y = PyArray_DATA(out);
-    int n = m->ndof, nfe = 6 * m->nbody;
-    sd_real rq[SD_MAX_DOF], rqd[SD_MAX_DOF], rx[SD_MAX_DOF], ry[SD_MAX_DOF];
+    int n = m->ndof, nqc = m->nq, nfe = 6 * m->nbody;
+    sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rx[SD_MAX_DOF], ry[SD_MAX_DOF];
     sd_real rf[6 * SD_MAX_BODY];
     for (npy_intp r = 0; r < nq; r++) {
-      load_row(rq, q + r * n, n);
+      load_row(rq, q + r * nqc, nqc);
       load_row(rqd, qd + r * n, n);
       load_row(rx, x + r * n, n);
       if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
@@ -260,12 +264,12 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
     return NULL;
   }
   const sd_model* m = &self->model;
-  npy_intp tail[2] = {m->ndof, 6}, ftail[2] = {m->nbody, 6};
+  npy_intp tail[2] = {m->ndof, 6}, qtail[1] = {m->nq}, ftail[2] = {m->nbody, 6};
   npy_intp nq, nqd, nt, nf = 0;
   int bq, bqd, bt, bf = 0;
   PyArrayObject *aq = NULL, *aqd = NULL, *at = NULL, *af = NULL, *oq2 = NULL, *oqd2 = NULL;
   PyObject* result = NULL;
-  aq = as_rows(oq, "q", tail, 1, &nq, &bq);
+  aq = as_rows(oq, "q", qtail, 1, &nq, &bq);
   if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
   if (aqd) at = as_rows(otau, "tau", tail, 1, &nt, &bt);
   if (at && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
@@ -276,22 +280,22 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
     goto done;
   }
   oq2 = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
-  oqd2 = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aq), PyArray_DIMS(aq), NPY_DOUBLE);
+  oqd2 = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aqd), PyArray_DIMS(aqd), NPY_DOUBLE);
   if (!oq2 || !oqd2) goto done;
   {
-    int n = m->ndof, nfe = 6 * m->nbody;
+    int n = m->ndof, nqc = m->nq, nfe = 6 * m->nbody;
     const double* fe = af ? PyArray_DATA(af) : NULL;
-    sd_real rq[SD_MAX_DOF], rqd[SD_MAX_DOF], rt[SD_MAX_DOF], rf[6 * SD_MAX_BODY];
+    sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rt[SD_MAX_DOF], rf[6 * SD_MAX_BODY];
     for (npy_intp r = 0; r < nq; r++) {
-      load_row(rq, (const double*)PyArray_DATA(aq) + r * n, n);
+      load_row(rq, (const double*)PyArray_DATA(aq) + r * nqc, nqc);
       load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
       load_row(rt, (const double*)PyArray_DATA(at) + r * n, n);
       if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
       for (int s = 0; s < nsteps; s++) {
         sd_step(m, &self->data, rq, rqd, rt, fe ? rf : NULL, (sd_real)dt, integrator);
         // a diverging integration is an error the caller must see, never a silent inf or NaN
-        for (int j = 0; j < n; j++) {
-          if (!isfinite((double)rq[j]) || !isfinite((double)rqd[j])) {
+        for (int j = 0; j < nqc; j++) {
+          if (!isfinite((double)rq[j]) || (j < n && !isfinite((double)rqd[j]))) {
             PyErr_Format(PyExc_FloatingPointError,
                          "the integration diverged: non-finite state after step %d of row %ld",
                          s + 1, (long)r);
@@ -299,7 +303,7 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
           }
         }
       }
-      store_row((double*)PyArray_DATA(oq2) + r * n, rq, n);
+      store_row((double*)PyArray_DATA(oq2) + r * nqc, rq, nqc);
       store_row((double*)PyArray_DATA(oqd2) + r * n, rqd, n);
     }
   }
@@ -346,7 +350,9 @@ static int Core_set_gravity(CoreObject* self, PyObject* value, void* Py_UNUSED(c
 }
 
 static PyObject* Core_get_int(CoreObject* self, void* closure) {
-  return PyLong_FromLong(closure ? self->model.nbody : self->model.ndof);
+  const sd_model* m = &self->model;
+  long which = (long)(intptr_t)closure;
+  return PyLong_FromLong(which == 1 ? m->nbody : which == 2 ? m->nq : m->ndof);
 }
 
 static PyMethodDef Core_methods[] = {
@@ -364,7 +370,8 @@ static PyGetSetDef Core_getset[] = {
     {"warnings", (getter)Core_warnings, NULL, "warning counters of the core", NULL},
     {"gravity", (getter)Core_get_gravity, (setter)Core_set_gravity, "gravity (m/s^2)", NULL},
     {"nbody", (getter)Core_get_int, NULL, "number of bodies", (void*)1},
-    {"ndof", (getter)Core_get_int, NULL, "number of dofs", NULL},
+    {"ndof", (getter)Core_get_int, NULL, "number of dofs (length of qd)", NULL},
+    {"nq", (getter)Core_get_int, NULL, "length of q (one more with a free root)", (void*)2},
     {NULL, NULL, NULL, NULL, NULL},
 };
 

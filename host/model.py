@@ -15,7 +15,7 @@ rotation `frame_rot` (user frame ← core body frame) to translate wrenches at t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,6 +49,11 @@ class Body:
     com: np.ndarray = field(default_factory=lambda: np.zeros(3))           # user frame (m)
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the com
     post: np.ndarray = field(default_factory=lambda: np.eye(3))
+    free: bool = False                            # floats free: 6 dofs (only body 0, on the base)
+
+
+FREE_DOFS = ("vx", "vy", "vz", "wx", "wy", "wz")   # velocity of the origin, then angular, body frame
+FREE_COORDS = ("x", "y", "z", "qx", "qy", "qz", "qw")  # origin in the base frame, unit quaternion
 
 
 def _sym6(I: np.ndarray) -> list[float]:
@@ -78,6 +83,10 @@ class Model:
                 raise ModelError(f"body '{body.name}': its parent must come before it")
             if len(body.dofs) > 3:
                 raise ModelError(f"body '{body.name}': a joint has at most 3 dofs, got {len(body.dofs)}")
+            if body.free and (i != 0 or body.parent != -1 or body.dofs):
+                raise ModelError(f"body '{body.name}': only body 0, on the base and without dofs, can float free")
+            if i > 0 and body.parent == -1 and self.bodies[0].free:
+                raise ModelError(f"body '{body.name}': with a free root every other body hangs from a body")
             for key in ("pos", "rot", "com", "inertia", "post"):
                 if not np.all(np.isfinite(np.asarray(getattr(body, key), dtype=float))):
                     raise ModelError(f"body '{body.name}': a NaN or infinite number in '{key}'")
@@ -96,6 +105,16 @@ class Model:
         frame_rot = []                 # user_R_core for each body
         pos, rot, dof_rot, com, inertia, dofnum = [], [], [], [], [], []
         for body in self.bodies:
+            if body.free:
+                # its pose is in q; its frame is the user frame; 6 dofs with no fixed rotations
+                frame_rot.append(np.eye(3))
+                rot.append(np.eye(3))
+                pos.append(np.zeros(3))
+                dof_rot.extend([np.eye(3)] * 6)
+                com.append(np.asarray(body.com, dtype=float))
+                inertia.append(_sym6(np.asarray(body.inertia, dtype=float)))
+                dofnum.append(6)
+                continue
             parent_F = frame_rot[body.parent] if body.parent >= 0 else np.eye(3)
             # M_k sends z to axis_k, so Rot(a, q) = M Rz(q) M' and the chain becomes
             # rot M1 Rz(q1) (M1' M2) Rz(q2) (M2' M3) Rz(q3) (M3' post)
@@ -117,7 +136,8 @@ class Model:
         self.frame_rot = np.array(frame_rot)
         args = dict(parent=[b.parent for b in self.bodies], dofnum=dofnum, pos=pos, rot=rot,
                     dof_rot=dof_rot if dof_rot else np.zeros((0, 9)),
-                    mass=[b.mass for b in self.bodies], com=com, inertia=inertia, gravity=gravity)
+                    mass=[b.mass for b in self.bodies], com=com, inertia=inertia, gravity=gravity,
+                    free_root=bool(self.bodies and self.bodies[0].free))
         try:
             self.core = _core.Core(**args)
             self.core32 = _core32.Core(**args)
@@ -133,8 +153,22 @@ class Model:
 
     # ------------------------------------------------------------------ properties
     @property
+    def free_root(self) -> bool:
+        """Body 0 floats free (the paper's FREE node): q starts with its origin and quaternion."""
+        return bool(self.bodies[0].free)
+
+    @property
     def dof_names(self) -> tuple[str, ...]:
-        return tuple(d.name for b in self.bodies for d in b.dofs)
+        """Names of the velocity dofs, in the order of qd, qdd and tau."""
+        free = [f"{self.bodies[0].name}_{c}" for c in FREE_DOFS] if self.free_root else []
+        return tuple(free + [d.name for b in self.bodies for d in b.dofs])
+
+    @property
+    def q_names(self) -> tuple[str, ...]:
+        """Names of the coordinates of q: the dof names, or with a free root its 7 coordinates first."""
+        if not self.free_root:
+            return self.dof_names
+        return tuple([f"{self.bodies[0].name}_{c}" for c in FREE_COORDS] + list(self.dof_names[6:]))
 
     @property
     def body_names(self) -> tuple[str, ...]:
@@ -142,11 +176,31 @@ class Model:
 
     @property
     def nq(self) -> int:
-        return self.core.ndof
+        """Length of q (with a free root one more than nv: its quaternion has 4 numbers)."""
+        return self.core.nq
 
     @property
     def nv(self) -> int:
+        """Length of qd, qdd and tau."""
         return self.core.ndof
+
+    def neutral_q(self) -> np.ndarray:
+        """q with every hinge at 0 and a free root at its described pose."""
+        q = np.zeros(self.nq)
+        if self.free_root:
+            from .rotations import matrix_to_quat
+            q[:3] = self.bodies[0].pos
+            q[3:7] = matrix_to_quat(self.bodies[0].rot)
+        return q
+
+    def with_free_root(self) -> "Model":
+        """The same model with body 0 floating free instead of fixed to the base."""
+        first = self.bodies[0]
+        if first.parent != -1 or first.dofs:
+            raise ModelError(f"body '{first.name}': a free root must hang from the base without dofs")
+        bodies = [replace(first, free=True)] + self.bodies[1:]
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
 
     @property
     def gravity(self) -> np.ndarray:
@@ -162,18 +216,21 @@ class Model:
 
     @property
     def lower(self) -> np.ndarray:
-        return np.array([d.lower for b in self.bodies for d in b.dofs])
+        """Lower joint limits per velocity dof (-inf for a free root's)."""
+        free = [-math.inf] * 6 if self.free_root else []
+        return np.array(free + [d.lower for b in self.bodies for d in b.dofs])
 
     @property
     def upper(self) -> np.ndarray:
-        return np.array([d.upper for b in self.bodies for d in b.dofs])
+        free = [math.inf] * 6 if self.free_root else []
+        return np.array(free + [d.upper for b in self.bodies for d in b.dofs])
 
     @property
     def total_mass(self) -> float:
         return float(sum(b.mass for b in self.bodies))
 
     def __repr__(self) -> str:
-        return f"<servodyn.Model '{self.name}': {self.nbody} bodies, {self.nq} dofs>"
+        return f"<servodyn.Model '{self.name}': {self.nbody} bodies, {self.nv} dofs{', free root' if self.free_root else ''}>"
 
     # ------------------------------------------------------------------ dynamics
     def _core_fext(self, f_ext):
@@ -219,7 +276,7 @@ class Model:
     def mass_matrix(self, q) -> np.ndarray:
         """The joint-space inertia matrix M(q), column by column from inverse dynamics."""
         q = np.asarray(q, dtype=float)
-        n = self.nq
+        n = self.nv
         g = self.gravity
         self.core.gravity = (0.0, 0.0, 0.0)
         try:
@@ -231,17 +288,24 @@ class Model:
     # ------------------------------------------------------------------ kinematics and energy
     def body_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (nbody, 3, 3) and origins (nbody, 3) of the core body frames at q."""
+        from .rotations import quat_to_matrix
         q = np.asarray(q, dtype=float)
         a = self._arrays
         R_world = np.zeros((self.nbody, 3, 3))
         p_world = np.zeros((self.nbody, 3))
         dof_rot = np.asarray(a["dof_rot"], dtype=float).reshape(-1, 3, 3)
-        k = 0
+        k = 0      # index into q
+        j = 0      # index into the dofs (dof_rot)
         for i, body in enumerate(self.bodies):
+            if body.free:
+                R_world[0], p_world[0] = quat_to_matrix(q[3:7]), q[:3]
+                k, j = 7, 6
+                continue
             R = np.asarray(a["rot"][i], dtype=float).reshape(3, 3)
-            for j in range(len(body.dofs)):
-                R = R @ dof_rot[k] @ rot_z(q[k])
+            for _ in body.dofs:
+                R = R @ dof_rot[j] @ rot_z(q[k])
                 k += 1
+                j += 1
             p = np.asarray(a["pos"][i], dtype=float)
             if body.parent >= 0:
                 p_world[i] = p_world[body.parent] + R_world[body.parent] @ p

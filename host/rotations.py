@@ -67,3 +67,34 @@ def orthonormalize(R) -> np.ndarray:
 
 def skew(v) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=float)
+
+
+def quat_to_matrix(quat) -> np.ndarray:
+    """world_R_body of a quaternion (x, y, z, w), normalized on the way."""
+    x, y, z, w = (float(v) for v in quat)
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    return np.array([
+        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
+        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
+    ])
+
+
+def matrix_to_quat(R) -> np.ndarray:
+    """The unit quaternion (x, y, z, w), w >= 0, of a rotation matrix (Shepperd's method)."""
+    R = np.asarray(R, dtype=float)
+    trace = np.trace(R)
+    if trace > 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        quat = np.array([(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, s / 4])
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
+        quat = np.zeros(4)
+        quat[i] = s / 4
+        quat[j] = (R[j, i] + R[i, j]) / s
+        quat[k] = (R[k, i] + R[i, k]) / s
+        quat[3] = (R[k, j] - R[j, k]) / s
+    quat /= np.linalg.norm(quat)
+    return quat if quat[3] >= 0 else -quat

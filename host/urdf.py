@@ -38,7 +38,9 @@ def _moved(part, R, p):
     return mass, R @ com + p, R @ inertia @ R.T
 
 
-def load_urdf(path: str | Path) -> Model:
+def load_urdf(path: str | Path, free_root: bool = False) -> Model:
+    """A model from a URDF file; with free_root the root link floats free (6 dofs) instead of
+    being the fixed base."""
     import yourdfpy
     path = Path(path)
     try:
@@ -108,8 +110,14 @@ def load_urdf(path: str | Path) -> Model:
         parts[index] = []
         attach(link, index, np.eye(3), np.zeros(3))
 
-    # the root link is the base; its own inertia does not move
-    attach(roots[0], -1, np.eye(3), np.zeros(3))
+    if free_root:
+        # the root link is body 0, floating free; its inertia and fixed children move with it
+        bodies.append(Body(name=roots[0], parent=-1, pos=np.zeros(3), rot=np.eye(3), free=True))
+        parts[0] = []
+        attach(roots[0], 0, np.eye(3), np.zeros(3))
+    else:
+        # the root link is the base; its own inertia does not move
+        attach(roots[0], -1, np.eye(3), np.zeros(3))
     if not bodies:
         raise ModelError(f"{path}: the URDF has no moving joint")
     for index, body in enumerate(bodies):
@@ -122,7 +130,8 @@ def load_urdf(path: str | Path) -> Model:
 def write_urdf(model: Model, path: str | Path) -> None:
     import yourdfpy
     from yourdfpy.urdf import Inertial, Joint, Limit, Link, Robot
-    links = [Link(name="base")]
+    # a free root is the URDF's root link (load it with a floating base); otherwise "base" is
+    links = [] if model.free_root else [Link(name="base")]
     joints = []
 
     def pose(R, p):
@@ -132,6 +141,10 @@ def write_urdf(model: Model, path: str | Path) -> None:
 
     for body in model.bodies:
         parent = "base" if body.parent < 0 else model.bodies[body.parent].name
+        if body.free:
+            links.append(Link(name=body.name, inertial=Inertial(origin=pose(np.eye(3), body.com),
+                                                                mass=body.mass, inertia=body.inertia)))
+            continue
         if not body.dofs:
             joints.append(Joint(name=f"{body.name}_weld", type="fixed", parent=parent, child=body.name,
                                 origin=pose(body.rot @ body.post, body.pos)))

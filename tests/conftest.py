@@ -20,22 +20,36 @@ class PinocchioTwin:
         self.pin = pin
         path = tmp_path / f"{model.name}.urdf"
         model.to_urdf(path)
-        self.model = pin.buildModelFromUrdf(str(path))
+        if model.free_root:
+            self.model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
+        else:
+            self.model = pin.buildModelFromUrdf(str(path))
         self.model.gravity.linear = np.asarray(model.gravity)
         self.data = self.model.createData()
-        assert self.model.nq == model.nq, "every exported joint must be one revolute dof"
-        self.index = np.array([self.model.joints[self.model.getJointId(n)].idx_q for n in model.dof_names])
-        # the Pinocchio joint that carries each servodyn body (its last dof)
-        self.body_joint = [self.model.getJointId(b.dofs[-1].name) if b.dofs else None for b in model.bodies]
+        assert self.model.nq == model.nq and self.model.nv == model.nv, "same coordinates"
+        # Pinocchio's free-flyer has servodyn's order and frames: (x, y, z, quaternion), (v, w)
+        hinge_names = model.dof_names[6:] if model.free_root else model.dof_names
+        joints = [self.model.joints[self.model.getJointId(n)] for n in hinge_names]
+        lead_q, lead_v = (list(range(7)), list(range(6))) if model.free_root else ([], [])
+        self.index_q = np.array(lead_q + [j.idx_q for j in joints], dtype=int)
+        self.index = np.array(lead_v + [j.idx_v for j in joints], dtype=int)
+        # the Pinocchio joint that carries each servodyn body (its last dof; 1 for a free root)
+        self.body_joint = [1 if b.free else self.model.getJointId(b.dofs[-1].name) if b.dofs else None
+                           for b in model.bodies]
 
     def to_pin(self, x):
         out = np.zeros(len(self.index))
         out[self.index] = x
         return out
 
+    def to_pin_q(self, q):
+        out = np.zeros(len(self.index_q))
+        out[self.index_q] = q
+        return out
+
     def _call(self, algorithm, q, qd, x, f_ext):
         """Pinocchio's algorithm on servodyn-ordered arrays; wrenches go to each body's last joint."""
-        args = [self.model, self.data, self.to_pin(q), self.to_pin(qd), self.to_pin(x)]
+        args = [self.model, self.data, self.to_pin_q(q), self.to_pin(qd), self.to_pin(x)]
         if f_ext is not None:
             fext = [self.pin.Force.Zero() for _ in range(self.model.njoints)]
             for body, jid in enumerate(self.body_joint):
@@ -64,7 +78,14 @@ def rel_err(a, b) -> float:
 
 
 def random_state(rng, model, scale_qd=2.0, scale_qdd=5.0):
-    n = model.nq
+    """A random (q, qd, qdd) inside the joint limits; a free root gets a random pose."""
+    n = model.nv
     lo = np.maximum(model.lower, -3.0)
     hi = np.minimum(model.upper, 3.0)
-    return rng.uniform(lo, hi), rng.normal(size=n) * scale_qd, rng.normal(size=n) * scale_qdd
+    v = rng.uniform(lo, hi)
+    if model.free_root:
+        quat = rng.normal(size=4)
+        q = np.concatenate([v[:3], quat / np.linalg.norm(quat), v[6:]])
+    else:
+        q = v
+    return q, rng.normal(size=n) * scale_qd, rng.normal(size=n) * scale_qdd

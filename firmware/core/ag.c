@@ -303,6 +303,41 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
   }
 }
 
+// The body's rigid inertia [I h x; (h x)' m] as the start of its articulated inertia, and its
+// bias wrench v x* (I v) - f_ext, from the velocities (w, v) already in d.
+static inline void rigid_inertia_and_bias(const sd_model* m, sd_data* d, int i,
+                                          const sd_real* f_ext) {
+  const sd_real* w = d->body_w[i];
+  const sd_real* v = d->body_v[i];
+  const sd_real* h = m->body_mcom[i];
+  const sd_real* I = m->body_inertia0[i];
+  sd_real mass = m->body_mass[i];
+  sd_real* IA = d->body_IA[i];
+  for (int k = 0; k < 6; k++) {
+    IA[k] = I[k];
+  }
+  IA[6] = 0;      IA[7] = -h[2]; IA[8] = h[1];
+  IA[9] = h[2];   IA[10] = 0;    IA[11] = -h[0];
+  IA[12] = -h[1]; IA[13] = h[0]; IA[14] = 0;
+  IA[15] = IA[16] = IA[17] = mass;
+  IA[18] = IA[19] = IA[20] = 0;
+
+  sd_real hang[3], hlin[3];
+  sd_mulsym(hang, I, w);
+  sd_addcross(hang, h, v);
+  sd_cross(hlin, w, h);
+  hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
+  sd_real* pA = d->body_pA[i];
+  sd_cross(pA, w, hang);
+  sd_addcross(pA, v, hlin);
+  sd_cross(pA + 3, w, hlin);
+  if (f_ext) {
+    for (int k = 0; k < 6; k++) {
+      pA[k] -= f_ext[6*i + k];
+    }
+  }
+}
+
 // One step of the first outbound pass for body i with an nd-dof joint: position kinematics,
 // velocities, the velocity-product acceleration c, the rigid inertia and the bias wrench.
 static inline void outbound_body(const sd_model* m, sd_data* d, int i, const sd_real* q,
@@ -338,34 +373,7 @@ static inline void outbound_body(const sd_model* m, sd_data* d, int i, const sd_
   // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
   sd_cross(c + 3, v, wjoint);
 
-  // rigid-body inertia [I h x; (h x)' m] and bias wrench v x* (I v) - f_ext
-  const sd_real* h = m->body_mcom[i];
-  const sd_real* I = m->body_inertia0[i];
-  sd_real mass = m->body_mass[i];
-  sd_real* IA = d->body_IA[i];
-  for (int k = 0; k < 6; k++) {
-    IA[k] = I[k];
-  }
-  IA[6] = 0;      IA[7] = -h[2]; IA[8] = h[1];
-  IA[9] = h[2];   IA[10] = 0;    IA[11] = -h[0];
-  IA[12] = -h[1]; IA[13] = h[0]; IA[14] = 0;
-  IA[15] = IA[16] = IA[17] = mass;
-  IA[18] = IA[19] = IA[20] = 0;
-
-  sd_real hang[3], hlin[3];
-  sd_mulsym(hang, I, w);
-  sd_addcross(hang, h, v);
-  sd_cross(hlin, w, h);
-  hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
-  sd_real* pA = d->body_pA[i];
-  sd_cross(pA, w, hang);
-  sd_addcross(pA, v, hlin);
-  sd_cross(pA + 3, w, hlin);
-  if (f_ext) {
-    for (int k = 0; k < 6; k++) {
-      pA[k] -= f_ext[6*i + k];
-    }
-  }
+  rigid_inertia_and_bias(m, d, i, f_ext);
 }
 
 // One step of the last outbound pass for body i with an nd-dof joint: a' = X a_p + c,
@@ -407,6 +415,92 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
   }
 }
 
+// The free root's first outbound step: its velocity is its own 6 dofs, and c = 0 (S = 1).
+static inline void free_outbound(const sd_model* m, sd_data* d, const sd_real* q,
+                                 const sd_real* qd, const sd_real* f_ext) {
+  sd_free_kinematics(m, d, q);
+  for (int k = 0; k < 3; k++) {
+    d->body_v[0][k] = qd[k];
+    d->body_w[0][k] = qd[3 + k];
+  }
+  for (int k = 0; k < 6; k++) {
+    d->body_c[0][k] = 0;
+  }
+  rigid_inertia_and_bias(m, d, 0, f_ext);
+}
+
+// The free root's acceleration: with a' = (0; R (-g)) from the base, solve the full 6x6
+// articulated inertia, IA (a - a') = tau - pA - IA a', by Cholesky.
+static inline void free_acceleration(const sd_model* m, sd_data* d, const sd_real* tau,
+                                     sd_real* qdd) {
+  const sd_real* IA = d->body_IA[0];
+  const sd_real* pA = d->body_pA[0];
+  sd_real* a = d->body_a[0];
+  sd_real up[3] = {-m->gravity[0], -m->gravity[1], -m->gravity[2]};
+  a[0] = a[1] = a[2] = 0;
+  sd_mulmv(a + 3, d->body_R[0], up);
+
+  // the full matrix [A B; B' C] and the right-hand side (tau is force first, then moment)
+  sd_real M[36], x[6];
+  for (int e = 0; e < 6; e++) {
+    int r = sym_row[e], c = sym_col[e];
+    M[6*r + c] = M[6*c + r] = IA[e];
+    M[6*(r + 3) + c + 3] = M[6*(c + 3) + r + 3] = IA[15 + e];
+  }
+  for (int r = 0; r < 3; r++) {
+    for (int c = 0; c < 3; c++) {
+      M[6*r + c + 3] = M[6*(c + 3) + r] = IA[6 + 3*r + c];
+    }
+  }
+  for (int r = 0; r < 6; r++) {
+    sd_real s = r < 3 ? tau[3 + r] - pA[r] : tau[r - 3] - pA[r];
+    for (int c = 3; c < 6; c++) {
+      s -= M[6*r + c] * a[c];
+    }
+    x[r] = s;
+  }
+
+  // Cholesky in place (lower triangle), then the two triangular solves
+  for (int j = 0; j < 6; j++) {
+    sd_real diag = M[7*j];
+    for (int k = 0; k < j; k++) {
+      diag -= M[6*j + k] * M[6*j + k];
+    }
+    if (!(diag > 0)) {
+      d->warning[SD_WARN_SINGULAR]++;
+      diag = SD_EPS;
+    }
+    sd_real ljj = sd_sqrt(diag);
+    M[7*j] = ljj;
+    for (int i = j + 1; i < 6; i++) {
+      sd_real s = M[6*i + j];
+      for (int k = 0; k < j; k++) {
+        s -= M[6*i + k] * M[6*j + k];
+      }
+      M[6*i + j] = s / ljj;
+    }
+  }
+  for (int i = 0; i < 6; i++) {
+    for (int k = 0; k < i; k++) {
+      x[i] -= M[6*i + k] * x[k];
+    }
+    x[i] /= M[7*i];
+  }
+  for (int i = 5; i >= 0; i--) {
+    for (int k = i + 1; k < 6; k++) {
+      x[i] -= M[6*k + i] * x[k];
+    }
+    x[i] /= M[7*i];
+  }
+  for (int k = 0; k < 6; k++) {
+    a[k] += x[k];
+  }
+  for (int k = 0; k < 3; k++) {
+    qdd[k] = x[3 + k];
+    qdd[3 + k] = x[k];
+  }
+}
+
 // dispatch on the joint size with a literal, so every size gets an unrolled copy
 #define SD_BY_DOFNUM(nd, call)                         \
   switch (nd) {                                        \
@@ -419,14 +513,19 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
 void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
                 const sd_real* tau, const sd_real* f_ext, sd_real* qdd) {
   // outbound pass: velocities, velocity-product accelerations c, rigid inertias, bias wrenches
-  for (int i = 0; i < m->nbody; i++) {
+  int first = 0;
+  if (m->free_root) {
+    free_outbound(m, d, q, qd, f_ext);
+    first = 1;
+  }
+  for (int i = first; i < m->nbody; i++) {
 #define SD_OUTBOUND(nd) outbound_body(m, d, i, q, qd, f_ext, nd)
     SD_BY_DOFNUM(m->body_dofnum[i], SD_OUTBOUND)
 #undef SD_OUTBOUND
   }
 
   // inbound pass: articulated inertias and bias wrenches from the leaves to the root
-  for (int i = m->nbody - 1; i >= 0; i--) {
+  for (int i = m->nbody - 1; i >= first; i--) {
 #define SD_INBOUND(nd) inbound_body(m, d, i, tau, nd)
     SD_BY_DOFNUM(m->body_dofnum[i], SD_INBOUND)
 #undef SD_INBOUND
@@ -434,7 +533,10 @@ void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* 
 
   // outbound pass: accelerations from the root; the base accelerates upwards at -g
   sd_real base_acc[6] = {0, 0, 0, -m->gravity[0], -m->gravity[1], -m->gravity[2]};
-  for (int i = 0; i < m->nbody; i++) {
+  if (m->free_root) {
+    free_acceleration(m, d, tau, qdd);
+  }
+  for (int i = first; i < m->nbody; i++) {
     int parent = m->body_parent[i];
     const sd_real* ap = parent < 0 ? base_acc : d->body_a[parent];
 #define SD_ACCELERATION(nd) acceleration_body(m, d, i, ap, qdd, nd)

@@ -1,20 +1,65 @@
 // integrate.c: fixed-step integration of (q, qd) with the direct dynamics (paper §3.1).
 // RK4 evaluates the inbound/outbound recursion four times per step; explicit Euler once.
+// A free root's unit quaternion is integrated as four numbers and renormalized after the step,
+// which keeps the orientation a rotation without lowering the order of the method.
 #include "servodyn.h"
-#include "sd_math.h"
+#include "sd_joint.h"
+
+void sd_position_rate(const sd_model* m, const sd_real* q, const sd_real* qd, sd_real* qdot) {
+  int first = 0;
+  if (m->free_root) {
+    // the origin moves at world_R_body v; the quaternion turns at q (x) (w, 0) / 2
+    const sd_real* quat = q + 3;
+    const sd_real* w = qd + 3;
+    sd_real Rw[9];
+    sd_quat_to_rot(Rw, quat);
+    sd_mulmv(qdot, Rw, qd);
+    sd_real x = quat[0], y = quat[1], z = quat[2], s = quat[3];
+    qdot[3] = SD_R(0.5) * (s*w[0] + y*w[2] - z*w[1]);
+    qdot[4] = SD_R(0.5) * (s*w[1] + z*w[0] - x*w[2]);
+    qdot[5] = SD_R(0.5) * (s*w[2] + x*w[1] - y*w[0]);
+    qdot[6] = SD_R(-0.5) * (x*w[0] + y*w[1] + z*w[2]);
+    first = 1;
+  }
+  // hinge coordinates move at their own rates
+  for (int i = first; i < m->nbody; i++) {
+    int qadr = m->body_qadr[i], adr = m->body_dofadr[i];
+    for (int k = 0; k < m->body_dofnum[i]; k++) {
+      qdot[qadr + k] = qd[adr + k];
+    }
+  }
+}
+
+void sd_normalize_q(const sd_model* m, sd_real* q) {
+  if (!m->free_root) {
+    return;
+  }
+  sd_real* quat = q + 3;
+  sd_real norm = sd_sqrt(quat[0]*quat[0] + quat[1]*quat[1] + quat[2]*quat[2] + quat[3]*quat[3]);
+  if (norm > 0) {
+    for (int k = 0; k < 4; k++) {
+      quat[k] /= norm;
+    }
+  }
+}
 
 void sd_step(const sd_model* m, sd_data* d, sd_real* q, sd_real* qd, const sd_real* tau,
              const sd_real* f_ext, sd_real dt, int integrator) {
-  int n = m->ndof;
+  int nq = m->nq, nv = m->ndof;
   sd_real* qdd = d->step_qdd;
+  sd_real* qdot = d->step_qdot;
 
   // explicit Euler: both updates from the state at the start of the step
   if (integrator == SD_EULER) {
     sd_forward(m, d, q, qd, tau, f_ext, qdd);
-    for (int j = 0; j < n; j++) {
-      q[j] += dt * qd[j];
+    sd_position_rate(m, q, qd, qdot);
+    for (int j = 0; j < nq; j++) {
+      q[j] += dt * qdot[j];
+    }
+    for (int j = 0; j < nv; j++) {
       qd[j] += dt * qdd[j];
     }
+    sd_normalize_q(m, q);
     return;
   }
 
@@ -25,32 +70,41 @@ void sd_step(const sd_model* m, sd_data* d, sd_real* q, sd_real* qd, const sd_re
   sd_real* qds = d->step_qd;
   sd_real* kq = d->step_kq;
   sd_real* kqd = d->step_kqd;
-  for (int j = 0; j < n; j++) {
+  for (int j = 0; j < nq; j++) {
     qs[j] = q[j];
-    qds[j] = qd[j];
     kq[j] = 0;
+  }
+  for (int j = 0; j < nv; j++) {
+    qds[j] = qd[j];
     kqd[j] = 0;
   }
   for (int stage = 0; stage < 4; stage++) {
     sd_forward(m, d, qs, qds, tau, f_ext, qdd);
+    sd_position_rate(m, qs, qds, qdot);
     sd_real w = weight[stage];
-    for (int j = 0; j < n; j++) {
-      kq[j] += w * qds[j];
+    for (int j = 0; j < nq; j++) {
+      kq[j] += w * qdot[j];
+    }
+    for (int j = 0; j < nv; j++) {
       kqd[j] += w * qdd[j];
     }
     // the next stage's state: the start plus a fraction of this stage's slope
     if (stage < 3) {
       sd_real h = stage_dt[stage] * dt;
-      for (int j = 0; j < n; j++) {
-        sd_real slope_q = qds[j];
-        qs[j] = q[j] + h * slope_q;
+      for (int j = 0; j < nq; j++) {
+        qs[j] = q[j] + h * qdot[j];
+      }
+      for (int j = 0; j < nv; j++) {
         qds[j] = qd[j] + h * qdd[j];
       }
     }
   }
   sd_real sixth = dt / SD_R(6);
-  for (int j = 0; j < n; j++) {
+  for (int j = 0; j < nq; j++) {
     q[j] += sixth * kq[j];
+  }
+  for (int j = 0; j < nv; j++) {
     qd[j] += sixth * kqd[j];
   }
+  sd_normalize_q(m, q);
 }

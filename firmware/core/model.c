@@ -80,7 +80,11 @@ int sd_model_setup(sd_model* m, int* bad_body) {
       return SD_ERR_PARENT;
     }
     int nd = m->body_dofnum[i];
-    if (nd < 0 || nd > SD_MAX_JOINT_DOF || m->body_dofadr[i] != nextdof ||
+    int free = m->free_root && i == 0;
+    if (free && (nd != 6 || m->body_parent[0] != -1)) {
+      return SD_ERR_FREE;
+    }
+    if ((!free && (nd < 0 || nd > SD_MAX_JOINT_DOF)) || m->body_dofadr[i] != nextdof ||
         nextdof + nd > m->ndof) {
       return SD_ERR_DOFNUM;
     }
@@ -91,7 +95,7 @@ int sd_model_setup(sd_model* m, int* bad_body) {
     if (!rotation_ok(m->body_rot[i])) {
       return SD_ERR_ROTATION;
     }
-    for (int k = 0; k < nd; k++) {
+    for (int k = 0; k < nd && !free; k++) {
       const sd_real* D = m->dof_rot[nextdof + k];
       if (!rotation_ok(D)) {
         return SD_ERR_ROTATION;
@@ -114,7 +118,12 @@ int sd_model_setup(sd_model* m, int* bad_body) {
   }
   *bad_body = -1;
 
-  // derived constants: first moment, inertia about the origin, transposed rotations
+  // derived constants: coordinate addresses (a free root's quaternion takes one more),
+  // first moment, inertia about the origin, transposed rotations
+  m->nq = m->ndof + (m->free_root ? 1 : 0);
+  for (int i = 0; i < m->nbody; i++) {
+    m->body_qadr[i] = m->body_dofadr[i] + ((m->free_root && i > 0) ? 1 : 0);
+  }
   for (int i = 0; i < m->nbody; i++) {
     sd_real mass = m->body_mass[i];
     const sd_real* c = m->body_com[i];
@@ -157,6 +166,7 @@ const char* sd_strerror(int code) {
     case SD_ERR_MASS:      return "mass must be positive";
     case SD_ERR_INERTIA:   return "inertia must be positive definite and obey the triangle inequality";
     case SD_ERR_FIRSTDOF:  return "the first dof of a joint must have an identity dof_rot";
+    case SD_ERR_FREE:      return "a free root must be body 0, on the base, with 6 dofs";
     default:               return "unknown error";
   }
 }

@@ -22,31 +22,45 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
     const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
     const sd_real* dwp = parent < 0 ? zero : d->body_dw[parent];
     const sd_real* ap = parent < 0 ? base_acc : d->body_acc[parent];
-    const sd_real* p = m->body_pos[i];
     sd_real* w = d->body_w[i];
     sd_real* dw = d->body_dw[i];
     sd_real* a = d->body_acc[i];
-    sd_joint_kinematics(m, d, i, q, m->body_dofnum[i]);
-    const sd_real* R = d->body_R[i];
+    if (i == 0 && m->free_root) {
+      // a free root: w and dw are its own dofs, and its origin's classical acceleration is the
+      // free joint's (spatial) acceleration plus w x v, with the base's -g seen from the body
+      sd_free_kinematics(m, d, q);
+      const sd_real* v = qd;
+      for (int k = 0; k < 3; k++) {
+        w[k] = qd[3 + k];
+        dw[k] = qdd[3 + k];
+      }
+      sd_mulmv(a, d->body_R[0], base_acc);
+      a[0] += qdd[0]; a[1] += qdd[1]; a[2] += qdd[2];
+      sd_addcross(a, w, v);
+    } else {
+      const sd_real* p = m->body_pos[i];
+      sd_joint_kinematics(m, d, i, q, m->body_dofnum[i]);
+      const sd_real* R = d->body_R[i];
 
-    // linear acceleration of the origin: a = R (a_p + dw_p x p + w_p x (w_p x p))
-    sd_real wxp[3], t[3];
-    sd_cross(wxp, wp, p);
-    sd_cross(t, wp, wxp);
-    sd_addcross(t, dwp, p);
-    t[0] += ap[0]; t[1] += ap[1]; t[2] += ap[2];
-    sd_mulmv(a, R, t);
+      // linear acceleration of the origin: a = R (a_p + dw_p x p + w_p x (w_p x p))
+      sd_real wxp[3], t[3];
+      sd_cross(wxp, wp, p);
+      sd_cross(t, wp, wxp);
+      sd_addcross(t, dwp, p);
+      t[0] += ap[0]; t[1] += ap[1]; t[2] += ap[2];
+      sd_mulmv(a, R, t);
 
-    // angular velocity and acceleration, dof by dof: dw += z qdd + w x z qd, then w += z qd
-    sd_mulmv(w, R, wp);
-    sd_mulmv(dw, R, dwp);
-    int adr = m->body_dofadr[i];
-    for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
-      const sd_real* z = d->dof_axis[j];
-      sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
-      dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
-      sd_addcross(dw, w, zqd);
-      w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+      // angular velocity and acceleration, dof by dof: dw += z qdd + w x z qd, then w += z qd
+      sd_mulmv(w, R, wp);
+      sd_mulmv(dw, R, dwp);
+      int adr = m->body_dofadr[i];
+      for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
+        const sd_real* z = d->dof_axis[j];
+        sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
+        dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
+        sd_addcross(dw, w, zqd);
+        w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+      }
     }
 
     // the wrench that moves the body: f = m a + dw x h + w x (w x h), n = I dw + w x I w + h x a
@@ -78,6 +92,14 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
     const sd_real* f = d->body_f[i];
     const sd_real* n = d->body_n[i];
     int adr = m->body_dofadr[i];
+    if (i == 0 && m->free_root) {
+      // the free root's generalized force is its whole wrench: force, then moment
+      for (int k = 0; k < 3; k++) {
+        tau[k] = f[k];
+        tau[3 + k] = n[k];
+      }
+      continue;
+    }
     for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
       tau[j] = sd_dot(n, d->dof_axis[j]);
     }

@@ -36,5 +36,6 @@ typedef double sd_real;
 #define SD_MAX_DOF 128
 #endif
 #define SD_MAX_JOINT_DOF 3
+#define SD_MAX_Q (SD_MAX_DOF + 1)  // a free root's quaternion takes one coordinate more
 
 #endif  // SD_CONFIG_H

@@ -12,6 +12,7 @@
 static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, const sd_real* q,
                                        const int nd) {
   int adr = m->body_dofadr[i];
+  q += m->body_qadr[i] - adr;  // q[adr + k] is then the k-th coordinate of this joint
   sd_real* R = d->body_R[i];
 
   // a welded body: the fixed rotation alone
@@ -52,6 +53,28 @@ static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, con
     d->dof_axis[j][0] = 0;
     d->dof_axis[j][1] = 0;
     d->dof_axis[j][2] = 1;
+  }
+}
+
+// world_R_body of the unit quaternion (x, y, z, w); a quaternion off unit length by rounding is
+// normalized on the way (the factor 2 / |quat|^2)
+static inline void sd_quat_to_rot(sd_real R[9], const sd_real* quat) {
+  sd_real x = quat[0], y = quat[1], z = quat[2], w = quat[3];
+  sd_real s = SD_R(2) / (x*x + y*y + z*z + w*w);
+  R[0] = SD_R(1) - s*(y*y + z*z); R[1] = s*(x*y - z*w);            R[2] = s*(x*z + y*w);
+  R[3] = s*(x*y + z*w);            R[4] = SD_R(1) - s*(x*x + z*z); R[5] = s*(y*z - x*w);
+  R[6] = s*(x*z - y*w);            R[7] = s*(y*z + x*w);            R[8] = SD_R(1) - s*(x*x + y*y);
+}
+
+// body_R_parent of a free root: the transpose of the quaternion's world_R_body
+static inline void sd_free_kinematics(const sd_model* m, sd_data* d, const sd_real* q) {
+  sd_real Rw[9];
+  sd_quat_to_rot(Rw, q + m->body_qadr[0] + 3);
+  sd_real* R = d->body_R[0];
+  for (int r = 0; r < 3; r++) {
+    for (int c = 0; c < 3; c++) {
+      R[3*r + c] = Rw[3*c + r];
+    }
   }
 }
 

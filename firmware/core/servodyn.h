@@ -9,6 +9,10 @@
 //   - each body hangs from its parent by one joint of 0 to 3 rotational dofs; dof k of a joint
 //     rotates about the z axis of its own dof frame; the dof frames of a joint share one origin,
 //     body_pos in the parent frame, which is also the origin of the body frame;
+//   - or body 0 floats free (the paper's FREE node, free_root = 1): 6 dofs whose coordinates are
+//     the origin in the base frame and a unit quaternion (x, y, z, w), 7 numbers of q; its
+//     velocity is (v, w) of the origin in the body frame, its "torque" the wrench (f, n) in the
+//     body frame: the order and frames of Pinocchio's free-flyer;
 //   - the body frame is the last dof frame after its rotation (the joint frame for a 0-dof joint);
 //   - rotations are row-major 3x3, R[3*row + col]; a_R_b maps b-frame coordinates to a-frame ones;
 //   - a spatial vector is (angular; linear), a wrench is (torque about the body origin; force),
@@ -27,7 +31,8 @@ extern "C" {
 
 typedef struct sd_model_ {
   int nbody;                              // number of moving bodies
-  int ndof;                               // number of degrees of freedom (length of q)
+  int ndof;                               // number of degrees of freedom (length of qd, tau)
+  int free_root;                          // 1: body 0 floats free (6 dofs), 0: every joint hinges
   sd_real gravity[3];                     // gravitational acceleration, base frame (m/s^2)
 
   // tree and joints
@@ -46,6 +51,8 @@ typedef struct sd_model_ {
                                           //   xx yy zz xy xz yz (kg m^2)
 
   // derived by sd_model_setup
+  int nq;                                 // length of q: ndof, plus 1 with a free root
+  int body_qadr[SD_MAX_BODY];             // (nbody) index in q of the joint's first coordinate
   sd_real body_mcom[SD_MAX_BODY][3];      // (nbody x 3) mass * com, the first moment h
   sd_real body_inertia0[SD_MAX_BODY][6];  // (nbody x 6) inertia about the body origin
   sd_real body_rotT[SD_MAX_BODY][9];      // (nbody x 9) frame_R_parent, transpose of body_rot
@@ -64,6 +71,7 @@ enum sd_error_ {
   SD_ERR_MASS = -6,          // mass not positive
   SD_ERR_INERTIA = -7,       // inertia not positive definite or violating the triangle inequality
   SD_ERR_FIRSTDOF = -8,      // dof_rot of a joint's first dof is not the identity
+  SD_ERR_FREE = -9,          // a free root that is not body 0 on the base with 6 dofs
 };
 
 // Validate a model filled in by the caller and compute its derived fields.
@@ -115,9 +123,10 @@ typedef struct sd_data_ {
   sd_real body_a[SD_MAX_BODY][6];         // (nbody x 6) spatial acceleration
 
   // scratch of sd_step
-  sd_real step_q[SD_MAX_DOF];             // (ndof) intermediate position
+  sd_real step_q[SD_MAX_Q];               // (nq) intermediate position
+  sd_real step_qdot[SD_MAX_Q];            // (nq) position rate of the current stage
+  sd_real step_kq[SD_MAX_Q];              // (nq) weighted sum of position rates
   sd_real step_qd[SD_MAX_DOF];            // (ndof) intermediate velocity
-  sd_real step_kq[SD_MAX_DOF];            // (ndof) weighted sum of position slopes
   sd_real step_kqd[SD_MAX_DOF];           // (ndof) weighted sum of velocity slopes
   sd_real step_qdd[SD_MAX_DOF];           // (ndof) acceleration of the current stage
 
@@ -127,8 +136,8 @@ typedef struct sd_data_ {
 //---------------------------------- algorithms --------------------------------------------------
 
 // Inverse dynamics by recursive Newton-Euler: the joint torques tau (ndof) that give the
-// acceleration qdd at (q, qd) under gravity and the external wrenches f_ext (nbody x 6, acting on
-// each body, body frame, about its origin; NULL for none).
+// acceleration qdd (ndof) at (q (nq), qd (ndof)) under gravity and the external wrenches f_ext
+// (nbody x 6, acting on each body, body frame, about its origin; NULL for none).
 void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
              const sd_real* qdd, const sd_real* f_ext, sd_real* tau);
 
@@ -142,9 +151,17 @@ enum sd_integrator_ {
   SD_EULER = 1,              // explicit Euler, 1 sd_forward call
 };
 
-// Advance (q, qd) in place by dt with tau and f_ext held constant over the step.
+// Advance (q, qd) in place by dt with tau and f_ext held constant over the step; a free root's
+// quaternion is integrated with the rest and renormalized at the end of the step.
 void sd_step(const sd_model* m, sd_data* d, sd_real* q, sd_real* qd, const sd_real* tau,
              const sd_real* f_ext, sd_real dt, int integrator);
+
+// The position rate qdot (nq) at (q, qd): qd itself for hinges; for a free root the origin's
+// velocity in the base frame and the quaternion rate q (x) (w, 0) / 2.
+void sd_position_rate(const sd_model* m, const sd_real* q, const sd_real* qd, sd_real* qdot);
+
+// Scale a free root's quaternion in q to unit length (nothing without a free root).
+void sd_normalize_q(const sd_model* m, sd_real* q);
 
 #ifdef __cplusplus
 }
