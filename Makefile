@@ -17,7 +17,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h)
-HOST_C := $(wildcard host/*.c host/*/*.c)
+HOST_C := $(wildcard host/*.c host/*.h)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean

@@ -1,38 +1,17 @@
-// _core.c: the CPython binding of the servodyn C core.
-//
-// Built twice by setup.py from this one file: servodyn._core with sd_real = double and
-// servodyn._core32 with sd_real = float (-DSD_SINGLE), so the MCU's arithmetic can be checked
-// from Python. Arrays in and out are float64; a leading batch axis is looped over here, in C.
-#define PY_SSIZE_T_CLEAN
-#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
-#include <Python.h>
-#include <numpy/arrayobject.h>
+// _core.c: the CPython binding of the servodyn C core: the Core type (a model and its data:
+// inverse and direct dynamics, integration) and the module itself. See _core.h.
+#define SD_BINDING_MAIN
+#include "_core.h"
+
+#include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
-#include "servodyn.h"
-
-#ifndef SD_MODULE_NAME
-#define SD_MODULE_NAME _core
-#endif
-#define SD_STR2(x) #x
-#define SD_STR(x) SD_STR2(x)
-#define SD_CAT2(a, b) a##b
-#define SD_CAT(a, b) SD_CAT2(a, b)
-
-typedef struct {
-  PyObject_HEAD
-  sd_model model;
-  sd_data data;
-} CoreObject;
-
 //---------------------------------- array helpers ------------------------------------------------
 
-// a float64 C-contiguous view of obj whose trailing shape is `tail` (ntail dims), with an optional
-// leading batch axis; *nrow gets the batch size (1 when unbatched), *batched whether it had one
-static PyArrayObject* as_rows(PyObject* obj, const char* name, const npy_intp* tail, int ntail,
-                              npy_intp* nrow, int* batched) {
+PyArrayObject* sd_as_rows(PyObject* obj, const char* name, const npy_intp* tail, int ntail,
+                          npy_intp* nrow, int* batched) {
   PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
       obj, NPY_DOUBLE, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
   if (!arr) {
@@ -73,20 +52,20 @@ static PyArrayObject* as_rows(PyObject* obj, const char* name, const npy_intp* t
   return arr;
 }
 
-static void load_row(sd_real* dst, const double* src, int n) {
+void sd_load_row(sd_real* dst, const double* src, int n) {
   for (int k = 0; k < n; k++) {
     dst[k] = (sd_real)src[k];
   }
 }
 
-static void store_row(double* dst, const sd_real* src, int n) {
+void sd_store_row(double* dst, const sd_real* src, int n) {
   for (int k = 0; k < n; k++) {
     dst[k] = (double)src[k];
   }
 }
 
 // copy a float64 array of exactly `count` numbers into dst
-static int fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name) {
+int sd_fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name) {
   PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
       obj, NPY_DOUBLE, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
   if (!arr) {
@@ -98,7 +77,7 @@ static int fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name) {
     Py_DECREF(arr);
     return -1;
   }
-  load_row(dst, (const double*)PyArray_DATA(arr), (int)count);
+  sd_load_row(dst, (const double*)PyArray_DATA(arr), (int)count);
   Py_DECREF(arr);
   return 0;
 }
@@ -164,13 +143,13 @@ static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
     return -1;
   }
   m->ndof = ndof;
-  if (fill(&m->body_pos[0][0], pos, 3 * nbody, "pos") ||
-      fill(&m->body_rot[0][0], rot, 9 * nbody, "rot") ||
-      fill(&m->dof_rot[0][0], dof_rot, 9 * (npy_intp)ndof, "dof_rot") ||
-      fill(m->body_mass, mass, nbody, "mass") ||
-      fill(&m->body_com[0][0], com, 3 * nbody, "com") ||
-      fill(&m->body_inertia[0][0], inertia, 6 * nbody, "inertia") ||
-      fill(m->gravity, gravity, 3, "gravity")) {
+  if (sd_fill(&m->body_pos[0][0], pos, 3 * nbody, "pos") ||
+      sd_fill(&m->body_rot[0][0], rot, 9 * nbody, "rot") ||
+      sd_fill(&m->dof_rot[0][0], dof_rot, 9 * (npy_intp)ndof, "dof_rot") ||
+      sd_fill(m->body_mass, mass, nbody, "mass") ||
+      sd_fill(&m->body_com[0][0], com, 3 * nbody, "com") ||
+      sd_fill(&m->body_inertia[0][0], inertia, 6 * nbody, "inertia") ||
+      sd_fill(m->gravity, gravity, 3, "gravity")) {
     return -1;
   }
   int bad = -1;
@@ -199,10 +178,10 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
   npy_intp nq, nqd, nx, nf = 0;
   int bq, bqd, bx, bf = 0;
   PyArrayObject *aq = NULL, *aqd = NULL, *ax = NULL, *af = NULL, *out = NULL;
-  aq = as_rows(oq, "q", qtail, 1, &nq, &bq);
-  if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
-  if (aqd) ax = as_rows(ox, third, tail, 1, &nx, &bx);
-  if (ax && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
+  aq = sd_as_rows(oq, "q", qtail, 1, &nq, &bq);
+  if (aq) aqd = sd_as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (aqd) ax = sd_as_rows(ox, third, tail, 1, &nx, &bx);
+  if (ax && ofext != Py_None) af = sd_as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
   if (!ax || (ofext != Py_None && !af)) goto done;
   if (bqd != bq || bx != bq || (af && bf && !bq) || nqd != nq || nx != nq ||
       (af && bf && nf != nq)) {
@@ -221,12 +200,12 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
     sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rx[SD_MAX_DOF], ry[SD_MAX_DOF];
     sd_real rf[6 * SD_MAX_BODY];
     for (npy_intp r = 0; r < nq; r++) {
-      load_row(rq, q + r * nqc, nqc);
-      load_row(rqd, qd + r * n, n);
-      load_row(rx, x + r * n, n);
-      if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
+      sd_load_row(rq, q + r * nqc, nqc);
+      sd_load_row(rqd, qd + r * n, n);
+      sd_load_row(rx, x + r * n, n);
+      if (fe) sd_load_row(rf, fe + (bf ? r * nfe : 0), nfe);
       fn(m, &self->data, rq, rqd, rx, fe ? rf : NULL, ry);
-      store_row(y + r * n, ry, n);
+      sd_store_row(y + r * n, ry, n);
     }
   }
 done:
@@ -269,10 +248,10 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
   int bq, bqd, bt, bf = 0;
   PyArrayObject *aq = NULL, *aqd = NULL, *at = NULL, *af = NULL, *oq2 = NULL, *oqd2 = NULL;
   PyObject* result = NULL;
-  aq = as_rows(oq, "q", qtail, 1, &nq, &bq);
-  if (aq) aqd = as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
-  if (aqd) at = as_rows(otau, "tau", tail, 1, &nt, &bt);
-  if (at && ofext != Py_None) af = as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
+  aq = sd_as_rows(oq, "q", qtail, 1, &nq, &bq);
+  if (aq) aqd = sd_as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (aqd) at = sd_as_rows(otau, "tau", tail, 1, &nt, &bt);
+  if (at && ofext != Py_None) af = sd_as_rows(ofext, "f_ext", ftail, 2, &nf, &bf);
   if (!at || (ofext != Py_None && !af)) goto done;
   if (bqd != bq || bt != bq || (af && bf && !bq) || nqd != nq || nt != nq ||
       (af && bf && nf != nq)) {
@@ -287,10 +266,10 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
     const double* fe = af ? PyArray_DATA(af) : NULL;
     sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rt[SD_MAX_DOF], rf[6 * SD_MAX_BODY];
     for (npy_intp r = 0; r < nq; r++) {
-      load_row(rq, (const double*)PyArray_DATA(aq) + r * nqc, nqc);
-      load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
-      load_row(rt, (const double*)PyArray_DATA(at) + r * n, n);
-      if (fe) load_row(rf, fe + (bf ? r * nfe : 0), nfe);
+      sd_load_row(rq, (const double*)PyArray_DATA(aq) + r * nqc, nqc);
+      sd_load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
+      sd_load_row(rt, (const double*)PyArray_DATA(at) + r * n, n);
+      if (fe) sd_load_row(rf, fe + (bf ? r * nfe : 0), nfe);
       for (int s = 0; s < nsteps; s++) {
         sd_step(m, &self->data, rq, rqd, rt, fe ? rf : NULL, (sd_real)dt, integrator);
         // a diverging integration is an error the caller must see, never a silent inf or NaN
@@ -303,8 +282,8 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
           }
         }
       }
-      store_row((double*)PyArray_DATA(oq2) + r * nqc, rq, nqc);
-      store_row((double*)PyArray_DATA(oqd2) + r * n, rqd, n);
+      sd_store_row((double*)PyArray_DATA(oq2) + r * nqc, rq, nqc);
+      sd_store_row((double*)PyArray_DATA(oqd2) + r * n, rqd, n);
     }
   }
   result = PyTuple_Pack(2, (PyObject*)oq2, (PyObject*)oqd2);
@@ -316,6 +295,31 @@ done:
   Py_XDECREF(oq2);
   Py_XDECREF(oqd2);
   return result;
+}
+
+// set_root_force(force, point): a force fixed in the base frame at a point of a free body 0
+static PyObject* Core_set_root_force(CoreObject* self, PyObject* args) {
+  PyObject *oforce, *opoint;
+  if (!PyArg_ParseTuple(args, "OO", &oforce, &opoint)) {
+    return NULL;
+  }
+  if (!self->model.free_root) {
+    PyErr_SetString(PyExc_ValueError, "a root force needs a model whose body 0 floats free");
+    return NULL;
+  }
+  sd_real force[3], point[3];
+  if (sd_fill(force, oforce, 3, "force") || sd_fill(point, opoint, 3, "point")) {
+    return NULL;
+  }
+  for (int k = 0; k < 3; k++) {
+    if (!isfinite((double)force[k]) || !isfinite((double)point[k])) {
+      PyErr_SetString(PyExc_ValueError, "the root force and its point must be finite");
+      return NULL;
+    }
+    self->data.root_force[k] = force[k];
+    self->data.root_point[k] = point[k];
+  }
+  Py_RETURN_NONE;
 }
 
 // the model struct's bytes, for tools that load the core without Python (the benchmark)
@@ -335,7 +339,7 @@ static PyObject* Core_get_gravity(CoreObject* self, void* Py_UNUSED(closure)) {
 
 static int Core_set_gravity(CoreObject* self, PyObject* value, void* Py_UNUSED(closure)) {
   sd_real g[3];
-  if (!value || fill(g, value, 3, "gravity")) {
+  if (!value || sd_fill(g, value, 3, "gravity")) {
     if (!value) PyErr_SetString(PyExc_TypeError, "gravity cannot be deleted");
     return -1;
   }
@@ -363,6 +367,8 @@ static PyMethodDef Core_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_VARARGS | METH_KEYWORDS,
      "step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd)"},
     {"model_bytes", (PyCFunction)Core_model_bytes, METH_NOARGS, "the sd_model struct as bytes"},
+    {"set_root_force", (PyCFunction)Core_set_root_force, METH_VARARGS,
+     "set_root_force(force, point): base-frame force at a point of the free body 0 (zero: none)"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -375,7 +381,7 @@ static PyGetSetDef Core_getset[] = {
     {NULL, NULL, NULL, NULL, NULL},
 };
 
-static PyTypeObject CoreType = {
+PyTypeObject CoreType = {
     PyVarObject_HEAD_INIT(NULL, 0)
     .tp_name = "servodyn." SD_STR(SD_MODULE_NAME) ".Core",
     .tp_basicsize = sizeof(CoreObject),
@@ -454,6 +460,10 @@ PyMODINIT_FUNC SD_CAT(PyInit_, SD_MODULE_NAME)(void) {
   }
   Py_INCREF(&CoreType);
   PyModule_AddObject(mod, "Core", (PyObject*)&CoreType);
+  if (sd_add_control_types(mod) < 0) {
+    Py_DECREF(mod);
+    return NULL;
+  }
   PyModule_AddIntConstant(mod, "RK4", SD_RK4);
   PyModule_AddIntConstant(mod, "EULER", SD_EULER);
   PyModule_AddIntConstant(mod, "MAX_BODY", SD_MAX_BODY);

@@ -427,6 +427,11 @@ static inline void free_outbound(const sd_model* m, sd_data* d, const sd_real* q
     d->body_c[0][k] = 0;
   }
   rigid_inertia_and_bias(m, d, 0, f_ext);
+  sd_real fe[6];
+  sd_root_wrench(d, fe);
+  for (int k = 0; k < 6; k++) {
+    d->body_pA[0][k] -= fe[k];
+  }
 }
 
 // The free root's acceleration: with a' = (0; R (-g)) from the base, solve the full 6x6

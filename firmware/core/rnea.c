@@ -85,6 +85,12 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
       f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
     }
+    if (i == 0 && m->free_root) {
+      sd_real fe[6];
+      sd_root_wrench(d, fe);
+      n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
+      f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
+    }
   }
 
   // backward pass: joint torques from the leaves, each body's wrench passed to its parent

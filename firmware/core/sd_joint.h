@@ -78,4 +78,10 @@ static inline void sd_free_kinematics(const sd_model* m, sd_data* d, const sd_re
   }
 }
 
+// the wrench (moment about the origin, force), body 0 frame, of the root force in d
+static inline void sd_root_wrench(const sd_data* d, sd_real wrench[6]) {
+  sd_mulmv(wrench + 3, d->body_R[0], d->root_force);
+  sd_cross(wrench, d->root_point, wrench + 3);
+}
+
 #endif  // SD_JOINT_H

@@ -130,6 +130,12 @@ typedef struct sd_data_ {
   sd_real step_kqd[SD_MAX_DOF];           // (ndof) weighted sum of velocity slopes
   sd_real step_qdd[SD_MAX_DOF];           // (ndof) acceleration of the current stage
 
+  // set by the caller, applied by sd_rnea and sd_forward besides f_ext when body 0 floats free:
+  // a force fixed in the base frame acting at a point fixed in body 0 (the supporting force of
+  // the paper's pendulum experiment, whose direction in the body changes as the body turns)
+  sd_real root_force[3];                  // (3) force in the base frame (N); zero for none
+  sd_real root_point[3];                  // (3) its point of application in body 0's frame (m)
+
   int warning[SD_NWARNING];               // event counters, never reset by the core
 } sd_data;
 
@@ -166,5 +172,8 @@ void sd_normalize_q(const sd_model* m, sd_real* q);
 #ifdef __cplusplus
 }
 #endif
+
+#include "sd_control.h"
+#include "sd_trajectory.h"
 
 #endif  // SERVODYN_H

@@ -70,50 +70,55 @@ int sd_trajectory_setup(sd_trajectory* tr, int* bad_knot, int* bad_dof) {
   //     = 3 ((q_i - q_{i-1}) / h_{i-1}^2 + (q_{i+1} - q_i) / h_i^2),
   // which says the second derivatives of the two cubics meeting at i agree; h_i = t_{i+1} - t_i
   // may vary. The matrix is strictly diagonally dominant, so the Thomas algorithm (elimination
-  // without pivoting) is stable; it depends on the times alone and is factored once for all dofs
-  sd_real inv_gap[SD_MAX_KNOT];    // 1 / h_i
-  sd_real upper[SD_MAX_KNOT];      // eliminated upper diagonal, over the pivot
-  sd_real inv_pivot[SD_MAX_KNOT];  // 1 / pivot after elimination
-  for (int i = 0; i < n - 1; i++) {
-    inv_gap[i] = SD_R(1) / (t[i+1] - t[i]);
-  }
+  // without pivoting) is stable. It depends on the times alone: one sweep over the keyframes
+  // eliminates all dofs at once, keeping only the eliminated upper diagonal for the way back
+  sd_real upper[SD_MAX_KNOT];      // upper diagonal over the pivot after elimination
   upper[0] = 0;
-  for (int i = 1; i < n - 1; i++) {
-    inv_pivot[i] = SD_R(1) / (SD_R(2) * (inv_gap[i-1] + inv_gap[i]) - inv_gap[i-1] * upper[i-1]);
-    upper[i] = inv_gap[i] * inv_pivot[i];
-  }
-
   for (int j = 0; j < nd; j++) {
-    // forward elimination into knot_qd (row 0 is the known v_0 = 0), then back substitution
-    tr->knot_qd[0][j] = 0;
-    for (int i = 1; i < n - 1; i++) {
-      sd_real slope0 = (tr->knot_q[i][j] - tr->knot_q[i-1][j]) * inv_gap[i-1];
-      sd_real slope1 = (tr->knot_q[i+1][j] - tr->knot_q[i][j]) * inv_gap[i];
-      sd_real rhs = SD_R(3) * (slope0 * inv_gap[i-1] + slope1 * inv_gap[i]);
-      tr->knot_qd[i][j] = (rhs - inv_gap[i-1] * tr->knot_qd[i-1][j]) * inv_pivot[i];
-    }
+    tr->knot_qd[0][j] = 0;         // row 0 is the known v_0 = 0
     tr->knot_qd[n-1][j] = 0;
-    for (int i = n - 2; i >= 1; i--) {
+  }
+  for (int i = 1; i < n - 1; i++) {
+    sd_real inv_h0 = SD_R(1) / (t[i] - t[i-1]), inv_h1 = SD_R(1) / (t[i+1] - t[i]);
+    sd_real inv_pivot = SD_R(1) / (SD_R(2) * (inv_h0 + inv_h1) - inv_h0 * upper[i-1]);
+    upper[i] = inv_h1 * inv_pivot;
+    for (int j = 0; j < nd; j++) {
+      sd_real slope0 = (tr->knot_q[i][j] - tr->knot_q[i-1][j]) * inv_h0;
+      sd_real slope1 = (tr->knot_q[i+1][j] - tr->knot_q[i][j]) * inv_h1;
+      sd_real rhs = SD_R(3) * (slope0 * inv_h0 + slope1 * inv_h1);
+      tr->knot_qd[i][j] = (rhs - inv_h0 * tr->knot_qd[i-1][j]) * inv_pivot;
+    }
+  }
+  // back substitution from the known v_{n-1} = 0
+  for (int i = n - 2; i >= 1; i--) {
+    for (int j = 0; j < nd; j++) {
       tr->knot_qd[i][j] -= upper[i] * tr->knot_qd[i+1][j];
     }
+  }
 
-    // second derivative at each inner keyframe: the mean of those of the cubics on its left and
-    // right (equal up to rounding); zero at both ends, where the trajectory starts and ends at rest
+  // second derivative at each inner keyframe: the mean of those of the cubics on its left and
+  // right (equal up to rounding); zero at both ends, where the trajectory starts and ends at rest
+  for (int j = 0; j < nd; j++) {
     tr->knot_qdd[0][j] = 0;
     tr->knot_qdd[n-1][j] = 0;
-    for (int i = 1; i < n - 1; i++) {
-      sd_real slope0 = (tr->knot_q[i][j] - tr->knot_q[i-1][j]) * inv_gap[i-1];
-      sd_real slope1 = (tr->knot_q[i+1][j] - tr->knot_q[i][j]) * inv_gap[i];
+  }
+  for (int i = 1; i < n - 1; i++) {
+    sd_real inv_h0 = SD_R(1) / (t[i] - t[i-1]), inv_h1 = SD_R(1) / (t[i+1] - t[i]);
+    for (int j = 0; j < nd; j++) {
+      sd_real slope0 = (tr->knot_q[i][j] - tr->knot_q[i-1][j]) * inv_h0;
+      sd_real slope1 = (tr->knot_q[i+1][j] - tr->knot_q[i][j]) * inv_h1;
       sd_real v0 = tr->knot_qd[i-1][j], v = tr->knot_qd[i][j], v1 = tr->knot_qd[i+1][j];
-      sd_real left = (SD_R(-6) * slope0 + SD_R(2) * v0 + SD_R(4) * v) * inv_gap[i-1];
-      sd_real right = (SD_R(6) * slope1 - SD_R(4) * v - SD_R(2) * v1) * inv_gap[i];
+      sd_real left = (SD_R(-6) * slope0 + SD_R(2) * v0 + SD_R(4) * v) * inv_h0;
+      sd_real right = (SD_R(6) * slope1 - SD_R(4) * v - SD_R(2) * v1) * inv_h1;
       tr->knot_qdd[i][j] = SD_R(0.5) * (left + right);
     }
+  }
 
-    // derived numbers: finite (huge positions over tiny gaps overflow)
-    for (int i = 0; i < n; i++) {
-      if (!SD_ISFINITE(tr->knot_qd[i][j]) || !SD_ISFINITE(tr->knot_qdd[i][j])) {
-        *bad_knot = i;
+  // derived numbers: finite (huge positions over tiny gaps overflow)
+  for (int k = 0; k < n; k++) {
+    for (int j = 0; j < nd; j++) {
+      if (!SD_ISFINITE(tr->knot_qd[k][j]) || !SD_ISFINITE(tr->knot_qdd[k][j])) {
+        *bad_knot = k;
         *bad_dof = j;
         return SD_ERR_SPLINE;
       }

@@ -70,6 +70,7 @@ static const struct {
   {"test_rnea.c", sdt_rnea_tests},
   {"test_ag.c", sdt_ag_tests},
   {"test_integrate.c", sdt_integrate_tests},
+  {"test_trajectory.c", sdt_trajectory_tests},
 };
 
 int main(int argc, char** argv) {

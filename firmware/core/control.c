@@ -1,0 +1,112 @@
+// control.c: the closed-form controller step (paper Fig. 4): inverse dynamics every time_step,
+// a joint PD every small_time_step, torque limits counted as limiting, bad numbers as faults.
+#include <stddef.h>
+
+#include "servodyn.h"
+#include "sd_math.h"
+
+int sd_control_check(const sd_model* m, const sd_control_config* c) {
+  if (c->mode < 0 || c->mode >= SD_NMODE || c->update_ticks < 1) {
+    return -1;
+  }
+  for (int j = 0; j < m->ndof; j++) {
+    if (!(c->kp[j] >= 0) || !(c->kd[j] >= 0) || !(c->tau_max[j] >= 0) ||
+        !SD_ISFINITE(c->kp[j]) || !SD_ISFINITE(c->kd[j]) || !SD_ISFINITE(c->tau_max[j])) {
+      return -1;
+    }
+  }
+  return 0;
+}
+
+void sd_control_reset(sd_control_state* s) {
+  s->tick = 0;
+  s->status = 0;
+  s->nlimited = 0;
+  s->nfault = 0;
+  for (int j = 0; j < SD_MAX_DOF; j++) {
+    s->tau_hold[j] = 0;
+  }
+}
+
+// the tracking errors of dof j: position (through its coordinate in q) and velocity
+static inline void errors(const sd_model* m, int i, int k, const sd_real* q_d, const sd_real* qd_d,
+                          const sd_real* q, const sd_real* qd, sd_real* e, sd_real* de) {
+  int qi = m->body_qadr[i] + k, vi = m->body_dofadr[i] + k;
+  *e = q_d[qi] - q[qi];
+  *de = qd_d[vi] - qd[vi];
+}
+
+void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
+                     sd_control_state* s, const sd_real* q_d, const sd_real* qd_d,
+                     const sd_real* qdd_d, const sd_real* q, const sd_real* qd, sd_real* tau) {
+  int nv = m->ndof, first = m->free_root ? 1 : 0;
+  s->status = 0;
+
+  // a non-finite input is a fault: no torque at all, never a NaN
+  if (!sd_allfinite(q_d, m->nq) || !sd_allfinite(qd_d, nv) || !sd_allfinite(qdd_d, nv) ||
+      !sd_allfinite(q, m->nq) || !sd_allfinite(qd, nv)) {
+    for (int j = 0; j < nv; j++) {
+      tau[j] = 0;
+    }
+    s->status = SD_STATUS_NONFINITE;
+    s->nfault++;
+    s->tick++;
+    return;
+  }
+
+  // every time_step: the inverse dynamics, held until the next update
+  if (s->tick % c->update_ticks == 0) {
+    if (c->mode == SD_MODE_FEEDFORWARD || c->mode == SD_MODE_FEEDFORWARD_PD) {
+      sd_rnea(m, d, q_d, qd_d, qdd_d, NULL, s->tau_hold);
+    } else if (c->mode == SD_MODE_COMPUTED_TORQUE) {
+      // the reference acceleration qdd_d + kp e + kd e' at the measured state
+      for (int j = 0; j < nv; j++) {
+        s->qdd_ref[j] = qdd_d[j];
+      }
+      for (int i = first; i < m->nbody; i++) {
+        for (int k = 0; k < m->body_dofnum[i]; k++) {
+          sd_real e, de;
+          int vi = m->body_dofadr[i] + k;
+          errors(m, i, k, q_d, qd_d, q, qd, &e, &de);
+          s->qdd_ref[vi] += c->kp[vi] * e + c->kd[vi] * de;
+        }
+      }
+      sd_rnea(m, d, q, qd, s->qdd_ref, NULL, s->tau_hold);
+    } else {
+      for (int j = 0; j < nv; j++) {
+        s->tau_hold[j] = 0;
+      }
+    }
+  }
+  for (int j = 0; j < nv; j++) {
+    tau[j] = s->tau_hold[j];
+  }
+
+  // every small step: the joint PD on top of the held torque
+  if (c->mode == SD_MODE_FEEDFORWARD_PD || c->mode == SD_MODE_PD) {
+    for (int i = first; i < m->nbody; i++) {
+      for (int k = 0; k < m->body_dofnum[i]; k++) {
+        sd_real e, de;
+        int vi = m->body_dofadr[i] + k;
+        errors(m, i, k, q_d, qd_d, q, qd, &e, &de);
+        tau[vi] += c->kp[vi] * e + c->kd[vi] * de;
+      }
+    }
+  }
+
+  // a free root is not actuated; the limits clamp and are counted as limiting, not as faults
+  for (int j = 0; j < (m->free_root ? 6 : 0); j++) {
+    tau[j] = 0;
+  }
+  for (int j = 0; j < nv; j++) {
+    sd_real limit = c->tau_max[j];
+    if (limit > 0 && (tau[j] > limit || tau[j] < -limit)) {
+      tau[j] = tau[j] > 0 ? limit : -limit;
+      s->status |= SD_STATUS_LIMITED;
+    }
+  }
+  if (s->status & SD_STATUS_LIMITED) {
+    s->nlimited++;
+  }
+  s->tick++;
+}

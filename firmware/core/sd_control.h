@@ -1,0 +1,68 @@
+// sd_control.h: the closed-form controller step (paper §3.2, Fig. 4).
+//
+// Every small_time_step the controller turns the desired state and the measured state into
+// joint torques; every time_step (an integer multiple, ~10 in the paper) it recomputes the
+// inverse dynamics and holds the result (zero-order) in between. The same step runs on the
+// host, in the simulated servos' tests and in the firmware. Configuration, state and the
+// commands it writes are separate structs (moteus' config / status / command split).
+#ifndef SD_CONTROL_H
+#define SD_CONTROL_H
+
+#include "sd_config.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+struct sd_model_;
+struct sd_data_;
+
+enum sd_control_mode_ {
+  SD_MODE_FEEDFORWARD = 0,      // tau = RNEA(q_d, qd_d, qdd_d), held for time_step
+  SD_MODE_FEEDFORWARD_PD = 1,   // the held feed-forward plus kp e + kd e' every small step
+  SD_MODE_COMPUTED_TORQUE = 2,  // tau = RNEA(q, qd, qdd_d + kp e + kd e'), held for time_step
+  SD_MODE_PD = 3,               // kp e + kd e' alone, every small step
+  SD_NMODE
+};
+
+// Status bits of the last step: limiting is normal operation, a fault is not.
+enum sd_control_status_ {
+  SD_STATUS_LIMITED = 1,        // at least one torque was clamped to its limit
+  SD_STATUS_NONFINITE = 2,      // a non-finite input: every torque set to zero (fault)
+};
+
+typedef struct sd_control_config_ {
+  int mode;                       // an sd_control_mode_
+  int update_ticks;               // time_step / small_time_step: small steps per inverse dynamics
+  sd_real kp[SD_MAX_DOF];         // (ndof) N m/rad, or 1/s^2 in computed-torque mode
+  sd_real kd[SD_MAX_DOF];         // (ndof) N m s/rad, or 1/s in computed-torque mode
+  sd_real tau_max[SD_MAX_DOF];    // (ndof) |tau| limit (N m); 0 for none
+} sd_control_config;
+
+typedef struct sd_control_state_ {
+  long tick;                      // small steps taken since sd_control_reset
+  sd_real tau_hold[SD_MAX_DOF];   // (ndof) the torque of the last inverse dynamics, held
+  sd_real qdd_ref[SD_MAX_DOF];    // (ndof) scratch: reference acceleration of computed torque
+  int status;                     // sd_control_status_ bits of the last step
+  long nlimited;                  // steps with a clamped torque
+  long nfault;                    // steps refused for non-finite input
+} sd_control_state;
+
+// Check a configuration against a model: 0, or -1 for a bad mode, update period, gain or limit.
+int sd_control_check(const struct sd_model_* m, const sd_control_config* c);
+
+// Start a run: tick 0, nothing held, counters cleared.
+void sd_control_reset(sd_control_state* s);
+
+// One small step: from the desired (q_d, qd_d, qdd_d) and measured (q, qd) state, the torques
+// tau (ndof). Inverse dynamics run on ticks that are multiples of update_ticks. A free root is
+// not actuated: its six torques are always zero, and its coordinates carry no error.
+void sd_control_step(const struct sd_model_* m, struct sd_data_* d, const sd_control_config* c,
+                     sd_control_state* s, const sd_real* q_d, const sd_real* qd_d,
+                     const sd_real* qdd_d, const sd_real* q, const sd_real* qd, sd_real* tau);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif  // SD_CONTROL_H
