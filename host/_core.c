@@ -106,11 +106,13 @@ static int fill_int(int* dst, PyObject* obj, npy_intp count, const char* name) {
 
 static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"parent", "dofnum", "pos", "rot", "dof_rot", "mass", "com",
-                           "inertia", "gravity", "free_root", NULL};
+                           "inertia", "gravity", "free_root", "ball", NULL};
   PyObject *parent, *dofnum, *pos, *rot, *dof_rot, *mass, *com, *inertia, *gravity;
+  PyObject* ball = Py_None;
   int free_root = 0;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO|p", kwlist, &parent, &dofnum, &pos,
-                                   &rot, &dof_rot, &mass, &com, &inertia, &gravity, &free_root)) {
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO|pO", kwlist, &parent, &dofnum, &pos,
+                                   &rot, &dof_rot, &mass, &com, &inertia, &gravity, &free_root,
+                                   &ball)) {
     return -1;
   }
   sd_model* m = &self->model;
@@ -124,7 +126,8 @@ static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
   m->nbody = (int)nbody;
   m->free_root = free_root;
   if (fill_int(m->body_parent, parent, nbody, "parent") ||
-      fill_int(m->body_dofnum, dofnum, nbody, "dofnum")) {
+      fill_int(m->body_dofnum, dofnum, nbody, "dofnum") ||
+      (ball != Py_None && fill_int(m->body_ball, ball, nbody, "ball"))) {
     return -1;
   }
   int ndof = 0;

@@ -60,6 +60,11 @@ def cmd_export(args) -> None:
     print(f"{model.name}: {model.nbody} bodies, {model.nq} dofs -> {out}")
 
 
+def cmd_experiment(args) -> None:
+    from .experiments import EXPERIMENTS
+    EXPERIMENTS[args.name](Path(args.out))
+
+
 def cmd_demo(args) -> None:
     from .demo import run_demo
     run_demo(args.model, Path(args.out))
@@ -90,6 +95,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("output", help="URDF file to write")
     p.set_defaults(func=cmd_export)
 
+    p = sub.add_parser("experiment", help="run one of the paper's experiments",
+                       description="The paper's experiments (section 4): pendulum (Fig. 5), still "
+                       "(Fig. 6), swing (Figs. 7-8), and numbers (tracking and energy drift against "
+                       "control mode, step ratio and integrator). Writes CSV, PNG and summary.json.")
+    p.add_argument("name", choices=["pendulum", "still", "swing", "numbers"])
+    p.add_argument("--out", default=None, help="output folder (default out/<name>)")
+    p.set_defaults(func=cmd_experiment)
+
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
@@ -99,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if getattr(args, "command", None) == "experiment" and args.out is None:
+        args.out = f"out/{args.name}"
     try:
         args.func(args)
     except (CliError, ModelError, TrajectoryError) as err:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _core, _core32
-from .rotations import frame_with_z, rot_z
+from .rotations import axis_angle, frame_with_z, rot_z
 
 INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -50,10 +50,13 @@ class Body:
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the com
     post: np.ndarray = field(default_factory=lambda: np.eye(3))
     free: bool = False                            # floats free: 6 dofs (only body 0, on the base)
+    ball: bool = False                            # a ball joint: 3 dofs, quaternion coordinates
 
 
 FREE_DOFS = ("vx", "vy", "vz", "wx", "wy", "wz")   # velocity of the origin, then angular, body frame
 FREE_COORDS = ("x", "y", "z", "qx", "qy", "qz", "qw")  # origin in the base frame, unit quaternion
+BALL_DOFS = ("wx", "wy", "wz")                   # angular velocity in the body frame
+BALL_COORDS = ("qx", "qy", "qz", "qw")           # unit quaternion of the body in its joint frame
 
 
 def _sym6(I: np.ndarray) -> list[float]:
@@ -85,6 +88,8 @@ class Model:
                 raise ModelError(f"body '{body.name}': a joint has at most 3 dofs, got {len(body.dofs)}")
             if body.free and (i != 0 or body.parent != -1 or body.dofs):
                 raise ModelError(f"body '{body.name}': only body 0, on the base and without dofs, can float free")
+            if body.ball and (len(body.dofs) != 3 or body.free or not np.allclose(body.post, np.eye(3))):
+                raise ModelError(f"body '{body.name}': a ball joint replaces exactly 3 dofs, with no post rotation")
             if i > 0 and body.parent == -1 and self.bodies[0].free:
                 raise ModelError(f"body '{body.name}': with a free root every other body hangs from a body")
             for key in ("pos", "rot", "com", "inertia", "post"):
@@ -116,6 +121,16 @@ class Model:
                 dofnum.append(6)
                 continue
             parent_F = frame_rot[body.parent] if body.parent >= 0 else np.eye(3)
+            if body.ball:
+                # the quaternion turns the user frame itself: parent_R_body = rot R(quat)
+                frame_rot.append(np.eye(3))
+                rot.append(parent_F.T @ body.rot)
+                pos.append(parent_F.T @ np.asarray(body.pos, dtype=float))
+                dof_rot.extend([np.eye(3)] * 3)
+                com.append(np.asarray(body.com, dtype=float))
+                inertia.append(_sym6(np.asarray(body.inertia, dtype=float)))
+                dofnum.append(3)
+                continue
             # M_k sends z to axis_k, so Rot(a, q) = M Rz(q) M' and the chain becomes
             # rot M1 Rz(q1) (M1' M2) Rz(q2) (M2' M3) Rz(q3) (M3' post)
             frames = [frame_with_z(d.axis) for d in body.dofs]
@@ -137,7 +152,8 @@ class Model:
         args = dict(parent=[b.parent for b in self.bodies], dofnum=dofnum, pos=pos, rot=rot,
                     dof_rot=dof_rot if dof_rot else np.zeros((0, 9)),
                     mass=[b.mass for b in self.bodies], com=com, inertia=inertia, gravity=gravity,
-                    free_root=bool(self.bodies and self.bodies[0].free))
+                    free_root=bool(self.bodies and self.bodies[0].free),
+                    ball=[int(b.ball) for b in self.bodies])
         try:
             self.core = _core.Core(**args)
             self.core32 = _core32.Core(**args)
@@ -160,15 +176,28 @@ class Model:
     @property
     def dof_names(self) -> tuple[str, ...]:
         """Names of the velocity dofs, in the order of qd, qdd and tau."""
-        free = [f"{self.bodies[0].name}_{c}" for c in FREE_DOFS] if self.free_root else []
-        return tuple(free + [d.name for b in self.bodies for d in b.dofs])
+        names = []
+        for body in self.bodies:
+            if body.free:
+                names += [f"{body.name}_{c}" for c in FREE_DOFS]
+            elif body.ball:
+                names += [f"{body.name}_{c}" for c in BALL_DOFS]
+            else:
+                names += [d.name for d in body.dofs]
+        return tuple(names)
 
     @property
     def q_names(self) -> tuple[str, ...]:
-        """Names of the coordinates of q: the dof names, or with a free root its 7 coordinates first."""
-        if not self.free_root:
-            return self.dof_names
-        return tuple([f"{self.bodies[0].name}_{c}" for c in FREE_COORDS] + list(self.dof_names[6:]))
+        """Names of the coordinates of q: the dof names, but 7 for a free root and 4 per ball."""
+        names = []
+        for body in self.bodies:
+            if body.free:
+                names += [f"{body.name}_{c}" for c in FREE_COORDS]
+            elif body.ball:
+                names += [f"{body.name}_{c}" for c in BALL_COORDS]
+            else:
+                names += [d.name for d in body.dofs]
+        return tuple(names)
 
     @property
     def body_names(self) -> tuple[str, ...]:
@@ -185,13 +214,99 @@ class Model:
         return self.core.ndof
 
     def neutral_q(self) -> np.ndarray:
-        """q with every hinge at 0 and a free root at its described pose."""
+        """q with every hinge at 0, every ball joint at its joint frame and a free root at its
+        described pose."""
+        from .rotations import matrix_to_quat
         q = np.zeros(self.nq)
-        if self.free_root:
-            from .rotations import matrix_to_quat
-            q[:3] = self.bodies[0].pos
-            q[3:7] = matrix_to_quat(self.bodies[0].rot)
+        k = 0
+        for body in self.bodies:
+            if body.free:
+                q[:3] = body.pos
+                q[3:7] = matrix_to_quat(body.rot)
+                k = 7
+            elif body.ball:
+                q[k + 3] = 1.0
+                k += 4
+            else:
+                k += len(body.dofs)
         return q
+
+    def with_ball_joints(self) -> "Model":
+        """The same bodies with every 3-dof joint as a ball joint (quaternion coordinates): the
+        same physics without gimbal lock, for simulation."""
+        bodies = [replace(b, ball=True) if len(b.dofs) == 3 and not b.free else b for b in self.bodies]
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
+
+    def q_from(self, other: "Model", q_other) -> np.ndarray:
+        """This model's q for the pose other (the same bodies, hinges or ball joints) has at q_other."""
+        from .rotations import matrix_to_quat
+        q_other = np.asarray(q_other, dtype=float)
+        mine, theirs = self._coordinate_slices(), other._coordinate_slices()
+        q = np.zeros(self.nq)
+        for body, sm, so, other_body in zip(self.bodies, mine, theirs, other.bodies):
+            value = q_other[so]
+            if body.ball and not other_body.ball:
+                R = np.eye(3)
+                for dof, angle in zip(other_body.dofs, value):
+                    R = R @ axis_angle(dof.axis, angle)
+                value = matrix_to_quat(R)
+            elif other_body.ball and not body.ball:
+                raise ModelError(f"body '{body.name}': cannot turn a ball joint back into angles")
+            q[sm] = value
+        return q
+
+    def _coordinate_slices(self) -> list[slice]:
+        slices, k = [], 0
+        for body in self.bodies:
+            n = 7 if body.free else 4 if body.ball else len(body.dofs)
+            slices.append(slice(k, k + n))
+            k += n
+        return slices
+
+    def user_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations and origins of the bodies' user frames (those of the model file)."""
+        R, p = self.body_poses(q)
+        return np.einsum("bij,bkj->bik", R, self.frame_rot), p
+
+    def subtree(self, root: str, q=None) -> "Model":
+        """The bodies from `root` down, with `root` welded to the base where it is at q (the
+        neutral pose by default) — e.g. the upper body of human15 held at the thorax."""
+        if root not in self.body_names:
+            raise ModelError(f"no body '{root}' in model '{self.name}'")
+        q = self.neutral_q() if q is None else np.asarray(q, dtype=float)
+        R, p = self.user_poses(q)
+        start = self.body_names.index(root)
+        keep = [start]
+        for i in range(start + 1, self.nbody):
+            if self.bodies[i].parent in keep:
+                keep.append(i)
+        index = {old: new for new, old in enumerate(keep)}
+        top = self.bodies[start]
+        bodies = [replace(top, parent=-1, pos=p[start].copy(), rot=R[start].copy(), dofs=[],
+                          post=np.eye(3), free=False)]
+        bodies += [replace(self.bodies[i], parent=index[self.bodies[i].parent]) for i in keep[1:]]
+        return Model(bodies, name=f"{self.name}:{root}", gravity=self.gravity,
+                     description=f"the bodies of {self.name} from {root} down, {root} held still",
+                     source=self.source)
+
+    def with_locked(self, bodies: list[str], angles: dict[str, float] | None = None) -> "Model":
+        """The same model with the joints of the named bodies welded at the given angles (0 by
+        default): their dofs leave q."""
+        angles = angles or {}
+        out = []
+        for body in self.bodies:
+            if body.name in bodies and body.dofs:
+                R = body.rot
+                for dof in body.dofs:
+                    R = R @ axis_angle(dof.axis, angles.get(dof.name, 0.0))
+                body = replace(body, rot=R @ body.post, dofs=[], post=np.eye(3))
+            out.append(body)
+        missing = set(bodies) - set(self.body_names)
+        if missing:
+            raise ModelError(f"no body '{sorted(missing)[0]}' in model '{self.name}'")
+        return Model(out, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
 
     def with_free_root(self) -> "Model":
         """The same model with body 0 floating free instead of fixed to the base."""
@@ -214,16 +329,23 @@ class Model:
         self.core.gravity = g
         self.core32.gravity = g
 
+    def _limits(self, which: str) -> np.ndarray:
+        values = []
+        for body in self.bodies:
+            if body.free or body.ball:
+                values += [math.inf if which == "upper" else -math.inf] * (6 if body.free else 3)
+            else:
+                values += [getattr(d, which) for d in body.dofs]
+        return np.array(values)
+
     @property
     def lower(self) -> np.ndarray:
-        """Lower joint limits per velocity dof (-inf for a free root's)."""
-        free = [-math.inf] * 6 if self.free_root else []
-        return np.array(free + [d.lower for b in self.bodies for d in b.dofs])
+        """Lower joint limits per velocity dof (-inf for a free root's and a ball joint's)."""
+        return self._limits("lower")
 
     @property
     def upper(self) -> np.ndarray:
-        free = [math.inf] * 6 if self.free_root else []
-        return np.array(free + [d.upper for b in self.bodies for d in b.dofs])
+        return self._limits("upper")
 
     @property
     def total_mass(self) -> float:
@@ -280,10 +402,12 @@ class Model:
         g = self.gravity
         self.core.gravity = (0.0, 0.0, 0.0)
         try:
-            M = self.core.rnea(np.tile(q, (n, 1)), np.zeros((n, n)), np.eye(n))
+            # minus the torques at zero acceleration, which a root force would otherwise add
+            columns = self.core.rnea(np.tile(q, (n + 1, 1)), np.zeros((n + 1, n)),
+                                     np.vstack([np.eye(n), np.zeros(n)]))
         finally:
             self.core.gravity = g
-        return M.T
+        return (columns[:n] - columns[n]).T
 
     # ------------------------------------------------------------------ kinematics and energy
     def body_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
@@ -302,10 +426,15 @@ class Model:
                 k, j = 7, 6
                 continue
             R = np.asarray(a["rot"][i], dtype=float).reshape(3, 3)
-            for _ in body.dofs:
-                R = R @ dof_rot[j] @ rot_z(q[k])
-                k += 1
-                j += 1
+            if body.ball:
+                R = R @ quat_to_matrix(q[k:k + 4])
+                k += 4
+                j += 3
+            else:
+                for _ in body.dofs:
+                    R = R @ dof_rot[j] @ rot_z(q[k])
+                    k += 1
+                    j += 1
             p = np.asarray(a["pos"][i], dtype=float)
             if body.parent >= 0:
                 p_world[i] = p_world[body.parent] + R_world[body.parent] @ p

@@ -362,13 +362,22 @@ static inline void outbound_body(const sd_model* m, sd_data* d, int i, const sd_
   sd_real wjoint[3] = {0, 0, 0};
   c[0] = c[1] = c[2] = 0;
   int adr = m->body_dofadr[i];
-  for (int k = 0; k < nd; k++) {
-    const sd_real* z = d->dof_axis[adr + k];
-    sd_real rate = qd[adr + k];
-    sd_real zqd[3] = {z[0]*rate, z[1]*rate, z[2]*rate};
-    sd_addcross(c, w, zqd);
-    w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
-    wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+  if (nd == 3 && m->body_ball[i]) {
+    // a ball joint: its dofs are the body-frame rate, so c_ang = w_parent x w_joint only
+    for (int k = 0; k < 3; k++) {
+      wjoint[k] = qd[adr + k];
+    }
+    sd_cross(c, w, wjoint);
+    w[0] += wjoint[0]; w[1] += wjoint[1]; w[2] += wjoint[2];
+  } else {
+    for (int k = 0; k < nd; k++) {
+      const sd_real* z = d->dof_axis[adr + k];
+      sd_real rate = qd[adr + k];
+      sd_real zqd[3] = {z[0]*rate, z[1]*rate, z[2]*rate};
+      sd_addcross(c, w, zqd);
+      w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+      wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+    }
   }
   // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
   sd_cross(c + 3, v, wjoint);

@@ -9,6 +9,12 @@ int sd_control_check(const sd_model* m, const sd_control_config* c) {
   if (c->mode < 0 || c->mode >= SD_NMODE || c->update_ticks < 1) {
     return -1;
   }
+  // the joint PD works on angles: ball joints (quaternions) are for simulation only
+  for (int i = 0; i < m->nbody; i++) {
+    if (m->body_ball[i]) {
+      return -1;
+    }
+  }
   for (int j = 0; j < m->ndof; j++) {
     if (!(c->kp[j] >= 0) || !(c->kd[j] >= 0) || !(c->tau_max[j] >= 0) ||
         !SD_ISFINITE(c->kp[j]) || !SD_ISFINITE(c->kd[j]) || !SD_ISFINITE(c->tau_max[j])) {

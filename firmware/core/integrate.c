@@ -1,29 +1,45 @@
 // integrate.c: fixed-step integration of (q, qd) with the direct dynamics (paper §3.1).
 // RK4 evaluates the inbound/outbound recursion four times per step; explicit Euler once.
-// A free root's unit quaternion is integrated as four numbers and renormalized after the step,
+// Unit quaternions (a free root, ball joints) are integrated as four numbers and renormalized,
 // which keeps the orientation a rotation without lowering the order of the method.
 #include "servodyn.h"
 #include "sd_joint.h"
 
+// quatdot = quat (x) (w, 0) / 2 for a quaternion (x, y, z, s) turning at the body-frame rate w
+static inline void quat_rate(const sd_real* quat, const sd_real* w, sd_real* rate) {
+  sd_real x = quat[0], y = quat[1], z = quat[2], s = quat[3];
+  rate[0] = SD_R(0.5) * (s*w[0] + y*w[2] - z*w[1]);
+  rate[1] = SD_R(0.5) * (s*w[1] + z*w[0] - x*w[2]);
+  rate[2] = SD_R(0.5) * (s*w[2] + x*w[1] - y*w[0]);
+  rate[3] = SD_R(-0.5) * (x*w[0] + y*w[1] + z*w[2]);
+}
+
+static inline void normalize4(sd_real* quat) {
+  sd_real norm = sd_sqrt(quat[0]*quat[0] + quat[1]*quat[1] + quat[2]*quat[2] + quat[3]*quat[3]);
+  if (norm > 0) {
+    for (int k = 0; k < 4; k++) {
+      quat[k] /= norm;
+    }
+  }
+}
+
 void sd_position_rate(const sd_model* m, const sd_real* q, const sd_real* qd, sd_real* qdot) {
   int first = 0;
   if (m->free_root) {
-    // the origin moves at world_R_body v; the quaternion turns at q (x) (w, 0) / 2
-    const sd_real* quat = q + 3;
-    const sd_real* w = qd + 3;
+    // the origin moves at world_R_body v; the quaternion turns at the body-frame rate
     sd_real Rw[9];
-    sd_quat_to_rot(Rw, quat);
+    sd_quat_to_rot(Rw, q + 3);
     sd_mulmv(qdot, Rw, qd);
-    sd_real x = quat[0], y = quat[1], z = quat[2], s = quat[3];
-    qdot[3] = SD_R(0.5) * (s*w[0] + y*w[2] - z*w[1]);
-    qdot[4] = SD_R(0.5) * (s*w[1] + z*w[0] - x*w[2]);
-    qdot[5] = SD_R(0.5) * (s*w[2] + x*w[1] - y*w[0]);
-    qdot[6] = SD_R(-0.5) * (x*w[0] + y*w[1] + z*w[2]);
+    quat_rate(q + 3, qd + 3, qdot + 3);
     first = 1;
   }
-  // hinge coordinates move at their own rates
   for (int i = first; i < m->nbody; i++) {
     int qadr = m->body_qadr[i], adr = m->body_dofadr[i];
+    if (m->body_ball[i]) {
+      quat_rate(q + qadr, qd + adr, qdot + qadr);
+      continue;
+    }
+    // hinge coordinates move at their own rates
     for (int k = 0; k < m->body_dofnum[i]; k++) {
       qdot[qadr + k] = qd[adr + k];
     }
@@ -31,14 +47,12 @@ void sd_position_rate(const sd_model* m, const sd_real* q, const sd_real* qd, sd
 }
 
 void sd_normalize_q(const sd_model* m, sd_real* q) {
-  if (!m->free_root) {
-    return;
+  if (m->free_root) {
+    normalize4(q + 3);
   }
-  sd_real* quat = q + 3;
-  sd_real norm = sd_sqrt(quat[0]*quat[0] + quat[1]*quat[1] + quat[2]*quat[2] + quat[3]*quat[3]);
-  if (norm > 0) {
-    for (int k = 0; k < 4; k++) {
-      quat[k] /= norm;
+  for (int i = 0; i < m->nbody; i++) {
+    if (m->body_ball[i]) {
+      normalize4(q + m->body_qadr[i]);
     }
   }
 }

@@ -88,6 +88,9 @@ int sd_model_setup(sd_model* m, int* bad_body) {
         nextdof + nd > m->ndof) {
       return SD_ERR_DOFNUM;
     }
+    if (m->body_ball[i] && (nd != 3 || free)) {
+      return SD_ERR_BALL;
+    }
     if (!sd_allfinite(m->body_pos[i], 3) || !sd_allfinite(&m->body_mass[i], 1) ||
         !sd_allfinite(m->body_com[i], 3) || !sd_allfinite(m->body_inertia[i], 6)) {
       return SD_ERR_NONFINITE;
@@ -120,10 +123,12 @@ int sd_model_setup(sd_model* m, int* bad_body) {
 
   // derived constants: coordinate addresses (a free root's quaternion takes one more),
   // first moment, inertia about the origin, transposed rotations
-  m->nq = m->ndof + (m->free_root ? 1 : 0);
+  int extra = m->free_root ? 1 : 0;
   for (int i = 0; i < m->nbody; i++) {
-    m->body_qadr[i] = m->body_dofadr[i] + ((m->free_root && i > 0) ? 1 : 0);
+    m->body_qadr[i] = m->body_dofadr[i] + (i > 0 ? extra : 0);
+    extra += m->body_ball[i];
   }
+  m->nq = m->ndof + extra;
   for (int i = 0; i < m->nbody; i++) {
     sd_real mass = m->body_mass[i];
     const sd_real* c = m->body_com[i];
@@ -167,6 +172,7 @@ const char* sd_strerror(int code) {
     case SD_ERR_INERTIA:   return "inertia must be positive definite and obey the triangle inequality";
     case SD_ERR_FIRSTDOF:  return "the first dof of a joint must have an identity dof_rot";
     case SD_ERR_FREE:      return "a free root must be body 0, on the base, with 6 dofs";
+    case SD_ERR_BALL:      return "a ball joint has exactly 3 dofs and is not the free root";
     default:               return "unknown error";
   }
 }

@@ -54,12 +54,20 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       sd_mulmv(w, R, wp);
       sd_mulmv(dw, R, dwp);
       int adr = m->body_dofadr[i];
-      for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
-        const sd_real* z = d->dof_axis[j];
-        sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
-        dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
-        sd_addcross(dw, w, zqd);
-        w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+      if (m->body_ball[i]) {
+        // a ball joint's dofs are the body-frame rate itself: dw += qdd + w x qd, w += qd
+        const sd_real* wj = qd + adr;
+        dw[0] += qdd[adr]; dw[1] += qdd[adr + 1]; dw[2] += qdd[adr + 2];
+        sd_addcross(dw, w, wj);
+        w[0] += wj[0]; w[1] += wj[1]; w[2] += wj[2];
+      } else {
+        for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
+          const sd_real* z = d->dof_axis[j];
+          sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
+          dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
+          sd_addcross(dw, w, zqd);
+          w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+        }
       }
     }
 

@@ -36,6 +36,7 @@ typedef double sd_real;
 #define SD_MAX_DOF 128
 #endif
 #define SD_MAX_JOINT_DOF 3
-#define SD_MAX_Q (SD_MAX_DOF + 1)  // a free root's quaternion takes one coordinate more
+// a quaternion (free root, ball joint) takes one coordinate more than its 3 rotational dofs
+#define SD_MAX_Q (SD_MAX_DOF + SD_MAX_DOF / 3 + 1)
 
 #endif  // SD_CONFIG_H

@@ -5,6 +5,16 @@
 #include "servodyn.h"
 #include "sd_math.h"
 
+// world_R_body of the unit quaternion (x, y, z, w); a quaternion off unit length by rounding is
+// normalized on the way (the factor 2 / |quat|^2)
+static inline void sd_quat_to_rot(sd_real R[9], const sd_real* quat) {
+  sd_real x = quat[0], y = quat[1], z = quat[2], w = quat[3];
+  sd_real s = SD_R(2) / (x*x + y*y + z*z + w*w);
+  R[0] = SD_R(1) - s*(y*y + z*z); R[1] = s*(x*y - z*w);            R[2] = s*(x*z + y*w);
+  R[3] = s*(x*y + z*w);            R[4] = SD_R(1) - s*(x*x + z*z); R[5] = s*(y*z - x*w);
+  R[6] = s*(x*z - y*w);            R[7] = s*(y*z + x*w);            R[8] = SD_R(1) - s*(x*x + y*y);
+}
+
 // Compute body_R_parent of body i at q and the axes of its dofs in the body frame.
 // A joint's dof frames are chained: parent_R_body = body_rot Rz(q1) dof_rot2 Rz(q2) dof_rot3 Rz(q3),
 // so body_R_parent is built from the last dof inwards by pre-multiplying Rz(qk)' dof_rotk'.
@@ -19,6 +29,20 @@ static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, con
   if (nd == 0) {
     for (int k = 0; k < 9; k++) {
       R[k] = m->body_rotT[i][k];
+    }
+    return;
+  }
+
+  // a ball joint: parent_R_body = body_rot R(quat), and its dofs turn about the body's axes
+  if (m->body_ball[i]) {
+    sd_real Rq[9];
+    sd_quat_to_rot(Rq, q + adr);
+    for (int r = 0; r < 3; r++) {
+      for (int c = 0; c < 3; c++) {
+        R[3*r + c] = Rq[r]*m->body_rotT[i][c] + Rq[3 + r]*m->body_rotT[i][3 + c] +
+                     Rq[6 + r]*m->body_rotT[i][6 + c];
+        d->dof_axis[adr + r][c] = (r == c) ? SD_R(1) : SD_R(0);
+      }
     }
     return;
   }
@@ -54,16 +78,6 @@ static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, con
     d->dof_axis[j][1] = 0;
     d->dof_axis[j][2] = 1;
   }
-}
-
-// world_R_body of the unit quaternion (x, y, z, w); a quaternion off unit length by rounding is
-// normalized on the way (the factor 2 / |quat|^2)
-static inline void sd_quat_to_rot(sd_real R[9], const sd_real* quat) {
-  sd_real x = quat[0], y = quat[1], z = quat[2], w = quat[3];
-  sd_real s = SD_R(2) / (x*x + y*y + z*z + w*w);
-  R[0] = SD_R(1) - s*(y*y + z*z); R[1] = s*(x*y - z*w);            R[2] = s*(x*z + y*w);
-  R[3] = s*(x*y + z*w);            R[4] = SD_R(1) - s*(x*x + z*z); R[5] = s*(y*z - x*w);
-  R[6] = s*(x*z - y*w);            R[7] = s*(y*z + x*w);            R[8] = SD_R(1) - s*(x*x + y*y);
 }
 
 // body_R_parent of a free root: the transpose of the quaternion's world_R_body

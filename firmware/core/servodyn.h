@@ -9,6 +9,9 @@
 //   - each body hangs from its parent by one joint of 0 to 3 rotational dofs; dof k of a joint
 //     rotates about the z axis of its own dof frame; the dof frames of a joint share one origin,
 //     body_pos in the parent frame, which is also the origin of the body frame;
+//   - a 3-dof joint may instead be a ball joint (body_ball = 1): its coordinates are a unit
+//     quaternion (x, y, z, w) of the body in its joint frame, 4 numbers of q, and its 3 dofs the
+//     body's angular velocity relative to the parent, in the body frame; no gimbal lock;
 //   - or body 0 floats free (the paper's FREE node, free_root = 1): 6 dofs whose coordinates are
 //     the origin in the base frame and a unit quaternion (x, y, z, w), 7 numbers of q; its
 //     velocity is (v, w) of the origin in the body frame, its "torque" the wrench (f, n) in the
@@ -38,7 +41,8 @@ typedef struct sd_model_ {
   // tree and joints
   int body_parent[SD_MAX_BODY];           // (nbody) parent body id; -1 for the fixed base
   int body_dofnum[SD_MAX_BODY];           // (nbody) dofs of the body's joint, 0..3
-  int body_dofadr[SD_MAX_BODY];           // (nbody) index in q of the joint's first dof
+  int body_dofadr[SD_MAX_BODY];           // (nbody) index in qd of the joint's first dof
+  int body_ball[SD_MAX_BODY];             // (nbody) 1: a ball joint of 3 dofs (quaternion in q)
   sd_real body_pos[SD_MAX_BODY][3];       // (nbody x 3) joint origin in the parent frame
   sd_real body_rot[SD_MAX_BODY][9];       // (nbody x 9) parent_R_frame of the joint's first frame
   sd_real dof_rot[SD_MAX_DOF][9];         // (ndof x 9) prev_R_dof: dof frame in the previous dof's
@@ -51,7 +55,8 @@ typedef struct sd_model_ {
                                           //   xx yy zz xy xz yz (kg m^2)
 
   // derived by sd_model_setup
-  int nq;                                 // length of q: ndof, plus 1 with a free root
+  int nq;                                 // length of q: ndof, plus 1 per quaternion (free
+                                          //   root, ball joints)
   int body_qadr[SD_MAX_BODY];             // (nbody) index in q of the joint's first coordinate
   sd_real body_mcom[SD_MAX_BODY][3];      // (nbody x 3) mass * com, the first moment h
   sd_real body_inertia0[SD_MAX_BODY][6];  // (nbody x 6) inertia about the body origin
@@ -72,6 +77,7 @@ enum sd_error_ {
   SD_ERR_INERTIA = -7,       // inertia not positive definite or violating the triangle inequality
   SD_ERR_FIRSTDOF = -8,      // dof_rot of a joint's first dof is not the identity
   SD_ERR_FREE = -9,          // a free root that is not body 0 on the base with 6 dofs
+  SD_ERR_BALL = -10,         // a ball joint without exactly 3 dofs
 };
 
 // Validate a model filled in by the caller and compute its derived fields.
@@ -166,7 +172,7 @@ void sd_step(const sd_model* m, sd_data* d, sd_real* q, sd_real* qd, const sd_re
 // velocity in the base frame and the quaternion rate q (x) (w, 0) / 2.
 void sd_position_rate(const sd_model* m, const sd_real* q, const sd_real* qd, sd_real* qdot);
 
-// Scale a free root's quaternion in q to unit length (nothing without a free root).
+// Scale the quaternions in q (free root, ball joints) to unit length.
 void sd_normalize_q(const sd_model* m, sd_real* q);
 
 #ifdef __cplusplus

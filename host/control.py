@@ -1,0 +1,126 @@
+"""Closed-form control (paper §3.2, Fig. 4): inverse dynamics every `time_step` produce the
+torques that drive the direct dynamics every `small_time_step`. The step itself is the C core's
+(`sd_control_step`, the same one the firmware runs); this module configures it and runs closed
+loops against a simulated plant."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core
+from .model import INTEGRATORS
+from .trajectory import Trajectory
+
+MODES = {
+    "feedforward": _core.MODE_FEEDFORWARD,          # tau = RNEA(desired), held for time_step
+    "feedforward_pd": _core.MODE_FEEDFORWARD_PD,    # the held feed-forward plus a joint PD
+    "computed_torque": _core.MODE_COMPUTED_TORQUE,  # RNEA(measured, qdd_d + kp e + kd e'), held
+    "pd": _core.MODE_PD,                            # the joint PD alone
+}
+DEFAULT_MODE = "feedforward_pd"
+
+
+@dataclass
+class ControlConfig:
+    """What a user sets. Gains default from a bandwidth: for the PD modes kp = M_ii w², kd =
+    2 zeta M_ii w with M_ii the joint's own inertia at the start pose; for computed torque
+    kp = w², kd = 2 zeta w (the model supplies the inertia)."""
+    mode: str = DEFAULT_MODE
+    small_time_step: float = 1e-3     # s: the control and plant period
+    time_step: float = 1e-2           # s: inverse dynamics period, a multiple of small_time_step
+    bandwidth: float = 20.0           # rad/s
+    damping: float = 1.0
+    kp: np.ndarray | None = None
+    kd: np.ndarray | None = None
+    tau_max: np.ndarray | float | None = None   # N m; None or 0: no limit
+
+    @property
+    def update_ticks(self) -> int:
+        ratio = self.time_step / self.small_time_step
+        ticks = int(round(ratio))
+        if ticks < 1 or abs(ratio - ticks) > 1e-9 * ratio:
+            raise ValueError(f"time_step ({self.time_step} s) must be a whole multiple of "
+                             f"small_time_step ({self.small_time_step} s)")
+        return ticks
+
+
+@dataclass
+class RunResult:
+    """A closed-loop run: row k is tick k (time t[k]): the state the controller measured, the
+    desired state, and the torque it commanded for that tick."""
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    tau: np.ndarray
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    dof_names: tuple[str, ...]
+    completed: bool                   # False when the plant diverged before the end
+    nlimited: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def error(self) -> np.ndarray:
+        return self.q_d - self.q
+
+    def tracking_rms(self) -> np.ndarray:
+        return np.sqrt(np.mean(self.error**2, axis=0))
+
+    def tracking_max(self) -> np.ndarray:
+        return np.abs(self.error).max(axis=0)
+
+
+class Controller:
+    """The C core's controller step with a configuration, for one model."""
+
+    def __init__(self, model, config: ControlConfig | None = None, q_start=None):
+        if config is None:
+            config = ControlConfig()
+        if config.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got '{config.mode}'")
+        self.model = model
+        self.config = config
+        n = model.nv
+        q_start = model.neutral_q() if q_start is None else np.asarray(q_start, dtype=float)
+        w, zeta = config.bandwidth, config.damping
+        if config.mode == "computed_torque":
+            kp, kd = np.full(n, w * w), np.full(n, 2 * zeta * w)
+        else:
+            inertia = np.diag(model.mass_matrix(q_start))
+            kp, kd = inertia * w * w, 2 * zeta * inertia * w
+        self.kp = kp if config.kp is None else np.broadcast_to(np.asarray(config.kp, float), (n,)).copy()
+        self.kd = kd if config.kd is None else np.broadcast_to(np.asarray(config.kd, float), (n,)).copy()
+        limit = 0.0 if config.tau_max is None else config.tau_max
+        self.tau_max = np.broadcast_to(np.asarray(limit, dtype=float), (n,)).copy()
+        self._c = _core.Controller(model.core, MODES[config.mode], config.update_ticks, self.kp,
+                                   self.kd, self.tau_max)
+
+    def reset(self) -> None:
+        self._c.reset()
+
+    def step(self, q_d, qd_d, qdd_d, q, qd) -> np.ndarray:
+        """One small_time_step: the torques for the measured (q, qd) and the desired state."""
+        return self._c.step(q_d, qd_d, qdd_d, q, qd)
+
+    @property
+    def status(self) -> int:
+        return self._c.status
+
+    def run(self, plant, traj: Trajectory, q0=None, qd0=None, integrator: str = "rk4") -> RunResult:
+        """Drive the plant (a Model) along the trajectory, one controller step and one plant
+        step of small_time_step per sample, in C. The plant starts at the trajectory's first
+        point unless q0, qd0 are given."""
+        dt = self.config.small_time_step
+        if len(traj.t) > 1 and not np.allclose(np.diff(traj.t), dt, rtol=1e-6, atol=1e-12):
+            raise ValueError(f"the trajectory must be sampled every small_time_step ({dt} s)")
+        q0 = traj.q[0] if q0 is None else np.asarray(q0, dtype=float)
+        qd0 = traj.qd[0] if qd0 is None else np.asarray(qd0, dtype=float)
+        self._c.reset()
+        q, qd, tau, ticks = self._c.simulate(plant.core, traj.q, traj.qd, traj.qdd, q0, qd0, dt,
+                                             INTEGRATORS[integrator])
+        n = ticks
+        return RunResult(t=traj.t[:n], q=q[:n], qd=qd[:n], tau=tau[:n], q_d=traj.q[:n],
+                         qd_d=traj.qd[:n], dof_names=self.model.dof_names,
+                         completed=n == len(traj.t), nlimited=self._c.nlimited)

@@ -1,0 +1,128 @@
+"""Motions: keyframes (TOML) interpolated with C2 continuity by the C core, and the validation
+every trajectory passes before it reaches a controller — increasing finite times, finite values,
+the model's joint limits and any velocity and acceleration limits — with errors that name the
+keyframe or row and the dof."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from .trajectory import Trajectory, TrajectoryError
+
+MOTIONS_DIR = Path(__file__).parent / "motions"
+
+
+def builtin_motions() -> dict[str, Path]:
+    return {p.stem: p for p in sorted(MOTIONS_DIR.glob("*.toml"))}
+
+
+@dataclass
+class Motion:
+    """Keyframes of every dof of a model, sampled through the core's C2 interpolation."""
+    name: str
+    model: str                        # the model the keyframes are written for
+    t: np.ndarray                     # (K,) keyframe times (s)
+    q: np.ndarray                     # (K, n) keyframe positions (rad), model dof order
+    dof_names: tuple[str, ...]
+    phases: list[str] = field(default_factory=list)
+    description: str = ""
+    source: str = ""
+
+    def __post_init__(self):
+        try:
+            self._trajectory = _core.Trajectory(self.t - self.t[0], self.q)
+        except ValueError as err:
+            raise TrajectoryError(f"motion '{self.name}': {err}") from None
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def at(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """q, qd, qdd at a time or an array of times (s from the first keyframe)."""
+        return self._trajectory.eval(np.asarray(t, dtype=float))
+
+    def sample(self, dt: float, time_scale: float = 1.0) -> Trajectory:
+        """The motion every dt seconds; time_scale > 1 plays it slower (velocities / scale,
+        accelerations / scale²)."""
+        if not dt > 0 or not time_scale > 0:
+            raise ValueError("dt and time_scale must be positive")
+        n = int(round(self.duration * time_scale / dt))
+        t = np.arange(n + 1) * dt
+        q, qd, qdd = self.at(t / time_scale)
+        return Trajectory(t=t, q=q, qd=qd / time_scale, qdd=qdd / time_scale**2, derived=True)
+
+
+def load_motion(name_or_path: str | Path, model) -> Motion:
+    """A built-in motion by name or a keyframe file, checked against the model's dofs and limits."""
+    builtins = builtin_motions()
+    path = builtins.get(str(name_or_path), Path(name_or_path))
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise TrajectoryError(f"{name_or_path}: no such keyframe file, and not a built-in motion "
+                              f"({', '.join(builtins) or 'none installed'})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise TrajectoryError(f"{path}: not valid TOML ({err})") from None
+    frames = data.get("keyframe")
+    if not isinstance(frames, list) or len(frames) < 2:
+        raise TrajectoryError(f"{path}: needs at least two [[keyframe]] entries")
+    names = model.dof_names
+    t = np.empty(len(frames))
+    q = np.empty((len(frames), len(names)))
+    for k, frame in enumerate(frames):
+        where = f"{path}: keyframe {k + 1}"
+        value = frame.get("t")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise TrajectoryError(f"{where}: 't' must be a finite number of seconds")
+        t[k] = value
+        if k and t[k] <= t[k - 1]:
+            raise TrajectoryError(f"{where}: time must increase (t = {t[k]:g} after {t[k - 1]:g})")
+        angles = frame.get("q")
+        if not isinstance(angles, dict):
+            raise TrajectoryError(f"{where}: needs a table q = {{dof = angle, ...}}")
+        unknown = sorted(set(angles) - set(names))
+        if unknown:
+            raise TrajectoryError(f"{where}: unknown dof '{unknown[0]}' for model '{model.name}'")
+        for j, name in enumerate(names):
+            value = angles.get(name)
+            if value is None:
+                raise TrajectoryError(f"{where}: missing dof '{name}'")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise TrajectoryError(f"{where}, dof '{name}': angle must be a finite number")
+            q[k, j] = value
+    motion = Motion(name=str(data.get("name", path.stem)), model=str(data.get("model", model.name)),
+                    t=t, q=q, dof_names=names, phases=[str(f.get("phase", "")) for f in frames],
+                    description=str(data.get("description", "")), source=str(data.get("source", "")))
+    check_limits(motion.sample(1e-3), model, origin=str(path))
+    return motion
+
+
+def check_limits(traj: Trajectory, model, origin: str = "trajectory", velocity=None,
+                 acceleration=None) -> None:
+    """Raise TrajectoryError at the first sample outside the model's joint limits, or beyond the
+    given velocity or acceleration limits (rad/s, rad/s²; scalars or one per dof)."""
+    names = model.dof_names
+    checks = [("position", traj.q, model.lower, model.upper, "rad")]
+    if velocity is not None:
+        v = np.broadcast_to(np.asarray(velocity, dtype=float), (len(names),))
+        checks.append(("speed", np.abs(traj.qd), -np.inf * v, v, "rad/s"))
+    if acceleration is not None:
+        a = np.broadcast_to(np.asarray(acceleration, dtype=float), (len(names),))
+        checks.append(("acceleration", np.abs(traj.qdd), -np.inf * a, a, "rad/s²"))
+    tol = 1e-9
+    for what, values, lo, hi, unit in checks:
+        bad = (values < lo - tol) | (values > hi + tol)
+        if np.any(bad):
+            row, j = np.argwhere(bad)[0]
+            limit = lo[j] if values[row, j] < lo[j] else hi[j]
+            raise TrajectoryError(f"{origin}: t = {traj.t[row]:.3f} s (sample {row + 1}), dof "
+                                  f"'{names[j]}': {what} {values[row, j]:.4g} {unit} beyond the "
+                                  f"limit {limit:.4g} {unit}")

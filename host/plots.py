@@ -1,0 +1,137 @@
+"""Figures a reader compares with the paper's: stick-figure postures (Figs. 5, 7), weights and
+joint torques (Fig. 6), torque curves (Fig. 8). matplotlib, off-screen."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+VIEWS = {"side": (0, 2, "x forward (m)", "z up (m)"), "top": (0, 1, "x forward (m)", "y left (m)"),
+         "front": (1, 2, "y left (m)", "z up (m)")}
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def skeleton(model, q) -> list[np.ndarray]:
+    """Line segments (2 x 3 world points) of a stick figure: parent origin to child origin, and
+    for a body without children its origin to twice its centre of mass (the segment's end)."""
+    _, origins = model.body_poses(q)
+    coms = model.com_positions(q)
+    has_child = {b.parent for b in model.bodies}
+    segments = []
+    for i, body in enumerate(model.bodies):
+        if body.parent >= 0:
+            segments.append(np.array([origins[body.parent], origins[i]]))
+        if i not in has_child:
+            segments.append(np.array([origins[i], origins[i] + 2 * (coms[i] - origins[i])]))
+    return segments
+
+
+def draw_posture(ax, model, q, view: str = "side", color="k", alpha=1.0, lw=2.0) -> None:
+    a, b, xlabel, ylabel = VIEWS[view]
+    for seg in skeleton(model, q):
+        ax.plot(seg[:, a], seg[:, b], "-", color=color, alpha=alpha, lw=lw, solid_capstyle="round")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_aspect("equal", adjustable="box")
+
+
+def posture_series(path: Path, model, qs, times, views=("side", "top"), title: str = "") -> None:
+    """Postures overlaid, early ones light and late ones dark, one panel per view (paper Fig. 7)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(views), figsize=(5.5 * len(views), 5.5))
+    axes = np.atleast_1d(axes)
+    cmap = plt.get_cmap("viridis")
+    for ax, view in zip(axes, views):
+        for k, q in enumerate(qs):
+            draw_posture(ax, model, q, view, color=cmap(k / max(1, len(qs) - 1)), alpha=0.85, lw=1.4)
+        ax.set_title(f"{view} view")
+        ax.grid(alpha=0.3)
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(times[0], times[-1]))
+    fig.colorbar(sm, ax=axes.tolist(), label="time (s)", shrink=0.8)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def snapshots(path: Path, model, qs, times, view: str = "front", title: str = "") -> None:
+    """One small panel per posture (paper Fig. 5)."""
+    plt = _pyplot()
+    n = len(qs)
+    cols = min(n, 6)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 3.2 * rows), squeeze=False)
+    everything = np.concatenate([np.concatenate(skeleton(model, q)) for q in qs])
+    a, b, _, _ = VIEWS[view]
+    lo, hi = everything.min(axis=0) - 0.1, everything.max(axis=0) + 0.1
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    for ax, q, t in zip(axes.flat, qs, times):
+        draw_posture(ax, model, q, view, lw=2.2)
+        ax.set_xlim(lo[a], hi[a])
+        ax.set_ylim(lo[b], hi[b])
+        ax.set_title(f"t = {t:.1f} s", fontsize=9)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+        ax.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str = "",
+           marks: dict[str, float] | None = None) -> None:
+    """Time curves, one line per name (paper Fig. 8), with optional vertical event marks."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for name, values in series.items():
+        ax.plot(t, values, label=name)
+    for label, when in (marks or {}).items():
+        ax.axvline(when, color="0.5", ls=":", lw=1)
+        ax.text(when, ax.get_ylim()[1], label, rotation=90, va="top", ha="right", fontsize=8, color="0.4")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
+    """Each solid's weight (N) and each joint's torque (N m) holding the posture (paper Fig. 6)."""
+    plt = _pyplot()
+    fig, (ax0, ax1, ax2) = plt.subplots(1, 3, figsize=(15, 5.5), width_ratios=[1.1, 1, 1.6])
+    draw_posture(ax0, model, q, "front", lw=2.5)
+    coms = model.com_positions(q)
+    weights = np.array([b.mass for b in model.bodies]) * np.linalg.norm(model.gravity)
+    for c, w in zip(coms, weights):
+        ax0.annotate("", xy=(c[1], c[2] - 0.004 * w), xytext=(c[1], c[2]),
+                     arrowprops=dict(arrowstyle="->", color="tab:red", lw=1.2))
+    ax0.set_title("posture (front) and weights G")
+    ax1.barh(model.body_names, weights, color="tab:red")
+    ax1.set_xlabel("weight G (N)")
+    ax1.invert_yaxis()
+    names = list(model.dof_names)
+    ax2.barh(names, tau, color="tab:blue")
+    ax2.set_xlabel("joint torque (N m)")
+    ax2.invert_yaxis()
+    ax2.tick_params(labelsize=7)
+    for ax in (ax0, ax1, ax2):
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
