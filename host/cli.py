@@ -11,6 +11,7 @@ import numpy as np
 
 from . import builtin_models, load_model
 from .model import ModelError
+from .motion import check_limits
 from .trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
 
 
@@ -36,6 +37,9 @@ def cmd_torques(args) -> None:
     model = _load(args.model)
     try:
         traj = read_trajectory_csv(args.trajectory, model.dof_names)
+        if not args.ignore_limits:
+            check_limits(traj, model, origin=str(args.trajectory), velocity=args.max_velocity,
+                         acceleration=args.max_acceleration)
     except TrajectoryError as err:
         raise CliError(str(err)) from None
     start = time.perf_counter()
@@ -88,6 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("trajectory", help="trajectory CSV")
     p.add_argument("-o", "--output", required=True, help="torque CSV to write (t, tau_<dof>)")
     p.add_argument("--top", type=int, default=7, help="how many peak torques to print (default 7)")
+    p.add_argument("--max-velocity", type=float, default=None, metavar="RAD_S",
+                   help="refuse a trajectory faster than this at any dof")
+    p.add_argument("--max-acceleration", type=float, default=None, metavar="RAD_S2",
+                   help="refuse a trajectory accelerating harder than this at any dof")
+    p.add_argument("--ignore-limits", action="store_true",
+                   help="skip the joint-limit check (positions outside the model's limits)")
     p.set_defaults(func=cmd_torques)
 
     p = sub.add_parser("export", help="write a model as URDF")

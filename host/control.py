@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _core
+from . import _core, _core32
 from .model import INTEGRATORS
 from .trajectory import Trajectory
 
@@ -75,7 +75,8 @@ class RunResult:
 class Controller:
     """The C core's controller step with a configuration, for one model."""
 
-    def __init__(self, model, config: ControlConfig | None = None, q_start=None):
+    def __init__(self, model, config: ControlConfig | None = None, q_start=None,
+                 precision: str = "double"):
         if config is None:
             config = ControlConfig()
         if config.mode not in MODES:
@@ -94,8 +95,14 @@ class Controller:
         self.kd = kd if config.kd is None else np.broadcast_to(np.asarray(config.kd, float), (n,)).copy()
         limit = 0.0 if config.tau_max is None else config.tau_max
         self.tau_max = np.broadcast_to(np.asarray(limit, dtype=float), (n,)).copy()
-        self._c = _core.Controller(model.core, MODES[config.mode], config.update_ticks, self.kp,
-                                   self.kd, self.tau_max)
+        core = model._pick(precision)
+        controller_type = _core32.Controller if precision == "float" else _core.Controller
+        try:
+            self._c = controller_type(core, MODES[config.mode], config.update_ticks, self.kp,
+                                      self.kd, self.tau_max)
+        except ValueError as err:
+            raise ValueError(f"{err} (ball joints are for simulation only)" if any(
+                b.ball for b in model.bodies) else str(err)) from None
 
     def reset(self) -> None:
         self._c.reset()

@@ -89,3 +89,31 @@ def random_state(rng, model, scale_qd=2.0, scale_qdd=5.0):
     else:
         q = v
     return q, rng.normal(size=n) * scale_qd, rng.normal(size=n) * scale_qdd
+
+
+def pinocchio_direct(model):
+    """The model built joint by joint in Pinocchio (no URDF): a free-flyer for a free root, a
+    spherical joint for a ball joint, revolute joints about the given axes otherwise. Joint
+    order and coordinates then match servodyn's q and qd directly."""
+    import pinocchio as pin
+    pm = pin.Model()
+    pm.gravity.linear = np.asarray(model.gravity)
+    joint_of = {}
+    for i, body in enumerate(model.bodies):
+        parent = 0 if body.parent < 0 else joint_of[body.parent]
+        placement = pin.SE3(np.asarray(body.rot, dtype=float), np.asarray(body.pos, dtype=float))
+        if body.free:
+            jid = pm.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), f"{body.name}_free")
+        elif body.ball:
+            jid = pm.addJoint(parent, pin.JointModelSpherical(), placement, f"{body.name}_ball")
+        else:
+            assert body.dofs, "welded bodies are not built here"
+            jid = parent
+            for k, dof in enumerate(body.dofs):
+                axis = np.asarray(dof.axis, dtype=float) / np.linalg.norm(dof.axis)
+                jid = pm.addJoint(jid, pin.JointModelRevoluteUnaligned(axis),
+                                  placement if k == 0 else pin.SE3.Identity(), dof.name)
+        pm.appendBodyToJoint(jid, pin.Inertia(body.mass, np.asarray(body.com, float),
+                                              np.asarray(body.inertia, float)), pin.SE3.Identity())
+        joint_of[i] = jid
+    return pm

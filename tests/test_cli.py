@@ -129,3 +129,18 @@ def test_demo_prints_the_torque_profile(tmp_path):
     assert "peak" in res.stdout and "inverse dynamics" in res.stdout
     for name in ("torques.csv", "motion.csv", "torques.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 0
+
+
+def test_torques_refuses_a_trajectory_beyond_the_limits(tmp_path):
+    arm = servodyn.load_model("human_arm")
+    t, q, qd, qdd = reach_motion(arm)
+    q[100:, arm.dof_names.index("r_elbow_flexion")] = 3.0
+    write_traj(tmp_path / "traj.csv", t, arm.dof_names, q, qd, qdd)
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 2
+    assert "sample 101), dof 'r_elbow_flexion': position 3 rad beyond the limit" in res.stderr
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv", "--ignore-limits")
+    assert res.returncode == 0
+    write_traj(tmp_path / "ok.csv", t, arm.dof_names, *reach_motion(arm)[1:])
+    res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", "--max-velocity", "0.5")
+    assert res.returncode == 2 and "speed" in res.stderr
