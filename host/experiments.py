@@ -25,8 +25,19 @@ SMALL_TIME_STEP = 1e-3
 TIME_STEP = 1e-2
 
 
+def _json_safe(value):
+    """JSON has no infinity: a diverged run's drift is written as null (its ran_until_s tells)."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def _write_summary(out: Path, summary: dict) -> None:
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n")
     print(f"wrote {out / 'summary.json'}")
 
 
@@ -146,7 +157,7 @@ def experiment_pendulum(out: Path, small_time_step: float = 1.25e-4, duration: f
                 for integrator in ("rk4", "euler"):
                     t_end, _, d, c, s, _ = run_pendulum(dt, duration, integrator, ball=ball)
                     row[f"{integrator}_{'ball' if ball else 'angles'}"] = {
-                        "energy_drift_rel": d, "com_displacement_max_m": c, "lock_events": s,
+                        "energy_drift_rel": d, "com_displacement_max_m": c, "singular_events": s,
                         "ran_until_s": float(t_end[-1])}
             rows.append(row)
             cells = [_drift_cell(row[k]) for k in ("rk4_ball", "euler_ball", "rk4_angles", "euler_angles")]

@@ -71,6 +71,7 @@ static const struct {
   {"test_ag.c", sdt_ag_tests},
   {"test_integrate.c", sdt_integrate_tests},
   {"test_trajectory.c", sdt_trajectory_tests},
+  {"test_control.c", sdt_control_tests},
 };
 
 int main(int argc, char** argv) {

@@ -19,6 +19,7 @@ extern const sdt_test sdt_rnea_tests[];
 extern const sdt_test sdt_ag_tests[];
 extern const sdt_test sdt_integrate_tests[];
 extern const sdt_test sdt_trajectory_tests[];
+extern const sdt_test sdt_control_tests[];
 
 // Describe the case under test (printf-style); failures print it. Cleared before each test.
 void sdt_context(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
