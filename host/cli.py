@@ -35,6 +35,9 @@ def cmd_models(args) -> None:
 
 def cmd_torques(args) -> None:
     model = _load(args.model)
+    if model.nq != model.nv:
+        raise CliError(f"{args.model}: a trajectory CSV gives one angle per dof; this model has "
+                       "quaternion coordinates (a free root or ball joints)")
     try:
         traj = read_trajectory_csv(args.trajectory, model.dof_names)
         if not args.ignore_limits:
