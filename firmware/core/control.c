@@ -27,6 +27,7 @@ int sd_control_check(const sd_model* m, const sd_control_config* c) {
 void sd_control_reset(sd_control_state* s) {
   s->tick = 0;
   s->status = 0;
+  s->refresh = 0;
   s->nlimited = 0;
   s->nfault = 0;
   for (int j = 0; j < SD_MAX_DOF; j++) {
@@ -57,11 +58,13 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
     s->status = SD_STATUS_NONFINITE;
     s->nfault++;
     s->tick++;
+    s->refresh = 1;  // a skipped update must not leave an old torque held for a whole period
     return;
   }
 
-  // every time_step: the inverse dynamics, held until the next update
-  if (s->tick % c->update_ticks == 0) {
+  // every time_step, and after a fault: the inverse dynamics, held until the next update
+  if (s->tick % c->update_ticks == 0 || s->refresh) {
+    s->refresh = 0;
     if (c->mode == SD_MODE_FEEDFORWARD || c->mode == SD_MODE_FEEDFORWARD_PD) {
       sd_rnea(m, d, q_d, qd_d, qdd_d, NULL, s->tau_hold);
     } else if (c->mode == SD_MODE_COMPUTED_TORQUE) {

@@ -44,6 +44,7 @@ typedef struct sd_control_state_ {
   sd_real tau_hold[SD_MAX_DOF];   // (ndof) the torque of the last inverse dynamics, held
   sd_real qdd_ref[SD_MAX_DOF];    // (ndof) scratch: reference acceleration of computed torque
   int status;                     // sd_control_status_ bits of the last step
+  int refresh;                    // 1: recompute the inverse dynamics at the next good step
   long nlimited;                  // steps with a clamped torque
   long nfault;                    // steps refused for non-finite input
 } sd_control_state;

@@ -416,10 +416,18 @@ static void nonfinite_input_is_a_fault(void) {
                     "the held torque is untouched by the bad step");
           continue;
         }
+        if (t == 3) {
+          // the first good step after a fault recomputes the inverse dynamics, as a controller
+          // starting afresh on this state does (the skipped update must not linger)
+          sd_control_state fresh;
+          sd_control_reset(&fresh);
+          sd_control_step(&g_model, &g_ref, &g_cfg, &fresh, s.q_d, s.qd_d, s.qdd_d, s.q, s.qd, ref);
+        }
         step(&s, tau);
         sdt_context("%s = %s at tick 2, now tick %d", kBadName[which], kind ? "inf" : "NaN", t);
         EXPECT_LE(sdt_maxdiff(tau, ref, n), 0,
-                  "the finite steps after a fault give what a controller that never saw it gives");
+                  "after a fault: a fresh inverse dynamics, then the same as a controller that "
+                  "never saw the fault from its next update on");
         EXPECT_INT(g_state.status, 0, "a finite step clears the fault flag");
       }
       EXPECT_INT(g_state.nfault, 1, "one fault in the run");
@@ -585,6 +593,21 @@ static void free_root_is_not_actuated(void) {
                     "hinge torques use the hinge angles at body_qadr, past the quaternion");
       }
     }
+  }
+  // the last coordinate, past ndof: a bad number there is still seen
+  const int U = 2;
+  configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD_PD, U, 12);
+  sd_control_reset(&g_state);
+  for (int which = 0; which < 2; which++) {
+    ctl_states s;
+    sd_real tau[SDT_MAXN];
+    free_root_states(&seed, &s);
+    (which ? s.q : s.q_d)[g_model.nq - 1] = (sd_real)NAN;
+    step(&s, tau);
+    sdt_context("free root, %s[%d] = NaN", which ? "q" : "q_d", g_model.nq - 1);
+    EXPECT_LE(sdt_maxabs(tau, n), 0, "a NaN in the last of the nq coordinates zeroes every torque");
+    EXPECT_INT(g_state.status, SD_STATUS_NONFINITE, "and is flagged");
+    EXPECT_INT(g_state.nfault, which + 1, "and counted");
   }
 }
 
