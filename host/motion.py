@@ -5,6 +5,7 @@ keyframe or row and the dof."""
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -57,6 +58,21 @@ class Motion:
         t = np.arange(n + 1) * dt
         q, qd, qdd = self.at(t / time_scale)
         return Trajectory(t=t, q=q, qd=qd / time_scale, qdd=qdd / time_scale**2, derived=True)
+
+
+def save_motion(motion: Motion, path: str | Path) -> None:
+    """Write a motion as a keyframe file that load_motion reads back to the same keyframes."""
+    lines = [f"name = {json.dumps(motion.name)}", f"model = {json.dumps(motion.model)}"]
+    for key, text in (("description", motion.description), ("source", motion.source)):
+        if text:
+            lines.append(f"{key} = {json.dumps(text)}")
+    for k, t in enumerate(motion.t):
+        lines += ["", "[[keyframe]]", f"t = {float(t)!r}"]
+        if k < len(motion.phases) and motion.phases[k]:
+            lines.append(f"phase = {json.dumps(motion.phases[k])}")
+        angles = ", ".join(f"{name} = {float(v)!r}" for name, v in zip(motion.dof_names, motion.q[k]))
+        lines.append(f"q = {{ {angles} }}")
+    Path(path).write_text("\n".join(lines) + "\n")
 
 
 def load_motion(name_or_path: str | Path, model) -> Motion:

@@ -108,3 +108,17 @@ def write_columns_csv(path: str | Path, t: np.ndarray, prefix: str, dof_names, v
         writer.writerow(["t"] + [f"{prefix}_{d}" for d in dof_names])
         for ti, row in zip(t, values):
             writer.writerow([repr(float(ti))] + [repr(float(v)) for v in row])
+
+
+def write_trajectory_csv(path: str | Path, traj: Trajectory, dof_names) -> None:
+    """Write t, q_<dof>, qd_<dof>, qdd_<dof> with full double precision (read back exactly by
+    read_trajectory_csv)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = ["t"] + [f"{p}_{d}" for p in ("q", "qd", "qdd") for d in dof_names]
+    rows = np.hstack([traj.t[:, None], traj.q, traj.qd, traj.qdd])
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        for row in rows:
+            writer.writerow([repr(float(v)) for v in row])
