@@ -72,6 +72,41 @@ def cmd_experiment(args) -> None:
     EXPERIMENTS[args.name](Path(args.out))
 
 
+def cmd_swing(args) -> None:
+    from .hal.bus import ServoError
+    from .hal.config import ConfigError
+    from .swing import run_swing
+    try:
+        summary = run_swing(args.config, port=args.port, out=Path(args.out),
+                            feedforward=not args.no_feedforward, time_scale=args.time_scale,
+                            realtime=args.realtime)
+    except (ConfigError, ServoError) as err:
+        raise CliError(str(err)) from None
+    if summary.get("error"):
+        raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
+
+
+def cmd_sim(args) -> None:
+    import time as _time
+    from .hal.config import ConfigError, load_config
+    from .sim.arm import PtyServer, SimulatedArm
+    try:
+        config = load_config(args.config)
+    except ConfigError as err:
+        raise CliError(str(err)) from None
+    arm = SimulatedArm(config)
+    with PtyServer(arm, "lockstep" if args.lockstep else "realtime") as server:
+        print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
+              f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
+        print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
+              flush=True)
+        try:
+            while True:
+                _time.sleep(0.5)
+        except KeyboardInterrupt:
+            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+
+
 def cmd_demo(args) -> None:
     from .demo import run_demo
     run_demo(args.model, Path(args.out))
@@ -115,6 +150,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", choices=["pendulum", "still", "swing", "numbers"])
     p.add_argument("--out", default=None, help="output folder (default out/<name>)")
     p.set_defaults(func=cmd_experiment)
+
+    p = sub.add_parser("swing", help="the tennis swing on servos (the simulated bus by default)",
+                       description="Home the arm, play the tennis forehand under closed-form control "
+                       "and log it. Without --port the simulated Dynamixel bus is started and used.")
+    p.add_argument("--config", default="replica", help="robot configuration (default replica)")
+    p.add_argument("--port", default=None, help="serial port of a real bus (default: simulated)")
+    p.add_argument("--out", default="out/swing", help="output folder (default out/swing)")
+    p.add_argument("--no-feedforward", action="store_true", help="PD only, no inverse dynamics")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help="play the swing this many times slower (default: the configuration's)")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace the loop and the simulated plant by the wall clock (default lock-step)")
+    p.set_defaults(func=cmd_swing)
+
+    p = sub.add_parser("sim", help="serve the simulated Dynamixel bus on a pseudo-terminal")
+    p.add_argument("--config", default="replica", help="robot configuration (default replica)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="advance the plant one period per command transaction (default: real time)")
+    p.set_defaults(func=cmd_sim)
 
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")

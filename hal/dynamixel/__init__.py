@@ -1,0 +1,17 @@
+"""DYNAMIXEL Protocol 2.0: the packet codec (``protocol``), every instruction (``instructions``)
+and an incremental frame reader (``reader``)."""
+
+from . import instructions
+from .instructions import BadParameters, FastReadBlock, ResetOption, encode_fast_reply, split_fast_reply
+from .protocol import (ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, CrcMismatch, ErrorNumber, FieldRangeError,
+                       Instruction, InstructionPacket, PacketError, ProtocolError, StatusError, StatusPacket,
+                       crc16, decode_frame, encode_frame, pack_field, stuff, unpack_field, unstuff)
+from .reader import BadFrame, Fault, PacketReader
+
+__all__ = [
+    "ALERT_BIT", "BROADCAST_ID", "HEADER", "MAX_ID", "BadFrame", "BadParameters", "CrcMismatch",
+    "ErrorNumber", "FastReadBlock", "Fault", "FieldRangeError", "Instruction", "InstructionPacket",
+    "PacketError", "PacketReader", "ProtocolError", "ResetOption", "StatusError", "StatusPacket", "crc16",
+    "decode_frame", "encode_fast_reply", "encode_frame", "instructions", "pack_field", "split_fast_reply",
+    "stuff", "unpack_field", "unstuff",
+]

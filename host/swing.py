@@ -1,0 +1,242 @@
+"""`servodyn swing`: the tennis forehand on servos — real ones on a serial port, or (the default)
+the simulated Dynamixel bus, which speaks the same protocol to the same driver.
+
+Each tick reads the joints (one sync read), runs the C core's controller step (inverse dynamics
+every time_step, a joint PD every tick) and writes the joint torques as motor currents (one sync
+write). A servo error stops the run safely: torque off on every servo, the log written up to
+the failing tick.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .control import ControlConfig, Controller
+from .hal.bus import JointCommand, ServoError, make_bus
+from .hal.config import load_config
+from .motion import load_motion
+from .trajectory import Trajectory
+
+SMALL_TIME_STEP = 1e-3
+TIME_STEP = 1e-2
+HOME_DURATION = 2.0     # s to move from wherever the arm is to the swing's start pose
+
+
+@dataclass
+class SwingLog:
+    """Per tick: time, desired and measured state, commanded torque, measured current."""
+    dof_names: tuple[str, ...]
+    t: list = field(default_factory=list)
+    q_d: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    qd: list = field(default_factory=list)
+    tau: list = field(default_factory=list)
+    current: list = field(default_factory=list)
+    tick_seconds: list = field(default_factory=list)    # wall time of each tick's work
+
+    def add(self, t, q_d, state, tau, seconds) -> None:
+        self.t.append(t)
+        self.q_d.append(np.array(q_d))
+        self.q.append(state.q)
+        self.qd.append(state.qd)
+        self.tau.append(np.array(tau))
+        self.current.append(state.current)
+        self.tick_seconds.append(seconds)
+
+    def write_csv(self, path: Path) -> None:
+        names = self.dof_names
+        header = ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in names]
+        with open(path, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(header)
+            for k in range(len(self.t)):
+                row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
+                writer.writerow([f"{v:.9g}" for v in row])
+
+
+def homing(q_from, q_to, duration: float, dt: float) -> Trajectory:
+    """A minimum-jerk move between two poses, at rest at both ends."""
+    n = max(2, int(round(duration / dt)) + 1)
+    t = np.arange(n) * dt
+    s = t / t[-1]
+    blend = 10 * s**3 - 15 * s**4 + 6 * s**5
+    rate = (30 * s**2 - 60 * s**3 + 30 * s**4) / t[-1]
+    accel = (60 * s - 180 * s**2 + 120 * s**3) / t[-1] ** 2
+    delta = np.asarray(q_to) - np.asarray(q_from)
+    return Trajectory(t=t, q=q_from + np.outer(blend, delta), qd=np.outer(rate, delta),
+                      qdd=np.outer(accel, delta), derived=True)
+
+
+BANDWIDTH = 20.0        # rad/s of each joint's PD on its smallest own inertia
+
+
+def _config(model, mode: str, swing: Trajectory) -> ControlConfig:
+    """PD gains a joint keeps stable at every pose of the run: its own inertia M_ii varies with
+    the pose (shoulder rotation's by 100x between a straight and a bent elbow), so the gains
+    follow its smallest value along the swing and at the neutral pose."""
+    poses = np.vstack([model.neutral_q(), swing.q[:: max(1, len(swing.t) // 40)]])
+    inertia = np.min([np.diag(model.mass_matrix(q)) for q in poses], axis=0)
+    return ControlConfig(mode=mode, small_time_step=SMALL_TIME_STEP, time_step=TIME_STEP,
+                         kp=inertia * BANDWIDTH**2, kd=2 * inertia * BANDWIDTH)
+
+
+def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
+              feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
+              say=print, fault_at: tuple[float, int] | None = None) -> dict:
+    """Home, swing, log; returns the summary. fault_at = (time, servo id): the simulated servo
+    stops answering then (to show the safe stop)."""
+    config = load_config(config_name)
+    model = config.model
+    scale = time_scale or config.swing_time_scale or 1.0
+    swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
+    mode = "feedforward_pd" if feedforward else "pd"
+    server = arm = None
+    if port is None:
+        from servodyn.sim.arm import PtyServer, SimulatedArm
+        arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+        server = PtyServer(arm, "realtime" if realtime else "lockstep")
+        server.start()
+        port = server.path
+        say(f"simulated bus: {len(arm.servos)} virtual servos of '{config.name}' on {port} "
+            f"({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
+            f"{SMALL_TIME_STEP * 1e3:g} ms")
+    bus = make_bus(config, port=port)
+    controller = Controller(model, _config(model, mode, swing), q_start=swing.q[0])
+    log = SwingLog(model.dof_names)
+    out.mkdir(parents=True, exist_ok=True)
+    error = None
+    try:
+        bus.open()
+        bus.enable_torque(True)
+        start = bus.read_state()
+        home = homing(start.q, swing.q[0], HOME_DURATION, SMALL_TIME_STEP)
+        say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
+        _follow(bus, controller, home, None, realtime, say=None)
+        say(f"swing: tennis forehand, {swing.t[-1]:.1f} s (time scale {scale:g}: the servos' "
+            f"speed limits), {mode.replace('_', ' + ')}, inverse dynamics every "
+            f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
+        if fault_at is not None and arm is not None:
+            fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
+        else:
+            fault_tick = None
+        _follow(bus, controller, swing, log, realtime, say=say,
+                on_tick=(lambda k: arm.silent.add(fault_at[1]) if k == fault_tick else None))
+    except ServoError as err:
+        error = err
+        say(f"servo error: {err} — torque off on every servo")
+    finally:
+        _safe_stop(bus)
+        if server is not None:
+            server.stop()
+    summary = _report(log, out, swing, scale, mode, error, say)
+    return summary
+
+
+def _follow(bus, controller, traj: Trajectory, log: SwingLog | None, realtime: bool, say=None,
+            on_tick=None) -> None:
+    controller.reset()
+    n = len(traj.t)
+    period = traj.t[1] - traj.t[0]
+    start = time.perf_counter()
+    next_report = 0.0
+    for k in range(n):
+        if on_tick is not None:
+            on_tick(k)
+        began = time.perf_counter()
+        state = bus.read_state()
+        tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], state.q, state.qd)
+        bus.write(JointCommand.torque(tau))
+        if log is not None:
+            log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began)
+        if say is not None and traj.t[k] >= next_report:
+            err = np.degrees(np.abs(traj.q[k] - state.q).max())
+            say(f"  t = {traj.t[k]:5.2f} s  {100 * k / (n - 1):5.1f} %  largest error {err:6.3f} deg")
+            next_report += 1.0
+        if realtime:
+            delay = start + (k + 1) * period - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+
+
+def _safe_stop(bus) -> None:
+    """Torque off, whatever state the bus is in; never raises."""
+    try:
+        if bus.is_open:
+            off = getattr(bus, "disable_torque_now", None)
+            if off is not None:
+                off()
+            else:
+                bus.enable_torque(False)
+    except Exception:
+        pass
+    try:
+        bus.close()
+    except Exception:
+        pass
+
+
+def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str, error, say) -> dict:
+    names = log.dof_names
+    log.write_csv(out / "swing_log.csv")
+    if not log.t:
+        summary = {"completed": False, "error": str(error) if error else "no tick ran"}
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+    q_d, q = np.array(log.q_d), np.array(log.q)
+    e = q_d - q
+    seconds = np.array(log.tick_seconds)
+    wall = float(np.sum(seconds))
+    loop_hz = len(seconds) / wall
+    jitter = np.abs(seconds - np.median(seconds))
+    summary = {
+        "completed": error is None and len(log.t) == len(swing.t),
+        "ticks": len(log.t),
+        "mode": mode,
+        "time_scale": scale,
+        "tracking_rms_rad": float(np.sqrt(np.mean(e**2))),
+        "tracking_max_rad": float(np.abs(e).max()),
+        "tracking_max_by_dof_rad": dict(zip(names, map(float, np.abs(e).max(axis=0)))),
+        "loop_hz": loop_hz,
+        "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
+        "tick_median_ms": float(np.median(seconds) * 1e3),
+        "peak_torque_nm": dict(zip(names, map(float, np.abs(np.array(log.tau)).max(axis=0)))),
+        "error": str(error) if error else None,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    say(f"\n  {'dof':<24} {'rms (deg)':>10} {'max (deg)':>10}")
+    for k, name in enumerate(names):
+        say(f"  {name:<24} {np.degrees(np.sqrt(np.mean(e[:, k]**2))):>10.3f} {np.degrees(np.abs(e[:, k]).max()):>10.3f}")
+    say(f"\n  loop {loop_hz:.0f} Hz (tick median {summary['tick_median_ms']:.3f} ms, p99 jitter "
+        f"{summary['jitter_p99_ms']:.3f} ms); tracking rms {np.degrees(summary['tracking_rms_rad']):.3f} deg, "
+        f"max {np.degrees(summary['tracking_max_rad']):.3f} deg")
+    _plot(out / "swing_tracking.png", np.array(log.t), q_d, q, np.array(log.tau), names)
+    say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")
+    return summary
+
+
+def _plot(path: Path, t, q_d, q, tau, names) -> None:
+    from .plots import _pyplot
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    for k, name in enumerate(names):
+        line, = axes[0].plot(t, np.degrees(q[:, k]), label=name)
+        axes[0].plot(t, np.degrees(q_d[:, k]), ":", color=line.get_color())
+        axes[1].plot(t, np.degrees(q_d[:, k] - q[:, k]), label=name)
+        axes[2].plot(t, tau[:, k], label=name)
+    axes[0].set_ylabel("angle (deg), dotted: desired")
+    axes[1].set_ylabel("tracking error (deg)")
+    axes[2].set_ylabel("commanded torque (N m)")
+    axes[2].set_xlabel("time (s)")
+    axes[0].legend(fontsize=7, ncol=2)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].set_title("tennis forehand on the servo bus")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,286 @@
+"""A bus of virtual servos that answers Protocol 2.0 byte streams as the e-manual defines.
+
+``VirtualBus.handle(data, time)`` takes whatever bytes the host sent (any chunking, garbage
+included) and returns the status bytes the servos put on the wire. Replies follow Status Return
+Level (0: ping only, 1: ping and reads, 2: all); broadcast instructions other than ping and the
+sync/bulk reads get none. Return Delay Time is reported in each ``Reply`` but never waited for.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber,
+                                    FastReadBlock, Fault, Instruction, InstructionPacket, PacketReader,
+                                    ResetOption, StatusError, StatusPacket, encode_fast_reply)
+from servodyn.hal.dynamixel import instructions as inst
+from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
+
+from .servo import Servo
+
+READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
+                   Instruction.BULK_READ, Instruction.FAST_BULK_READ})
+
+
+@dataclass(frozen=True)
+class Reply:
+    servo_id: int              # 0xFE for a fast read reply
+    data: bytes                # the encoded status packet
+    delay: float               # the servo's Return Delay Time, s (metadata)
+
+
+@dataclass(frozen=True)
+class Exchange:
+    """One instruction packet and what the bus answered; passed to ``on_instruction``."""
+    request: InstructionPacket
+    replies: tuple[Reply, ...]
+    time: float
+
+
+class _Policy:
+    """A servo's reply settings as the instruction arrived (a reboot or reset answers first)."""
+
+    def __init__(self, servo: Servo):
+        self.level = servo.get("status_return_level")
+        self.alert = ALERT_BIT if servo.alert else 0
+        self.delay = servo.return_delay
+
+    def answers(self, instruction: int) -> bool:
+        if instruction == Instruction.PING:
+            return True
+        return self.level == 2 or (self.level == 1 and instruction in READS)
+
+
+def _parsed(parser: Callable, params: bytes):
+    try:
+        return parser(params)
+    except BadParameters:
+        raise StatusError(ErrorNumber.DATA_LENGTH) from None
+
+
+class VirtualBus:
+    """Servos on one simulated bus. ``clock`` gives the time when ``handle``/``tick`` get none;
+    ``on_instruction(exchange)`` is called after every instruction packet is answered. A frame whose
+    bytes arrive more than ``byte_timeout`` apart is dropped, as a servo does (None: never)."""
+
+    def __init__(self, servos: Iterable[Servo] = (), *, clock: Callable[[], float] = _time.monotonic,
+                 on_instruction: Callable[[Exchange], None] | None = None,
+                 byte_timeout: float | None = BYTE_TIMEOUT):
+        self.servos = list(servos)
+        self.clock = clock
+        self.on_instruction = on_instruction
+        self.reader = PacketReader(byte_timeout)
+        self.faults: Counter[Fault] = Counter()
+        self._handlers = {
+            Instruction.PING: self._ping, Instruction.READ: self._read, Instruction.WRITE: self._write,
+            Instruction.REG_WRITE: self._reg_write, Instruction.ACTION: self._action,
+            Instruction.FACTORY_RESET: self._factory_reset, Instruction.REBOOT: self._reboot,
+            Instruction.CLEAR: self._clear, Instruction.SYNC_READ: self._sync_read,
+            Instruction.FAST_SYNC_READ: self._sync_read, Instruction.SYNC_WRITE: self._sync_write,
+            Instruction.BULK_READ: self._bulk_read, Instruction.FAST_BULK_READ: self._bulk_read,
+            Instruction.BULK_WRITE: self._bulk_write,
+        }
+
+    def servo(self, servo_id: int) -> Servo:
+        found = self._primary(servo_id)
+        if found is None:
+            raise KeyError(f"no servo with ID {servo_id}")
+        return found
+
+    def tick(self, time: float | None = None) -> None:
+        """Advance every servo's clock (bus watchdog, Realtime Tick) without traffic."""
+        now = self.clock() if time is None else time
+        for servo in self.servos:
+            servo.clock(now)
+
+    def handle(self, data: bytes, time: float | None = None) -> bytes:
+        """Bytes from the host in, the servos' status bytes out."""
+        now = self.clock() if time is None else time
+        self.tick(now)
+        out = []
+        for event in self.reader.feed(data, now):
+            if isinstance(event, BadFrame):
+                self.faults[event.fault] += 1
+                if event.fault is Fault.CRC:
+                    out += self._crc_error(event)
+            elif isinstance(event, InstructionPacket):
+                replies = self._execute(event, now)
+                out += replies
+                if self.on_instruction is not None:
+                    self.on_instruction(Exchange(event, tuple(replies), now))
+        return b"".join(reply.data for reply in out)
+
+    # --- dispatch ------------------------------------------------------------------------------------
+
+    def _primary(self, servo_id: int) -> Servo | None:
+        return next((s for s in self.servos if s.id == servo_id), None)
+
+    def _execute(self, packet: InstructionPacket, now: float) -> list[Reply]:
+        broadcast = packet.id == BROADCAST_ID
+        targets = self.servos if broadcast else [s for s in self.servos
+                                                 if packet.id in (s.id, s.get("secondary_id"))]
+        for servo in targets:
+            servo.heard(now)
+        handler = self._handlers.get(packet.instruction)
+        if handler is None:
+            return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        return handler(packet, targets)
+
+    def _status(self, policy: _Policy, servo_id: int, instruction: int,
+                error: int = 0, params: bytes = b"") -> list[Reply]:
+        if not policy.answers(instruction):
+            return []
+        packet = StatusPacket(servo_id, error | policy.alert, params)
+        return [Reply(servo_id, packet.encode(), policy.delay)]
+
+    def _each(self, packet: InstructionPacket, targets: list[Servo], act: Callable[[Servo], bytes | None]):
+        """Run ``act`` on every target; only the servo addressed by its own ID answers, and only a
+        unicast instruction gets an answer (the secondary ID executes silently)."""
+        replies = []
+        for servo in targets:
+            answers = packet.id != BROADCAST_ID and servo.id == packet.id
+            policy = _Policy(servo)
+            try:
+                params, error = act(servo) or b"", 0
+            except StatusError as refused:
+                params, error = b"", refused.error
+            if answers:
+                replies += self._status(policy, packet.id, packet.instruction, error, params)
+        return replies
+
+    def _crc_error(self, frame: BadFrame) -> list[Reply]:
+        servo = self._primary(frame.id) if frame.id != BROADCAST_ID else None
+        if servo is None:
+            return []
+        return self._status(_Policy(servo), servo.id, frame.instruction, ErrorNumber.CRC)
+
+    # --- single-servo instructions -----------------------------------------------------------------
+
+    def _ping(self, packet, targets):
+        if packet.id != BROADCAST_ID:
+            return self._each(packet, targets, lambda s: s.ping_reply())
+        replies = []
+        for servo in sorted(self.servos, key=lambda s: s.id):     # every servo, in ID order
+            replies += self._status(_Policy(servo), servo.id, Instruction.PING, 0, servo.ping_reply())
+        return replies
+
+    def _read(self, packet, targets):
+        if packet.id == BROADCAST_ID:                                 # READ is not executed by broadcast
+            return []
+        return self._each(packet, targets, lambda s: s.read(*_parsed(inst.parse_read, packet.params)))
+
+    def _write(self, packet, targets):
+        return self._each(packet, targets, lambda s: s.write(*_parsed(inst.parse_write, packet.params)))
+
+    def _reg_write(self, packet, targets):
+        return self._each(packet, targets, lambda s: s.reg_write(*_parsed(inst.parse_write, packet.params)))
+
+    def _action(self, packet, targets):
+        return self._each(packet, targets, lambda s: _no_params(packet) or s.action())
+
+    def _reboot(self, packet, targets):
+        return self._each(packet, targets, lambda s: _no_params(packet) or s.reboot())
+
+    def _factory_reset(self, packet, targets):
+        if packet.id == BROADCAST_ID and packet.params == bytes([ResetOption.ALL]):
+            return []                                                 # refused by design (FW 42+)
+
+        def reset(servo):
+            if len(packet.params) != 1:
+                _raise(ErrorNumber.DATA_LENGTH)
+            servo.factory_reset(packet.params[0])
+        return self._each(packet, targets, reset)
+
+    def _clear(self, packet, targets):
+        def clear(servo):
+            if len(packet.params) != len(inst.CLEAR_MULTI_TURN):
+                _raise(ErrorNumber.DATA_LENGTH)
+            if packet.params != inst.CLEAR_MULTI_TURN:
+                _raise(ErrorNumber.DATA_RANGE)
+            servo.clear_multi_turn()
+        return self._each(packet, targets, clear)
+
+    # --- sync and bulk instructions (broadcast only) ----------------------------------------------
+
+    def _sync_read(self, packet, targets):
+        if packet.id != BROADCAST_ID:
+            return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        try:
+            address, length, ids = inst.parse_sync_read(packet.params)
+        except BadParameters:
+            return []
+        return self._reads(packet.instruction, [(i, address, length) for i in ids])
+
+    def _bulk_read(self, packet, targets):
+        if packet.id != BROADCAST_ID:
+            return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        try:
+            requests = inst.parse_bulk_read(packet.params)
+        except BadParameters:
+            return []
+        return self._reads(packet.instruction, requests)
+
+    def _reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
+        """Each listed servo answers in request order; a fast read answers in one packet, and not
+        at all when a listed servo is missing or silent."""
+        fast = instruction in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
+        replies, blocks = [], []
+        for servo_id, address, length in requests:
+            servo = self._primary(servo_id)
+            policy = _Policy(servo) if servo is not None else None
+            if policy is None or not policy.answers(instruction):
+                if fast:
+                    return []
+                continue
+            try:
+                data, error = servo.read(address, length), 0
+            except StatusError as refused:
+                data, error = (bytes(length) if fast else b""), refused.error
+            if fast:
+                blocks.append(FastReadBlock(servo_id, error | policy.alert, data))
+            else:
+                replies += self._status(policy, servo_id, instruction, error, data)
+        if fast and blocks:
+            first = self._primary(blocks[0].id)
+            return [Reply(BROADCAST_ID, encode_fast_reply(blocks), first.return_delay)]
+        return replies
+
+    def _sync_write(self, packet, targets):
+        if packet.id != BROADCAST_ID:
+            return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        try:
+            address, writes = inst.parse_sync_write(packet.params)
+        except BadParameters:
+            return []
+        self._writes([(servo_id, address, data) for servo_id, data in writes])
+        return []
+
+    def _bulk_write(self, packet, targets):
+        if packet.id != BROADCAST_ID:
+            return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        try:
+            self._writes(inst.parse_bulk_write(packet.params))
+        except BadParameters:
+            pass
+        return []
+
+    def _writes(self, writes: list[tuple[int, int, bytes]]) -> None:
+        """Broadcast writes: a refused block is dropped silently, the others still apply."""
+        for servo_id, address, data in writes:
+            for servo in [s for s in self.servos if servo_id in (s.id, s.get("secondary_id"))]:
+                try:
+                    servo.write(address, data)
+                except StatusError:
+                    pass
+
+
+def _raise(number: ErrorNumber):
+    raise StatusError(number)
+
+
+def _no_params(packet: InstructionPacket) -> None:
+    if packet.params:
+        _raise(ErrorNumber.DATA_LENGTH)

@@ -1,0 +1,190 @@
+"""Robot configurations (hal/config.py), the built-in replica and its model, and whether the
+replica's servos can follow the tennis swing."""
+
+import copy
+import math
+import shutil
+import tomllib
+
+import numpy as np
+import pytest
+
+import servodyn
+from servodyn.hal.config import (CONFIGS_DIR, SERVOS, ConfigError, config_from_dict, load_config,
+                                 servo_load, within)
+from servodyn.motion import load_motion
+
+with open(CONFIGS_DIR / "replica.toml", "rb") as f:
+    REPLICA = tomllib.load(f)
+
+
+def build(mutate):
+    data = copy.deepcopy(REPLICA)
+    mutate(data)
+    return config_from_dict(data, origin="test.toml")
+
+
+def set_joint(k, key, value):
+    def mutate(data):
+        data["joint"][k][key] = value
+    return mutate
+
+
+def test_builtin_replica():
+    """Seven joints in the model's dof order on one bus, IDs 1-7, the servos the model is built
+    from, torque constants from the servo table (stall torque / stall current at 12 V)."""
+    config = load_config("replica")
+    assert [j.dof for j in config.joints] == list(config.model.dof_names)
+    assert [j.id for j in config.joints] == list(range(1, 8))
+    assert {j.bus for j in config.joints} == {"arm"} and config.buses["arm"].baud == 4_000_000
+    assert [j.servo.name for j in config.joints] == ["XM540-W270"] * 3 + ["XM430-W350"] * 4
+    for j in config.joints:
+        assert j.torque_constant == pytest.approx(j.servo.torque_constant, abs=5e-4)
+        assert j.position_limits == pytest.approx(
+            (config.model.lower[config.model.dof_names.index(j.dof)],
+             config.model.upper[config.model.dof_names.index(j.dof)]))
+    assert config.swing_time_scale == 4.0
+
+
+def test_servo_table():
+    """e-manual numbers: the XM540-W270 lists 2.409 N m/A at 12 V; Current Limit ranges 1193 and
+    2047 units of 2.69 mA are 3.21 and 5.51 A, above the stall currents 2.3 and 4.4 A."""
+    xm540, xm430 = SERVOS["XM540-W270"], SERVOS["XM430-W350"]
+    assert xm540.torque_constant == pytest.approx(2.409, abs=5e-4)
+    assert xm430.torque_constant == pytest.approx(1.783, abs=5e-4)
+    assert xm430.current_limit_max * xm430.current_unit == pytest.approx(3.209, abs=1e-3)
+    assert xm540.current_limit_max * xm540.current_unit == pytest.approx(5.506, abs=1e-3)
+    assert xm430.no_load_speed == pytest.approx(46 * 2 * math.pi / 60)
+    assert {s.model_number for s in SERVOS.values()} == {1020, 1120, 1000, 1100}
+
+
+def test_defaults_come_from_the_servo_and_the_model():
+    """A joint that gives only dof, id and servo gets direction +1, no offset, direct drive, the
+    servo's constants, its no-load speed and stall current as limits, the model's position limits."""
+    def strip(data):
+        data["joint"] = [{k: j[k] for k in ("dof", "id", "servo")} for j in data["joint"]]
+    config = build(strip)
+    elbow = config.joints[3]
+    assert (elbow.direction, elbow.zero_offset, elbow.gear_ratio) == (1, 0.0, 1.0)
+    assert elbow.torque_constant == pytest.approx(4.1 / 2.3)
+    assert elbow.current_unit == 2.69e-3 and elbow.current_limit == 2.3
+    assert elbow.velocity_limit == pytest.approx(46 * 2 * math.pi / 60)
+    assert elbow.position_limits == pytest.approx((0.0, 2.618))
+    assert elbow.bus == "arm", "the only bus is the default"
+    assert elbow.torque_limit == pytest.approx(4.1), "at the stall current the joint gives the stall torque"
+
+
+def test_gear_ratio_scales_the_default_speed_limit():
+    """With a 2:1 reduction after the horn the joint turns at half the servo's speed, with twice
+    its torque; an explicit velocity_limit is kept as given."""
+    assert build(set_joint(0, "gear_ratio", 2.0)).joints[0].velocity_limit == 3.1416
+
+    def geared(data):
+        data["joint"][0]["gear_ratio"] = 2.0
+        del data["joint"][0]["velocity_limit"]
+    flexion = build(geared).joints[0]
+    assert flexion.velocity_limit == pytest.approx(math.pi / 2), "30 rpm at the horn / 2"
+    assert flexion.torque_limit == pytest.approx(2 * 10.6, abs=0.01), "2.409 N m/A x 4.4 A x 2"
+
+
+def drop_last_joint(data):
+    data["joint"].pop()
+
+
+def second_bus_can(data):
+    data["bus"]["arm"]["kind"] = "can"
+
+
+BAD = [  # (what is wrong, mutation, words the one-line message must contain)
+    ("unknown dof", set_joint(0, "dof", "r_shoulder"), ["joint 1", "'dof'", "r_shoulder"]),
+    ("dof missing a joint", drop_last_joint, ["'joint'", "r_wrist_deviation"]),
+    ("dof twice", set_joint(1, "dof", "r_shoulder_flexion"), ["joint 2", "'dof'", "already"]),
+    ("duplicate id on a bus", set_joint(1, "id", 1), ["joint 2", "'id'", "already used", "r_shoulder_flexion"]),
+    ("id out of range", set_joint(2, "id", 253), ["joint 3", "'id'", "253"]),
+    ("unknown servo", set_joint(3, "servo", "XM999"), ["joint 4", "'servo'", "XM999"]),
+    ("direction 0", set_joint(4, "direction", 0), ["joint 5", "'direction'", "+1 or -1"]),
+    ("direction 2", set_joint(4, "direction", 2), ["'direction'"]),
+    ("direction not an integer", set_joint(4, "direction", 1.0), ["'direction'", "integer"]),
+    ("gear ratio 0", set_joint(5, "gear_ratio", 0.0), ["joint 6", "'gear_ratio'", "positive"]),
+    ("negative torque constant", set_joint(5, "torque_constant", -1.7), ["'torque_constant'", "positive"]),
+    ("zero current unit", set_joint(6, "current_unit", 0.0), ["joint 7", "'current_unit'", "positive"]),
+    ("limits out of order", set_joint(3, "position_limits", [2.0, 1.0]), ["'position_limits'", "lower < upper"]),
+    ("limits beyond the model", set_joint(0, "position_limits", [-2.0, 1.0]),
+     ["'position_limits'", "outside the model's limits"]),
+    ("limits not numbers", set_joint(0, "position_limits", [0.0, "1"]), ["'position_limits'", "two finite"]),
+    ("unknown bus", set_joint(2, "bus", "leg"), ["joint 3", "'bus'", "leg"]),
+    ("id as a string", set_joint(0, "id", "1"), ["'id'", "integer"]),
+    ("offset as a string", set_joint(0, "zero_offset", "0"), ["'zero_offset'", "finite number"]),
+    ("offset not finite", set_joint(0, "zero_offset", math.nan), ["'zero_offset'", "finite number"]),
+    ("current limit above the register", set_joint(3, "current_limit", 4.0), ["'current_limit'", "XM430-W350"]),
+    ("unknown joint key", set_joint(0, "gear", 2.0), ["joint 1", "unknown key 'gear'"]),
+    ("unknown top-level key", lambda d: d.update(joints=[]), ["unknown key 'joints'"]),
+    ("missing name", lambda d: d.pop("name"), ["'name'", "missing"]),
+    ("unknown model", lambda d: d.update(model="robot9"), ["'model'", "robot9"]),
+    ("no bus", lambda d: d.pop("bus"), ["'bus'"]),
+    ("no joints", lambda d: d.pop("joint"), ["'joint'"]),
+    ("bus kind", lambda d: d["bus"]["arm"].update(kind="rs485"), ["bus 'arm'", "'kind'", "rs485"]),
+    ("baud rate", lambda d: d["bus"]["arm"].update(baud=12345), ["bus 'arm'", "'baud'", "12345"]),
+    ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
+    ("Dynamixel servo on a CAN bus", second_bus_can, ["joint 1", "'servo'", "can"]),
+    ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),
+]
+
+
+@pytest.mark.parametrize("mutate, words", [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+def test_bad_config_gives_one_line_naming_the_key(mutate, words):
+    with pytest.raises(ConfigError) as err:
+        build(mutate)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith("test.toml: "), message
+    for word in words:
+        assert word in message, f"{word!r} not in: {message}"
+
+
+def test_files(tmp_path):
+    """A model path is relative to the config file; a missing file and bad TOML are ConfigErrors."""
+    shutil.copy(servodyn.MODELS_DIR / "replica.toml", tmp_path / "arm.toml")
+    text = (CONFIGS_DIR / "replica.toml").read_text().replace('model = "replica"', 'model = "arm.toml"')
+    (tmp_path / "robot.toml").write_text(text)
+    config = load_config(tmp_path / "robot.toml")
+    assert config.model.name == "replica" and config.path == tmp_path / "robot.toml"
+    with pytest.raises(ConfigError, match="no such file"):
+        load_config(tmp_path / "missing.toml")
+    (tmp_path / "bad.toml").write_text("name = \n")
+    with pytest.raises(ConfigError, match="bad.toml: not valid TOML"):
+        load_config(tmp_path / "bad.toml")
+
+
+def test_replica_model_matches_human_arm():
+    """Same dof names, axes, order and limits as human_arm, so its keyframes play; its shoulder,
+    elbow and wrist axes meet at one point each, so the segment directions are human_arm's at
+    every pose; 0.991 kg of moving arm (model description)."""
+    replica, human = servodyn.load_model("replica"), servodyn.load_model("human_arm")
+    assert replica.dof_names == human.dof_names
+    assert np.array_equal(replica.lower, human.lower) and np.array_equal(replica.upper, human.upper)
+    axes = lambda m: {d.name: d.axis for b in m.bodies for d in b.dofs}
+    for name, axis in axes(human).items():
+        assert np.array_equal(axes(replica)[name], axis), name
+    assert replica.total_mass == pytest.approx(0.991, abs=1e-3)
+    unit = lambda v: v / np.linalg.norm(v)
+    for q in np.random.default_rng(7).uniform(human.lower, human.upper, size=(50, 7)):
+        (_, p), (_, h) = replica.body_poses(q), human.body_poses(q)
+        assert np.allclose(unit(p[3]), unit(h[1]), atol=1e-12), "upper arm direction"
+        assert np.allclose(unit(p[5] - p[3]), unit(h[2] - h[1]), atol=1e-12), "forearm direction"
+
+
+def test_swing_time_scale_is_the_smallest_that_fits():
+    """At human speed (s = 1) the shoulder rotation would need 2.6x the XM540's 30 rpm. The
+    recorded scale 4 keeps every joint within 80 % of its current and velocity limits and its
+    12 V torque-speed line (worst: shoulder rotation speed, 64 %); the candidate below, 3, does
+    not (85 %). Currents stay low (gravity dominates: 21 % at the shoulder flexion)."""
+    config = load_config("replica")
+    motion = load_motion("tennis_forehand", config.model)
+    load = lambda s: servo_load(config, motion.sample(1e-3, time_scale=s))
+    human, chosen, below = load(1.0), load(config.swing_time_scale), load(3.0)
+    assert human["speed_ratio"].max() == pytest.approx(2.56, abs=0.02)
+    assert within(chosen) and not within(below)
+    assert chosen["speed_ratio"].max() == pytest.approx(0.64, abs=0.02)
+    assert np.argmax(chosen["speed_ratio"]) == config.model.dof_names.index("r_shoulder_rotation")
+    assert below["speed_ratio"].max() == pytest.approx(0.85, abs=0.02)
+    assert chosen["current_ratio"].max() == pytest.approx(0.21, abs=0.02)
