@@ -171,6 +171,25 @@ done:
   return result;
 }
 
+// set_gains(kp, kd): new PD gains from the next step on (gain scheduling), checked like __init__'s
+static PyObject* Controller_set_gains(ControllerObject* self, PyObject* args) {
+  PyObject *okp, *okd;
+  if (!PyArg_ParseTuple(args, "OO", &okp, &okd)) {
+    return NULL;
+  }
+  sd_control_config c = self->config;
+  int nv = self->core->model.ndof;
+  if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd")) {
+    return NULL;
+  }
+  if (sd_control_check(&self->core->model, &c)) {
+    PyErr_SetString(PyExc_ValueError, "controller: a gain negative or not finite");
+    return NULL;
+  }
+  self->config = c;
+  Py_RETURN_NONE;
+}
+
 static PyObject* Controller_get(ControllerObject* self, void* closure) {
   switch ((int)(intptr_t)closure) {
     case 0: return PyLong_FromLong(self->state.tick);
@@ -182,6 +201,8 @@ static PyObject* Controller_get(ControllerObject* self, void* closure) {
 
 static PyMethodDef Controller_methods[] = {
     {"reset", (PyCFunction)Controller_reset, METH_NOARGS, "start a new run at tick 0"},
+    {"set_gains", (PyCFunction)Controller_set_gains, METH_VARARGS,
+     "set_gains(kp, kd): new PD gains from the next step on"},
     {"step", (PyCFunction)Controller_step, METH_VARARGS,
      "step(q_d, qd_d, qdd_d, q, qd) -> tau: one small_time_step of the controller"},
     {"simulate", (PyCFunction)Controller_simulate, METH_VARARGS,

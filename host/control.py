@@ -107,6 +107,13 @@ class Controller:
     def reset(self) -> None:
         self._c.reset()
 
+    def set_gains(self, kp, kd) -> None:
+        """New PD gains from the next step on (gain scheduling)."""
+        n = self.model.nv
+        self.kp = np.broadcast_to(np.asarray(kp, dtype=float), (n,)).copy()
+        self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (n,)).copy()
+        self._c.set_gains(self.kp, self.kd)
+
     def step(self, q_d, qd_d, qdd_d, q, qd) -> np.ndarray:
         """One small_time_step: the torques for the measured (q, qd) and the desired state."""
         return self._c.step(q_d, qd_d, qdd_d, q, qd)

@@ -73,17 +73,22 @@ def homing(q_from, q_to, duration: float, dt: float) -> Trajectory:
                       qdd=np.outer(accel, delta), derived=True)
 
 
-BANDWIDTH = 20.0        # rad/s of each joint's PD on its smallest own inertia
+BANDWIDTH = 20.0        # rad/s of each joint's PD on its own inertia, at least
+MAX_BANDWIDTH = 100.0   # rad/s: at 1 kHz the discrete loop keeps its damping up to about here
+MIN_STIFFNESS = 2.0     # N m/rad: a servo's friction (~0.02 N m) then leaves ~0.01 rad of error
 
 
-def _config(model, mode: str, swing: Trajectory) -> ControlConfig:
-    """PD gains a joint keeps stable at every pose of the run: its own inertia M_ii varies with
-    the pose (shoulder rotation's by 100x between a straight and a bent elbow), so the gains
-    follow its smallest value along the swing and at the neutral pose."""
-    poses = np.vstack([model.neutral_q(), swing.q[:: max(1, len(swing.t) // 40)]])
-    inertia = np.min([np.diag(model.mass_matrix(q)) for q in poses], axis=0)
-    return ControlConfig(mode=mode, small_time_step=SMALL_TIME_STEP, time_step=TIME_STEP,
-                         kp=inertia * BANDWIDTH**2, kd=2 * inertia * BANDWIDTH)
+def scheduled_gains(model, q) -> tuple[np.ndarray, np.ndarray]:
+    """PD gains for pose q: each joint gets the bandwidth that gives it MIN_STIFFNESS on its own
+    effective inertia, kept between BANDWIDTH and MAX_BANDWIDTH. That inertia varies with the pose
+    (shoulder rotation's by 100x between a straight and a bent elbow), so fixed gains are either
+    unstable bent or too weak straight: the loop re-schedules them every time_step from the
+    desired pose. Light distal joints get the higher bandwidth that stiffness against friction needs."""
+    # the inertia a joint sees with the others free, 1 / (M^-1)_ii <= M_ii: gains on M_ii would
+    # overdrive a light joint whose neighbours move with it
+    inertia = 1.0 / np.diag(np.linalg.inv(model.mass_matrix(q)))
+    bandwidth = np.clip(np.sqrt(MIN_STIFFNESS / inertia), BANDWIDTH, MAX_BANDWIDTH)
+    return inertia * bandwidth**2, 2 * inertia * bandwidth
 
 
 def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
@@ -107,7 +112,9 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
             f"({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
             f"{SMALL_TIME_STEP * 1e3:g} ms")
     bus = make_bus(config, port=port)
-    controller = Controller(model, _config(model, mode, swing), q_start=swing.q[0])
+    controller = Controller(model, ControlConfig(mode=mode, small_time_step=SMALL_TIME_STEP,
+                                                 time_step=TIME_STEP, bandwidth=BANDWIDTH),
+                            q_start=swing.q[0])
     log = SwingLog(model.dof_names)
     out.mkdir(parents=True, exist_ok=True)
     error = None
@@ -141,6 +148,7 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
 def _follow(bus, controller, traj: Trajectory, log: SwingLog | None, realtime: bool, say=None,
             on_tick=None) -> None:
     controller.reset()
+    update_ticks = controller.config.update_ticks
     n = len(traj.t)
     period = traj.t[1] - traj.t[0]
     start = time.perf_counter()
@@ -149,6 +157,8 @@ def _follow(bus, controller, traj: Trajectory, log: SwingLog | None, realtime: b
         if on_tick is not None:
             on_tick(k)
         began = time.perf_counter()
+        if k % update_ticks == 0:
+            controller.set_gains(*scheduled_gains(controller.model, traj.q[k]))
         state = bus.read_state()
         tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], state.q, state.qd)
         bus.write(JointCommand.torque(tau))

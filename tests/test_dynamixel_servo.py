@@ -5,7 +5,6 @@ import math
 import os
 import select
 import threading
-import time
 import tty
 
 import pytest
@@ -565,3 +564,24 @@ def test_sdk_unstuffs_status_with_present_current_minus_one(pty_bus):
     assert reader.fastSyncRead() == sdk.COMM_SUCCESS, "one reply from 0xFE"
     assert (reader.getData(1, 126, 2), reader.getData(1, 128, 4)) == (0xFFFF, 0xFFFFFFFD), \
         "a fast reply is not stuffed, and the SDK does not unstuff it"
+
+
+def test_sdk_fast_bulk_read_misparses_an_id_equal_to_an_earlier_parameter_byte():
+    """dynamixel-sdk 4.1.0 finds each block's length with ``param.index(id)`` over the flattened
+    (id, address, length) list: ID 4 matches the length byte 4 of ID 3's entry, so it takes 146 (the
+    next byte) as the length, skips past ID 5's block and still reports success with stale data."""
+    served = PtyBus([Servo(servo_id=3), Servo(servo_id=4), Servo(servo_id=5)])
+    try:
+        served.bus.servo(5).write(65, h("01"))
+        reader = sdk.GroupBulkRead(served.port, served.ph)
+        for servo_id, address, length in ((3, 132, 4), (4, 146, 1), (5, 65, 1)):
+            reader.addParam(servo_id, address, length)
+        reader.data_dict[5][0] = bytearray(h("07"))              # a stale value to be left alone
+        assert reader.fastBulkRead() == sdk.COMM_SUCCESS, "the SDK reports success"
+        assert reader.getData(5, 65, 1) == 7, "yet LED of ID 5 is the stale 7, not the 1 on the wire"
+        reply = PacketReader().feed(served.exchanges[-1].replies[0].data)[0]
+        blocks = split_fast_reply(reply, [4, 1, 1])
+        assert [(b.id, b.data) for b in blocks] == [(3, le(2048, 4)), (4, h("1E")), (5, h("01"))], \
+            "servodyn's codec splits the same reply correctly"
+    finally:
+        served.close()
