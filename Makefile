@@ -27,7 +27,7 @@ test: venv toolchain
 
 demo: venv
 	@echo "== servodyn demo"
-	@$(VENV)/bin/servodyn demo
+	@$(VENV)/bin/servodyn swing
 
 bench: venv
 	@echo "== servodyn benchmark"

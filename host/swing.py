@@ -118,6 +118,7 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
     log = SwingLog(model.dof_names)
     out.mkdir(parents=True, exist_ok=True)
     error = None
+    swing_start = 0.0
     try:
         bus.open()
         bus.enable_torque(True)
@@ -128,6 +129,7 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         say(f"swing: tennis forehand, {swing.t[-1]:.1f} s (time scale {scale:g}: the servos' "
             f"speed limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
+        swing_start = arm.time if arm is not None else 0.0
         if fault_at is not None and arm is not None:
             fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
         else:
@@ -142,6 +144,11 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         if server is not None:
             server.stop()
     summary = _report(log, out, swing, scale, mode, error, say)
+    if arm is not None:
+        # what the simulated servos saw: plant time at the stop and every torque switched off
+        summary["sim_time_at_stop_s"] = arm.time - swing_start     # on the swing's clock
+        summary["torque_off"] = [not servo.torque_enabled for servo in arm.servos]
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
@@ -217,6 +224,7 @@ def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str
         "tick_median_ms": float(np.median(seconds) * 1e3),
         "peak_torque_nm": dict(zip(names, map(float, np.abs(np.array(log.tau)).max(axis=0)))),
         "error": str(error) if error else None,
+        "last_tick_time_s": float(log.t[-1]),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     say(f"\n  {'dof':<24} {'rms (deg)':>10} {'max (deg)':>10}")

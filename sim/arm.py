@@ -47,7 +47,8 @@ class SimulatedArm:
         self.silent: set[int] = set()           # servo IDs that stopped answering (fault injection)
         models = {m.name: m for m in MODELS.values()}
         self.servos = [Servo(models[j.servo.name], j.id, position=0.0, zero_ticks=0) for j in self.joints]
-        self.bus = VirtualBus(self.servos, clock=lambda: self.time)
+        # packets arrive whole through the pty; the plant clock may jump between two reads
+        self.bus = VirtualBus(self.servos, clock=lambda: self.time, byte_timeout=None)
         self._publish()
 
     # the horn angle each servo sees: direction * gear * q + zero offset (hal.units' convention)
