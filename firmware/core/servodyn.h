@@ -12,7 +12,7 @@
 //   - a 3-dof joint may instead be a ball joint (body_ball = 1): its coordinates are a unit
 //     quaternion (x, y, z, w) of the body in its joint frame, 4 numbers of q, and its 3 dofs the
 //     body's angular velocity relative to the parent, in the body frame; no gimbal lock;
-//   - or body 0 floats free (the paper's FREE node, free_root = 1): 6 dofs whose coordinates are
+//   - or body 0 floats freely, the paper's FREE node (free_root = 1): 6 dofs whose coordinates are
 //     the origin in the base frame and a unit quaternion (x, y, z, w), 7 numbers of q; its
 //     velocity is (v, w) of the origin in the body frame, its "torque" the wrench (f, n) in the
 //     body frame: the order and frames of Pinocchio's free-flyer;
@@ -35,7 +35,7 @@ extern "C" {
 typedef struct sd_model_ {
   int nbody;                              // number of moving bodies
   int ndof;                               // number of degrees of freedom (length of qd, tau)
-  int free_root;                          // 1: body 0 floats free (6 dofs), 0: every joint hinges
+  int free_root;                          // 1: body 0 floats freely with 6 dofs; 0: all hinged
   sd_real gravity[3];                     // gravitational acceleration, base frame (m/s^2)
 
   // tree and joints
