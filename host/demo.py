@@ -96,12 +96,11 @@ def run_demo(model_name: str, out: Path) -> None:
     print(f"  feed-forward only          {np.degrees(drift_ff.max()):10.4f} deg "
           f"({when}: open loop, the raised arm is unstable and step errors grow)")
     print(f"  feed-forward + PD {REPLAY_BANDWIDTH:g} rad/s {np.degrees(drift_pd.max()):10.4f} deg")
-    drift = drift_pd
 
     out.mkdir(parents=True, exist_ok=True)
     write_columns_csv(out / "torques.csv", t, "tau", model.dof_names, tau)
     write_columns_csv(out / "motion.csv", t, "q", model.dof_names, q)
-    _plot(out / "torques.png", t, q, tau, model.dof_names, drift)
+    _plot(out / "torques.png", t, q, tau, model.dof_names, drift_pd)
     print(f"wrote {out / 'torques.csv'}, {out / 'motion.csv'}, {out / 'torques.png'}")
 
 

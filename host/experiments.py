@@ -237,10 +237,7 @@ def experiment_still(out: Path, duration: float = 5.0) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     plots.weights_and_torques(out / "still_weights_torques.png", model, q, tau,
                               title="upper body held still: weights and joint torques (paper Fig. 6)")
-    plots.curves(out / "still_drift.png", ff.t, {"feed-forward alone": np.maximum(ff_error, 1e-18),
-                                                 "feed-forward + PD": np.maximum(np.abs(run.error).max(axis=1), 1e-18)},
-                 "largest joint drift (rad)", "drift from the held pose")
-    _set_log(out / "still_drift.png", ff.t, ff_error, np.abs(run.error).max(axis=1))
+    _drift_plot(out / "still_drift.png", ff.t, ff_error, np.abs(run.error).max(axis=1))
     write_columns_csv(out / "still_torques.csv", np.zeros(1), "tau", model.dof_names, tau[None, :])
     summary = {
         "experiment": "still",
@@ -260,7 +257,7 @@ def experiment_still(out: Path, duration: float = 5.0) -> dict:
     return summary
 
 
-def _set_log(path: Path, t, ff_error, pd_error) -> None:
+def _drift_plot(path: Path, t, ff_error, pd_error) -> None:
     plt = plots._pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     ax.semilogy(t, np.maximum(ff_error, 1e-18), label="feed-forward alone")

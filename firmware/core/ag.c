@@ -286,15 +286,13 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
       pA[e] += W[k][e] * v[k];
     }
   }
-  const sd_real* Ia = IA;
-  const sd_real* pa = pA;
 
   // hand both to the parent: IA_p += X' Ia X, pA_p += X' pa = (R' n + p x R' f; R' f)
   const sd_real* R = d->body_R[i];
-  add_articulated_inertia(d->body_IA[parent], Ia, R, m->body_pos[i], nd, complete);
+  add_articulated_inertia(d->body_IA[parent], IA, R, m->body_pos[i], nd, complete);
   sd_real fp[3], np[3];
-  sd_mulmtv(fp, R, pa + 3);
-  sd_mulmtv(np, R, pa);
+  sd_mulmtv(fp, R, pA + 3);
+  sd_mulmtv(np, R, pA);
   sd_addcross(np, m->body_pos[i], fp);
   sd_real* pAp = d->body_pA[parent];
   for (int k = 0; k < 3; k++) {
