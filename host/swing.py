@@ -91,6 +91,43 @@ def scheduled_gains(model, q) -> tuple[np.ndarray, np.ndarray]:
     return inertia * bandwidth**2, 2 * inertia * bandwidth
 
 
+GAIN_PERIOD = 0.1       # s between two knots of the gain schedule (on the played, scaled clock)
+
+
+@dataclass(frozen=True)
+class GainSchedule:
+    """PD gains along a planned motion: scheduled_gains() at knots every GAIN_PERIOD of the
+    plan, linear in between, held before the first and after the last knot. The host loop and
+    the firmware (whose tables `servodyn codegen` writes from this) use the same schedule, since
+    the firmware cannot afford the mass matrix inverse at run time."""
+    t: np.ndarray           # (K,) knot times (s)
+    kp: np.ndarray          # (K, n) N m/rad
+    kd: np.ndarray          # (K, n) N m s/rad
+
+    @classmethod
+    def along(cls, model, traj: Trajectory, period: float = GAIN_PERIOD) -> "GainSchedule":
+        duration = traj.t[-1] - traj.t[0]
+        t = np.linspace(0.0, duration, max(2, int(np.ceil(duration / period - 1e-9)) + 1))
+        rows = np.clip(np.rint(t / (traj.t[1] - traj.t[0])).astype(int), 0, len(traj.t) - 1)
+        gains = [scheduled_gains(model, traj.q[k]) for k in rows]
+        return cls(t=traj.t[rows] - traj.t[0], kp=np.array([g[0] for g in gains]),
+                   kd=np.array([g[1] for g in gains]))
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        k = int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2))
+        s = float(np.clip((t - self.t[k]) / (self.t[k + 1] - self.t[k]), 0.0, 1.0))
+        return (self.kp[k] + s * (self.kp[k + 1] - self.kp[k]),
+                self.kd[k] + s * (self.kd[k + 1] - self.kd[k]))
+
+
+def plan_gains(model, swing: Trajectory) -> tuple[GainSchedule, GainSchedule]:
+    """The gain schedules of homing and of the swing. Homing's is planned along the move from the
+    model's rest pose (where an arm powers up): the measured start of a run is not known in
+    advance, and the firmware cannot compute gains on line."""
+    rest_move = homing(model.neutral_q(), swing.q[0], HOME_DURATION, swing.t[1] - swing.t[0])
+    return GainSchedule.along(model, rest_move), GainSchedule.along(model, swing)
+
+
 def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple[float, int] | None = None) -> dict:
@@ -125,7 +162,8 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         start = bus.read_state()
         home = homing(start.q, swing.q[0], HOME_DURATION, SMALL_TIME_STEP)
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        _follow(bus, controller, home, None, realtime, say=None)
+        home_gains, schedule = plan_gains(model, swing)
+        _follow(bus, controller, home, home_gains, None, realtime, say=None)
         say(f"swing: tennis forehand, {swing.t[-1]:.1f} s (time scale {scale:g}: the servos' "
             f"speed limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
@@ -134,7 +172,7 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
             fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
         else:
             fault_tick = None
-        _follow(bus, controller, swing, log, realtime, say=say,
+        _follow(bus, controller, swing, schedule, log, realtime, say=say,
                 on_tick=(lambda k: arm.silent.add(fault_at[1]) if k == fault_tick else None))
     except ServoError as err:
         error = err
@@ -152,7 +190,8 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
     return summary
 
 
-def _follow(bus, controller, traj: Trajectory, log: SwingLog | None, realtime: bool, say=None,
+def _follow(bus, controller, traj: Trajectory, gains: GainSchedule, log: SwingLog | None,
+            realtime: bool, say=None,
             on_tick=None) -> None:
     controller.reset()
     update_ticks = controller.config.update_ticks
@@ -165,7 +204,7 @@ def _follow(bus, controller, traj: Trajectory, log: SwingLog | None, realtime: b
             on_tick(k)
         began = time.perf_counter()
         if k % update_ticks == 0:
-            controller.set_gains(*scheduled_gains(controller.model, traj.q[k]))
+            controller.set_gains(*gains.at(traj.t[k] - traj.t[0]))
         state = bus.read_state()
         tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], state.q, state.qd)
         bus.write(JointCommand.torque(tau))
