@@ -59,6 +59,7 @@ toolchain:
 
 include tests/c/rules.mk
 include firmware/mcu/rules.mk
+include firmware/app/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain

@@ -107,6 +107,29 @@ def cmd_sim(args) -> None:
             print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
 
 
+def cmd_codegen(args) -> None:
+    from .codegen import write
+    from .hal.config import ConfigError
+    try:
+        paths = write(args.config, Path(args.out), args.motion)
+    except (ConfigError, ValueError) as err:
+        raise CliError(str(err)) from None
+    print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def cmd_firmware(args) -> None:
+    from .hal.config import ConfigError
+    from .hil import FirmwareError, run_firmware
+    try:
+        summary = run_firmware(args.board, elf=args.elf, config=args.config, out=Path(args.out),
+                               icount_shift=args.icount_shift, say=print)
+    except (ConfigError, FirmwareError) as err:
+        raise CliError(str(err)) from None
+    if summary["fault"] != "none":
+        raise CliError(f"the firmware stopped on a fault: {summary['fault']} "
+                       f"(servo {summary['fault_servo']}, tick {summary['fault_tick']})")
+
+
 def cmd_demo(args) -> None:
     from .demo import run_demo
     run_demo(args.model, Path(args.out))
@@ -169,6 +192,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.set_defaults(func=cmd_sim)
+
+    p = sub.add_parser("codegen", help="write a robot configuration and its swing as C for the firmware")
+    p.add_argument("--config", default="replica", help="robot configuration (default replica)")
+    p.add_argument("--motion", default="tennis_forehand", help="motion (default tennis_forehand)")
+    p.add_argument("-o", "--out", required=True, help="output folder")
+    p.set_defaults(func=cmd_codegen)
+
+    p = sub.add_parser("firmware", help="run the firmware under QEMU against the simulated bus "
+                                        "(hardware in the loop)")
+    p.add_argument("--board", default="an386", choices=("an386", "an500"),
+                   help="QEMU board: an386 = Cortex-M4F (default), an500 = Cortex-M7")
+    p.add_argument("--elf", default=None, help="firmware image (default build/fw/BOARD/servodyn-fw.elf; "
+                                               "`make fw` builds it)")
+    p.add_argument("--config", default="replica", help="robot configuration the image was generated for")
+    p.add_argument("--icount-shift", type=int, default=3,
+                   help="QEMU -icount shift: 2^N ns of emulated time per instruction (default 3: "
+                        "125 MIPS, a fast Cortex-M4; 7 for the budget figures)")
+    p.add_argument("--out", default="out/firmware", help="output folder (default out/firmware)")
+    p.set_defaults(func=cmd_firmware)
 
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")

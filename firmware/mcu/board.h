@@ -16,4 +16,39 @@ void board_stop(int code) __attribute__((noreturn));
 void board_stack_paint(void);
 unsigned board_stack_used(void);
 
+// The command line QEMU passes (semihosting SYS_GET_CMDLINE) into text; its length, or -1.
+int board_cmdline(char* text, unsigned size);
+
+//---------------------------------- board_io.c: clock and UART ---------------------------------
+#include <stddef.h>
+#include <stdint.h>
+
+#define BOARD_CPU_HZ 25000000u      // MPS2: SysTick counts the 25 MHz processor clock
+
+// The control clock: a SysTick interrupt every `period` processor clock counts.
+void board_clock_start(uint32_t period);
+// Counts since board_clock_start (wraps after 2^32 counts, 172 s at 25 MHz).
+uint32_t board_clock_now(void);
+// Periods begun since board_clock_start.
+uint32_t board_clock_ticks(void);
+// Sleep until the next period begins.
+void board_clock_wait(void);
+// Stop and restart the clock (the period's position is kept). The lock-stepped simulated bus
+// answers in no time of the emulated clock; the firmware holds the clock while it waits so that
+// a tick costs the instructions it executes, and no more, however slow the host is.
+void board_clock_hold(void);
+void board_clock_release(void);
+
+// UART0 (CMSDK APB UART, 8N1) at `baud`, received bytes buffered by its interrupt.
+void board_uart_init(uint32_t baud);
+void board_uart_write(const uint8_t* data, size_t n);
+// Take one received byte: 1, or 0 when none has arrived.
+int board_uart_read(uint8_t* byte);
+// Bytes received and not yet taken.
+size_t board_uart_available(void);
+// Drop whatever has been received and not taken.
+void board_uart_flush(void);
+// Bytes lost because the receive buffer was full.
+uint32_t board_uart_overruns(void);
+
 #endif  // MCU_BOARD_H

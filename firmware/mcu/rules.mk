@@ -12,7 +12,7 @@ MCU_CFLAGS := $(MCU_ARCH) -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion 
   -Wfloat-conversion -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
   -DSD_SINGLE -DSD_MAX_BODY=16 -DSD_MAX_DOF=24 -DSD_MAX_KNOT=32 -Ifirmware/core -Ifirmware/mcu
 MCU_LDFLAGS := $(MCU_ARCH) -nostartfiles --specs=nosys.specs -Wl,--gc-sections \
-  -Wl,-T,firmware/mcu/mps2-an386.ld -Wl,-Map,$(MCU_DIR)/servodyn-mcu.map
+  -Wl,-T,firmware/mcu/mps2.ld -Wl,-Map,$(MCU_DIR)/servodyn-mcu.map
 MCU_SRC := $(CORE_C) $(wildcard firmware/mcu/*.c)
 MCU_OBJ := $(patsubst %.c,$(MCU_DIR)/%.o,$(MCU_SRC))
 
@@ -20,7 +20,7 @@ $(MCU_DIR)/%.o: %.c $(CORE_H) $(wildcard firmware/mcu/*.h) firmware/mcu/rules.mk
 	@mkdir -p $(@D)
 	@$(MCU_CC) $(MCU_CFLAGS) -c -o $@ $<
 
-$(MCU_ELF): $(MCU_OBJ) firmware/mcu/mps2-an386.ld
+$(MCU_ELF): $(MCU_OBJ) firmware/mcu/mps2.ld
 	@echo "   arm-none-eabi-gcc $@ (-DSD_SINGLE, Cortex-M4F, -O2)"
 	@$(MCU_CC) $(MCU_LDFLAGS) -o $@ $(MCU_OBJ) -lm
 

@@ -1,4 +1,5 @@
-// startup.c: reset, vector table, faults and semihosting for the MPS2 AN386 (Cortex-M4F).
+// startup.c: reset, vector table, faults and semihosting for the MPS2 boards (AN386
+// Cortex-M4F, AN500 Cortex-M7).
 //
 // The reset handler enables the FPU (every float instruction faults until CPACR grants
 // coprocessors 10 and 11), copies .data from flash, zeroes .bss, runs main and stops with its
@@ -15,6 +16,7 @@ extern uint32_t __stack_bottom[], __stack_top[];
 
 #define CPACR (*(volatile uint32_t*)0xE000ED88u)
 #define SEMIHOSTING_SYS_WRITE0 0x04
+#define SEMIHOSTING_SYS_GET_CMDLINE 0x15
 #define SEMIHOSTING_SYS_EXIT_EXTENDED 0x20
 #define ADP_STOPPED_APPLICATION_EXIT 0x20026
 #define FAULT_CODE 99
@@ -41,6 +43,12 @@ void board_write_int(long value) {
   } while (magnitude);
   if (value < 0) *--p = '-';
   board_write(p);
+}
+
+int board_cmdline(char* text, unsigned size) {
+  uint32_t block[2] = {(uint32_t)(uintptr_t)text, size};
+  if (size == 0 || semihost(SEMIHOSTING_SYS_GET_CMDLINE, block) != 0) return -1;
+  return (int)block[1];
 }
 
 void board_stop(int code) {
@@ -74,9 +82,14 @@ static void mcu_fault(void) {
   board_stop(FAULT_CODE);
 }
 
-// the Cortex-M vector table: initial stack pointer, then the handlers
+// interrupt handlers a program may define (board_io.c does); until then a stray one stops
+void board_systick_isr(void) __attribute__((weak, alias("mcu_fault")));
+void board_uart0_rx_isr(void) __attribute__((weak, alias("mcu_fault")));
+
+// the Cortex-M vector table: initial stack pointer, the system handlers, then the MPS2's
+// interrupts (0: UART0 receive, 1: UART0 transmit, ...; QEMU hw/arm/mps2.c)
 __attribute__((section(".vectors"), used))
-static void (*const g_vectors[16])(void) = {
+static void (*const g_vectors[16 + 32])(void) = {
   (void (*)(void))(uintptr_t)__stack_top,
   mcu_reset,    // reset
   mcu_fault,    // NMI
@@ -89,5 +102,7 @@ static void (*const g_vectors[16])(void) = {
   mcu_fault,    // debug monitor
   0,            // reserved
   mcu_fault,    // PendSV
-  mcu_fault,    // SysTick
+  board_systick_isr,     // SysTick
+  board_uart0_rx_isr,    // IRQ 0: UART0 receive
+  [17 ... 47] = mcu_fault,
 };

@@ -1,0 +1,51 @@
+# firmware/app/rules.mk: the servodyn firmware (included by the top Makefile).
+#
+# `servodyn codegen --config $(FW_CONFIG)` writes the robot's model, servo mapping, gains and
+# swing as C (build/fw/gen); the firmware compiles them in with the core (single precision), the
+# Dynamixel codec (hal/dynamixel/c) and the board code, for two boards QEMU models:
+#   mps2-an386  Cortex-M4F  build/fw/an386/servodyn-fw.elf
+#   mps2-an500  Cortex-M7   build/fw/an500/servodyn-fw.elf
+
+FW_CONFIG ?= replica
+FW_DIR := build/fw
+FW_GEN := $(FW_DIR)/gen
+FW_GEN_FILES := $(FW_GEN)/servodyn_gen.c $(FW_GEN)/servodyn_gen.h
+FW_BOARDS := an386 an500
+FW_ARCH_an386 := -mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -mthumb
+FW_ARCH_an500 := -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard -mthumb
+FW_STACK := 4096
+FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
+  -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
+  -fcallgraph-info=su -DSD_SINGLE -include $(FW_GEN)/servodyn_gen.h \
+  -Ifirmware/core -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
+FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(wildcard firmware/app/*.c) \
+  hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
+FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/c/*.h) \
+  $(FW_GEN)/servodyn_gen.h firmware/app/rules.mk
+FW_ELFS := $(foreach b,$(FW_BOARDS),$(FW_DIR)/$(b)/servodyn-fw.elf)
+FW_CODEGEN_DEPS := $(STAMP) $(wildcard host/codegen.py host/swing.py host/motion.py host/models/*.toml \
+  host/motions/*.toml hal/config.py hal/configs/*.toml)
+
+# codegen writes only what changed, so the touch keeps make from asking again
+$(FW_GEN_FILES) &: $(FW_CODEGEN_DEPS)
+	@echo "   servodyn codegen --config $(FW_CONFIG) -o $(FW_GEN)"
+	@$(VENV)/bin/servodyn codegen --config $(FW_CONFIG) -o $(FW_GEN) >/dev/null
+	@touch $(FW_GEN_FILES)
+
+define FW_BOARD_RULES
+$(FW_DIR)/$(1)/%.o: %.c $(FW_DEPS)
+	@mkdir -p $$(@D)
+	@$(MCU_CC) $(FW_ARCH_$(1)) $(FW_CFLAGS) -c -o $$@ $$<
+
+$(FW_DIR)/$(1)/servodyn-fw.elf: $(patsubst %.c,$(FW_DIR)/$(1)/%.o,$(FW_SRC)) firmware/mcu/mps2.ld
+	@echo "   arm-none-eabi-gcc $$@ (mps2-$(1), float, -O2)"
+	@$(MCU_CC) $(FW_ARCH_$(1)) -nostartfiles --specs=nosys.specs -Wl,--gc-sections \
+	  -Wl,--defsym=STACK_SIZE=$(FW_STACK) -Wl,-T,firmware/mcu/mps2.ld \
+	  -Wl,-Map,$(FW_DIR)/$(1)/servodyn-fw.map -o $$@ $$(filter %.o,$$^) -lm
+endef
+$(foreach b,$(FW_BOARDS),$(eval $(call FW_BOARD_RULES,$(b))))
+
+$(foreach b,$(FW_BOARDS),$(patsubst %.c,$(FW_DIR)/$(b)/%.o,$(FW_SRC))): | toolchain
+
+.PHONY: fw
+fw: $(FW_ELFS)

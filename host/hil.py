@@ -1,0 +1,272 @@
+"""`servodyn firmware`: the firmware under QEMU, hardware in the loop with the simulated bus.
+
+QEMU runs the firmware image with its UART on a TCP socket
+(`-serial tcp:127.0.0.1:PORT,server=on,wait=on,nodelay=on`); this side connects and serves the
+simulated Dynamixel bus of the robot configuration on it, the same bus `servodyn sim` puts on a
+pseudo-terminal. Lock-step: the plant advances one control period whenever the firmware ends a
+command transaction (its sync write), so the run is deterministic and faster than real time.
+`-icount shift=N,sleep=off` makes the emulated clock count instructions (2^N ns each), so the
+firmware's SysTick figures are instruction counts: exact and repeatable (not cycles).
+
+Every exchange is recorded: what the servos reported and what the firmware commanded. `replay`
+recomputes each command with the host's double-precision controller from the same measured state
+(`compare` asserts they agree within one servo unit), and the tracking error of the run.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import socket
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .control import ControlConfig, Controller
+from .hal.config import load_config
+from .hal.dynamixel import Instruction, decode_frame, split_fast_reply
+from .hal.dynamixel.instructions import parse_sync_write
+from .motion import load_motion
+from .swing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP, homing, plan_gains
+
+BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
+ROOT = Path(__file__).resolve().parent.parent
+SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
+GOAL_CURRENT = 102
+READ_SIZE = 10                    # Present Current (2), Velocity (4), Position (4)
+FAULTS = {0: "none", 10: "timeout", 11: "status", 12: "corrupt", 13: "nonfinite", 14: "overrun",
+          15: "range", 16: "setup"}
+SECTIONS = ("protocol", "trajectory", "control_update", "control", "output", "tick")
+
+
+class FirmwareError(RuntimeError):
+    """The firmware could not be run (no image, no QEMU, no connection, no report)."""
+
+
+@dataclass
+class Record:
+    """What crossed the bus: each fast sync read's reply (current, velocity, position register
+    values per servo, in joint order) and each Goal Current sync write (per servo)."""
+    reads: list = field(default_factory=list)
+    goals: list = field(default_factory=list)
+    torque_off: bool = False
+
+
+def default_elf(board: str) -> Path:
+    return ROOT / "build" / "fw" / board / "servodyn-fw.elf"
+
+
+class FirmwareLink:
+    """A SimulatedArm served on a socket, lock-stepped to the firmware's command transactions.
+    on_tick(k, arm) runs after the k-th Goal Current write, before the plant moves (fault
+    injection)."""
+
+    def __init__(self, arm, on_tick=None):
+        self.arm, self.on_tick = arm, on_tick
+        self.ids = [s.id for s in arm.servos]
+        self.record = Record()
+        arm.bus.on_instruction = self._exchange
+
+    def _exchange(self, exchange) -> None:
+        request = exchange.request
+        if request.instruction == Instruction.FAST_SYNC_READ and exchange.replies:
+            blocks = split_fast_reply(decode_frame(exchange.replies[0].data), [READ_SIZE] * len(self.ids))
+            self.record.reads.append(np.array(
+                [[int.from_bytes(b.data[0:2], "little", signed=True),
+                  int.from_bytes(b.data[2:6], "little", signed=True),
+                  int.from_bytes(b.data[6:10], "little", signed=True)] for b in blocks]))
+        elif request.instruction == Instruction.SYNC_WRITE:
+            address, writes = parse_sync_write(request.params)
+            if address == GOAL_CURRENT:
+                values = dict((i, int.from_bytes(d, "little", signed=True)) for i, d in writes)
+                self.record.goals.append(np.array([values[i] for i in self.ids]))
+                if self.on_tick is not None:
+                    self.on_tick(len(self.record.goals) - 1, self.arm)
+            elif address == 64 and all(d == b"\x00" for _, d in writes):
+                self.record.torque_off = True
+            self.arm.advance(self.arm.small_time_step)
+
+    def serve(self, sock: socket.socket, deadline: float) -> None:
+        while time.monotonic() < deadline:
+            try:
+                data = sock.recv(4096)
+            except socket.timeout:
+                continue
+            except ConnectionResetError:       # QEMU exited while its last bytes were in flight
+                return
+            if not data:
+                return
+            reply = self.arm.handle(data)
+            if reply:
+                sock.sendall(reply)
+        raise FirmwareError("the firmware run took too long (time-out)")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "") -> list[str]:
+    machine, _ = BOARDS[board]
+    semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
+    return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
+            "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
+            "-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on", "-kernel", str(elf)]
+
+
+def parse_report(text: str) -> dict:
+    """The firmware's report lines (`servodyn-fw: ...`) as numbers."""
+    report = {"counts": {}}
+    for line in text.splitlines():
+        if not line.startswith("servodyn-fw: "):
+            continue
+        words = line.split()[1:]
+        values = {k: int(v) for k, v in (w.split("=", 1) for w in words if "=" in w)}
+        if words[0] == "counts":
+            report["counts"][words[1]] = values
+        else:
+            report["result"], report["fault"] = words[0], words[1]
+            report.update(values)
+    return report
+
+
+def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
+             icount_shift: int = 3, args: str = "", on_tick=None, timeout: float = 300.0,
+             q0=None) -> tuple[dict, Record, object]:
+    """Run the image against a fresh simulated arm; (report, record, arm)."""
+    from servodyn.sim.arm import SimulatedArm
+    if board not in BOARDS:
+        raise FirmwareError(f"unknown board '{board}' (one of {', '.join(BOARDS)})")
+    elf = Path(elf) if elf else default_elf(board)
+    if not elf.is_file():
+        raise FirmwareError(f"no firmware image at {elf} (build it with `make fw`)")
+    if shutil.which("qemu-system-arm") is None:
+        raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
+    arm = SimulatedArm(load_config(config), small_time_step=SMALL_TIME_STEP, q0=q0)
+    link = FirmwareLink(arm, on_tick)
+    port = _free_port()
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + timeout
+    try:
+        sock = None
+        while sock is None:
+            try:
+                sock = socket.create_connection(("127.0.0.1", port), timeout=1.0)
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise FirmwareError(f"QEMU did not open its serial port: {proc.stderr.read().strip()}")
+                time.sleep(0.05)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(1.0)
+        with sock:
+            link.serve(sock, deadline)
+        out, err = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
+    except subprocess.TimeoutExpired:
+        raise FirmwareError("QEMU did not exit after the firmware's run") from None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    report = parse_report(out + "\n" + err)      # semihosting writes to QEMU's stderr
+    if "result" not in report:
+        raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): "
+                            f"{(out + err).strip()[-300:]}")
+    report["exit_code"] = proc.returncode
+    return report, link.record, arm
+
+
+def replay(config_name: str, record: Record) -> dict:
+    """The firmware's algorithm in the host's double precision, fed the measured state the firmware
+    saw: the desired positions and the Goal Current of every tick."""
+    config = load_config(config_name)
+    model, units = config.model, config.units()
+    limit = np.array([j.current_limit for j in config.joints])
+    scale = config.swing_time_scale or 1.0
+    swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
+    home_gains, swing_gains = plan_gains(model, swing)
+    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=SMALL_TIME_STEP,
+                                                 time_step=TIME_STEP))
+    reads = record.reads
+    q_meas = [units.from_ticks(r[:, 2]) for r in reads]
+    qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
+    home = homing(q_meas[0], swing.q[0], HOME_DURATION, SMALL_TIME_STEP)
+    goals, q_d, phase = [], [], []
+    tick = 0
+    for name, traj, gains in (("home", home, home_gains), ("swing", swing, swing_gains)):
+        controller.reset()
+        for k in range(len(traj.t)):
+            if tick + 1 >= len(reads):
+                break
+            if k % controller.config.update_ticks == 0:
+                controller.set_gains(*gains.at(traj.t[k] - traj.t[0]))
+            tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q_meas[tick + 1], qd_meas[tick + 1])
+            current = np.clip(units.current(tau), -limit, limit)
+            goals.append(np.rint(units.direction * current / units.current_unit).astype(int))
+            q_d.append(traj.q[k])
+            phase.append(name)
+            tick += 1
+    return {"goals": np.array(goals), "q_d": np.array(q_d), "phase": np.array(phase),
+            "q": np.array(q_meas[1:1 + len(goals)])}
+
+
+def summarize(report: dict, record: Record, config_name: str, icount_shift: int, board: str) -> dict:
+    ns_per_instruction = 2.0 ** icount_shift
+    to_instructions = 1e9 / SYSTICK_HZ / ns_per_instruction
+    counts = report["counts"]
+    instructions = {name: {"max": round(c["max"] * to_instructions),
+                           "mean": round(c["mean_milli"] / 1000 * to_instructions)}
+                    for name, c in counts.items() if c.get("n")}
+    twin = replay(config_name, record)
+    n = min(len(record.goals), len(twin["goals"]))
+    diff = np.abs(np.array(record.goals[:n]) - twin["goals"][:n]) if n else np.zeros((0, 1))
+    swing = twin["phase"][:n] == "swing"
+    error = (twin["q_d"][:n] - twin["q"][:n])[swing]
+    summary = {
+        "board": board, "machine": BOARDS[board][0], "cpu": BOARDS[board][1],
+        "result": report["result"], "fault": report["fault"], "fault_code": report.get("code"),
+        "fault_servo": report.get("servo"), "fault_tick": report.get("fault_tick"),
+        "exit_code": report.get("exit_code"), "ticks": report.get("ticks"),
+        "swing_ticks": int(swing.sum()), "limited_ticks": report.get("limited"),
+        "goal_writes": len(record.goals), "torque_off_sent": record.torque_off,
+        "goal_max_diff_units": int(diff.max()) if diff.size else 0,
+        "goal_diff_counts": {str(v): int((diff.max(axis=1) == v).sum()) for v in np.unique(diff.max(axis=1))}
+        if diff.size else {},
+        "tracking_rms_rad": float(np.sqrt(np.mean(error**2))) if error.size else None,
+        "tracking_max_rad": float(np.abs(error).max()) if error.size else None,
+        "icount_shift": icount_shift, "instructions_per_tick": instructions,
+        "period_counts": report.get("period"), "stack_used_bytes": report.get("stack"),
+    }
+    return summary
+
+
+def run_firmware(board: str = "an386", elf=None, config: str = "replica", out: Path = Path("out/firmware"),
+                 icount_shift: int = 3, args: str = "", on_tick=None, say=print) -> dict:
+    say(f"QEMU {BOARDS[board][0]} ({BOARDS[board][1]}), -icount shift={icount_shift}: the firmware drives "
+        f"the simulated '{config}' bus in lock-step ...")
+    began = time.perf_counter()
+    report, record, arm = run_qemu(board, elf, config, icount_shift, args, on_tick)
+    summary = summarize(report, record, config, icount_shift, board)
+    summary["wall_s"] = round(time.perf_counter() - began, 2)
+    summary["torque_off"] = [not s.torque_enabled for s in arm.servos]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    ins = summary["instructions_per_tick"]
+    say(f"  {summary['result']}: {summary['ticks']} ticks in {summary['wall_s']:.1f} s, fault {summary['fault']}, "
+        f"{summary['limited_ticks']} ticks limiting")
+    if summary["tracking_max_rad"] is not None:
+        say(f"  swing tracking: rms {np.degrees(summary['tracking_rms_rad']):.3f} deg, "
+            f"max {np.degrees(summary['tracking_max_rad']):.3f} deg")
+    say(f"  goals vs the host's double controller on the same measurements: largest difference "
+        f"{summary['goal_max_diff_units']} unit(s) over {summary['goal_writes']} writes")
+    if "tick" in ins:
+        say("  instructions per tick (worst / mean): " + ", ".join(
+            f"{k} {v['max']}/{v['mean']}" for k, v in ins.items()))
+    say(f"  stack used {summary['stack_used_bytes']} B; wrote {out / 'summary.json'}")
+    return summary
