@@ -64,7 +64,7 @@ include firmware/app/rules.mk
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain
 
-test-python: venv
+test-python: venv fw
 	@echo "== Python tests"
 	@$(VENV)/bin/python -m pytest -q tests
 

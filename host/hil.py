@@ -62,11 +62,11 @@ def default_elf(board: str) -> Path:
 
 class FirmwareLink:
     """A SimulatedArm served on a socket, lock-stepped to the firmware's command transactions.
-    on_tick(k, arm) runs after the k-th Goal Current write, before the plant moves (fault
-    injection)."""
+    Fault injection: on_tick(k, arm) runs after the k-th Goal Current write has moved the plant
+    (what it does to the servos shows in the next read); tamper(reply) may change reply bytes."""
 
-    def __init__(self, arm, on_tick=None):
-        self.arm, self.on_tick = arm, on_tick
+    def __init__(self, arm, on_tick=None, tamper=None):
+        self.arm, self.on_tick, self.tamper = arm, on_tick, tamper
         self.ids = [s.id for s in arm.servos]
         self.record = Record()
         arm.bus.on_instruction = self._exchange
@@ -84,11 +84,11 @@ class FirmwareLink:
             if address == GOAL_CURRENT:
                 values = dict((i, int.from_bytes(d, "little", signed=True)) for i, d in writes)
                 self.record.goals.append(np.array([values[i] for i in self.ids]))
-                if self.on_tick is not None:
-                    self.on_tick(len(self.record.goals) - 1, self.arm)
             elif address == 64 and all(d == b"\x00" for _, d in writes):
                 self.record.torque_off = True
             self.arm.advance(self.arm.small_time_step)
+            if address == GOAL_CURRENT and self.on_tick is not None:
+                self.on_tick(len(self.record.goals) - 1, self.arm)
 
     def serve(self, sock: socket.socket, deadline: float) -> None:
         while time.monotonic() < deadline:
@@ -101,6 +101,8 @@ class FirmwareLink:
             if not data:
                 return
             reply = self.arm.handle(data)
+            if reply and self.tamper is not None:
+                reply = self.tamper(reply)
             if reply:
                 sock.sendall(reply)
         raise FirmwareError("the firmware run took too long (time-out)")
@@ -137,7 +139,7 @@ def parse_report(text: str) -> dict:
 
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
-             icount_shift: int = 3, args: str = "", on_tick=None, timeout: float = 300.0,
+             icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
              q0=None) -> tuple[dict, Record, object]:
     """Run the image against a fresh simulated arm; (report, record, arm)."""
     from servodyn.sim.arm import SimulatedArm
@@ -149,7 +151,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedArm(load_config(config), small_time_step=SMALL_TIME_STEP, q0=q0)
-    link = FirmwareLink(arm, on_tick)
+    link = FirmwareLink(arm, on_tick, tamper)
     port = _free_port()
     proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args), stdin=subprocess.DEVNULL,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

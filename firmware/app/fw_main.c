@@ -112,10 +112,12 @@ static int bus_receive(size_t want) {
     board_clock_hold();
     while (g.rx_got + board_uart_available() < want && polls < FW_REPLY_POLLS) polls++;
     board_clock_release();
-    uint8_t byte;
-    while (board_uart_read(&byte)) {
-      g.rx_got++;
-      int status = dxl_reader_feed(&g.reader, byte);
+    uint8_t chunk[128];
+    size_t n;
+    while ((n = board_uart_take(chunk, sizeof chunk)) > 0) {
+      size_t used;
+      int status = dxl_reader_feed_bytes(&g.reader, chunk, n, &used);
+      g.rx_got += used;
       if (status != DXL_MORE) return status;
     }
     if (polls >= FW_REPLY_POLLS) return 0;

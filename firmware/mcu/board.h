@@ -44,6 +44,8 @@ void board_uart_init(uint32_t baud);
 void board_uart_write(const uint8_t* data, size_t n);
 // Take one received byte: 1, or 0 when none has arrived.
 int board_uart_read(uint8_t* byte);
+// Take up to cap received bytes into out; how many.
+size_t board_uart_take(uint8_t* out, size_t cap);
 // Bytes received and not yet taken.
 size_t board_uart_available(void);
 // Drop whatever has been received and not taken.

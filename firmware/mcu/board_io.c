@@ -118,6 +118,17 @@ int board_uart_read(uint8_t* byte) {
   return 1;
 }
 
+size_t board_uart_take(uint8_t* out, size_t cap) {
+  uint32_t tail = g_rx_tail, head = g_rx_head;
+  size_t n = 0;
+  while (tail != head && n < cap) {
+    out[n++] = g_rx[tail];
+    tail = (tail + 1u) & (RX_SIZE - 1u);
+  }
+  g_rx_tail = tail;
+  return n;
+}
+
 size_t board_uart_available(void) {
   return (g_rx_head - g_rx_tail) & (RX_SIZE - 1u);
 }

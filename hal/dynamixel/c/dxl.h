@@ -114,6 +114,10 @@ typedef struct dxl_reader_ {
 
 void dxl_reader_reset(dxl_reader* r);
 int dxl_reader_feed(dxl_reader* r, uint8_t byte);
+// Feed up to n bytes, as many dxl_reader_feed calls, stopping at the first result other than
+// DXL_MORE (returned); *used (may be NULL) gets the bytes taken. The params of a fast read reply
+// go through a fast path: copied and CRC-folded without the per-byte state machine.
+int dxl_reader_feed_bytes(dxl_reader* r, const uint8_t* data, size_t n, size_t* used);
 
 //---------------------------------- fast read replies --------------------------------------------
 // A fast sync or bulk read is answered by one status packet from ID 0xFE, unstuffed: per servo in

@@ -1,0 +1,187 @@
+"""The firmware under QEMU against the simulated Dynamixel bus (hardware in the loop).
+
+`make fw` builds the images (codegen of the replica, the core in single precision, the C codec);
+each test runs one in QEMU with its UART on a TCP socket served by the simulated bus in lock-step.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servodyn.codegen import generate, model_fields
+from servodyn.hal.config import load_config
+from servodyn.hil import default_elf, run_qemu, summarize
+from servodyn.swing import HOME_DURATION, SMALL_TIME_STEP, run_swing
+
+ROOT = Path(__file__).resolve().parent.parent
+FAULT_TICK = 100          # injections act after this tick's command: the next read sees them
+
+
+@pytest.fixture(scope="session")
+def images():
+    build = subprocess.run(["make", "--no-print-directory", "-s", "fw"], cwd=ROOT, capture_output=True,
+                           text=True)
+    assert build.returncode == 0, f"make fw failed:\n{build.stdout}\n{build.stderr}"
+    return {board: default_elf(board) for board in ("an386", "an500")}
+
+
+@pytest.fixture(scope="module")
+def swing_run(images):
+    report, record, arm = run_qemu("an386", images["an386"], icount_shift=3)
+    return report, record, arm, summarize(report, record, "replica", 3, "an386")
+
+
+@pytest.fixture(scope="module")
+def host_swing(tmp_path_factory):
+    return run_swing("replica", out=tmp_path_factory.mktemp("host_swing"), say=lambda *a: None)
+
+
+def test_codegen_model_is_the_hosts(tmp_path):
+    """The generated model is the host's set-up sd_model (derived fields included), so the firmware
+    computes nothing at start-up."""
+    config = load_config("replica")
+    fields = model_fields(config.model)
+    assert fields["nbody"] == 7 and fields["ndof"] == 7 and fields["nq"] == 7
+    # the derived first moment is mass x com, as sd_model_setup computes it
+    assert np.allclose(fields["body_mcom"], fields["body_mass"][:, None] * fields["body_com"], rtol=1e-12)
+    files = generate(config)
+    assert "#define SD_MAX_BODY 7" in files["servodyn_gen.h"]
+    assert "#define SD_MAX_KNOT 11" in files["servodyn_gen.h"]
+    for key in ("const sd_model fw_model", "const sd_trajectory fw_swing", "const fw_servo fw_servos",
+                "const fw_gains fw_swing_gains", ".swing_ticks = 7201"):
+        assert key in files["servodyn_gen.c"], key
+
+
+def test_codegen_cli_refuses_bad_config(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\nmodel = "replica"\n[bus.arm]\nkind = "dynamixel"\nbaud = 12\n')
+    run = subprocess.run([str(ROOT / ".venv/bin/servodyn"), "codegen", "--config", str(bad), "-o",
+                          str(tmp_path / "gen")], capture_output=True, text=True)
+    assert run.returncode == 2
+    assert run.stderr.startswith("servodyn: error:") and "baud" in run.stderr
+    assert "Traceback" not in run.stderr
+
+
+def test_firmware_swings_the_replica(swing_run, host_swing):
+    """The whole swing under QEMU: every goal within one servo unit of the host's double controller
+    fed the same measurements, tracking within 10 % of the host loop's on the same bus."""
+    report, record, arm, summary = swing_run
+    expected_ticks = int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1 + 7201
+    assert report["result"] == "done" and report["exit_code"] == 0, report
+    assert report["ticks"] == expected_ticks
+    assert len(record.goals) == expected_ticks
+    # float firmware vs double host, same measured state: rounding can flip the last unit only
+    assert summary["goal_max_diff_units"] <= 1, summary["goal_diff_counts"]
+    host_max = host_swing["tracking_max_rad"]
+    assert abs(summary["tracking_max_rad"] - host_max) <= 0.10 * host_max, (summary["tracking_max_rad"], host_max)
+    assert math.degrees(summary["tracking_max_rad"]) < 3.0
+    # the end of the run switches every servo off
+    assert record.torque_off and not any(s.torque_enabled for s in arm.servos)
+    assert report["limited"] == 0
+    assert report["stack"] <= 2048
+
+
+def test_budget_flash_ram_stack(images):
+    """The M4F image's footprint against its goals: flash <= 64 KB, RAM (data + bss with a 4 KB
+    stack) <= 16 KB; the stack used is checked by the swing test (<= 2 KB)."""
+    size = subprocess.run(["arm-none-eabi-size", str(images["an386"])], capture_output=True, text=True)
+    text, data, bss = (int(v) for v in size.stdout.splitlines()[1].split()[:3])
+    assert text + data <= 64 * 1024
+    assert data + bss <= 16 * 1024
+    nm = subprocess.run(["arm-none-eabi-nm", str(images["an386"])], capture_output=True, text=True).stdout
+    names = {line.split()[-1] for line in nm.splitlines() if line.strip()}
+    assert not names & {"malloc", "_sbrk", "printf", "puts", "__aeabi_dadd", "__aeabi_f2d", "sin", "cos"}
+
+
+def _fault_run(images, board="an386", **kwargs):
+    kwargs.setdefault("args", "ticks=300")
+    report, record, arm = run_qemu(board, images[board], icount_shift=3, **kwargs)
+    return report, record, arm
+
+
+def _assert_safe_stop(report, record, arm, fault, code):
+    assert report["result"] == "fault" and report["fault"] == fault, report
+    assert report["exit_code"] == code
+    assert record.torque_off, "no torque-off sync write after the fault"
+    assert not any(s.torque_enabled for s in arm.servos)
+
+
+def test_silent_servo_stops_with_torque_off(images):
+    def silence(k, arm):
+        if k == FAULT_TICK:
+            arm.silent.add(3)
+    report, record, arm = _fault_run(images, on_tick=silence)
+    _assert_safe_stop(report, record, arm, "timeout", 10)
+    assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1
+    assert len(record.goals) == FAULT_TICK + 1          # no command after the silent read
+
+
+def test_hardware_error_stops_with_torque_off(images):
+    def overload(k, arm):
+        if k == FAULT_TICK:
+            arm.servos[4].set_hardware_error(0x20)     # overload
+    report, record, arm = _fault_run(images, on_tick=overload)
+    _assert_safe_stop(report, record, arm, "status", 11)
+    assert report["servo"] == 5 and report["fault_tick"] == FAULT_TICK + 1
+
+
+def test_corrupt_reply_stops_with_torque_off(images):
+    replies = []
+
+    def flip(reply):
+        replies.append(reply)
+        if len(replies) == 7 * 3 + 1 + FAULT_TICK:       # set-up: ping + 2 writes... then reads
+            return reply[:20] + bytes([reply[20] ^ 0x10]) + reply[21:]
+        return reply
+    report, record, arm = _fault_run(images, tamper=flip)
+    _assert_safe_stop(report, record, arm, "corrupt", 12)
+
+
+def test_nan_stops_with_torque_off(images):
+    report, record, arm = _fault_run(images, args="ticks=300 nan_at=120")
+    _assert_safe_stop(report, record, arm, "nonfinite", 13)
+    assert report["fault_tick"] == 120 and len(record.goals) == 120
+
+
+def test_overrun_stops_with_torque_off(images):
+    """A period shorter than a tick's work (an inverse-dynamics tick takes ~100 us at 125 MIPS)."""
+    report, record, arm = _fault_run(images, args="ticks=300 period_us=40")
+    _assert_safe_stop(report, record, arm, "overrun", 14)
+    assert report["fault_tick"] == 0
+
+
+def test_joint_out_of_range_stops_with_torque_off(images):
+    def fling(k, arm):
+        if k == FAULT_TICK:
+            servo = arm.servos[1]
+            servo.set_present(arm._horn(arm.q, arm.qd)[0][1] + 3.0, 0.0, 0.0)
+    report, record, arm = _fault_run(images, on_tick=fling)
+    _assert_safe_stop(report, record, arm, "range", 15)
+    assert report["servo"] == 2
+
+
+def test_current_limit_is_limiting_not_a_fault(images):
+    """Shoulder abduction reading 0.5 rad off for ten ticks: the PD (34 N m/rad there) asks for
+    17 N m, more than the 10.6 N m of the current limit; the command is clamped and counted, the
+    run goes on."""
+    def offset(k, arm):
+        if FAULT_TICK <= k < FAULT_TICK + 10:
+            position, velocity = arm._horn(arm.q, arm.qd)
+            arm.servos[1].set_present(position[1] - 0.5, velocity[1], 0.0)
+    report, record, arm = _fault_run(images, on_tick=offset)
+    assert report["result"] == "done" and report["exit_code"] == 0, report
+    assert report["limited"] >= 1
+    limit_units = round(4.4 / 2.69e-3)
+    assert max(abs(int(g[1])) for g in record.goals) == limit_units
+
+
+def test_cortex_m7_image_runs_the_same_loop(images):
+    report, record, arm = _fault_run(images, board="an500")
+    assert report["result"] == "done" and report["ticks"] == 300, report
+    summary = summarize(report, record, "replica", 3, "an500")
+    assert summary["goal_max_diff_units"] <= 1
