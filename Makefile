@@ -33,6 +33,8 @@ bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench
+	@$(MAKE) --no-print-directory fw
+	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 
 #---------------------------------- set-up -------------------------------------------------------
 
