@@ -41,6 +41,19 @@ size_t shim_offset(int field) {
   }
 }
 size_t shim_block_size(void) { return sizeof(dxl_block); }
+size_t shim_max_param(void) { return DXL_MAX_PARAM; }
+// All of the reader's state but tail, which only a stuffed frame reads: in a fast reply the fast
+// path leaves it 0 while the byte path keeps shifting bytes in, and the next frame clears it.
+void shim_state(const dxl_reader* r, uint32_t* out) {
+  out[0] = r->state;
+  out[1] = r->window;
+  out[2] = r->crc;
+  out[3] = r->remain;
+  out[4] = r->nbody;
+  out[5] = r->raw;
+  out[6] = r->crc_low;
+  out[7] = r->raw ? 0 : r->tail;
+}
 """
 
 u8p, u16p, size_t = ctypes.POINTER(ctypes.c_uint8), ctypes.POINTER(ctypes.c_uint16), ctypes.c_size_t
@@ -65,12 +78,15 @@ SIGNATURES = {
     "dxl_fast_bulk_read": (size_t, [u8p, size_t, u8p, u16p, u16p, size_t]),
     "dxl_reader_reset": (None, [ctypes.c_void_p]),
     "dxl_reader_feed": (ctypes.c_int, [ctypes.c_void_p, u8]),
+    "dxl_reader_feed_bytes": (ctypes.c_int, [ctypes.c_void_p, u8p, size_t, ctypes.POINTER(size_t)]),
     "dxl_fast_reply_split": (ctypes.c_int, [ctypes.c_void_p, u16, u8p, size_t, ctypes.POINTER(Block)]),
     "dxl_fast_bulk_reply_split": (ctypes.c_int, [ctypes.c_void_p, u16p, u8p, size_t,
                                                  ctypes.POINTER(Block)]),
     "shim_reader_size": (size_t, []),
     "shim_offset": (size_t, [ctypes.c_int]),
     "shim_block_size": (size_t, []),
+    "shim_max_param": (size_t, []),
+    "shim_state": (None, [ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint32)]),
 }
 
 
@@ -182,6 +198,21 @@ class Reader:
 
     def packets(self, data):
         return [e for e in self.feed(data) if isinstance(e, tuple)]
+
+    def feed_byte(self, byte) -> int:
+        return self.so.dxl_reader_feed(self.buffer, byte)
+
+    def feed_bytes(self, data) -> tuple[int, int]:
+        """One dxl_reader_feed_bytes call: (result, used)."""
+        used = ctypes.c_size_t(0xDEAD)
+        code = self.so.dxl_reader_feed_bytes(self.buffer, _bytes(data), len(data), ctypes.byref(used))
+        return code, used.value
+
+    def state(self) -> tuple:
+        """The public fields and the rest of the state (all but tail, see shim_state)."""
+        out = (ctypes.c_uint32 * 8)()
+        self.so.shim_state(self.buffer, out)
+        return self.fields() + tuple(out)
 
     def split(self, size, ids, sizes=None):
         """dxl_fast_reply_split (or the bulk one with sizes): (result, [(id, error, data)])."""
@@ -469,3 +500,197 @@ def test_sync_write_from_c_reaches_the_simulated_servos(dxl):
     goals = pack_field(1000, 4) + pack_field(3000, 4)
     assert bus.handle(dxl.sync_write(116, 4, [1, 2], goals)) == b"", "no reply to a sync write"
     assert [s.get("goal_position") for s in servos] == [1000, 3000], "each servo got its goal"
+
+
+# --- dxl_reader_feed_bytes: the same reader, many bytes a call -----------------------------------
+
+# a whole header, the bytes a fast reply's data may hold that must not start a frame
+HEADER_BYTES = b"\xFF\xFF\xFD\x00"
+FAST_IDS, FAST_SIZE = [1, 2, 3, 4, 5, 6, 7], 10   # the swing's fast sync read: 7 servos x 10 bytes
+
+
+def fast_sync_reply(rng: random.Random, count=len(FAST_IDS), header_inside=False) -> bytes:
+    """encode_fast_reply of count servos x 10 bytes; with header_inside, some data hold FF FF FD 00."""
+    blocks = []
+    for k in range(count):
+        data = bytearray(stuffable(rng, FAST_SIZE))
+        if header_inside and rng.random() < 0.5:
+            at = rng.randrange(FAST_SIZE - 3)
+            data[at:at + 4] = HEADER_BYTES
+        blocks.append(FastReadBlock(FAST_IDS[k % len(FAST_IDS)] + 7 * (k // len(FAST_IDS)),
+                                    stuffable(rng, 1)[0] if rng.random() < 0.2 else 0, bytes(data)))
+    return encode_fast_reply(blocks)
+
+
+def stream_piece(rng: random.Random, max_param: int) -> bytes:
+    """One piece of a bus stream: good frames of every kind, garbage, cut and corrupted frames."""
+    kind = rng.randrange(10)
+    if kind == 0:
+        return fast_sync_reply(rng)
+    if kind == 1:
+        return fast_sync_reply(rng, header_inside=True)
+    if kind == 2:
+        return status_packet(rng).encode()          # params that often need stuffing
+    if kind == 3:
+        return garbage(rng, rng.choice([b"\x00\x01\xFD\x55\x80", b"\xFF\xFD\x00\x01\x55\xFE"]))
+    if kind == 4:   # cut short: a status packet, a fast reply, an instruction echo
+        frame = rng.choice([status_packet(rng).encode(), fast_sync_reply(rng, header_inside=True),
+                            inst.write(rng.choice(VALID_IDS), word(rng), stuffable(rng, 8)).encode()])
+        return frame[:rng.randrange(1, len(frame))]
+    if kind == 5:   # the CRC damaged
+        frame = bytearray(rng.choice([status_packet(rng).encode(), fast_sync_reply(rng, header_inside=True)]))
+        frame[rng.randrange(len(frame) - 2, len(frame))] ^= 1 << rng.randrange(8)
+        return bytes(frame)
+    if kind == 6:   # any byte damaged, the CRC too or not
+        frame = bytearray(rng.choice([status_packet(rng).encode(), fast_sync_reply(rng)]))
+        frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
+        return bytes(frame)
+    if kind == 7:   # a fast reply around DXL_MAX_PARAM: fits, too long for param, too long for LEN
+        if rng.random() < 0.5:
+            return fast_sync_reply(rng, count=rng.choice([18, 19, 24, 25]), header_inside=True)
+        nparam = max_param + rng.choice([-1, 0, 1, 2, 40, 86, 87, 100])
+        return StatusPacket(BROADCAST_ID, 0, stuffable(rng, nparam)).encode()
+    if kind == 8:
+        return inst.fast_sync_read(132, FAST_SIZE, FAST_IDS).encode()   # the request's echo
+    return inst.write(rng.choice(VALID_IDS), word(rng), stuffable(rng, rng.randrange(12))).encode()
+
+
+def random_cuts(rng: random.Random, n: int) -> list[int]:
+    """Chunk boundaries 0 = c0 <= c1 <= ... = n: chunks of 0, a few, tens of bytes, or all the rest."""
+    cuts = [0]
+    while cuts[-1] < n:
+        size = rng.choice([0, 1, 1, 2, 3, 5, 8, rng.randrange(1, 40), rng.randrange(1, 200), n])
+        cuts.append(min(n, cuts[-1] + size))
+    return cuts
+
+
+def feed_both(dxl, stream: bytes, cuts: list[int]) -> list[tuple]:
+    """stream to one reader with dxl_reader_feed a byte at a time, and to another with
+    dxl_reader_feed_bytes over the chunks stream[cuts[k]:cuts[k + 1]] (called again on the rest of a
+    chunk after a result). Every call's result must be the byte path's at byte at + used - 1, with
+    DXL_MORE on all bytes before it, and both readers must then be in the same state.
+    Returns the results as (byte index, code, fields)."""
+    one, many = dxl.reader(), dxl.reader()
+    events = []
+
+    def where(at):
+        return f"byte {at} of {len(stream)}, near {stream[max(0, at - 12):at + 12].hex(' ')}"
+
+    for start, end in zip(cuts, cuts[1:]):
+        at = start
+        while True:
+            code, used = many.feed_bytes(stream[at:end])
+            assert 0 <= used <= end - at, f"used {used} of a {end - at}-byte chunk at {where(at)}"
+            if code == MORE:
+                assert used == end - at, f"DXL_MORE after {used} of {end - at} bytes at {where(at)}"
+            else:
+                assert used >= 1, f"result {code} from no byte at {where(at)}"
+            for k in range(at, at + used):
+                byte_code = one.feed_byte(stream[k])
+                last = k == at + used - 1
+                want = code if last else MORE
+                assert byte_code == want, (f"{where(k)}: the byte path gives {byte_code}, "
+                                           f"feed_bytes {'gives ' + str(code) if last else 'goes past it'}")
+            assert many.state() == one.state(), f"the readers differ after {where(at + used)}"
+            at += used
+            if code == MORE:
+                break
+            events.append((at - 1, code, many.fields() if code == PACKET else None))
+    return events
+
+
+def test_feed_bytes_equals_feeding_byte_by_byte_on_random_streams(dxl):
+    rng = random.Random(20240917)
+    max_param = dxl.so.shim_max_param()
+    fast_params = len(FAST_IDS) * (FAST_SIZE + 4) - 3
+    seen = {code: 0 for code in (PACKET, -1, -2, -3)}
+    fast_packets = fast_with_header = 0
+    for trial in range(300):
+        stream = b"".join(stream_piece(rng, max_param) for _ in range(rng.randrange(1, 14)))
+        cuts = random_cuts(rng, len(stream))
+        try:
+            events = feed_both(dxl, stream, cuts)
+        except AssertionError as failure:
+            raise AssertionError(f"trial {trial}, chunks {[b - a for a, b in zip(cuts, cuts[1:])]}: "
+                                 f"{failure}") from None
+        for _, code, fields in events:
+            seen[code] += 1
+            if fields and fields[:2] == (BROADCAST_ID, 0x55) and len(fields[3]) == fast_params:
+                fast_packets += 1
+                fast_with_header += HEADER_BYTES in fields[3]
+    assert min(seen.values()) >= 20, f"every result met often: {seen}"
+    assert fast_packets >= 150 and fast_with_header >= 40, \
+        f"{fast_packets} whole 7 x 10 fast replies, {fast_with_header} with FF FF FD 00 in the data"
+
+
+def test_feed_bytes_in_chunks_of_every_size(dxl):
+    rng = random.Random(41)
+    max_param = dxl.so.shim_max_param()
+    ping = inst.ping(9).encode()
+    cut = fast_sync_reply(rng)[:50]   # LEN promises 106 bytes: 56 more are taken as its data
+    stream = (garbage(rng) + fast_sync_reply(rng, header_inside=True) + status_packet(rng).encode()
+              + fast_too_long() + ping + StatusPacket(BROADCAST_ID, 0, bytes(max_param)).encode()
+              + cut + ping + bytes(60 - len(ping)) + ping)
+    expected = None
+    for size in range(1, len(stream) + 2):
+        events = feed_both(dxl, stream, list(range(0, len(stream), size)) + [len(stream)])
+        assert expected is None or events == expected, f"chunks of {size}: the same results"
+        expected = events
+    assert [e[1] for e in expected] == [PACKET, PACKET, -2, PACKET, PACKET, -1, PACKET], \
+        "two packets, a 19-servo reply too long, the ping, a reply of DXL_MAX_PARAM params, " \
+        "the cut reply's bad CRC (a ping inside it is data), the ping after it"
+    assert feed_both(dxl, stream, [0, len(stream)]) == expected, "and all in one chunk"
+
+
+def fast_too_long(count=19) -> bytes:
+    """A fast sync read reply of count servos x 10 bytes; no FF in it, so no header after a refusal.
+    19 servos: 19 * 14 - 3 = 263 params, more than DXL_MAX_PARAM, with a LEN (267) that passes."""
+    reply = encode_fast_reply([FastReadBlock(k, 0, bytes([k]) * FAST_SIZE) for k in range(count)])
+    assert b"\xFF\xFF" not in reply[7:], "no header can start inside it"
+    return reply
+
+
+def test_feed_bytes_refuses_a_fast_reply_too_long_like_the_byte_path(dxl):
+    max_param = dxl.so.shim_max_param()
+    ping = inst.ping(2).encode()
+    cases = [
+        # 19 servos x 10 bytes: 19 * 14 - 3 = 263 params, LEN 267 passes the LEN check
+        (fast_too_long(), 7 + 2 + max_param),
+        (StatusPacket(BROADCAST_ID, 0, bytes(max_param + 1)).encode(), 7 + 2 + max_param),
+        # LEN past what any frame with DXL_MAX_PARAM params can be: refused on LEN's high byte
+        (StatusPacket(BROADCAST_ID, 0, bytes(max_param + 87)).encode(), 6),
+    ]
+    for frame, at in cases:
+        assert dxl.reader().feed(frame + ping) == [-2, (2, 0x01, 0, b"")], "the byte path"
+        for size in (1, 2, 3, 7, 64, 255, 256, 257, len(frame), len(frame) + len(ping)):
+            reader = dxl.reader()
+            data = frame + ping
+            assert reader.feed_bytes(data[:size]) == ((-2, at + 1) if size > at else (MORE, size)), \
+                f"LEN {len(frame) - 7}, first call of {size} bytes"
+            events = feed_both(dxl, data, list(range(0, len(data), size)) + [len(data)])
+            assert events == [(at, -2, None), (len(data) - 1, PACKET, (2, 0x01, 0, b""))], \
+                f"LEN {len(frame) - 7}, chunks of {size}: DXL_TOO_LONG on byte {at}, then the ping"
+    params = (HEADER_BYTES * max_param)[:max_param]
+    fits = StatusPacket(BROADCAST_ID, 0x80, params).encode()
+    assert feed_both(dxl, fits, [0, len(fits)]) == [(len(fits) - 1, PACKET, (BROADCAST_ID, 0x55, 0x80, params))], \
+        "DXL_MAX_PARAM params fit, headers and all"
+
+
+def test_feed_bytes_stops_at_each_result(dxl):
+    rng = random.Random(13)
+    status = status_packet(rng, 4)
+    reply = fast_sync_reply(rng, header_inside=True)
+    frames = [status.encode(), reply, inst.ping(3).encode()]
+    data = b"".join(frames)
+    reader, at = dxl.reader(), 0
+    for frame in frames:
+        assert reader.feed_bytes(data[at:]) == (PACKET, len(frame)), "one packet a call"
+        assert reader.fields() == fields_of(decode_frame(frame)), "its fields, as Python decodes them"
+        at += len(frame)
+    assert reader.feed_bytes(b"") == (MORE, 0), "nothing fed, nothing used"
+    reader = dxl.reader()
+    assert reader.so.dxl_reader_feed_bytes(reader.buffer, _bytes(reply), len(reply), None) == PACKET, \
+        "used may be NULL"
+    got = reader.split(FAST_SIZE, FAST_IDS)
+    python = split_fast_reply(decode_frame(reply), [FAST_SIZE] * len(FAST_IDS))
+    assert got == (7, [(b.id, b.error, b.data) for b in python]), "and the split reads all 7 blocks"

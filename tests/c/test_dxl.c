@@ -672,6 +672,273 @@ static void reader_reads_long_random_streams(void) {
   EXPECT_GE(stuffed, 300, "and many of them needed stuffing");
 }
 
+//---------------------------------- many bytes a call --------------------------------------------
+// dxl_reader_feed_bytes must be dxl_reader_feed over the same bytes: g_reader takes them one at a
+// time (feed, the events above), g_bulk the same bytes in chunks through dxl_reader_feed_bytes.
+
+static dxl_reader g_bulk;
+static int g_bulk_codes[5];     // the results seen, DXL_BAD_FRAME..DXL_PACKET at [code + 3]
+static int g_bulk_fast;         // whole 7 x 10 fast replies read
+static int g_bulk_fast_header;  // of them, with FF FF FD 00 in their data
+
+// two fresh readers: reset leaves the fields of the last frame, which are compared below
+static void start_both(void) {
+  memset(&g_reader, 0, sizeof g_reader);
+  memset(&g_bulk, 0, sizeof g_bulk);
+  start_reading();
+  dxl_reader_reset(&g_bulk);
+}
+
+// The whole state but tail, which only a stuffed frame reads: in a fast reply raw_run leaves it
+// 0 while the byte path keeps shifting bytes in, and the next frame clears it.
+static int same_reader(const dxl_reader* a, const dxl_reader* b) {
+  return a->state == b->state && a->window == b->window && a->crc == b->crc &&
+         a->remain == b->remain && a->nbody == b->nbody && a->raw == b->raw &&
+         a->crc_low == b->crc_low && (a->raw || a->tail == b->tail) && a->id == b->id &&
+         a->instruction == b->instruction && a->error == b->error && a->nparam == b->nparam &&
+         same_bytes(a->param, b->param, a->nparam);
+}
+
+static int has_header(const uint8_t* p, size_t n) {
+  for (size_t i = 0; i + 4 <= n; i++) {
+    if (p[i] == 0xFF && p[i + 1] == 0xFF && p[i + 2] == 0xFD && p[i + 3] == 0x00) return 1;
+  }
+  return 0;
+}
+
+// 0 bytes, a few, tens, or all that is left
+static size_t random_chunk(uint32_t* seed, size_t left) {
+  uint32_t x = next_random(seed);
+  switch (x % 8) {
+    case 0: return 0;
+    case 1: return left;
+    case 2: return (x >> 8) % 200;
+    case 3: return (x >> 8) % 40;
+    default: return (x >> 8) % 6 + 1;
+  }
+}
+
+// Feeds data[0..n) to both readers, dxl_reader_feed_bytes in chunks of `chunk` bytes (0: random
+// sizes from seed) and called again on the rest of a chunk after a result. Each call's result
+// must be the byte path's on byte at + used - 1, with DXL_MORE on every byte before it, and the
+// readers must then agree. Returns 1 if so; else reports the first difference and returns 0.
+static int bulk_agrees(const uint8_t* data, size_t n, size_t chunk, uint32_t* seed) {
+  size_t at = 0, end = 0;
+  do {
+    size_t len = chunk ? chunk : random_chunk(seed, n - end);
+    end = end + len < n ? end + len : n;
+    for (;;) {
+      size_t used = (size_t)-1;
+      int code = dxl_reader_feed_bytes(&g_bulk, data + at, end - at, &used);
+      const char* wrong = NULL;
+      g_nevents = 0;   // the byte path's results on the same bytes
+      if (used > end - at) {
+        wrong = "used is past the chunk";
+      } else {
+        feed(data + at, used);
+        int event = code != DXL_MORE;
+        if (event && used == 0) wrong = "a result from no byte";
+        else if (!event && used != end - at) wrong = "DXL_MORE before the chunk's end";
+        else if (g_nevents != event) wrong = "the byte path gives a result elsewhere";
+        else if (event && g_events[0].at != g_fed - 1) wrong = "the byte path gives it earlier";
+        else if (event && g_events[0].code != code) wrong = "the byte path gives another result";
+        else if (!same_reader(&g_reader, &g_bulk)) wrong = "the readers differ after the call";
+      }
+      if (wrong) {
+        sdt_context("%zu-byte stream, call on bytes %zu..%zu (chunk %zu): result %d, used %zu",
+                    n, at, end, chunk, code, used);
+        EXPECT_INT(0, 1, wrong);
+        return 0;
+      }
+      at += used;
+      if (code == DXL_MORE) break;
+      g_bulk_codes[code + 3]++;
+      if (code == DXL_PACKET && g_bulk.id == DXL_BROADCAST && g_bulk.nparam == 7 * 14 - 3) {
+        g_bulk_fast++;
+        g_bulk_fast_header += has_header(g_bulk.param, g_bulk.nparam);
+      }
+    }
+  } while (end < n);
+  return 1;
+}
+
+static const uint8_t k_swing_ids[7] = {1, 2, 3, 4, 5, 6, 7};
+static const uint16_t k_swing_sizes[25] = {10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10,
+                                           10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10};
+
+// the reply to a fast sync read of count servos x 10 bytes (ids 1, 2, ...), ERR then ID then
+// data per servo; with header, FF FF FD 00 planted in some servos' data
+static size_t swing_reply(uint8_t* out, size_t count, uint32_t* seed, int header) {
+  uint8_t blocks[25 * 12];
+  for (size_t k = 0; k < count; k++) {
+    uint8_t* b = blocks + 12 * k;
+    b[0] = next_random(seed) % 5 ? 0 : stuffable_byte(seed);
+    b[1] = (uint8_t)(k + 1);
+    for (int i = 0; i < 10; i++) b[2 + i] = stuffable_byte(seed);
+    if (header && next_random(seed) % 2) {
+      memcpy(b + 2 + next_random(seed) % 7, "\xFF\xFF\xFD\x00", 4);
+    }
+  }
+  return fast_reply(out, blocks, k_swing_sizes, count);
+}
+
+// one piece of a bus stream: good frames of every kind, garbage, cut and corrupted frames
+static size_t stream_piece(uint8_t* out, uint32_t* seed) {
+  static const uint8_t garbage[6] = {0x00, 0x01, 0xFD, 0x55, 0x80, 0xFF};
+  uint8_t p[DXL_MAX_PARAM + 120];
+  uint32_t kind = next_random(seed) % 10;
+  size_t n, np;
+  switch (kind) {
+    case 0:
+    case 1:
+      return swing_reply(out, 7, seed, kind == 1);
+    case 2:   // a status packet whose params often need stuffing
+      np = next_random(seed) % 40 + 1;
+      for (size_t i = 0; i < np; i++) p[i] = stuffable_byte(seed);
+      return dxl_packet(out, BUF, (uint8_t)(next_random(seed) % 253), DXL_STATUS, p, np);
+    case 3:
+      n = next_random(seed) % 12;
+      for (size_t i = 0; i < n; i++) out[i] = garbage[next_random(seed) % 6];
+      return n;
+    case 4:   // cut short
+    case 5:   // one bit of the CRC flipped
+    case 6:   // one bit anywhere flipped
+      if (next_random(seed) % 2) {
+        n = swing_reply(out, 7, seed, 1);
+      } else {
+        np = next_random(seed) % 40 + 1;
+        for (size_t i = 0; i < np; i++) p[i] = stuffable_byte(seed);
+        n = dxl_packet(out, BUF, (uint8_t)(next_random(seed) % 253), DXL_STATUS, p, np);
+      }
+      if (kind == 4) return next_random(seed) % (n - 1) + 1;
+      out[kind == 5 ? n - 1 - next_random(seed) % 2 : next_random(seed) % n] ^=
+          (uint8_t)(1u << next_random(seed) % 8);
+      return n;
+    case 7:   // around DXL_MAX_PARAM: fits, too long for param, too long for LEN
+      if (next_random(seed) % 2) {
+        static const size_t counts[4] = {18, 19, 24, 25};
+        return swing_reply(out, counts[next_random(seed) % 4], seed, 1);
+      } else {
+        static const int extra[6] = {0, 1, 2, 40, 87, 88};
+        np = (size_t)(DXL_MAX_PARAM + extra[next_random(seed) % 6]);   // ERR and np - 1 params
+        for (size_t i = 0; i < np; i++) p[i] = stuffable_byte(seed);
+        return dxl_packet(out, BUF, DXL_BROADCAST, DXL_STATUS, p, np);
+      }
+    case 8:   // the echo of the request
+      return dxl_fast_sync_read(out, BUF, 132, 10, k_swing_ids, 7);
+    default:
+      np = next_random(seed) % 12;
+      for (size_t i = 0; i < np; i++) p[i] = stuffable_byte(seed);
+      return dxl_write(out, BUF, (uint8_t)(next_random(seed) % 253), (uint16_t)next_random(seed), p,
+                       (uint16_t)np);
+  }
+}
+
+static void feed_bytes_equals_feed_on_random_streams(void) {
+  static uint8_t stream[16 * BUF];
+  uint32_t seed = 777;
+  int agreed = 0, trials = 400;
+  memset(g_bulk_codes, 0, sizeof g_bulk_codes);
+  g_bulk_fast = g_bulk_fast_header = 0;
+  for (int trial = 0; trial < trials; trial++) {
+    size_t n = 0;
+    for (uint32_t k = next_random(&seed) % 14 + 1; k > 0; k--) n += stream_piece(stream + n, &seed);
+    start_both();
+    int ok = bulk_agrees(stream, n, 0, &seed);
+    agreed += ok;
+    if (!ok) sdt_context("trial %d", trial);
+    // every tenth stream also in chunks of each size up to 64
+    for (size_t chunk = 1; ok && trial % 10 == 0 && chunk <= 64; chunk++) {
+      start_both();
+      ok = bulk_agrees(stream, n, chunk, &seed);
+    }
+    if (!ok) break;
+  }
+  sdt_context("%d random streams", trials);
+  EXPECT_INT(agreed, trials, "dxl_reader_feed_bytes is dxl_reader_feed on every stream");
+  EXPECT_GE(g_bulk_codes[DXL_PACKET + 3], 1000, "many packets");
+  EXPECT_GE(g_bulk_codes[DXL_BAD_CRC + 3], 100, "many bad CRCs");
+  EXPECT_GE(g_bulk_codes[DXL_TOO_LONG + 3], 100, "many frames too long");
+  EXPECT_GE(g_bulk_codes[DXL_BAD_FRAME + 3], 100, "many bad frames");
+  EXPECT_GE(g_bulk_fast, 500, "many whole 7 x 10 fast replies");
+  EXPECT_GE(g_bulk_fast_header, 200, "many of them with a header in their data");
+}
+
+static void feed_bytes_stops_at_each_result(void) {
+  uint8_t data[BUF];
+  uint32_t seed = 99;
+  size_t n1 = status_packet(data, 4, 0x00, "FF FF FD 00 FF FF FD");
+  size_t n2 = swing_reply(data + n1, 7, &seed, 1);
+  size_t n3 = dxl_ping(data + n1 + n2, BUF, 3);
+  size_t used = 0;
+  dxl_reader_reset(&g_bulk);
+  EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data, n1 + n2 + n3, &used), DXL_PACKET, "the first");
+  EXPECT_INT(used, n1, "it stops on the status packet's last byte");
+  expect_bytes(g_bulk.param, g_bulk.nparam, "FF FF FD 00 FF FF FD", "its params, unstuffed");
+  EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data + n1, n2 + n3, &used), DXL_PACKET, "the reply");
+  EXPECT_INT(used, n2, "on its last byte: the headers in its data are data");
+  dxl_block b[7];
+  EXPECT_INT(dxl_fast_reply_split(&g_bulk, 10, k_swing_ids, 7, b), 7, "and it splits in 7 blocks");
+  EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data + n1 + n2, n3, &used), DXL_PACKET, "the ping");
+  EXPECT_INT(used, n3, "all of it");
+  EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data, 0, &used), DXL_MORE, "no bytes: nothing");
+  EXPECT_INT(used, 0, "none used");
+  dxl_reader_reset(&g_bulk);
+  EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data + n1, n2, NULL), DXL_PACKET, "used may be NULL");
+  EXPECT_INT(g_bulk.nparam, 7 * 14 - 3, "the reply's params");
+}
+
+// fast replies too long for param but not for LEN (raw_run must give up and let the byte path
+// refuse them on the same byte), and one too long for LEN; each followed by a ping. The servo
+// counts are for DXL_MAX_PARAM 256, as built here.
+static void feed_bytes_refuses_fast_replies_too_long(void) {
+  static uint8_t data[4 * BUF];
+  static const struct {
+    size_t count, at;
+    const char* why;
+  } k[] = {
+    {18, 0, "18 servos x 10 bytes: 249 params fit"},
+    {19, 7 + 2 + DXL_MAX_PARAM, "19 servos: 263 params, refused on the 257th"},
+    {24, 7 + 2 + DXL_MAX_PARAM, "24 servos: 333 params, LEN 337 still passes"},
+    {25, 6, "25 servos: LEN 351, more than any frame with DXL_MAX_PARAM params; refused on LEN"},
+  };
+  uint8_t blocks[25 * 12];
+  for (size_t i = 0; i < sizeof blocks; i++) blocks[i] = i % 12 == 1 ? (uint8_t)(i / 12 + 1) : 0x11;
+  for (size_t i = 0; i < sizeof k / sizeof k[0]; i++) {
+    size_t n = fast_reply(data, blocks, k_swing_sizes, k[i].count);
+    size_t m = n + dxl_ping(data + n, BUF, 2);
+    for (size_t chunk = 1; chunk <= m; chunk++) {
+      sdt_context("%s; chunks of %zu", k[i].why, chunk);
+      start_both();
+      if (!bulk_agrees(data, m, chunk, NULL)) break;
+    }
+    sdt_context("%s", k[i].why);
+    start_both();
+    feed(data, m);
+    const int codes[2] = {k[i].at ? DXL_TOO_LONG : DXL_PACKET, DXL_PACKET};
+    expect_codes(codes, 2, "the reply, then the ping");
+    if (k[i].at) EXPECT_INT(g_events[0].at, k[i].at, "on that byte");
+    size_t used = 0;
+    dxl_reader_reset(&g_bulk);
+    EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data, m, &used), codes[0], "in one call too");
+    EXPECT_INT(used, k[i].at ? k[i].at + 1 : n, "stopping on the same byte");
+  }
+  sdt_context("a fast reply of exactly DXL_MAX_PARAM params, then one more");
+  uint8_t p[DXL_MAX_PARAM + 2];
+  for (size_t i = 0; i < sizeof p; i++) p[i] = (uint8_t)"\xFF\xFF\xFD\x00"[i % 4];
+  for (size_t extra = 0; extra < 2; extra++) {
+    size_t n = dxl_packet(data, sizeof data, DXL_BROADCAST, DXL_STATUS, p,
+                          DXL_MAX_PARAM + 1 + extra);   // ERR and the params
+    size_t used = 0;
+    dxl_reader_reset(&g_bulk);
+    EXPECT_INT(dxl_reader_feed_bytes(&g_bulk, data, n, &used), extra ? DXL_TOO_LONG : DXL_PACKET,
+               "fits, then does not");
+    EXPECT_INT(used, extra ? 7 + 2 + DXL_MAX_PARAM + 1 : n,
+               "the whole frame, or up to the param that does not fit");
+    EXPECT_INT(same_bytes(g_bulk.param, p + 1, DXL_MAX_PARAM), 1, "the params kept, unstuffed");
+  }
+}
+
 //---------------------------------- builders and fields ------------------------------------------
 
 static void builders_refuse_small_buffers_and_bad_ids(void) {
@@ -739,6 +1006,9 @@ const sdt_test sdt_dxl_tests[] = {
   {"reader_takes_a_header_in_the_crc_as_the_crc", reader_takes_a_header_in_the_crc_as_the_crc},
   {"reader_reset_forgets_a_partial_packet", reader_reset_forgets_a_partial_packet},
   {"reader_reads_long_random_streams", reader_reads_long_random_streams},
+  {"feed_bytes_equals_feed_on_random_streams", feed_bytes_equals_feed_on_random_streams},
+  {"feed_bytes_stops_at_each_result", feed_bytes_stops_at_each_result},
+  {"feed_bytes_refuses_fast_replies_too_long", feed_bytes_refuses_fast_replies_too_long},
   {"builders_refuse_small_buffers_and_bad_ids", builders_refuse_small_buffers_and_bad_ids},
   {"fields_are_little_endian", fields_are_little_endian},
   {0, 0},
