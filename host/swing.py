@@ -26,6 +26,7 @@ from .trajectory import Trajectory
 SMALL_TIME_STEP = 1e-3
 TIME_STEP = 1e-2
 HOME_DURATION = 2.0     # s to move from wherever the arm is to the swing's start pose
+SIM_REPLY_TIMEOUT = 0.25   # s to wait for a read reply from the embedded simulated bus
 
 
 @dataclass
@@ -39,8 +40,11 @@ class SwingLog:
     tau: list = field(default_factory=list)
     current: list = field(default_factory=list)
     tick_seconds: list = field(default_factory=list)    # wall time of each tick's work
+    tick_start: list = field(default_factory=list)      # s (perf_counter) when each tick began
+    cpu_seconds: list = field(default_factory=list)     # CPU time of the loop's thread in each tick
+    process_cpu_seconds: list = field(default_factory=list)   # CPU time of the whole process in it
 
-    def add(self, t, q_d, state, tau, seconds) -> None:
+    def add(self, t, q_d, state, tau, seconds, start=None, cpu=None, process_cpu=None) -> None:
         self.t.append(t)
         self.q_d.append(np.array(q_d))
         self.q.append(state.q)
@@ -48,6 +52,9 @@ class SwingLog:
         self.tau.append(np.array(tau))
         self.current.append(state.current)
         self.tick_seconds.append(seconds)
+        self.tick_start.append(start)
+        self.cpu_seconds.append(cpu)
+        self.process_cpu_seconds.append(process_cpu)
 
     def write_csv(self, path: Path) -> None:
         names = self.dof_names
@@ -130,9 +137,11 @@ def plan_gains(model, swing: Trajectory) -> tuple[GainSchedule, GainSchedule]:
 
 def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
-              say=print, fault_at: tuple[float, int] | None = None) -> dict:
-    """Home, swing, log; returns the summary. fault_at = (time, servo id): the simulated servo
-    stops answering then (to show the safe stop)."""
+              say=print, fault_at: tuple | None = None) -> dict:
+    """Home, swing, log; returns the summary. fault_at = (time, servo id) or (time, servo id,
+    fault): on the simulated bus, that servo stops answering then (fault "silent", the default),
+    or raises Hardware Error Status bits (fault "overload", "overheating", ... or the bits as an
+    int), to show the safe stop."""
     config = load_config(config_name)
     model = config.model
     scale = time_scale or config.swing_time_scale or 1.0
@@ -148,7 +157,9 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         say(f"simulated bus: {len(arm.servos)} virtual servos of '{config.name}' on {port} "
             f"({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
             f"{SMALL_TIME_STEP * 1e3:g} ms")
-    bus = make_bus(config, port=port)
+    # a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here), far
+    # beyond a real bus's 34 ms packet timeout: the simulated bus gets a patient reply timeout
+    bus = make_bus(config, port=port, **({"reply_timeout": SIM_REPLY_TIMEOUT} if arm is not None else {}))
     controller = Controller(model, ControlConfig(mode=mode, small_time_step=SMALL_TIME_STEP,
                                                  time_step=TIME_STEP, bandwidth=BANDWIDTH),
                             q_start=swing.q[0])
@@ -172,8 +183,9 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
             fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
         else:
             fault_tick = None
+        inject = _fault_injector(server, fault_at) if fault_tick is not None else None
         _follow(bus, controller, swing, schedule, log, realtime, say=say,
-                on_tick=(lambda k: arm.silent.add(fault_at[1]) if k == fault_tick else None))
+                on_tick=(lambda k: inject() if k == fault_tick else None))
     except ServoError as err:
         error = err
         say(f"servo error: {err} — torque off on every servo")
@@ -181,13 +193,34 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         _safe_stop(bus)
         if server is not None:
             server.stop()
-    summary = _report(log, out, swing, scale, mode, error, say)
+    summary = _report(log, out, swing, scale, mode, error, say, realtime)
+    summary["failed_reads"] = getattr(bus, "failed_reads", 0)     # reads retried (whole run)
     if arm is not None:
         # what the simulated servos saw: plant time at the stop and every torque switched off
         summary["sim_time_at_stop_s"] = arm.time - swing_start     # on the swing's clock
         summary["torque_off"] = [not servo.torque_enabled for servo in arm.servos]
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def _fault_injector(server, fault_at):
+    """What fault_at does to the simulated bus, between two transactions (under the server's lock,
+    so the plant's step in flight sees the servo either before or after)."""
+    servo_id = fault_at[1]
+    fault = fault_at[2] if len(fault_at) > 2 else "silent"
+    arm = server.arm
+    if fault != "silent":
+        from servodyn.sim.dynamixel import HardwareError
+        bits = fault if isinstance(fault, int) else HardwareError[str(fault).upper().replace(" ", "_")]
+        servo = next(s for s in arm.servos if s.id == servo_id)
+
+    def inject():
+        with server._lock:
+            if fault == "silent":
+                arm.silent.add(servo_id)
+            else:
+                servo.set_hardware_error(int(bits))
+    return inject
 
 
 def _follow(bus, controller, traj: Trajectory, gains: GainSchedule, log: SwingLog | None,
@@ -203,13 +236,15 @@ def _follow(bus, controller, traj: Trajectory, gains: GainSchedule, log: SwingLo
         if on_tick is not None:
             on_tick(k)
         began = time.perf_counter()
+        cpu, process_cpu = time.thread_time(), time.process_time()
         if k % update_ticks == 0:
             controller.set_gains(*gains.at(traj.t[k] - traj.t[0]))
         state = bus.read_state()
         tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], state.q, state.qd)
         bus.write(JointCommand.torque(tau))
+        cpu, process_cpu = time.thread_time() - cpu, time.process_time() - process_cpu
         if log is not None:
-            log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began)
+            log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began, began, cpu, process_cpu)
         if say is not None and traj.t[k] >= next_report:
             err = np.degrees(np.abs(traj.q[k] - state.q).max())
             say(f"  t = {traj.t[k]:5.2f} s  {100 * k / (n - 1):5.1f} %  largest error {err:6.3f} deg")
@@ -237,7 +272,14 @@ def _safe_stop(bus) -> None:
         pass
 
 
-def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str, error, say) -> dict:
+def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str, error, say,
+            realtime: bool = False) -> dict:
+    """The summary. The loop rate and the period jitter come from when the ticks began: in real
+    time the jitter is each period's distance from the nominal one, in lock-step (which runs as
+    fast as it can) from the median period. CPU per tick is the loop thread's CPU time
+    (time.thread_time) from the gains update to the end of the write — the HAL read, the control
+    step and the HAL write; the process's (time.process_time) also counts the simulated bus when
+    it runs in this process."""
     names = log.dof_names
     log.write_csv(out / "swing_log.csv")
     if not log.t:
@@ -247,9 +289,16 @@ def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str
     q_d, q = np.array(log.q_d), np.array(log.q)
     e = q_d - q
     seconds = np.array(log.tick_seconds)
-    wall = float(np.sum(seconds))
-    loop_hz = len(seconds) / wall
-    jitter = np.abs(seconds - np.median(seconds))
+    starts = np.array(log.tick_start, dtype=float)
+    if len(starts) > 1 and np.all(np.isfinite(starts)):
+        periods = np.diff(starts)
+        loop_hz = (len(starts) - 1) / float(starts[-1] - starts[0])
+    else:
+        periods, loop_hz = seconds, len(seconds) / float(np.sum(seconds))
+    nominal = swing.t[1] - swing.t[0]
+    jitter = np.abs(periods - (nominal if realtime else np.median(periods)))
+    cpu = np.array(log.cpu_seconds, dtype=float)
+    process_cpu = np.array(log.process_cpu_seconds, dtype=float)
     summary = {
         "completed": error is None and len(log.t) == len(swing.t),
         "ticks": len(log.t),
@@ -260,7 +309,12 @@ def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str
         "tracking_max_by_dof_rad": dict(zip(names, map(float, np.abs(e).max(axis=0)))),
         "loop_hz": loop_hz,
         "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
+        "clock": "realtime" if realtime else "lockstep",
+        "period_median_ms": float(np.median(periods) * 1e3),
         "tick_median_ms": float(np.median(seconds) * 1e3),
+        "cpu_ms_per_tick": {"median": float(np.median(cpu) * 1e3), "p99": float(np.percentile(cpu, 99) * 1e3)},
+        "process_cpu_ms_per_tick": {"median": float(np.median(process_cpu) * 1e3),
+                                    "p99": float(np.percentile(process_cpu, 99) * 1e3)},
         "peak_torque_nm": dict(zip(names, map(float, np.abs(np.array(log.tau)).max(axis=0)))),
         "error": str(error) if error else None,
         "last_tick_time_s": float(log.t[-1]),
@@ -269,8 +323,9 @@ def _report(log: SwingLog, out: Path, swing: Trajectory, scale: float, mode: str
     say(f"\n  {'dof':<24} {'rms (deg)':>10} {'max (deg)':>10}")
     for k, name in enumerate(names):
         say(f"  {name:<24} {np.degrees(np.sqrt(np.mean(e[:, k]**2))):>10.3f} {np.degrees(np.abs(e[:, k]).max()):>10.3f}")
-    say(f"\n  loop {loop_hz:.0f} Hz (tick median {summary['tick_median_ms']:.3f} ms, p99 jitter "
-        f"{summary['jitter_p99_ms']:.3f} ms); tracking rms {np.degrees(summary['tracking_rms_rad']):.3f} deg, "
+    say(f"\n  loop {loop_hz:.0f} Hz, {summary['clock']} (period median {summary['period_median_ms']:.3f} ms, "
+        f"p99 jitter {summary['jitter_p99_ms']:.3f} ms; CPU per tick median "
+        f"{summary['cpu_ms_per_tick']['median']:.3f} ms, p99 {summary['cpu_ms_per_tick']['p99']:.3f} ms); tracking rms {np.degrees(summary['tracking_rms_rad']):.3f} deg, "
         f"max {np.degrees(summary['tracking_max_rad']):.3f} deg")
     _plot(out / "swing_tracking.png", np.array(log.t), q_d, q, np.array(log.tau), names)
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")

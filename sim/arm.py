@@ -22,11 +22,13 @@ import tty
 import numpy as np
 
 from servodyn.hal.config import RobotConfig
+from servodyn.hal.dynamixel import BROADCAST_ID, Instruction, crc16
 from .dynamixel import MODELS, Servo, VirtualBus
 from .dynamixel.device import Exchange
 
 SYNC_WRITE = 0x83
 BULK_WRITE = 0x93
+STATUS = Instruction.STATUS
 
 
 class SimulatedArm:
@@ -88,15 +90,61 @@ class SimulatedArm:
 
 
 def _drop_from(stream: bytes, silent: set[int]) -> bytes:
-    """The status packets of a reply stream without those from silent servo IDs."""
+    """A reply stream as the chain puts it on the wire when the servos in `silent` say nothing:
+    their own status packets are gone, and a fast sync/bulk read reply (one packet from 0xFE in
+    which the servos answer in turn, each appending its block) stops where the first silent
+    servo's block would begin. The servos before it answered, the ones after wait for it and
+    never do; the header's LEN still counts every block, so the host sees a short packet. A
+    silent first servo sends no header: nothing at all."""
     out, k = bytearray(), 0
     while k + 7 <= len(stream):
         length = stream[k + 5] | (stream[k + 6] << 8)
         end = k + 7 + length
-        if stream[k + 4] not in silent:
-            out += stream[k:end]
+        packet = stream[k:end]
+        if packet[4] == BROADCAST_ID:
+            out += packet[:_fast_reply_cut(packet, silent)]
+        elif packet[4] not in silent:
+            out += packet
         k = end
     return bytes(out)
+
+
+def _fast_reply_cut(packet: bytes, silent: set[int]) -> int:
+    """Bytes of a fast read reply that reach the host: up to the first silent servo's block."""
+    blocks = _fast_blocks(packet)
+    if blocks is None:          # not a fast reply this bus made: left as it is
+        return len(packet)
+    for start, servo_id in blocks:
+        if servo_id in silent:
+            return 0 if start == FAST_BLOCKS_START else start
+    return len(packet)
+
+
+FAST_BLOCKS_START = 8           # header(4) ID LEN(2) INST, then ERR ID DATA CRC(2) per servo
+
+
+def _fast_blocks(packet: bytes) -> list[tuple[int, int]] | None:
+    """(offset, servo ID) of each block of a fast read reply. The blocks' data lengths are not in
+    the reply, but each block ends in the CRC of the packet up to there (the last one is the
+    packet's CRC), so the boundaries are the places where the running CRC matches and the rest
+    of the packet parses the same way to its end. None if there are none."""
+    size = len(packet)
+
+    def walk(k: int, crc: int):
+        if k == size:
+            return []
+        running = crc16(packet[k:k + 2], crc)                  # ERR, ID
+        for e in range(k + 3, size - 1):                       # at least one data byte
+            running = crc16(packet[e - 1:e], running)          # CRC of packet[:e]
+            if packet[e] | packet[e + 1] << 8 == running:
+                rest = walk(e + 2, crc16(packet[e:e + 2], running))
+                if rest is not None:
+                    return [(k, packet[k + 1])] + rest
+        return None
+
+    if size < FAST_BLOCKS_START + 5 or packet[7] != STATUS:
+        return None
+    return walk(FAST_BLOCKS_START, crc16(packet[:FAST_BLOCKS_START]))
 
 
 class PtyServer:

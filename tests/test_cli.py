@@ -144,3 +144,38 @@ def test_torques_refuses_a_trajectory_beyond_the_limits(tmp_path):
     write_traj(tmp_path / "ok.csv", t, arm.dof_names, *reach_motion(arm)[1:])
     res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", "--max-velocity", "0.5")
     assert res.returncode == 2 and "speed" in res.stderr
+
+
+def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
+    """`servodyn sim` prints the pseudo-terminal's path; dynamixel-sdk opens it and servo 1 (the
+    replica's XM540-W270, model number 1120) answers a ping; SIGINT, sent with the client still
+    connected, ends it with status 0 within 5 s, the stop line on stdout and nothing on stderr."""
+    import re
+    import select
+    import signal
+    import time
+    sdk = pytest.importorskip("dynamixel_sdk")
+    proc = subprocess.Popen([sys.executable, "-m", "servodyn.cli", "sim"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    port = None
+    try:
+        assert select.select([proc.stdout], [], [], 60)[0], "the path is printed at start-up"
+        first = proc.stdout.readline()
+        path = re.search(r" on (/dev/\S+)$", first.strip())
+        assert path, first
+        port = sdk.PortHandler(path.group(1))
+        assert port.openPort() and port.setBaudRate(4_000_000)
+        assert sdk.PacketHandler(2.0).ping(port, 1) == (1120, sdk.COMM_SUCCESS, 0)
+        proc.send_signal(signal.SIGINT)
+        began = time.monotonic()
+        out, err = proc.communicate(timeout=5)
+        took = time.monotonic() - began
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        if port is not None:
+            port.closePort()
+    assert proc.returncode == 0 and took < 5
+    assert "stopped after" in out
+    assert err == "", err

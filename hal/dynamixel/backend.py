@@ -6,22 +6,36 @@ is exactly what it asks of the motor (as current through the configured torque c
 Current-based Position Mode the Goal Current is only a limit on the servo's own position loop,
 so the feed-forward could not be added (see the notes on what users struggle with).
 
-A tick is two transactions: one sync read of Present Current, Velocity and Position (addresses
-126..135, one read), one sync write of Goal Current. At open: Return Delay Time 0, Current
-Control Mode, Hardware Error Status checked, the Bus Watchdog armed so the servos stop if the
-host dies. dynamixel-sdk 4.1.0 sends instruction packets without byte stuffing; servodyn frames
-its packets itself (hal.dynamixel.protocol), so data that contains FF FF FD arrives intact.
+A tick is two transactions: one fast sync read (0x8A) of Present Current, Velocity and Position
+(addresses 126..135) that every servo answers inside one status packet, and one sync write of
+Goal Current. At open: Return Delay Time 0, Current Control Mode, Hardware Error Status checked,
+the Bus Watchdog armed so the servos stop if the host dies.
+
+dynamixel-sdk 4.1.0 sends instruction packets without byte stuffing, and its fastSyncRead parses
+the reply by fixed offsets (unstuffing it first, though a fast reply is never stuffed, and
+trusting every block's ID and error byte). So the SDK is used for the port and to send: every
+packet goes out through `StuffingPacketHandler`, which frames and stuffs it with servodyn's codec
+(hal.dynamixel.protocol), so data that contains FF FF FD arrives intact. The fast reply is read
+from the port and parsed by the codec: packet CRC, each block's running CRC, ID and error byte.
+A missing or short reply is retried; then each servo is pinged to name the one that is silent
+(ServoTimeoutError). An error byte with the alert bit set makes the backend read that servo's
+Hardware Error Status and raise ServoHardwareError with its bits.
 """
 
 from __future__ import annotations
 
+import select
 import time
+from collections.abc import Mapping
 
 import numpy as np
 
 from ..bus import (JointCommand, JointState, ServoBus, ServoHardwareError, ServoInitializationError,
                    ServoOperationError, ServoTimeoutError)
-from .protocol import encode_frame
+from .instructions import split_fast_reply
+from .protocol import (ALERT_BIT, BROADCAST_ID, FRAME_OVERHEAD, HEADER, PacketError, StatusPacket, crc16,
+                       encode_frame)
+from .reader import BadFrame, Fault, PacketReader
 
 ADDR_MODEL_NUMBER = 0
 ADDR_RETURN_DELAY = 9
@@ -64,7 +78,10 @@ class DynamixelBus(ServoBus):
     kind = "dynamixel"
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
-                 watchdog: float = 0.1, **kwargs):
+                 watchdog: float = 0.1, reply_timeout: float | None = None, **kwargs):
+        """retries: tries after the first before a read fails; watchdog: s of bus silence after
+        which the servos stop; reply_timeout: s to wait for the fast sync read reply (None: the
+        SDK's packet timeout, wire time + 2 x 16 ms USB latency + 2 ms)."""
         super().__init__(config, bus, **kwargs)
         self.port_name = port or self.bus.port
         if self.port_name in (None, "", "auto"):
@@ -72,6 +89,8 @@ class DynamixelBus(ServoBus):
                                            "the simulated bus: start it with `servodyn sim`)")
         self.retries = retries
         self.watchdog = watchdog
+        self.reply_timeout = reply_timeout
+        self.failed_reads = 0           # fast sync reads that got no whole reply (each then retried)
         self.ids = [j.id for j in self.joints]
         self._last: JointState | None = None
 
@@ -97,10 +116,12 @@ class DynamixelBus(ServoBus):
             self._write_item(joint, ADDR_RETURN_DELAY, 1, 0)
             self._write_item(joint, ADDR_OPERATING_MODE, 1, CURRENT_MODE)
             self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)       # clear a tripped watchdog
-        self._reader = sdk.GroupSyncRead(self.port, self.packets, ADDR_PRESENT, PRESENT_LENGTH)
-        for servo_id in self.ids:
-            self._reader.addParam(servo_id)
         self._writer = sdk.GroupSyncWrite(self.port, self.packets, ADDR_GOAL_CURRENT, 2)
+        self._fault = None
+        try:
+            self._fileno = self.port.ser.fileno()      # to wait for the reply without spinning
+        except (AttributeError, OSError, ValueError):
+            self._fileno = None
 
     def _close(self) -> None:
         self.port.closePort()
@@ -130,29 +151,28 @@ class DynamixelBus(ServoBus):
 
     # ---------------------------------------------------------------- one tick
     def _read(self) -> JointState:
-        """One sync read; the replies are taken servo by servo so that each one's error byte is
-        seen (an alert means a hardware error) and a missing reply names its servo."""
-        sdk = self._sdk
-        for attempt in range(self.retries + 1):
-            result = self._reader.txPacket()
-            rows, errors, missing = [], [], None
-            if result == sdk.COMM_SUCCESS:
-                for joint in self.joints:
-                    data, result, error = self.packets.readRx(self.port, joint.id, PRESENT_LENGTH)
-                    if result != sdk.COMM_SUCCESS:
-                        missing = joint
-                        break
-                    rows.append(bytes(data))
-                    errors.append(error)
-            if missing is None and result == sdk.COMM_SUCCESS:
+        """One fast sync read of Present Current, Velocity and Position of every servo. A missing,
+        short or corrupt reply is retried; after the last retry each servo is pinged and the one
+        that does not answer is named. A block whose error byte carries the alert bit makes the
+        backend read that servo's Hardware Error Status and raise ServoHardwareError."""
+        for _ in range(self.retries + 1):
+            blocks, failure, suspect = self._fast_sync_read()
+            if blocks is not None:
                 break
+            self.failed_reads += 1
         else:
-            if missing is not None:
-                raise ServoTimeoutError(missing.dof, missing.id, self.packets.getTxRxResult(result))
-            raise self._diagnose(self.packets.getTxRxResult(result))
-        for joint, error in zip(self.joints, errors):
-            if error & 0x80:
-                self._check_hardware(joint)
+            raise self._diagnose(failure, suspect)
+        for joint, block in zip(self.joints, blocks):
+            if block.error & ALERT_BIT:
+                status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
+                if status:
+                    self._fault = (joint, status)          # write() refuses while it stands
+                    raise ServoHardwareError(joint.dof, joint.id, status)
+            if block.error & ~ALERT_BIT:
+                raise ServoOperationError(f"joint '{joint.dof}': servo {joint.id} refused the read "
+                                          f"({self.packets.getRxPacketError(block.error & ~ALERT_BIT)})")
+        self._fault = None
+        rows = [block.data for block in blocks]
         current = np.array([int.from_bytes(r[0:2], "little", signed=True) for r in rows])
         velocity = np.array([int.from_bytes(r[2:6], "little", signed=True) for r in rows])
         position = np.array([int.from_bytes(r[6:10], "little", signed=True) for r in rows])
@@ -162,7 +182,85 @@ class DynamixelBus(ServoBus):
         self._last = state
         return state
 
+    @property
+    def reply_size(self) -> int:
+        """Bytes of the whole fast sync read reply: header, ID, LEN, INST, then per servo
+        ERR ID DATA CRC(2) (the last block's CRC is the packet's)."""
+        return FRAME_OVERHEAD + 1 + len(self.ids) * (PRESENT_LENGTH + 4)
+
+    def _fast_sync_read(self):
+        """Send one fast sync read through the SDK's port and packet handler (so it is framed and
+        stuffed by StuffingPacketHandler) and parse its one reply with servodyn's codec. Returns
+        (blocks in joint order, "", None) or (None, what went wrong, the joint first missing)."""
+        sdk = self._sdk
+        result = self.packets.syncReadTx(self.port, ADDR_PRESENT, PRESENT_LENGTH, self.ids, len(self.ids), True)
+        if result != sdk.COMM_SUCCESS:
+            return None, self.packets.getTxRxResult(result), None
+        try:
+            raw, packet, failure = self._receive()
+        finally:
+            self.port.is_using = False
+        if packet is None:
+            suspect, detail = self._short_reply(raw)
+            return None, failure or detail, suspect
+        try:
+            blocks = split_fast_reply(packet, [PRESENT_LENGTH] * len(self.ids))
+        except PacketError as err:
+            return None, f"corrupt fast sync read reply ({err})", None
+        ids = [block.id for block in blocks]
+        if ids != self.ids:
+            return None, f"fast sync read reply from IDs {ids}, asked {self.ids}", None
+        return blocks, "", None
+
+    def _receive(self) -> tuple[bytes, StatusPacket | None, str]:
+        """Bytes from the port until a status packet from 0xFE (the fast reply) is whole, or the
+        reply timeout passes (by default the packet timeout syncReadTx set). Waits in select()
+        rather than spinning, so the tick's CPU time is its work."""
+        reader = PacketReader(byte_timeout=None)
+        raw = bytearray()
+        if self.reply_timeout is None:
+            timeout = (self.port.packet_timeout - self.port.getTimeSinceStart()) * 1e-3
+        else:
+            timeout = self.reply_timeout
+        deadline = time.monotonic() + timeout
+        while True:
+            chunk = self.port.readPort(4096)
+            if chunk:
+                raw += chunk
+                for event in reader.feed(bytes(chunk)):
+                    if isinstance(event, StatusPacket) and event.id == BROADCAST_ID:
+                        return bytes(raw), event, ""
+                    if isinstance(event, BadFrame) and event.fault is Fault.CRC and event.id == BROADCAST_ID:
+                        return bytes(raw), None, "fast sync read reply with a bad CRC"
+                continue
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return bytes(raw), None, ""
+            if self._fileno is not None:
+                select.select([self._fileno], [], [], remaining)
+
+    def _short_reply(self, raw: bytes):
+        """(the first joint whose block is missing, a description) for a reply that did not
+        complete: a chain answers in order, so the blocks that came are whole and checkable."""
+        start = raw.find(HEADER)
+        if start < 0:
+            return self.joints[0], "no fast sync read reply"
+        frame, got, k = raw[start:], 0, FRAME_OVERHEAD + 1
+        while got < len(self.ids) and k + PRESENT_LENGTH + 4 <= len(frame):
+            end = k + 2 + PRESENT_LENGTH
+            if frame[k + 1] != self.ids[got] or crc16(frame[:end]) != int.from_bytes(frame[end:end + 2], "little"):
+                break
+            got, k = got + 1, k + PRESENT_LENGTH + 4
+        if got == len(self.ids):
+            return None, "fast sync read reply incomplete"
+        missing = self.joints[got]
+        return missing, (f"the fast sync read reply stopped after {got} of {len(self.ids)} blocks, "
+                         f"before servo {missing.id}'s")
+
     def _write(self, command: JointCommand) -> None:
+        if self._fault is not None:         # a sync write gets no reply: the last read's alert stands
+            joint, status = self._fault
+            raise ServoHardwareError(joint.dof, joint.id, status)
         if self._last is None:
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")
         tau = command.torque_at(self._last.q, self._last.qd)
@@ -178,14 +276,32 @@ class DynamixelBus(ServoBus):
             raise ServoOperationError(f"bus '{self.bus.name}': goal write failed "
                                       f"({self.packets.getTxRxResult(result)})")
 
+    def sync_write(self, address: int, data_by_id: Mapping[int, bytes]) -> None:
+        """One sync write of equal-length table bytes at ``address``, by servo ID, framed and stuffed
+        by servodyn's codec: for items the tick does not write (Goal Position in a position mode,
+        limits, gains). No servo answers a sync write."""
+        self._check_open()
+        sizes = {len(data) for data in data_by_id.values()}
+        if len(sizes) != 1:
+            raise ValueError("sync_write: one data length for every servo")
+        writer = self._sdk.GroupSyncWrite(self.port, self.packets, address, sizes.pop())
+        for servo_id, data in data_by_id.items():
+            writer.addParam(servo_id, list(data))
+        result = writer.txPacket()
+        if result != self._sdk.COMM_SUCCESS:
+            raise ServoOperationError(f"bus '{self.bus.name}': sync write to address {address} failed "
+                                      f"({self.packets.getTxRxResult(result)})")
+
     # ---------------------------------------------------------------- helpers
-    def _diagnose(self, detail: str) -> ServoTimeoutError:
-        """After a failed read, ping each servo to name the one that stopped answering."""
+    def _diagnose(self, detail: str, suspect=None) -> ServoTimeoutError:
+        """After the retries, ping each servo (with as many tries) to name the one that stopped
+        answering; if all answer, name the one whose block the short reply lacked."""
         for joint in self.joints:
-            _, result, _ = self.packets.ping(self.port, joint.id)
-            if result != self._sdk.COMM_SUCCESS:
-                return ServoTimeoutError(joint.dof, joint.id, detail)
-        return ServoTimeoutError(self.joints[0].dof, self.joints[0].id, f"{detail} (every servo answers a ping)")
+            if not any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS
+                       for _ in range(self.retries + 1)):
+                return ServoTimeoutError(joint.dof, joint.id, f"{detail}; no answer to {self.retries + 1} pings")
+        joint = suspect or self.joints[0]
+        return ServoTimeoutError(joint.dof, joint.id, f"{detail} (every servo answers a ping)")
 
     def _check_hardware(self, joint) -> None:
         status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
