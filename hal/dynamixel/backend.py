@@ -11,12 +11,12 @@ A tick is two transactions: one fast sync read (0x8A) of Present Current, Veloci
 Goal Current. At open: Return Delay Time 0, Current Control Mode, Hardware Error Status checked,
 the Bus Watchdog armed so the servos stop if the host dies.
 
-dynamixel-sdk 4.1.0 sends instruction packets without byte stuffing, and its fastSyncRead parses
-the reply by fixed offsets (unstuffing it first, though a fast reply is never stuffed, and
-trusting every block's ID and error byte). So the SDK is used for the port and to send: every
-packet goes out through `StuffingPacketHandler`, which frames and stuffs it with servodyn's codec
-(hal.dynamixel.protocol), so data that contains FF FF FD arrives intact. The fast reply is read
-from the port and parsed by the codec: packet CRC, each block's running CRC, ID and error byte.
+dynamixel-sdk 4.1.0 sends instruction packets without byte stuffing, and its fastSyncRead takes
+the reply's blocks at fixed offsets and keeps only their data (no block CRC, no error byte, so
+no alert). So the SDK is used for the port and to send: every packet goes out through
+`StuffingPacketHandler`, which frames and stuffs it with servodyn's codec (hal.dynamixel.protocol),
+so data that contains FF FF FD arrives intact. The fast reply is read from the port and parsed
+by the codec: packet CRC, each block's running CRC, ID and error byte.
 A missing or short reply is retried; then each servo is pinged to name the one that is silent
 (ServoTimeoutError). An error byte with the alert bit set makes the backend read that servo's
 Hardware Error Status and raise ServoHardwareError with its bits.
