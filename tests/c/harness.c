@@ -72,6 +72,7 @@ static const struct {
   {"test_integrate.c", sdt_integrate_tests},
   {"test_trajectory.c", sdt_trajectory_tests},
   {"test_control.c", sdt_control_tests},
+  {"test_dxl.c", sdt_dxl_tests},
 };
 
 int main(int argc, char** argv) {

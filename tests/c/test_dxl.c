@@ -1,17 +1,12 @@
 // test_dxl.c: the Dynamixel Protocol 2.0 codec (hal/dynamixel/c/dxl.h) against the e-manual's
 // example packets byte for byte, the stuffing rule at every boundary, and the reader on garbage,
 // corruption, truncation, impossible headers, oversized frames and long random streams.
-//
-// tests/c/rules.mk builds this file into a binary of its own (-DSDT_DXL_MAIN, which adds a small
-// runner below) because harness.c does not list the suite yet; sdt_dxl_tests is ready for it.
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "dxl.h"
 #include "harness.h"
-
-extern const sdt_test sdt_dxl_tests[];
 
 enum { BUF = 1024 };
 
@@ -1013,54 +1008,3 @@ const sdt_test sdt_dxl_tests[] = {
   {"fields_are_little_endian", fields_are_little_endian},
   {0, 0},
 };
-
-//---------------------------------- stand-alone runner -------------------------------------------
-// The checks and the output of harness.c, for the suite alone (harness.c brings the core's).
-#ifdef SDT_DXL_MAIN
-#include <stdarg.h>
-
-static int g_passed, g_failed;
-static char g_context[256];
-
-void sdt_context(const char* fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(g_context, sizeof g_context, fmt, ap);
-  va_end(ap);
-}
-
-int sdt_expect_int(const char* file, int line, const char* expr, long measured, long expected,
-                   const char* reason) {
-  if (measured == expected) {
-    g_passed++;
-    return 1;
-  }
-  g_failed++;
-  printf("FAIL %s:%d: %s%s%s\n     measured %ld, expected %ld\n     reason: %s\n", file, line, expr,
-         g_context[0] ? " -- " : "", g_context, measured, expected, reason);
-  return 0;
-}
-
-int sdt_expect_ge(const char* file, int line, const char* expr, double measured, double limit,
-                  const char* reason) {
-  return sdt_expect_int(file, line, expr, measured >= limit, 1, reason);
-}
-
-int main(int argc, char** argv) {
-  int verbose = argc > 1 && strcmp(argv[1], "-v") == 0, ntest = 0;
-  printf("servodyn Dynamixel codec tests (hal/dynamixel/c)\n");
-  for (const sdt_test* t = sdt_dxl_tests; t->fn; t++, ntest++) {
-    int passed = g_passed, failed = g_failed;
-    g_context[0] = 0;
-    t->fn();
-    if (verbose || g_failed > failed) {
-      printf("  %-4s %s: %d checks, %d failed\n", g_failed > failed ? "FAIL" : "ok", t->name,
-             g_passed - passed + g_failed - failed, g_failed - failed);
-    }
-  }
-  printf("  %-18s %3d tests, %4d checks passed, %d failed\n", "test_dxl.c", ntest, g_passed,
-         g_failed);
-  printf("%d passed, %d failed\n", g_passed, g_failed);
-  return g_failed ? 1 : 0;
-}
-#endif
