@@ -88,6 +88,15 @@ class ServoMap:
     def to_current_units(self, tau) -> np.ndarray:
         return np.rint(self.direction * self.current(tau) / self.current_unit).astype(np.int64)
 
+    def goal_current_units(self, tau, current_limit) -> tuple[np.ndarray, np.ndarray]:
+        """Goal Current units for joint torques tau, the motor current clamped at current_limit
+        (A, per joint); and which joints were clamped (limiting)."""
+        wanted = self.current(tau)
+        limit = np.asarray(current_limit, dtype=float)
+        current = np.clip(wanted, -limit, limit)
+        return (np.rint(self.direction * current / self.current_unit).astype(np.int64),
+                current != wanted)
+
     def from_current_units(self, units) -> np.ndarray:
         """Joint torque (N m) of a Present Current reading."""
         return self.torque(self.direction * np.asarray(units, dtype=float) * self.current_unit)

@@ -29,6 +29,7 @@ import numpy as np
 from .control import ControlConfig, Controller
 from .hal.config import load_config
 from .hal.dynamixel import Instruction, decode_frame, split_fast_reply
+from .hal.dynamixel.backend import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
 from .hal.dynamixel.instructions import parse_sync_write
 from .motion import load_motion
 from .swing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP, homing, plan_gains
@@ -36,11 +37,6 @@ from .swing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP, homing, plan_gains
 BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
 ROOT = Path(__file__).resolve().parent.parent
 SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
-GOAL_CURRENT = 102
-READ_SIZE = 10                    # Present Current (2), Velocity (4), Position (4)
-FAULTS = {0: "none", 10: "timeout", 11: "status", 12: "corrupt", 13: "nonfinite", 14: "overrun",
-          15: "range", 16: "setup"}
-SECTIONS = ("protocol", "trajectory", "control_update", "control", "output", "tick")
 
 
 class FirmwareError(RuntimeError):
@@ -74,20 +70,20 @@ class FirmwareLink:
     def _exchange(self, exchange) -> None:
         request = exchange.request
         if request.instruction == Instruction.FAST_SYNC_READ and exchange.replies:
-            blocks = split_fast_reply(decode_frame(exchange.replies[0].data), [READ_SIZE] * len(self.ids))
+            blocks = split_fast_reply(decode_frame(exchange.replies[0].data), [PRESENT_LENGTH] * len(self.ids))
             self.record.reads.append(np.array(
                 [[int.from_bytes(b.data[0:2], "little", signed=True),
                   int.from_bytes(b.data[2:6], "little", signed=True),
                   int.from_bytes(b.data[6:10], "little", signed=True)] for b in blocks]))
         elif request.instruction == Instruction.SYNC_WRITE:
             address, writes = parse_sync_write(request.params)
-            if address == GOAL_CURRENT:
+            if address == ADDR_GOAL_CURRENT:
                 values = dict((i, int.from_bytes(d, "little", signed=True)) for i, d in writes)
                 self.record.goals.append(np.array([values[i] for i in self.ids]))
-            elif address == 64 and all(d == b"\x00" for _, d in writes):
+            elif address == ADDR_TORQUE_ENABLE and all(d == b"\x00" for _, d in writes):
                 self.record.torque_off = True
             self.arm.advance(self.arm.small_time_step)
-            if address == GOAL_CURRENT and self.on_tick is not None:
+            if address == ADDR_GOAL_CURRENT and self.on_tick is not None:
                 self.on_tick(len(self.record.goals) - 1, self.arm)
 
     def serve(self, sock: socket.socket, deadline: float) -> None:
@@ -189,7 +185,7 @@ def replay(config_name: str, record: Record) -> dict:
     saw: the desired positions and the Goal Current of every tick."""
     config = load_config(config_name)
     model, units = config.model, config.units()
-    limit = np.array([j.current_limit for j in config.joints])
+    limit = [j.current_limit for j in config.joints]
     scale = config.swing_time_scale or 1.0
     swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
     home_gains, swing_gains = plan_gains(model, swing)
@@ -209,8 +205,7 @@ def replay(config_name: str, record: Record) -> dict:
             if k % controller.config.update_ticks == 0:
                 controller.set_gains(*gains.at(traj.t[k] - traj.t[0]))
             tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q_meas[tick + 1], qd_meas[tick + 1])
-            current = np.clip(units.current(tau), -limit, limit)
-            goals.append(np.rint(units.direction * current / units.current_unit).astype(int))
+            goals.append(units.goal_current_units(tau, limit)[0])
             q_d.append(traj.q[k])
             phase.append(name)
             tick += 1

@@ -157,22 +157,18 @@ static size_t fast_reply_length(void) {
 static int read_state(void) {
   bus_send(g.read_packet, g.read_len);
   int status = bus_receive(fast_reply_length());
+  if (status == 0) {        // the reply stopped short: name the first servo whose block is missing
+    long body = (long)g.rx_got - 8;
+    int k = body < 0 ? 0 : (int)(body / (long)(1 + 1 + fw_plan_.read_size + 2));
+    g.fault_servo = g.ids[k < FW_NJOINT ? k : FW_NJOINT - 1];
+    return FW_FAULT_TIMEOUT;
+  }
   dxl_block blocks[FW_NJOINT];
-  if (status == 0 || status == DXL_PACKET) {
-    int good = status == DXL_PACKET
-                   ? dxl_fast_reply_split(&g.reader, fw_plan_.read_size, g.ids, FW_NJOINT, blocks)
-                   : -1;
-    if (good != FW_NJOINT) {
-      // name the first servo whose block is missing: count the bytes that did arrive
-      int k = good;
-      if (k < 0) {           // the reply stopped short: count the whole blocks that did come
-        long body = (long)g.rx_got - 8;
-        k = body < 0 ? 0 : (int)(body / (long)(1 + 1 + fw_plan_.read_size + 2));
-      }
-      g.fault_servo = g.ids[k < FW_NJOINT ? (k < 0 ? 0 : k) : FW_NJOINT - 1];
-      return status == 0 ? FW_FAULT_TIMEOUT : FW_FAULT_CORRUPT;
-    }
-  } else {
+  int good = status == DXL_PACKET
+                 ? dxl_fast_reply_split(&g.reader, fw_plan_.read_size, g.ids, FW_NJOINT, blocks)
+                 : -1;
+  if (good != FW_NJOINT) {  // a bad CRC names no servo; a bad block names its own
+    g.fault_servo = good < 0 ? -1 : g.ids[good];
     return FW_FAULT_CORRUPT;
   }
   for (int i = 0; i < FW_NJOINT; i++) {

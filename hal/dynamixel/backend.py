@@ -264,10 +264,8 @@ class DynamixelBus(ServoBus):
         if self._last is None:
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")
         tau = command.torque_at(self._last.q, self._last.qd)
-        limit = np.array([j.current_limit for j in self.joints])
-        current = np.clip(self.units.current(tau), -limit, limit)
-        self.limited += current != self.units.current(tau)
-        units = np.rint(self.units.direction * current / self.units.current_unit).astype(np.int64)
+        units, limited = self.units.goal_current_units(tau, [j.current_limit for j in self.joints])
+        self.limited += limited
         self._writer.clearParam()
         for servo_id, value in zip(self.ids, units):
             self._writer.addParam(servo_id, list(int(value).to_bytes(2, "little", signed=True)))
