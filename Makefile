@@ -3,7 +3,7 @@
 #   make test    every test: the C core (double and float), the Cortex-M4F build under QEMU,
 #                then the Python tests
 #   make demo    the main job on the simulated servo bus
-#   make bench   timings against Pinocchio and MuJoCo
+#   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget
 #   make clean   remove what the build made (keeps .venv; make distclean removes it too)
 #
 # On a fresh Debian machine the targets install what is missing: the virtual environment in
@@ -17,7 +17,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h)
-HOST_C := $(wildcard host/*.c host/*.h)
+HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean
@@ -33,6 +33,7 @@ bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench
+	@$(VENV)/bin/python -m servodyn.tools.bench_loop
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 
@@ -67,6 +68,8 @@ include firmware/app/rules.mk
 $(MCU_OBJ): | toolchain
 
 test-python: venv fw
+	@echo "== import layers (import-linter contracts in pyproject.toml)"
+	@scripts/lint-imports.sh $(VENV) | sed -n '/^Contracts/,$$p'
 	@echo "== Python tests"
 	@$(VENV)/bin/python -m pytest -q tests
 

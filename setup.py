@@ -11,8 +11,8 @@ FLAGS = ["-std=c11", "-O3", "-ffp-contract=off", "-Wall", "-Wextra"]
 def core_module(name, *defines):
     return Extension(
         f"servodyn.{name}",
-        sources=["host/_core.c", "host/_core_control.c", *CORE],
-        include_dirs=["firmware/core", "host", numpy.get_include()],
+        sources=["host/binding/_core.c", "host/binding/_core_control.c", *CORE],
+        include_dirs=["firmware/core", "host/binding", numpy.get_include()],
         define_macros=[("SD_MODULE_NAME", name), *[(d, "1") for d in defines]],
         extra_compile_args=FLAGS,
     )

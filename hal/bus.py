@@ -4,76 +4,62 @@
         bus.enable_torque(True)
         state = bus.read_state()                         # one batched read: q, qd, current, tau
         bus.write(JointCommand.position(q_goal, kp=20.0, kd=0.5, tau_ff=tau))   # one batched write
+        bus.stop()                                       # torque off on every servo, never raises
 
-A control tick is one read_state() and one write(). Everything at this interface is SI, in
-the joints' sense and in the model's dof order; servo units live inside the backends (via
-hal.units). The base class checks what every backend would otherwise repeat: the bus is
-open, commands are well formed and clamped to the joint limits (counted per joint in
-`limited`: *limiting*, not a fault), and measured positions are inside the limits. A backend
-implements `_open`, `_close`, `_enable_torque`, `_read` and `_write`; `make_bus` finds it by
-kind in BACKENDS and imports it only then.
+A control tick is one read_state() and one write(). Everything at this interface is SI, in the
+joints' sense and in the model's dof order; servo units, registers, data sheets and error bits
+live inside the backends. The base class checks what every backend would otherwise repeat: the
+bus is open, commands are well formed and clamped to the joint limits (counted per joint in
+`stats.limited`: *limiting*, not a fault), and measured positions are inside the limits.
+
+A backend implements `_open`, `_close`, `_enable_torque`, `_read` and `_write` (and `_stop` where
+it can switch torque off faster than `_enable_torque(False)`), and describes its bus: `servos`
+(its catalogue of data sheets), `bauds`, `protocols`, `max_id`, and the joint keys of its own.
+`make_bus` finds it by kind in BACKENDS and imports it only then.
 """
 
 from __future__ import annotations
 
 import importlib
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import RobotConfig
+from .errors import ServoInitializationError, ServoLimitError, ServoOperationError
+
+if TYPE_CHECKING:
+    from .config import RobotConfig
+    from .servos import ServoSpec
 
 BACKENDS = {   # kind -> "module:class", imported on first use
     "dynamixel": "servodyn.hal.dynamixel.backend:DynamixelBus",
-    "can": "servodyn.hal.can.backend:CanBus",
     "loopback": "servodyn.hal.loopback:LoopbackBus",
 }
 
-# Dynamixel X Hardware Error Status (70) bits; after any of them only a REBOOT restores torque
-DYNAMIXEL_HARDWARE_ERRORS = {0: "input voltage", 2: "overheating", 3: "motor encoder",
-                             4: "electrical shock", 5: "overload"}
+
+def backend_class(kind: str) -> type["ServoBus"]:
+    """The backend class of a bus kind, imported on first use."""
+    if kind not in BACKENDS:
+        raise ServoInitializationError(f"no backend for bus kind {kind!r} (known: {', '.join(BACKENDS)})")
+    module_name, class_name = BACKENDS[kind].split(":")
+    try:
+        return getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError) as err:
+        raise ServoInitializationError(f"bus kind {kind!r}: cannot load {BACKENDS[kind]} ({err})") from err
 
 
-# ---------------------------------------------------------------------------- exceptions
-
-class ServoError(Exception):
-    """Base of every servo bus error."""
-
-
-class ServoInitializationError(ServoError):
-    """The bus or a servo could not be set up: no backend, port, servo or wrong model."""
-
-
-class ServoOperationError(ServoError):
-    """A bus operation failed: bus not open, corrupt reply, rejected instruction."""
-
-
-class ServoTimeoutError(ServoError, TimeoutError):
-    """A servo stopped answering."""
-
-    def __init__(self, joint: str, servo_id: int, detail: str = ""):
-        self.joint, self.servo_id = joint, servo_id
-        super().__init__(f"joint '{joint}' (id {servo_id}) did not answer{': ' + detail if detail else ''}")
-
-
-class ServoHardwareError(ServoError):
-    """A servo reports hardware errors (its status bits, decoded into `faults`)."""
-
-    def __init__(self, joint: str, servo_id: int, status: int, bit_names=DYNAMIXEL_HARDWARE_ERRORS):
-        self.joint, self.servo_id, self.status = joint, servo_id, status
-        self.faults = tuple(name for bit, name in sorted(bit_names.items()) if status >> bit & 1)
-        super().__init__(f"joint '{joint}' (id {servo_id}) hardware error 0x{status:02x}: "
-                         f"{', '.join(self.faults) or 'unknown bits'}")
-
-
-class ServoLimitError(ServoError):
-    """A measured joint position outside its limits: stop and go to a safe state."""
-
-    def __init__(self, joint: str, value: float, limits: tuple[float, float], state=None):
-        self.joint, self.value, self.limits, self.state = joint, value, limits, state
-        super().__init__(f"joint '{joint}' at {value:.4g} rad, outside its limits "
-                         f"[{limits[0]:.4g}, {limits[1]:.4g}]")
+def servo_catalogue(kind: str | None) -> dict[str, "ServoSpec"]:
+    """The servo models a bus kind drives, by name (None, or a kind without a catalogue of its
+    own such as loopback: every backend's)."""
+    servos = backend_class(kind).servos if kind is not None else None
+    if servos is not None:
+        return dict(servos)
+    every = {}
+    for other in BACKENDS:
+        every.update(backend_class(other).servos or {})
+    return every
 
 
 # ---------------------------------------------------------------------------- data
@@ -124,14 +110,44 @@ class JointCommand:
         return self.tau_ff + self.kp * (self.q - q) + self.kd * (self.qd - qd)
 
 
+@dataclass
+class BusStats:
+    """What a bus counted since it was made; every loop reports it."""
+    reads: int = 0                  # read_state() calls that returned a state
+    writes: int = 0                 # write() calls that went out
+    reads_retried: int = 0          # reads whose first try failed (no whole reply) and were retried
+    limited: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # per joint:
+                                    # commands clamped to a joint, velocity, torque or current limit
+
+    def as_dict(self, dof_names) -> dict:
+        return {"reads": self.reads, "writes": self.writes, "reads_retried": self.reads_retried,
+                "limited": dict(zip(dof_names, map(int, self.limited)))}
+
+
 # ---------------------------------------------------------------------------- the bus
 
 class ServoBus(ABC):
     """The joints of one bus of a robot configuration, in the model's dof order."""
 
     kind: str = ""
+    servos: dict | None = None            # name -> ServoSpec this backend drives (None: any)
+    bauds: tuple[int, ...] | None = None  # the rates the bus accepts (None: any positive)
+    default_baud: int = 1_000_000
+    protocols: tuple[float, ...] | None = None   # the protocol versions it speaks (None: any)
+    max_id: int = 255
+    joint_keys: frozenset[str] = frozenset()   # configuration keys of this backend's own
 
-    def __init__(self, config: RobotConfig, bus: str | None = None, *, position_margin: float = 0.05):
+    @classmethod
+    def joint_options(cls, checker, servo) -> dict:
+        """This backend's own keys of a [[joint]] table, checked (checker: hal.config's)."""
+        return {}
+
+    @classmethod
+    def max_current(cls, servo, options: dict) -> tuple[float, str]:
+        """The largest current limit (A) a joint may configure, and how it follows."""
+        return servo.max_current, f"{servo.max_current:g} A"
+
+    def __init__(self, config: "RobotConfig", bus: str | None = None, *, position_margin: float = 0.05):
         if bus is None:
             if len(config.buses) != 1:
                 raise ServoInitializationError(f"'{config.name}' has buses {', '.join(config.buses)}: name one")
@@ -142,13 +158,15 @@ class ServoBus(ABC):
         self.joints = config.joints_on(bus)
         self.dof_names = tuple(j.dof for j in self.joints)
         self.dof_index = np.array([config.model.dof_names.index(d) for d in self.dof_names])
-        self.units = config.units(self.joints)
         self.lower = np.array([j.position_limits[0] for j in self.joints])
         self.upper = np.array([j.position_limits[1] for j in self.joints])
         self.velocity_limit = np.array([j.velocity_limit for j in self.joints])
         self.torque_limit = np.array([j.torque_limit for j in self.joints])
+        self.current_limit = np.array([j.current_limit for j in self.joints])
+        # joint torque per motor current (N m / A): the gear and the torque constant
+        self.torque_per_amp = np.array([j.gear_ratio * j.torque_constant for j in self.joints])
         self.position_margin = position_margin    # rad beyond a limit before read_state raises
-        self.limited = np.zeros(len(self.joints), dtype=np.int64)   # clamped commands per joint
+        self.stats = BusStats(limited=np.zeros(len(self.joints), dtype=np.int64))
         self.is_open = False
 
     @property
@@ -161,10 +179,25 @@ class ServoBus(ABC):
             self.is_open = True
 
     def close(self) -> None:
-        """Close the port; the servos keep their torque setting (disable it first if wanted)."""
+        """Close the port; the servos keep their torque setting (stop() switches it off first)."""
         if self.is_open:
             self.is_open = False
             self._close()
+
+    def stop(self) -> bool:
+        """The safe stop: torque off on every servo, best effort, then close. Never raises, whatever
+        state the bus is in (python-can's shutdown()). True if every servo confirmed."""
+        ok = False
+        try:
+            if self.is_open:
+                ok = bool(self._stop())
+        except Exception:
+            ok = False
+        try:
+            self.close()
+        except Exception:
+            pass
+        return ok
 
     def __enter__(self) -> "ServoBus":
         self.open()
@@ -181,6 +214,7 @@ class ServoBus(ABC):
         """One batched read of every joint; ServoLimitError if a joint is beyond its limits."""
         self._check_open()
         state = self._read()
+        self.stats.reads += 1
         outside = (state.q < self.lower - self.position_margin) | (state.q > self.upper + self.position_margin)
         if np.any(outside):
             k = int(np.argmax(outside))
@@ -195,8 +229,9 @@ class ServoBus(ABC):
         q = np.clip(command.q, self.lower, self.upper)
         qd = np.clip(command.qd, -self.velocity_limit, self.velocity_limit)
         tau_ff = np.clip(command.tau_ff, -self.torque_limit, self.torque_limit)
-        self.limited += (q != command.q) | (qd != command.qd) | (tau_ff != command.tau_ff)
+        self.stats.limited += (q != command.q) | (qd != command.qd) | (tau_ff != command.tau_ff)
         self._write(JointCommand(q=q, qd=qd, tau_ff=tau_ff, kp=command.kp, kd=command.kd))
+        self.stats.writes += 1
 
     def _check_open(self) -> None:
         if not self.is_open:
@@ -222,20 +257,17 @@ class ServoBus(ABC):
     @abstractmethod
     def _write(self, command: JointCommand) -> None: ...
 
+    def _stop(self) -> bool:
+        """Torque off on every servo, as fast as the backend can; True if all confirmed."""
+        self._enable_torque(False)
+        return True
 
-def make_bus(config: RobotConfig, bus: str | None = None, kind: str | None = None, **options) -> ServoBus:
+
+def make_bus(config: "RobotConfig", bus: str | None = None, kind: str | None = None, **options) -> ServoBus:
     """The backend for a bus of the configuration (not yet open). `kind` overrides the bus's own
     kind, e.g. "loopback" to run a controller without servos; `options` go to the backend."""
     if bus is None and len(config.buses) == 1:
         bus = next(iter(config.buses))
     if bus not in config.buses:
         raise ServoInitializationError(f"'{config.name}' has no bus {bus!r} (buses: {', '.join(config.buses)})")
-    kind = kind or config.buses[bus].kind
-    if kind not in BACKENDS:
-        raise ServoInitializationError(f"no backend for bus kind {kind!r} (known: {', '.join(BACKENDS)})")
-    module_name, class_name = BACKENDS[kind].split(":")
-    try:
-        backend = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as err:
-        raise ServoInitializationError(f"bus kind {kind!r}: cannot load {BACKENDS[kind]} ({err})") from err
-    return backend(config, bus, **options)
+    return backend_class(kind or config.buses[bus].kind)(config, bus, **options)

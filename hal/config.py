@@ -3,7 +3,6 @@
     cfg = load_config("replica")          # built-in (hal/configs/replica.toml) or a .toml path
     cfg.model.dof_names                    # the servodyn Model the config refers to
     cfg.joints                             # one JointConfig per dof, in the model's dof order
-    cfg.units()                            # hal.units.ServoMap of those joints
 
 The format is in hal/README.md. Every mistake raises ConfigError with one line that names
 the file, the entry and the key.
@@ -13,65 +12,27 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from .units import RPM, ServoMap
+from ..model import load_model
+from .bus import BACKENDS, backend_class, servo_catalogue
+from .errors import ConfigError
+from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
-
-
-class ConfigError(ValueError):
-    """A robot configuration that cannot be used; the message names the file, entry and key."""
-
-
-@dataclass(frozen=True)
-class ServoSpec:
-    """A servo model's data sheet at its recommended 12 V (ROBOTIS e-manual)."""
-    name: str
-    kind: str                     # the bus kind that speaks to it
-    model_number: int             # Model Number register (address 0)
-    gear_ratio: float             # the servo's internal reduction (the horn is its output)
-    stall_torque: float           # N m
-    stall_current: float          # A
-    no_load_speed_rpm: float      # rpm
-    current_unit: float           # A per Goal / Present Current unit
-    current_limit_max: int        # largest Current Limit (38) value, in current units
-    ticks_per_rev: int = 4096     # Goal / Present Position units per horn turn
-    velocity_unit: float = 0.229  # rpm per Goal / Present Velocity unit
-
-    @property
-    def torque_constant(self) -> float:
-        """Default N m per A at the horn: stall torque / stall current (calibrate per joint)."""
-        return self.stall_torque / self.stall_current
-
-    @property
-    def no_load_speed(self) -> float:
-        return self.no_load_speed_rpm * RPM
-
-
-# emanual.robotis.com/docs/en/dxl/x/<model>/ : specifications and the Current Limit(38) range
-SERVOS = {s.name: s for s in (
-    ServoSpec("XM430-W350", "dynamixel", 1020, 353.5, 4.1, 2.3, 46.0, 2.69e-3, 1193),
-    ServoSpec("XM540-W270", "dynamixel", 1120, 272.5, 10.6, 4.4, 30.0, 2.69e-3, 2047),
-    ServoSpec("XH430-W350", "dynamixel", 1000, 353.5, 3.4, 1.3, 30.0, 2.69e-3, 648),
-    ServoSpec("XH540-W270", "dynamixel", 1100, 272.5, 9.9, 4.9, 39.0, 2.69e-3, 2047),
-)}
-
-BUS_KINDS = ("dynamixel", "can", "loopback")
-DYNAMIXEL_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
 TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
-              "torque_constant", "current_unit", "position_limits", "velocity_limit", "current_limit"}
+              "torque_constant", "position_limits", "velocity_limit", "current_limit"}
 
 
 @dataclass(frozen=True)
 class BusConfig:
     name: str
-    kind: str                     # dynamixel | can | loopback
+    kind: str                     # a key of hal.bus.BACKENDS
     port: str                     # serial device path, or "auto": the simulated bus
     baud: int
     protocol: float
@@ -82,15 +43,15 @@ class JointConfig:
     dof: str
     bus: str
     id: int
-    servo: ServoSpec
+    servo: ServoSpec              # the backend's catalogue entry (its data sheet)
     direction: int                # +1 / -1: servo positive = dof positive / negative
     zero_offset: float            # rad: horn angle at dof = 0
     gear_ratio: float             # horn turns per joint turn
     torque_constant: float        # N m per A at the horn
-    current_unit: float           # A per current register unit
     position_limits: tuple[float, float]   # rad at the joint
     velocity_limit: float         # rad/s at the joint
     current_limit: float          # A
+    options: dict = field(default_factory=dict)   # the backend's own keys (Dynamixel: current_unit)
 
     @property
     def torque_limit(self) -> float:
@@ -110,9 +71,6 @@ class RobotConfig:
 
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
-
-    def units(self, joints=None) -> ServoMap:
-        return ServoMap.from_joints(self.joints if joints is None else joints)
 
 
 class _Checker:
@@ -161,22 +119,34 @@ def _is_number(value) -> bool:
 def _bus(name: str, table, where: str) -> BusConfig:
     c = _Checker(table, where, BUS_KEYS)
     kind = c.get("kind", "str")
-    if kind not in BUS_KINDS:
-        c.fail("kind", f"must be one of {', '.join(BUS_KINDS)}, got {kind!r}")
+    if kind not in BACKENDS:
+        c.fail("kind", f"must be one of {', '.join(BACKENDS)}, got {kind!r}")
+    backend = backend_class(kind)
     port = c.get("port", "str", "auto")
-    baud = c.get("baud", "int", 4_000_000 if kind == "dynamixel" else 1_000_000)
-    if kind == "dynamixel" and baud not in DYNAMIXEL_BAUDS:
-        c.fail("baud", f"must be a Dynamixel X rate ({', '.join(map(str, DYNAMIXEL_BAUDS))}), got {baud}")
+    baud = c.get("baud", "int", backend.default_baud)
+    if backend.bauds is not None and baud not in backend.bauds:
+        c.fail("baud", f"must be a {kind} rate ({', '.join(map(str, backend.bauds))}), got {baud}")
     if baud <= 0:
         c.fail("baud", f"must be positive, got {baud}")
-    protocol = c.get("protocol", "float", 2.0)
-    if kind == "dynamixel" and protocol != 2.0:
-        c.fail("protocol", f"must be 2.0 (the only Dynamixel protocol servodyn speaks), got {protocol:g}")
+    protocol = c.get("protocol", "float", backend.protocols[0] if backend.protocols else 1.0)
+    if backend.protocols is not None and protocol not in backend.protocols:
+        c.fail("protocol", f"must be {' or '.join(f'{p:.1f}' for p in backend.protocols)} (what servodyn "
+                           f"speaks on a {kind} bus), got {protocol:.1f}")
     return BusConfig(name, kind, port, baud, protocol)
 
 
 def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig:
-    c = _Checker(table, where, JOINT_KEYS)
+    bus_name = table.get("bus") if isinstance(table, dict) and "bus" in table else None
+    if bus_name is None and len(buses) == 1:
+        bus_name = next(iter(buses))
+    backend = backend_class(buses[bus_name].kind) if bus_name in buses else None
+    # the keys of the bus's backend; a bus without a catalogue of its own (loopback) or an unknown
+    # bus takes every backend's, so the error that follows can name what is really wrong
+    if backend is not None and backend.servos is not None:
+        own_keys = backend.joint_keys
+    else:
+        own_keys = {k for kind in BACKENDS for k in backend_class(kind).joint_keys}
+    c = _Checker(table, where, JOINT_KEYS | own_keys)
     dof = c.get("dof", "str")
     if dof not in model.dof_names:
         c.fail("dof", f"{dof!r} is not a dof of model '{model.name}' ({', '.join(model.dof_names)})")
@@ -185,20 +155,22 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail("bus", f"{bus_name!r} is not a [bus.<name>] of this file ({', '.join(buses)})")
     bus = buses[bus_name]
     servo_id = c.get("id", "int")
-    highest = 252 if bus.kind == "dynamixel" else 255
-    if not 0 <= servo_id <= highest:
-        c.fail("id", f"{servo_id} is out of range 0..{highest} for a {bus.kind} bus")
+    if not 0 <= servo_id <= backend.max_id:
+        c.fail("id", f"{servo_id} is out of range 0..{backend.max_id} for a {bus.kind} bus")
     servo_name = c.get("servo", "str")
-    if servo_name not in SERVOS:
-        c.fail("servo", f"{servo_name!r} is not a known servo ({', '.join(SERVOS)})")
-    servo = SERVOS[servo_name]
-    if bus.kind != "loopback" and servo.kind != bus.kind:
-        c.fail("servo", f"{servo_name} is a {servo.kind} servo but bus '{bus_name}' is {bus.kind}")
+    catalogue = servo_catalogue(bus.kind)
+    if servo_name not in catalogue:
+        others = {k: s for k, s in servo_catalogue(None).items() if k not in catalogue}
+        if servo_name in others:
+            c.fail("servo", f"{servo_name} is a {others[servo_name].kind} servo but bus '{bus_name}' is {bus.kind}")
+        c.fail("servo", f"{servo_name!r} is not a known {bus.kind} servo ({', '.join(catalogue)})")
+    servo = catalogue[servo_name]
     direction = c.get("direction", "int", 1)
     if direction not in (1, -1):
         c.fail("direction", f"must be +1 or -1, got {direction}")
     gear_ratio = c.positive("gear_ratio", 1.0)
-    current_unit = c.positive("current_unit", servo.current_unit)
+    servo_backend = backend_class(servo.kind)        # whose units and registers the servo has
+    options = servo_backend.joint_options(c, servo)
     lower, upper = model.lower[model.dof_names.index(dof)], model.upper[model.dof_names.index(dof)]
     limits = c.get("position_limits", "pair", (lower, upper))
     if not limits[0] < limits[1]:
@@ -206,24 +178,23 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
     if limits[0] < lower - 1e-9 or limits[1] > upper + 1e-9:
         c.fail("position_limits", f"{list(limits)} lies outside the model's limits [{lower:g}, {upper:g}]")
     current_limit = c.positive("current_limit", servo.stall_current)
-    if current_limit > servo.current_limit_max * current_unit + 1e-12:
-        c.fail("current_limit", f"{current_limit:g} A exceeds the {servo_name}'s largest Current Limit, "
-                                f"{servo.current_limit_max} x {current_unit:g} A = "
-                                f"{servo.current_limit_max * current_unit:.3g} A")
+    highest, how = servo_backend.max_current(servo, options)
+    if current_limit > highest + 1e-12:
+        c.fail("current_limit", f"{current_limit:g} A exceeds the {servo_name}'s largest current limit, "
+                                f"{how} = {highest:.3g} A")
     return JointConfig(dof=dof, bus=bus_name, id=servo_id, servo=servo, direction=direction,
                        zero_offset=c.get("zero_offset", "float", 0.0), gear_ratio=gear_ratio,
                        torque_constant=c.positive("torque_constant", servo.torque_constant),
-                       current_unit=current_unit, position_limits=limits,
+                       position_limits=limits,
                        velocity_limit=c.positive("velocity_limit", servo.no_load_speed / gear_ratio),
-                       current_limit=current_limit)
+                       current_limit=current_limit, options=options)
 
 
 def _load_model(ref: str, base: Path | None, where: str):
-    import servodyn
     if ref.lower().endswith((".urdf", ".toml")):
         ref = str((base or Path.cwd()) / ref)
     try:
-        return servodyn.load_model(ref)
+        return load_model(ref)
     except ValueError as err:
         raise ConfigError(f"{where}: 'model' {err}") from None
 

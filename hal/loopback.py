@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bus import JointCommand, JointState, ServoBus, ServoInitializationError
+from ..control.timing import SMALL_TIME_STEP
+from .bus import JointCommand, JointState, ServoBus
+from .errors import ServoInitializationError
 
 
 class LoopbackBus(ServoBus):
     kind = "loopback"
 
-    def __init__(self, config, bus=None, *, dt: float = 1e-3, q0=None, substeps: int = 1,
-                 integrator: str = "rk4", **options):
+    def __init__(self, config, bus=None, *, dt: float = SMALL_TIME_STEP, q0=None, substeps: int = 1,
+                 integrator: str = "rk4", port: str | None = None, **options):
+        """port: ignored (a loopback bus has none), so a loopback configuration runs wherever a
+        bus with a port does."""
         super().__init__(config, bus, **options)
         model = config.model
         if sorted(self.dof_index) != list(range(model.nv)) or model.nq != model.nv:
@@ -28,7 +32,6 @@ class LoopbackBus(ServoBus):
             raise ServoInitializationError("loopback: dt must be positive and substeps >= 1")
         self.model, self.dt, self.substeps, self.integrator = model, dt, substeps, integrator
         self.q0 = np.zeros(model.nq) if q0 is None else np.asarray(q0, dtype=float).copy()
-        self.saturated = np.zeros(self.n, dtype=np.int64)     # writes that hit the current limit
 
     def _open(self) -> None:
         self.t = 0.0
@@ -48,7 +51,7 @@ class LoopbackBus(ServoBus):
         k = self.dof_index
         tau = self._tau[k].copy()
         return JointState(t=self.t, q=self._q[k].copy(), qd=self._qd[k].copy(),
-                          current=self.units.current(tau), tau=tau)
+                          current=tau / self.torque_per_amp, tau=tau)
 
     def _write(self, command: JointCommand) -> None:
         k = self.dof_index
@@ -56,7 +59,7 @@ class LoopbackBus(ServoBus):
         if self._torque_on:
             wanted = command.torque_at(self._q[k], self._qd[k])
             tau = np.clip(wanted, -self.torque_limit, self.torque_limit)
-            self.saturated += tau != wanted
+            self.stats.limited += tau != wanted      # the current limit: limiting too
         self._tau[k] = tau
         self._q, self._qd = self.model.step(self._q, self._qd, self._tau, self.dt / self.substeps,
                                             self.integrator, nsteps=self.substeps)

@@ -6,7 +6,7 @@ import pytest
 
 import servodyn
 from conftest import random_state, rel_err
-from servodyn.tools.randommodels import random_model
+from servodyn.model.samples import random_model
 
 FORWARD_TOL = 1e-9
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import servodyn
-from servodyn.demo import reach_motion
+from servodyn.tools.demo import reach_motion
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "servodyn.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *map(str, args)],
                           capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
@@ -155,8 +155,11 @@ def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
     import signal
     import time
     sdk = pytest.importorskip("dynamixel_sdk")
-    proc = subprocess.Popen([sys.executable, "-m", "servodyn.cli", "sim"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    # SIGINT as a terminal delivers it, even when this test runs from a background job (which
+    # starts with SIGINT ignored, and Python then installs no KeyboardInterrupt handler)
+    proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     port = None
     try:
         assert select.select([proc.stdout], [], [], 60)[0], "the path is printed at start-up"

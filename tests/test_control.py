@@ -5,7 +5,7 @@ import pytest
 
 import servodyn
 from servodyn.control import ControlConfig, Controller
-from servodyn.motion import load_motion
+from servodyn.control.motion import load_motion
 
 ARM = servodyn.load_model("human_arm")
 SWING = load_motion("tennis_forehand", ARM).sample(1e-3)

@@ -17,7 +17,7 @@ from servodyn.hal.dynamixel import (BROADCAST_ID, FastReadBlock, InstructionPack
                                     pack_field, split_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.sim.dynamixel import Servo, VirtualBus
-from servodyn.sim.dynamixel.control_table import VELOCITY_UNIT
+from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from test_dynamixel_protocol import (EMANUAL_FAST_BULK_REPLY, EMANUAL_FAST_SYNC_REPLY,
                                      EMANUAL_INSTRUCTIONS, EMANUAL_STATUS)
 

@@ -14,7 +14,7 @@ from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, ErrorNumber, Fault,
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.sim.dynamixel import (XM430_W350, XM540_W270, HardwareError, OperatingMode, Servo,
                                     VirtualBus)
-from servodyn.sim.dynamixel.control_table import VELOCITY_UNIT
+from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 
 TICK = 2 * math.pi / 4096                  # rad per position unit
 NO_LOAD_SPEED = 46 * 2 * math.pi / 60      # XM430-W350 at 12 V, rad/s

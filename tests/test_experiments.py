@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from servodyn.experiments import experiment_pendulum, experiment_still, experiment_swing
+from servodyn.tools.experiments import experiment_pendulum, experiment_still, experiment_swing
 
 
 def test_pendulum_goals(tmp_path):
@@ -46,11 +46,11 @@ def test_swing_keys_and_tracking(tmp_path):
 
 
 def test_experiment_command_line(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "servodyn.cli", "experiment", "still", "--out",
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "experiment", "still", "--out",
                           str(tmp_path / "still")], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "largest drift" in res.stdout
     assert (tmp_path / "still" / "summary.json").exists()
-    res = subprocess.run([sys.executable, "-m", "servodyn.cli", "experiment", "juggle"],
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "experiment", "juggle"],
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "invalid choice" in res.stderr

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servodyn.codegen import generate, model_fields
+from servodyn.tools.codegen import generate, model_fields
 from servodyn.hal.config import load_config
-from servodyn.hil import default_elf, run_qemu, summarize
-from servodyn.swing import HOME_DURATION, SMALL_TIME_STEP, run_swing
+from servodyn.tools.hil import default_elf, run_qemu, summarize
+from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.tools.swing import run_swing
 
 ROOT = Path(__file__).resolve().parent.parent
 FAULT_TICK = 100          # injections act after this tick's command: the next read sees them
@@ -114,7 +115,7 @@ def _assert_safe_stop(report, record, arm, fault, code):
 def test_silent_servo_stops_with_torque_off(images):
     def silence(k, arm):
         if k == FAULT_TICK:
-            arm.silent.add(3)
+            arm.inject_fault(3, "silent")
     report, record, arm = _fault_run(images, on_tick=silence)
     _assert_safe_stop(report, record, arm, "timeout", 10)
     assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1
@@ -159,7 +160,7 @@ def test_joint_out_of_range_stops_with_torque_off(images):
     def fling(k, arm):
         if k == FAULT_TICK:
             servo = arm.servos[1]
-            servo.set_present(arm._horn(arm.q, arm.qd)[0][1] + 3.0, 0.0, 0.0)
+            servo.set_present(arm.plant.horn(arm.q, arm.qd)[0][1] + 3.0, 0.0, 0.0)
     report, record, arm = _fault_run(images, on_tick=fling)
     _assert_safe_stop(report, record, arm, "range", 15)
     assert report["servo"] == 2
@@ -171,7 +172,7 @@ def test_current_limit_is_limiting_not_a_fault(images):
     run goes on."""
     def offset(k, arm):
         if FAULT_TICK <= k < FAULT_TICK + 10:
-            position, velocity = arm._horn(arm.q, arm.qd)
+            position, velocity = arm.plant.horn(arm.q, arm.qd)
             arm.servos[1].set_present(position[1] - 0.5, velocity[1], 0.0)
     report, record, arm = _fault_run(images, on_tick=offset)
     assert report["result"] == "done" and report["exit_code"] == 0, report

@@ -3,12 +3,14 @@
 import numpy as np
 import pytest
 
+from servodyn.control.motion import load_motion
+from servodyn.hal import (ConfigError, HalError, JointCommand, ProtocolError, ServoError, ServoHardwareError,
+                          ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError,
+                          load_config, make_bus)
 from servodyn.hal import bus as hal_bus
-from servodyn.hal.bus import (JointCommand, ServoError, ServoHardwareError, ServoInitializationError,
-                              ServoLimitError, ServoOperationError, ServoTimeoutError, make_bus)
-from servodyn.hal.config import load_config
+from servodyn.hal.dynamixel import FieldRangeError, PacketError, StatusError
+from servodyn.hal.dynamixel.control_table import hardware_faults
 from servodyn.hal.loopback import LoopbackBus
-from servodyn.motion import load_motion
 
 CONFIG = load_config("replica")
 MODEL = CONFIG.model
@@ -28,12 +30,16 @@ def test_command_broadcasts_and_checks():
 
 
 def test_exception_tree():
+    """One root: the bus errors, the configuration's and every codec's (python-can's CanError)."""
     for cls in (ServoInitializationError, ServoOperationError, ServoTimeoutError, ServoHardwareError,
                 ServoLimitError):
-        assert issubclass(cls, ServoError)
+        assert issubclass(cls, ServoError), cls
+    for cls in (ServoError, ConfigError, ProtocolError, PacketError, FieldRangeError, StatusError):
+        assert issubclass(cls, HalError), cls
+    assert issubclass(ConfigError, ValueError), "a bad configuration is a bad value too"
     timeout = ServoTimeoutError("r_elbow_flexion", 4)
     assert isinstance(timeout, TimeoutError) and (timeout.joint, timeout.servo_id) == ("r_elbow_flexion", 4)
-    hardware = ServoHardwareError("r_wrist_flexion", 6, 0b100100)
+    hardware = ServoHardwareError("r_wrist_flexion", 6, 0b100100, hardware_faults(0b100100))
     assert hardware.faults == ("overheating", "overload"), "bits 2 and 5 of Hardware Error Status"
     assert "id 6" in str(hardware) and "0x24" in str(hardware)
 
@@ -82,7 +88,7 @@ def test_loopback_tracks_the_swing_with_feedforward():
                 error = max(error, np.abs(state.q - swing.q[k]).max())
                 bus.write(JointCommand.position(swing.q[k], kp=kp, kd=kd, qd=swing.qd[k],
                                                 tau_ff=tau_ff[k] if feedforward else 0.0))
-            assert bus.limited.sum() == 0 and bus.saturated.sum() == 0
+            assert bus.stats.limited.sum() == 0, "nothing clamped: the swing is inside every limit"
         worst[feedforward] = np.degrees(error)
     assert worst[True] < 0.05
     assert worst[False] > 2.0
@@ -95,7 +101,7 @@ def test_loopback_clamps_to_the_current_limit():
         bus.enable_torque(True)
         bus.write(JointCommand.torque(np.full(7, 100.0)))
         state = bus.read_state()
-    assert np.array_equal(bus.limited, np.ones(7))
+    assert np.array_equal(bus.stats.limited, np.ones(7)), "each joint's command was clamped once"
     assert np.allclose(state.tau, [2.409 * 4.4] * 3 + [1.783 * 2.3] * 4)
     assert np.allclose(state.current, [4.4] * 3 + [2.3] * 4)
 

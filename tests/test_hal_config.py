@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 import servodyn
-from servodyn.hal.config import (CONFIGS_DIR, SERVOS, ConfigError, config_from_dict, load_config,
+from servodyn.hal.dynamixel.control_table import SERVOS
+from servodyn.hal.config import (CONFIGS_DIR, ConfigError, config_from_dict, load_config,
                                  servo_load, within)
-from servodyn.motion import load_motion
+from servodyn.control.motion import load_motion
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
@@ -67,7 +68,7 @@ def test_defaults_come_from_the_servo_and_the_model():
     elbow = config.joints[3]
     assert (elbow.direction, elbow.zero_offset, elbow.gear_ratio) == (1, 0.0, 1.0)
     assert elbow.torque_constant == pytest.approx(4.1 / 2.3)
-    assert elbow.current_unit == 2.69e-3 and elbow.current_limit == 2.3
+    assert elbow.options["current_unit"] == 2.69e-3 and elbow.current_limit == 2.3
     assert elbow.velocity_limit == pytest.approx(46 * 2 * math.pi / 60)
     assert elbow.position_limits == pytest.approx((0.0, 2.618))
     assert elbow.bus == "arm", "the only bus is the default"
@@ -91,7 +92,7 @@ def drop_last_joint(data):
     data["joint"].pop()
 
 
-def second_bus_can(data):
+def bus_kind_can(data):
     data["bus"]["arm"]["kind"] = "can"
 
 
@@ -126,7 +127,7 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("bus kind", lambda d: d["bus"]["arm"].update(kind="rs485"), ["bus 'arm'", "'kind'", "rs485"]),
     ("baud rate", lambda d: d["bus"]["arm"].update(baud=12345), ["bus 'arm'", "'baud'", "12345"]),
     ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
-    ("Dynamixel servo on a CAN bus", second_bus_can, ["joint 1", "'servo'", "can"]),
+    ("a bus kind without a backend", bus_kind_can, ["bus 'arm'", "'kind'", "'can'", "dynamixel"]),
     ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),
 ]
 
@@ -143,7 +144,7 @@ def test_bad_config_gives_one_line_naming_the_key(mutate, words):
 
 def test_files(tmp_path):
     """A model path is relative to the config file; a missing file and bad TOML are ConfigErrors."""
-    shutil.copy(servodyn.MODELS_DIR / "replica.toml", tmp_path / "arm.toml")
+    shutil.copy(servodyn.model.BUILTIN_DIR / "replica.toml", tmp_path / "arm.toml")
     text = (CONFIGS_DIR / "replica.toml").read_text().replace('model = "replica"', 'model = "arm.toml"')
     (tmp_path / "robot.toml").write_text(text)
     config = load_config(tmp_path / "robot.toml")

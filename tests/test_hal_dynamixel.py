@@ -8,12 +8,13 @@ import time
 import numpy as np
 import pytest
 
-from servodyn.hal.bus import JointCommand, ServoHardwareError, ServoTimeoutError, make_bus
+from servodyn.hal import JointCommand, ServoHardwareError, ServoTimeoutError, make_bus
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel import (BROADCAST_ID, FastReadBlock, Instruction, InstructionPacket, PacketReader,
                                     StatusPacket, crc16, decode_frame, encode_fast_reply, split_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
-from servodyn.sim.arm import PtyServer, SimulatedArm, _drop_from
+from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.transport.pty import PtyServer
 from servodyn.sim.dynamixel import HardwareError
 
 sdk = pytest.importorskip("dynamixel_sdk")
@@ -68,8 +69,7 @@ class Sim:
 
     def close(self):
         try:
-            self.bus.disable_torque_now()
-            self.bus.close()
+            self.bus.stop()
         finally:
             self.server.stop()
 
@@ -137,15 +137,16 @@ def test_goal_current_sync_write_never_needs_stuffing():
 # --- a silent servo ------------------------------------------------------------------------------
 
 def test_fast_reply_stops_at_the_silent_servo():
-    """sim/arm.py: the chain's fast reply holds the blocks of the servos before the silent one
-    (each 14 bytes after the 8-byte header), with the LEN of the whole reply; a silent first
-    servo leaves nothing; a plain sync read only loses the silent servo's own packet."""
+    """sim/dynamixel/device.py: the chain's fast reply holds the blocks of the servos before the
+    silent one (each 14 bytes after the 8-byte header), with the LEN of the whole reply; a silent
+    first servo leaves nothing; a plain sync read only loses the silent servo's own packet."""
     arm = SimulatedArm(CONFIG)
     request = inst.fast_sync_read(*PRESENT, IDS).encode()
     full = arm.handle(request)
     assert len(full) == 106
-    for silent, kept in ((4, 3), (7, 6), (1, 0), (9, 7)):
-        arm.silent = {silent}
+    for silent, kept in ((4, 3), (7, 6), (1, 0)):
+        arm.clear_faults()
+        arm.inject_fault(silent, "silent")
         reply = arm.handle(request)
         assert len(reply) == (8 + 14 * kept if kept else 0), f"servo {silent} silent"
         assert reply == full[:len(reply)], "what came is the real reply's beginning"
@@ -154,7 +155,8 @@ def test_fast_reply_stops_at_the_silent_servo():
             for k in range(kept):                            # every block that came is whole
                 end = 8 + 14 * k + 12
                 assert reply[8 + 14 * k + 1] == IDS[k] and crc16(reply[:end]) == int.from_bytes(reply[end:end + 2], "little")
-    arm.silent = {4}
+    arm.clear_faults()
+    arm.inject_fault(4, "silent")
     plain = arm.handle(inst.sync_read(*PRESENT, IDS).encode())
     assert len(plain) == 6 * 21
     assert [decode_frame(plain[k:k + 21]).id for k in range(0, len(plain), 21)] == [1, 2, 3, 5, 6, 7]
@@ -165,9 +167,8 @@ def test_fast_bulk_reply_with_unequal_blocks_stops_at_the_silent_servo():
     arm = SimulatedArm(CONFIG)
     request = inst.fast_bulk_read([(1, 126, 10), (2, 132, 4), (3, 64, 1)]).encode()
     assert len(arm.handle(request)) == 8 + 14 + 8 + 5
-    arm.silent = {3}
+    arm.inject_fault(3, "silent")
     assert len(arm.handle(request)) == 8 + 14 + 8
-    assert _drop_from(b"", {3}) == b""
 
 
 def test_silent_servo_is_named_after_the_retries(sim):
@@ -175,7 +176,7 @@ def test_silent_servo_is_named_after_the_retries(sim):
     servo 3's block; the pings then name servo 4 and ServoTimeoutError carries its joint."""
     bus = sim.bus
     bus.read_state()
-    sim.arm.silent.add(4)
+    sim.server.inject_fault(4, "silent")
     sim.wire.clear()
     with pytest.raises(ServoTimeoutError) as caught:
         bus.read_state()
@@ -183,9 +184,9 @@ def test_silent_servo_is_named_after_the_retries(sim):
     assert (err.servo_id, err.joint) == (4, CONFIG.joints[3].dof)
     assert "stopped after 3 of 7 blocks" in str(err) and "no answer to 3 pings" in str(err)
     kinds = [p.instruction for p in sim.instructions()]
-    assert kinds.count(Instruction.FAST_SYNC_READ) == 3 and bus.failed_reads == 3, "one try and two retries"
+    assert kinds.count(Instruction.FAST_SYNC_READ) == 3 and bus.stats.reads_retried == 3, "one try and two retries"
     assert kinds.count(Instruction.PING) == 3 + 3, "servos 1..3 answer the first ping, servo 4 none of 3"
-    sim.arm.silent.clear()
+    sim.server.clear_faults()
     assert bus.read_state().q.shape == (7,), "answers again: the next read succeeds"
 
 
@@ -244,8 +245,7 @@ def test_hardware_error_mid_run_names_servo_and_bit(sim, bits, faults, torque_st
     for _ in range(3):
         bus.read_state()
         bus.write(JointCommand.torque(np.zeros(7)))
-    with sim.server._lock:
-        sim.servo(3).set_hardware_error(bits)
+    sim.server.inject_fault(3, int(bits))
     with pytest.raises(ServoHardwareError) as caught:
         bus.read_state()
     err = caught.value
@@ -253,5 +253,5 @@ def test_hardware_error_mid_run_names_servo_and_bit(sim, bits, faults, torque_st
     with pytest.raises(ServoHardwareError, match=r"\(id 3\)"):
         bus.write(JointCommand.torque(np.zeros(7)))
     assert sim.servo(3).torque_enabled is torque_stays
-    assert bus.disable_torque_now(), "every servo still answers: torque off everywhere"
+    assert bus.stop(), "every servo still answers: torque off everywhere"
     assert not any(s.torque_enabled for s in sim.arm.servos)

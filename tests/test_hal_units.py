@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from servodyn.hal.config import load_config
-from servodyn.hal.units import ServoMap
+from servodyn.hal.dynamixel.units import ServoMap
 
 TICK = 2 * np.pi / 4096                 # rad per position unit
 VELOCITY_UNIT = 0.229 * 2 * np.pi / 60  # rad/s per velocity unit
@@ -79,7 +79,7 @@ def test_current_round_trip():
 def test_from_config_joints():
     """The replica's map carries each joint's direction, offset and servo constants, in dof order."""
     config = load_config("replica")
-    m = config.units()
+    m = ServoMap.from_joints(config.joints)
     assert m.n == 7
     assert list(m.direction) == [1, -1, -1, 1, -1, 1, 1]
     assert m.torque_constant[0] == pytest.approx(2.409) and m.torque_constant[6] == pytest.approx(1.783)

@@ -10,7 +10,7 @@ import pytest
 import servodyn
 from servodyn import Body, Dof, Model, ModelError
 from servodyn import _core
-from servodyn.rotations import axis_angle, rpy_to_matrix
+from servodyn.model.rotations import axis_angle, rpy_to_matrix
 
 
 def test_builtin_models_have_the_papers_masses():

@@ -5,7 +5,7 @@ import pytest
 
 import servodyn
 from conftest import random_state, rel_err
-from servodyn.tools.randommodels import random_model
+from servodyn.model.samples import random_model
 
 # RNEA is a forward sum of products: both libraries land within a few ulps of each other
 RNEA_TOL = 1e-9

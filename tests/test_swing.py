@@ -1,27 +1,43 @@
-"""The tennis swing through dynamixel-sdk against the simulated Dynamixel bus (host/swing.py,
-hal/dynamixel/backend.py, sim/arm.py): feed-forward against PD alone, and a servo that stops
-answering mid-swing."""
+"""The tennis swing through dynamixel-sdk against the simulated Dynamixel bus (tools/swing.py,
+servodyn.loop, hal/dynamixel/backend.py, sim/): feed-forward against PD alone, a servo that stops
+answering mid-swing, a hardware error, real-time pacing, and a loopback configuration.
+
+In lock-step the plant advances one period per sync write, so everything asserted here is
+deterministic: tick counts, the plant clock at the stop, tracking errors. How fast the loop ran
+(loop_hz, jitter, CPU per tick) depends on the machine: it is reported in the summary and measured
+by `make bench`, never asserted."""
+
+import json
+import math
+import time
 
 import numpy as np
 import pytest
 
-from servodyn.swing import run_swing
+from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.tools.swing import run_swing
+
+QUIET = dict(say=lambda *a, **k: None)
+SWING_TICKS = 7201            # the 1.8 s forehand at the replica's time scale 4, every 1 ms
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    quiet = lambda *a, **k: None
-    ff = run_swing(out=tmp_path_factory.mktemp("ff"), say=quiet)
-    pd = run_swing(out=tmp_path_factory.mktemp("pd"), feedforward=False, say=quiet)
+    ff = run_swing(out=tmp_path_factory.mktemp("ff"), **QUIET)
+    pd = run_swing(out=tmp_path_factory.mktemp("pd"), feedforward=False, **QUIET)
     return ff, pd
 
 
 def test_swing_completes_on_the_simulated_bus(runs):
     ff, _ = runs
     assert ff["completed"], ff.get("error")
+    assert ff["ticks"] == SWING_TICKS, "one logged tick per 1 ms sample of the swing"
     assert ff["tracking_max_rad"] <= np.radians(5), "feed-forward + PD tracks the replica within 5 deg"
-    assert ff["loop_hz"] >= 200, "lock-step ticks run well above 200 Hz on this machine"
     assert all(ff["torque_off"]), "every servo's torque is off after the run"
+    # lock-step: the plant moved one period per command, the swing's last tick was at its end
+    assert ff["sim_time_at_stop_s"] == pytest.approx(SWING_TICKS * SMALL_TIME_STEP, abs=1e-9), \
+        "the plant ran exactly one period per tick of the swing"
+    assert ff["bus"]["writes"] >= SWING_TICKS and ff["bus"]["reads_retried"] == 0, ff["bus"]
 
 
 def test_feedforward_cuts_the_largest_error_threefold(runs):
@@ -30,54 +46,70 @@ def test_feedforward_cuts_the_largest_error_threefold(runs):
     assert ratio >= 3, f"feed-forward cut the largest tracking error only {ratio:.1f}x"
 
 
+def test_summary_reports_the_loop_figures(runs):
+    """The summary keys other tools read (DESIGN.md) are there and are numbers; their values are
+    the machine's, so only their presence and sanity are checked."""
+    ff, _ = runs
+    for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "period_median_ms"):
+        assert isinstance(ff[key], float) and math.isfinite(ff[key]), f"{key} = {ff[key]!r}"
+    assert ff["clock"] == "lockstep"
+    assert set(ff["cpu_ms_per_tick"]) == {"median", "p99"}
+    assert ff["tracking_rms_rad"] <= ff["tracking_max_rad"], "an rms cannot exceed the largest value"
+
+
 def test_servo_that_stops_answering_stops_the_swing_safely(tmp_path):
     """Servo 5 goes silent 1 s into the swing: the HAL raises naming it, the torque goes off on
     every servo before the plant runs two more ticks, and the log holds every tick until then."""
-    summary = run_swing(out=tmp_path, say=lambda *a, **k: None, fault_at=(1.0, 5))
+    summary = run_swing(out=tmp_path, fault_at=(1.0, 5), **QUIET)
     assert not summary["completed"]
-    assert "servo 5" in summary["error"] or "r_forearm_pronation" in summary["error"]
+    assert "servo 5" in summary["error"] or "r_forearm_pronation" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 answered and were logged; tick 1000 failed"
     # the plant advances one period per command: the stop came within two ticks of the last one
     assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9
-    assert all(summary["torque_off"])
+    assert all(summary["torque_off"]), "torque off on every servo, the silent one included"
     lines = (tmp_path / "swing_log.csv").read_text().splitlines()
-    assert len(lines) == 1 + 1000
+    assert len(lines) == 1 + 1000, "the header and every tick that ran"
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary, "summary.json is the summary"
 
 
 def test_hardware_error_stops_the_swing_safely(tmp_path):
     """Servo 3 reports an overload 1 s into the swing: its fast-read block carries the alert bit,
     the HAL reads Hardware Error Status and raises naming servo and bit, torque goes off on every
     servo within two ticks of plant time, and the log holds the 1000 ticks before it."""
-    summary = run_swing(out=tmp_path, say=lambda *a, **k: None, fault_at=(1.0, 3, "overload"))
+    summary = run_swing(out=tmp_path, fault_at=(1.0, 3, "overload"), **QUIET)
     assert not summary["completed"]
-    assert "(id 3) hardware error 0x20: overload" in summary["error"]
+    assert "(id 3) hardware error 0x20: overload" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 were clean; tick 1000's read saw the alert"
     assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9
     assert all(summary["torque_off"])
     assert len((tmp_path / "swing_log.csv").read_text().splitlines()) == 1 + 1000
 
 
-def test_summary_reports_rate_jitter_and_cpu_per_tick(runs):
-    """Lock-step: the loop runs as fast as the bus answers. CPU per tick is the loop thread's
-    (HAL read, control step, HAL write), so it is at most the tick's wall time; the process's
-    CPU also counts the simulated bus in its own thread, so it is at least as much."""
-    ff, _ = runs
-    for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms"):
-        assert ff[key] > 0, key
-    cpu = ff["cpu_ms_per_tick"]
-    assert ff["clock"] == "lockstep"
-    assert 0 < cpu["median"] <= cpu["p99"]
-    assert cpu["median"] <= ff["tick_median_ms"], "a thread's CPU time cannot exceed its wall time"
-    assert ff["process_cpu_ms_per_tick"]["median"] >= cpu["median"]
-    assert abs(ff["loop_hz"] * ff["period_median_ms"] / 1e3 - 1) < 0.2, "rate and median period agree"
+def test_realtime_swing_follows_the_wall_clock(tmp_path):
+    """Real time: the plant advances with the wall clock and the loop sleeps to each next period.
+    Only bounds a slow or busy machine cannot break are asserted: the loop is never faster than
+    the plan (the run takes at least its planned duration), and the plant never runs ahead of the
+    wall clock. How close to 1 kHz a machine gets is `make bench`'s to measure."""
+    began = time.monotonic()
+    summary = run_swing(out=tmp_path, realtime=True, time_scale=1.0, **QUIET)
+    took = time.monotonic() - began
+    planned = HOME_DURATION + 1.8
+    assert summary["completed"], summary.get("error")
+    assert summary["clock"] == "realtime" and summary["ticks"] == 1801, "every 1 ms sample of the 1.8 s swing"
+    assert took >= planned, f"the paced run took {took:.2f} s, less than the {planned:.1f} s it plays"
+    assert summary["sim_time_at_stop_s"] <= took, "the plant never runs ahead of the wall clock"
+    assert all(summary["torque_off"])
 
 
-def test_realtime_swing_is_paced_at_1khz(tmp_path):
-    """Real time (the plant on the wall clock, the loop sleeping to the next 1 ms): never faster
-    than 1 kHz, and it keeps up, since a tick's work takes well under its period."""
-    summary = run_swing(out=tmp_path, say=lambda *a, **k: None, realtime=True, time_scale=3.0)
-    assert summary["clock"] == "realtime" and summary["ticks"] >= 1000
-    assert 900 <= summary["loop_hz"] <= 1000.5
-    assert 0.95 <= summary["period_median_ms"] <= 1.05
-    assert summary["cpu_ms_per_tick"]["median"] < 1.0, "the host could hold the 1 ms period"
-    assert summary["jitter_p99_ms"] >= 0
+def test_swing_on_a_loopback_configuration(tmp_path):
+    """kind = "loopback" works wherever a bus does: the swing runs on the model alone behind the
+    HAL (no simulator, no port), and tracks it as closely as the servos do."""
+    config = tmp_path / "replica_loopback.toml"
+    from servodyn.hal.config import CONFIGS_DIR
+    config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace('kind = "dynamixel"', 'kind = "loopback"')
+                      .replace("baud = 4000000", "baud = 1000000"))
+    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
+    assert summary["completed"], summary.get("error")
+    assert summary["ticks"] == SWING_TICKS
+    assert summary["tracking_max_rad"] <= np.radians(5), "the same controller on the bare model"
+    assert "torque_off" not in summary, "no simulated servos to report on"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import servodyn
-from servodyn.motion import Motion, check_limits, load_motion
-from servodyn.trajectory import TrajectoryError
+from servodyn.control.motion import Motion, check_limits, load_motion
+from servodyn.control.trajectory import TrajectoryError
 
 ARM = servodyn.load_model("human_arm")
 
@@ -99,8 +99,8 @@ def test_bad_knots_from_the_core():
 def test_keyframes_and_csv_round_trip(tmp_path):
     """save_motion then load_motion gives the same keyframes bit for bit; a sampled trajectory
     written as CSV reads back exactly, qd and qdd from the file (not re-derived)."""
-    from servodyn.motion import save_motion
-    from servodyn.trajectory import read_trajectory_csv, write_trajectory_csv
+    from servodyn.control.motion import save_motion
+    from servodyn.control.trajectory import read_trajectory_csv, write_trajectory_csv
     motion = load_motion("tennis_forehand", ARM)
     save_motion(motion, tmp_path / "again.toml")
     again = load_motion(tmp_path / "again.toml", ARM)

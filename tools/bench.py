@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 import servodyn
-from servodyn.tools.randommodels import random_model, serial_chain
+from servodyn.model.samples import random_model, serial_chain
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build" / "bench"

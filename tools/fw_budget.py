@@ -18,7 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from servodyn.hil import BOARDS, default_elf, run_qemu, summarize
+from servodyn.tools.hil import BOARDS, default_elf, run_qemu, summarize
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIFT = 7

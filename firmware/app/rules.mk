@@ -23,8 +23,9 @@ FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(wildcard fi
 FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/c/*.h) \
   $(FW_GEN)/servodyn_gen.h firmware/app/rules.mk
 FW_ELFS := $(foreach b,$(FW_BOARDS),$(FW_DIR)/$(b)/servodyn-fw.elf)
-FW_CODEGEN_DEPS := $(STAMP) $(wildcard host/codegen.py host/swing.py host/motion.py host/models/*.toml \
-  host/motions/*.toml hal/config.py hal/configs/*.toml)
+FW_CODEGEN_DEPS := $(STAMP) $(wildcard tools/codegen.py host/control/*.py host/model/*.py \
+  host/model/builtin/*.toml host/control/motions/*.toml hal/config.py hal/dynamixel/control_table.py \
+  hal/dynamixel/units.py hal/configs/*.toml)
 
 # codegen writes only what changed, so the touch keeps make from asking again
 $(FW_GEN_FILES) &: $(FW_CODEGEN_DEPS)

@@ -30,24 +30,17 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..bus import (JointCommand, JointState, ServoBus, ServoHardwareError, ServoInitializationError,
-                   ServoOperationError, ServoTimeoutError)
-from .instructions import split_fast_reply
-from .protocol import (ALERT_BIT, BROADCAST_ID, FRAME_OVERHEAD, HEADER, PacketError, StatusPacket, crc16,
+from ...control.timing import BUS_WATCHDOG
+from ..bus import JointCommand, JointState, ServoBus
+from ..errors import ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
+from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
+                            ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
+                            PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
+from .instructions import fast_reply_blocks, split_fast_reply
+from .protocol import (ALERT_BIT, BROADCAST_ID, FRAME_OVERHEAD, HEADER, MAX_ID, PacketError, StatusPacket,
                        encode_frame)
 from .reader import BadFrame, Fault, PacketReader
-
-ADDR_MODEL_NUMBER = 0
-ADDR_RETURN_DELAY = 9
-ADDR_OPERATING_MODE = 11
-ADDR_TORQUE_ENABLE = 64
-ADDR_HARDWARE_ERROR = 70
-ADDR_BUS_WATCHDOG = 98
-ADDR_GOAL_CURRENT = 102
-ADDR_PRESENT = 126                  # Present Current (2), Velocity (4), Position (4)
-PRESENT_LENGTH = 10
-CURRENT_MODE = 0
-WATCHDOG_UNIT = 0.02                # s per Bus Watchdog unit
+from .units import ServoMap
 
 
 def _stuffing_packet_handler():
@@ -76,9 +69,24 @@ def _stuffing_packet_handler():
 
 class DynamixelBus(ServoBus):
     kind = "dynamixel"
+    servos = SERVOS
+    bauds = BAUD_RATES
+    default_baud = 4_000_000
+    protocols = (2.0,)
+    max_id = MAX_ID
+    joint_keys = frozenset({"current_unit"})
+
+    @classmethod
+    def joint_options(cls, checker, servo) -> dict:
+        return {"current_unit": checker.positive("current_unit", servo.current_unit)}
+
+    @classmethod
+    def max_current(cls, servo, options: dict) -> tuple[float, str]:
+        unit = options["current_unit"]
+        return servo.current_limit_max * unit, f"{servo.current_limit_max} x {unit:g} A"
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
-                 watchdog: float = 0.1, reply_timeout: float | None = None, **kwargs):
+                 watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
         """retries: tries after the first before a read fails; watchdog: s of bus silence after
         which the servos stop; reply_timeout: s to wait for the fast sync read reply (None: the
         SDK's packet timeout, wire time + 2 x 16 ms USB latency + 2 ms)."""
@@ -87,10 +95,10 @@ class DynamixelBus(ServoBus):
         if self.port_name in (None, "", "auto"):
             raise ServoInitializationError(f"bus '{self.bus.name}': no serial port (port = 'auto' means "
                                            "the simulated bus: start it with `servodyn sim`)")
+        self.units = ServoMap.from_joints(self.joints)
         self.retries = retries
         self.watchdog = watchdog
         self.reply_timeout = reply_timeout
-        self.failed_reads = 0           # fast sync reads that got no whole reply (each then retried)
         self.ids = [j.id for j in self.joints]
         self._last: JointState | None = None
 
@@ -114,7 +122,7 @@ class DynamixelBus(ServoBus):
             self._check_hardware(joint)
             self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)      # EEPROM writes need torque off
             self._write_item(joint, ADDR_RETURN_DELAY, 1, 0)
-            self._write_item(joint, ADDR_OPERATING_MODE, 1, CURRENT_MODE)
+            self._write_item(joint, ADDR_OPERATING_MODE, 1, OperatingMode.CURRENT)
             self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)       # clear a tripped watchdog
         self._writer = sdk.GroupSyncWrite(self.port, self.packets, ADDR_GOAL_CURRENT, 2)
         self._fault = None
@@ -127,7 +135,7 @@ class DynamixelBus(ServoBus):
         self.port.closePort()
 
     def _enable_torque(self, on: bool) -> None:
-        units = max(1, int(round(self.watchdog / WATCHDOG_UNIT)))
+        units = watchdog_units(self.watchdog)
         for joint in self.joints:
             if on:
                 self._write_item(joint, ADDR_GOAL_CURRENT, 2, 0)
@@ -137,8 +145,8 @@ class DynamixelBus(ServoBus):
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)
 
-    def disable_torque_now(self) -> bool:
-        """Best effort, for the safe stop: torque off on every servo that answers; True if all did."""
+    def _stop(self) -> bool:
+        """Torque off on every servo that answers, each with its retries; True if all did."""
         ok = True
         for joint in self.joints:
             for _ in range(self.retries + 1):
@@ -159,7 +167,7 @@ class DynamixelBus(ServoBus):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
                 break
-            self.failed_reads += 1
+            self.stats.reads_retried += 1
         else:
             raise self._diagnose(failure, suspect)
         for joint, block in zip(self.joints, blocks):
@@ -167,7 +175,7 @@ class DynamixelBus(ServoBus):
                 status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
                 if status:
                     self._fault = (joint, status)          # write() refuses while it stands
-                    raise ServoHardwareError(joint.dof, joint.id, status)
+                    raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
             if block.error & ~ALERT_BIT:
                 raise ServoOperationError(f"joint '{joint.dof}': servo {joint.id} refused the read "
                                           f"({self.packets.getRxPacketError(block.error & ~ALERT_BIT)})")
@@ -245,12 +253,7 @@ class DynamixelBus(ServoBus):
         start = raw.find(HEADER)
         if start < 0:
             return self.joints[0], "no fast sync read reply"
-        frame, got, k = raw[start:], 0, FRAME_OVERHEAD + 1
-        while got < len(self.ids) and k + PRESENT_LENGTH + 4 <= len(frame):
-            end = k + 2 + PRESENT_LENGTH
-            if frame[k + 1] != self.ids[got] or crc16(frame[:end]) != int.from_bytes(frame[end:end + 2], "little"):
-                break
-            got, k = got + 1, k + PRESENT_LENGTH + 4
+        got = len(fast_reply_blocks(raw[start:], [PRESENT_LENGTH] * len(self.ids), self.ids))
         if got == len(self.ids):
             return None, "fast sync read reply incomplete"
         missing = self.joints[got]
@@ -260,12 +263,12 @@ class DynamixelBus(ServoBus):
     def _write(self, command: JointCommand) -> None:
         if self._fault is not None:         # a sync write gets no reply: the last read's alert stands
             joint, status = self._fault
-            raise ServoHardwareError(joint.dof, joint.id, status)
+            raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
         if self._last is None:
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")
         tau = command.torque_at(self._last.q, self._last.qd)
-        units, limited = self.units.goal_current_units(tau, [j.current_limit for j in self.joints])
-        self.limited += limited
+        units, limited = self.units.goal_current_units(tau, self.current_limit)
+        self.stats.limited += limited
         self._writer.clearParam()
         for servo_id, value in zip(self.ids, units):
             self._writer.addParam(servo_id, list(int(value).to_bytes(2, "little", signed=True)))
@@ -304,7 +307,7 @@ class DynamixelBus(ServoBus):
     def _check_hardware(self, joint) -> None:
         status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
         if status:
-            raise ServoHardwareError(joint.dof, joint.id, status)
+            raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
 
     def _read_item(self, joint, address: int, size: int) -> int:
         read = {1: self.packets.read1ByteTxRx, 2: self.packets.read2ByteTxRx,

@@ -183,6 +183,29 @@ def encode_fast_reply(blocks: Sequence[FastReadBlock]) -> bytes:
     return bytes(out)
 
 
+FAST_BLOCKS_START = 8       # header(4) ID LEN(2) INST, then ERR ID DATA CRC(2) per servo
+
+
+def fast_reply_blocks(frame: bytes, lengths: Sequence[int], ids: Sequence[int] | None = None) -> list[FastReadBlock]:
+    """The whole blocks at the start of a fast read reply frame, which may be cut short: block i
+    holds lengths[i] data bytes and ends in the CRC of the frame up to there (the last block's is
+    the packet's). The walk stops at the first block that is incomplete, fails its CRC, or (with
+    ``ids``) comes from another servo than ids[i] — on a chain, where the reply stopped."""
+    blocks, k = [], FAST_BLOCKS_START
+    crc = crc16(frame[:k])
+    for i, n in enumerate(lengths):
+        end = k + 2 + n
+        if end + 2 > len(frame) or (ids is not None and frame[k + 1] != ids[i]):
+            break
+        crc = crc16(frame[k:end], crc)
+        if crc != unpack_field(frame[end:end + 2]):
+            break
+        blocks.append(FastReadBlock(frame[k + 1], frame[k], bytes(frame[k + 2:end])))
+        crc = crc16(frame[end:end + 2], crc)
+        k = end + 2
+    return blocks
+
+
 def split_fast_reply(packet: StatusPacket, lengths: Sequence[int]) -> list[FastReadBlock]:
     """The per-servo blocks of a fast read reply; ``lengths`` are the data lengths in request order."""
     if packet.id != BROADCAST_ID:
@@ -195,11 +218,8 @@ def split_fast_reply(packet: StatusPacket, lengths: Sequence[int]) -> list[FastR
     frame += pack_field(crc16(frame), 2)
     if len(frame) != FRAME_OVERHEAD + expected:
         raise PacketError(f"fast read reply LEN {len(frame) - FRAME_OVERHEAD}, expected {expected}")
-    blocks, k = [], 8
-    for n in lengths:
-        end = k + 2 + n
-        if crc16(frame[:end]) != unpack_field(frame[end:end + 2]):
-            raise CrcMismatch(f"fast read block of servo {frame[k + 1]}: CRC mismatch")
-        blocks.append(FastReadBlock(frame[k + 1], frame[k], frame[k + 2:end]))
-        k = end + 2
+    blocks = fast_reply_blocks(frame, lengths)
+    if len(blocks) < len(lengths):
+        k = FAST_BLOCKS_START + sum(n + 4 for n in lengths[:len(blocks)])
+        raise CrcMismatch(f"fast read block of servo {frame[k + 1]}: CRC mismatch")
     return blocks

@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ..errors import ProtocolError
+
 HEADER = b"\xFF\xFF\xFD\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC
@@ -51,10 +53,6 @@ class ErrorNumber(IntEnum):
 
 
 # --- exceptions ------------------------------------------------------------------------------------
-
-class ProtocolError(Exception):
-    """Root of every error this package raises."""
-
 
 class FieldRangeError(ProtocolError, ValueError):
     """A value does not fit the control-table field it is packed into."""

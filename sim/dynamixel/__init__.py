@@ -1,9 +1,13 @@
-"""Simulated DYNAMIXEL X-series servos behind the real Protocol 2.0 wire format."""
+"""Simulated DYNAMIXEL X-series servos behind the real Protocol 2.0 wire format: each servo's
+control table and drive (`servo`), and the chain that answers the host's packets (`device`).
+The servo models and their control tables are the HAL's (`servodyn.hal.dynamixel.control_table`)."""
 
-from .control_table import MODELS, XM430_W350, XM540_W270, HardwareError, Item, Model, OperatingMode
+from servodyn.hal.dynamixel.control_table import (MODELS, SERVOS, XH430_W350, XH540_W270, XM430_W350, XM540_W270,
+                                                  HardwareError, Item, Model, OperatingMode)
+
 from .device import Exchange, Reply, VirtualBus
 from .drive import Mechanics, PositionPid
 from .servo import Servo
 
-__all__ = ["MODELS", "XM430_W350", "XM540_W270", "Exchange", "HardwareError", "Item", "Mechanics", "Model",
-           "OperatingMode", "PositionPid", "Reply", "Servo", "VirtualBus"]
+__all__ = ["MODELS", "SERVOS", "XH430_W350", "XH540_W270", "XM430_W350", "XM540_W270", "Exchange", "HardwareError",
+           "Item", "Mechanics", "Model", "OperatingMode", "PositionPid", "Reply", "Servo", "VirtualBus"]

@@ -17,12 +17,14 @@ from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParame
                                     FastReadBlock, Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket, encode_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
+from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .servo import Servo
 
 READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
                    Instruction.BULK_READ, Instruction.FAST_BULK_READ})
+COMMANDS = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})   # end a host's control tick
 
 
 @dataclass(frozen=True)
@@ -47,8 +49,11 @@ class _Policy:
         self.level = servo.get("status_return_level")
         self.alert = ALERT_BIT if servo.alert else 0
         self.delay = servo.return_delay
+        self.silent = servo.silent
 
     def answers(self, instruction: int) -> bool:
+        if self.silent:
+            return False
         if instruction == Instruction.PING:
             return True
         return self.level == 2 or (self.level == 1 and instruction in READS)
@@ -63,8 +68,10 @@ def _parsed(parser: Callable, params: bytes):
 
 class VirtualBus:
     """Servos on one simulated bus. ``clock`` gives the time when ``handle``/``tick`` get none;
-    ``on_instruction(exchange)`` is called after every instruction packet is answered. A frame whose
-    bytes arrive more than ``byte_timeout`` apart is dropped, as a servo does (None: never)."""
+    ``on_command()`` is called after every command transaction (a sync or bulk write, which ends a
+    host's control tick), then ``on_instruction(exchange)`` after every instruction packet is
+    answered. A frame whose bytes arrive more than ``byte_timeout`` apart is dropped, as a servo
+    does (None: never)."""
 
     def __init__(self, servos: Iterable[Servo] = (), *, clock: Callable[[], float] = _time.monotonic,
                  on_instruction: Callable[[Exchange], None] | None = None,
@@ -72,6 +79,7 @@ class VirtualBus:
         self.servos = list(servos)
         self.clock = clock
         self.on_instruction = on_instruction
+        self.on_command: Callable[[], None] | None = None
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
         self._handlers = {
@@ -109,6 +117,8 @@ class VirtualBus:
             elif isinstance(event, InstructionPacket):
                 replies = self._execute(event, now)
                 out += replies
+                if self.on_command is not None and event.instruction in COMMANDS:
+                    self.on_command()
                 if self.on_instruction is not None:
                     self.on_instruction(Exchange(event, tuple(replies), now))
         return b"".join(reply.data for reply in out)
@@ -225,12 +235,17 @@ class VirtualBus:
 
     def _reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
         """Each listed servo answers in request order; a fast read answers in one packet, and not
-        at all when a listed servo is missing or silent."""
+        at all when a listed servo is missing or does not answer reads. A silent servo (a fault)
+        cuts a fast reply where its block would begin, as on a chain: the servos before it
+        answered, the ones after wait for it and never do, and the header's LEN still counts
+        every block, so the host sees a short packet (nothing at all if the first is silent)."""
         fast = instruction in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
         replies, blocks = [], []
-        for servo_id, address, length in requests:
+        for k, (servo_id, address, length) in enumerate(requests):
             servo = self._primary(servo_id)
             policy = _Policy(servo) if servo is not None else None
+            if fast and policy is not None and policy.silent:
+                return self._cut_fast_reply(blocks, requests[k:])
             if policy is None or not policy.answers(instruction):
                 if fast:
                     return []
@@ -247,6 +262,13 @@ class VirtualBus:
             first = self._primary(blocks[0].id)
             return [Reply(BROADCAST_ID, encode_fast_reply(blocks), first.return_delay)]
         return replies
+
+    def _cut_fast_reply(self, blocks: list[FastReadBlock], rest: list[tuple[int, int, int]]) -> list[Reply]:
+        if not blocks:
+            return []
+        whole = encode_fast_reply(blocks + [FastReadBlock(i, 0, bytes(n)) for i, _, n in rest])
+        cut = FAST_BLOCKS_START + sum(len(b.data) + 4 for b in blocks)
+        return [Reply(BROADCAST_ID, whole[:cut], self._primary(blocks[0].id).return_delay)]
 
     def _sync_write(self, packet, targets):
         if packet.id != BROADCAST_ID:

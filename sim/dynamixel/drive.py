@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from .control_table import Model
+    from servodyn.hal.dynamixel.control_table import Model
 
 # The e-manual gives the gains' scaling (KP = P/128, KI = I/65536, KD = D/16) but not the firmware's
 # sample time; the I and D terms here count in samples of this period.

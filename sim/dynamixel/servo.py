@@ -13,14 +13,13 @@ import math
 from dataclasses import dataclass
 
 from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field, unpack_field
+from servodyn.hal.dynamixel.control_table import (GOAL_POSITION_SPAN, PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE,
+                                                  TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item,
+                                                  Model, OperatingMode)
 
-from .control_table import (GOAL_POSITION_SPAN, PWM_FULL, TABLE_SIZE, TICKS_PER_REV, VELOCITY_UNIT,
-                            XM430_W350, Item, Model, OperatingMode)
 from .drive import Mechanics, PositionPid
 
-WATCHDOG_UNIT = 0.020          # s per Bus Watchdog(98) unit
 WATCHDOG_TRIPPED = -1
-RETURN_DELAY_UNIT = 2e-6       # s per Return Delay Time(9) unit
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
               "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain")
@@ -61,6 +60,7 @@ class Servo:
         self._turns = 0                # whole turns hidden from Present Position
         self._registered: tuple[int, bytes] | None = None
         self._heard_at: float | None = None
+        self.silent = False            # a fault: the servo executes but never answers
         self._load_defaults(eeprom=True)
         self._set("id", servo_id)
         self._set("present_input_voltage", round(supply_voltage * 10))

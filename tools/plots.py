@@ -135,3 +135,25 @@ def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def tracking_figure(path: Path, t, q_d, q, tau, names, title: str) -> None:
+    """Angles (desired dotted), tracking errors and commanded torques of a run, one line per dof."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    for k, name in enumerate(names):
+        line, = axes[0].plot(t, np.degrees(q[:, k]), label=name)
+        axes[0].plot(t, np.degrees(q_d[:, k]), ":", color=line.get_color())
+        axes[1].plot(t, np.degrees(q_d[:, k] - q[:, k]), label=name)
+        axes[2].plot(t, tau[:, k], label=name)
+    axes[0].set_ylabel("angle (deg), dotted: desired")
+    axes[1].set_ylabel("tracking error (deg)")
+    axes[2].set_ylabel("commanded torque (N m)")
+    axes[2].set_xlabel("time (s)")
+    axes[0].legend(fontsize=7, ncol=2)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

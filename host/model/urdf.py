@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import Body, Dof, Model, ModelError
+from .tree import Body, Dof, Model, ModelError
 from .modelfile import combine
 from .rotations import orthonormalize
 

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import load_model
-from .trajectory import write_columns_csv
+from ..control.timing import BANDWIDTH, SMALL_TIME_STEP
+from ..control.trajectory import write_columns_csv
+from ..model import load_model
 
 # a forward reach and back: arm raised forward and out, elbow bent, forearm pronated, wrist cocked
 REACH = {
@@ -22,8 +23,6 @@ REACH = {
     "r_wrist_deviation": 0.2,
 }
 DURATION = 2.0        # s: out and back
-SMALL_TIME_STEP = 1e-3
-REPLAY_BANDWIDTH = 20.0   # rad/s of the replay's joint PD
 
 
 def reach_motion(model, duration: float = DURATION, dt: float = SMALL_TIME_STEP):
@@ -87,7 +86,7 @@ def run_demo(model_name: str, out: Path) -> None:
     # replay by direct dynamics: feed-forward alone, and feed-forward with a light joint PD
     start = time.perf_counter()
     drift_ff = replay(model, t, q, qd, tau, bandwidth=0.0)
-    drift_pd = replay(model, t, q, qd, tau, bandwidth=REPLAY_BANDWIDTH)
+    drift_pd = replay(model, t, q, qd, tau, bandwidth=BANDWIDTH)
     elapsed = time.perf_counter() - start
     print(f"\nreplay by direct dynamics (Armstrong-Green + RK4 at {SMALL_TIME_STEP * 1e3:g} ms, "
           f"2 x {len(t) - 1} steps in {elapsed * 1e3:.0f} ms), largest joint deviation from the plan:")
@@ -95,7 +94,7 @@ def run_demo(model_name: str, out: Path) -> None:
     when = f"past 1 deg at t = {t[beyond[0]]:.2f} s" if len(beyond) else "never past 1 deg"
     print(f"  feed-forward only          {np.degrees(drift_ff.max()):10.4f} deg "
           f"({when}: open loop, the raised arm is unstable and step errors grow)")
-    print(f"  feed-forward + PD {REPLAY_BANDWIDTH:g} rad/s {np.degrees(drift_pd.max()):10.4f} deg")
+    print(f"  feed-forward + PD {BANDWIDTH:g} rad/s {np.degrees(drift_pd.max()):10.4f} deg")
 
     out.mkdir(parents=True, exist_ok=True)
     write_columns_csv(out / "torques.csv", t, "tau", model.dof_names, tau)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from servodyn import Body, Dof, Model
-from servodyn.rotations import axis_angle
+from .rotations import axis_angle
+from .tree import Body, Dof, Model
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

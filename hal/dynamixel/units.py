@@ -1,4 +1,4 @@
-"""Joint (SI) ↔ servo units, vectorised over joints.
+"""Joint (SI) ↔ Dynamixel register units, vectorised over joints.
 
 For each joint, with direction d = ±1, gear ratio G (servo horn turns per joint turn) and
 zero offset θ0 (the horn angle at q = 0):
@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..servos import RPM
+
 TWO_PI = 2.0 * np.pi
-RPM = TWO_PI / 60.0                 # rad/s per rpm
 
 
 @dataclass(frozen=True)
@@ -45,12 +46,12 @@ class ServoMap:
 
     @classmethod
     def from_joints(cls, joints) -> "ServoMap":
-        """From joint configurations (hal.config.JointConfig or anything with the same fields)."""
+        """From the joint configurations (hal.config.JointConfig) of Dynamixel servos."""
         return cls(direction=[j.direction for j in joints],
                    zero_offset=[j.zero_offset for j in joints],
                    gear_ratio=[j.gear_ratio for j in joints],
                    torque_constant=[j.torque_constant for j in joints],
-                   current_unit=[j.current_unit for j in joints],
+                   current_unit=[j.options.get("current_unit", j.servo.current_unit) for j in joints],
                    ticks_per_rev=[j.servo.ticks_per_rev for j in joints],
                    velocity_unit=[j.servo.velocity_unit for j in joints])
 

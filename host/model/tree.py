@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import _core, _core32
+from .. import _core, _core32
 from .rotations import axis_angle, frame_with_z, rot_z
 
 INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}

@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import load_model, plots
-from .control import ControlConfig, Controller
-from .motion import load_motion
-from .trajectory import Trajectory, write_columns_csv
+from ..control import ControlConfig, Controller
+from ..control.motion import load_motion
+from ..control.timing import SMALL_TIME_STEP, TIME_STEP
+from ..control.trajectory import Trajectory, write_columns_csv
+from ..model import load_model
+from . import plots
 
-SMALL_TIME_STEP = 1e-3
-TIME_STEP = 1e-2
 
 
 def _json_safe(value):

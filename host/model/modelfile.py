@@ -1,6 +1,6 @@
 """servodyn's own model file: TOML, body by body, with inertias from solid primitives (paper §2).
 
-See host/models/README.md for the schema; every error names the body and the key.
+See host/model/builtin/README.md for the schema; every error names the body and the key.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core
-from .model import Body, Dof, Model, ModelError
+from .. import _core
+from .tree import Body, Dof, Model, ModelError
 from .rotations import rpy_to_matrix
 
 SOLID_DIMS = {

@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _core, _core32
-from .model import INTEGRATORS
+from .. import _core, _core32
+from ..model import INTEGRATORS
+from .timing import BANDWIDTH, SMALL_TIME_STEP, TIME_STEP
 from .trajectory import Trajectory
 
 MODES = {
@@ -28,9 +29,9 @@ class ControlConfig:
     2 zeta M_ii w with M_ii the joint's own inertia at the start pose; for computed torque
     kp = w², kd = 2 zeta w (the model supplies the inertia)."""
     mode: str = DEFAULT_MODE
-    small_time_step: float = 1e-3     # s: the control and plant period
-    time_step: float = 1e-2           # s: inverse dynamics period, a multiple of small_time_step
-    bandwidth: float = 20.0           # rad/s
+    small_time_step: float = SMALL_TIME_STEP   # s: the control and plant period
+    time_step: float = TIME_STEP      # s: inverse dynamics period, a multiple of small_time_step
+    bandwidth: float = BANDWIDTH      # rad/s
     damping: float = 1.0
     kp: np.ndarray | None = None
     kd: np.ndarray | None = None

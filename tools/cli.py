@@ -9,10 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import builtin_models, load_model
-from .model import ModelError
-from .motion import check_limits
-from .trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
+from ..control.motion import check_limits
+from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
+from ..model import ModelError, builtin_models, load_model
 
 
 class CliError(Exception):
@@ -73,8 +72,7 @@ def cmd_experiment(args) -> None:
 
 
 def cmd_swing(args) -> None:
-    from .hal.bus import ServoError
-    from .hal.config import ConfigError
+    from ..hal.errors import ConfigError, ServoError
     from .swing import run_swing
     try:
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
@@ -88,13 +86,15 @@ def cmd_swing(args) -> None:
 
 def cmd_sim(args) -> None:
     import time as _time
-    from .hal.config import ConfigError, load_config
-    from .sim.arm import PtyServer, SimulatedArm
+    from ..hal.config import load_config
+    from ..hal.errors import ConfigError
+    from ..sim.arm import SimulatedArm
+    from ..sim.transport.pty import PtyServer
     try:
         config = load_config(args.config)
-    except ConfigError as err:
+        arm = SimulatedArm(config)
+    except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
-    arm = SimulatedArm(config)
     with PtyServer(arm, "lockstep" if args.lockstep else "realtime") as server:
         print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
               f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
@@ -108,8 +108,8 @@ def cmd_sim(args) -> None:
 
 
 def cmd_codegen(args) -> None:
+    from ..hal.errors import ConfigError
     from .codegen import write
-    from .hal.config import ConfigError
     try:
         paths = write(args.config, Path(args.out), args.motion)
     except (ConfigError, ValueError) as err:
@@ -118,7 +118,7 @@ def cmd_codegen(args) -> None:
 
 
 def cmd_firmware(args) -> None:
-    from .hal.config import ConfigError
+    from ..hal.errors import ConfigError
     from .hil import FirmwareError, run_firmware
     try:
         summary = run_firmware(args.board, elf=args.elf, config=args.config, out=Path(args.out),

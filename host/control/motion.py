@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core
+from .. import _core
 from .trajectory import Trajectory, TrajectoryError
 
 MOTIONS_DIR = Path(__file__).parent / "motions"

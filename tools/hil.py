@@ -26,13 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import ControlConfig, Controller
-from .hal.config import load_config
-from .hal.dynamixel import Instruction, decode_frame, split_fast_reply
-from .hal.dynamixel.backend import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
-from .hal.dynamixel.instructions import parse_sync_write
-from .motion import load_motion
-from .swing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP, homing, plan_gains
+from ..control import ControlConfig, Controller
+from ..control.motion import load_motion
+from ..control.schedule import plan_run
+from ..control.timing import SMALL_TIME_STEP
+from ..hal.config import load_config
+from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
+from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
+from ..hal.dynamixel.instructions import parse_sync_write
+from ..hal.dynamixel.units import ServoMap
+from ..loop import tick
 
 BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
 ROOT = Path(__file__).resolve().parent.parent
@@ -65,12 +68,16 @@ class FirmwareLink:
         self.arm, self.on_tick, self.tamper = arm, on_tick, tamper
         self.ids = [s.id for s in arm.servos]
         self.record = Record()
+        arm.lockstep()                         # each sync write moves the plant one period
         arm.bus.on_instruction = self._exchange
 
     def _exchange(self, exchange) -> None:
         request = exchange.request
         if request.instruction == Instruction.FAST_SYNC_READ and exchange.replies:
-            blocks = split_fast_reply(decode_frame(exchange.replies[0].data), [PRESENT_LENGTH] * len(self.ids))
+            try:
+                blocks = split_fast_reply(decode_frame(exchange.replies[0].data), [PRESENT_LENGTH] * len(self.ids))
+            except PacketError:           # cut short by a silent servo: the firmware gets no state
+                return
             self.record.reads.append(np.array(
                 [[int.from_bytes(b.data[0:2], "little", signed=True),
                   int.from_bytes(b.data[2:6], "little", signed=True),
@@ -82,7 +89,6 @@ class FirmwareLink:
                 self.record.goals.append(np.array([values[i] for i in self.ids]))
             elif address == ADDR_TORQUE_ENABLE and all(d == b"\x00" for _, d in writes):
                 self.record.torque_off = True
-            self.arm.advance(self.arm.small_time_step)
             if address == ADDR_GOAL_CURRENT and self.on_tick is not None:
                 self.on_tick(len(self.record.goals) - 1, self.arm)
 
@@ -138,7 +144,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
              q0=None) -> tuple[dict, Record, object]:
     """Run the image against a fresh simulated arm; (report, record, arm)."""
-    from servodyn.sim.arm import SimulatedArm
+    from ..sim.arm import SimulatedArm
     if board not in BOARDS:
         raise FirmwareError(f"unknown board '{board}' (one of {', '.join(BOARDS)})")
     elf = Path(elf) if elf else default_elf(board)
@@ -184,31 +190,26 @@ def replay(config_name: str, record: Record) -> dict:
     """The firmware's algorithm in the host's double precision, fed the measured state the firmware
     saw: the desired positions and the Goal Current of every tick."""
     config = load_config(config_name)
-    model, units = config.model, config.units()
+    model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
     scale = config.swing_time_scale or 1.0
     swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
-    home_gains, swing_gains = plan_gains(model, swing)
-    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=SMALL_TIME_STEP,
-                                                 time_step=TIME_STEP))
+    controller = Controller(model, ControlConfig(mode="feedforward_pd"))
     reads = record.reads
     q_meas = [units.from_ticks(r[:, 2]) for r in reads]
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
-    home = homing(q_meas[0], swing.q[0], HOME_DURATION, SMALL_TIME_STEP)
     goals, q_d, phase = [], [], []
-    tick = 0
-    for name, traj, gains in (("home", home, home_gains), ("swing", swing, swing_gains)):
+    n = 0
+    for segment in plan_run(model, swing, q_meas[0]):
         controller.reset()
-        for k in range(len(traj.t)):
-            if tick + 1 >= len(reads):
+        for k in range(len(segment.traj.t)):
+            if n + 1 >= len(reads):
                 break
-            if k % controller.config.update_ticks == 0:
-                controller.set_gains(*gains.at(traj.t[k] - traj.t[0]))
-            tau = controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q_meas[tick + 1], qd_meas[tick + 1])
+            tau = tick(controller, segment, k, q_meas[n + 1], qd_meas[n + 1])
             goals.append(units.goal_current_units(tau, limit)[0])
-            q_d.append(traj.q[k])
-            phase.append(name)
-            tick += 1
+            q_d.append(segment.traj.q[k])
+            phase.append("swing" if segment.name == "motion" else segment.name)
+            n += 1
     return {"goals": np.array(goals), "q_d": np.array(q_d), "phase": np.array(phase),
             "q": np.array(q_meas[1:1 + len(goals)])}
 

@@ -1,22 +1,28 @@
-"""X-series control tables (Protocol 2.0) and the figures of the modelled servos.
+"""X-series control tables (Protocol 2.0) and the data sheets of the servos servodyn drives.
 
-From the ROBOTIS e-manual pages of the XM430-W350 and XM540-W270 (addresses, sizes, access,
-defaults, ranges) and the X-series performance table (stall torque and current, no-load speed).
+The one place a Dynamixel register, unit or figure is written: the configuration checks against
+it, the backend takes its addresses and units from it, and the simulated servo is built from it.
+From the ROBOTIS e-manual pages of the X-series servos (addresses, sizes, access, defaults,
+ranges) and their performance tables (stall torque and current, no-load speed at 12 V).
 Addresses 0..146 are modelled; indirect addresses, external ports and backups are not.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from enum import IntEnum
+
+from ..servos import RPM, ServoSpec
 
 EEPROM_END = 64                # addresses below are EEPROM, writable only with torque off
 TABLE_SIZE = 147               # up to Present Temperature(146)
 TICKS_PER_REV = 4096           # position unit: 0.088°
-VELOCITY_UNIT = 0.229 * 2 * math.pi / 60   # rad/s per unit (0.229 rpm)
+VELOCITY_UNIT = 0.229 * RPM    # rad/s per unit (0.229 rpm)
 PWM_FULL = 885                 # Goal/Present PWM unit is 0.113 %: 885 = 100 %
 GOAL_POSITION_SPAN = 1_048_575  # ±256 rev: Goal Position range outside Position Control Mode
+WATCHDOG_UNIT = 0.020          # s per Bus Watchdog(98) unit
+RETURN_DELAY_UNIT = 2e-6       # s per Return Delay Time(9) unit
+BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)  # Baud Rate(8) 0..7
 
 
 class OperatingMode(IntEnum):
@@ -34,6 +40,16 @@ class HardwareError(IntEnum):
     MOTOR_ENCODER = 0x08
     ELECTRICAL_SHOCK = 0x10
     OVERLOAD = 0x20
+
+
+def watchdog_units(seconds: float) -> int:
+    """Bus Watchdog(98) value for a silence of `seconds` (at least one unit: 0 disables it)."""
+    return max(1, int(round(seconds / WATCHDOG_UNIT)))
+
+
+def hardware_faults(status: int) -> tuple[str, ...]:
+    """The names of the bits set in a Hardware Error Status value ("overload", ...)."""
+    return tuple(bit.name.lower().replace("_", " ") for bit in HardwareError if status & bit)
 
 
 @dataclass(frozen=True)
@@ -66,28 +82,27 @@ def _gain(name: str, address: int, default: int) -> Item:
     return Item(name, address, 2, default, low=0, high=16383)
 
 
-@dataclass(frozen=True)
-class Model:
-    """One servo model: its control table and the figures the drive model needs."""
-    name: str
-    number: int
-    current_limit: int          # maximum and default of Current Limit(38), 2.69 mA units
-    velocity_limit: int         # default of Velocity Limit(44)
-    stall_torque: float         # N·m at the output, at nominal voltage
-    stall_current: float        # A, at nominal voltage
-    no_load_speed_rpm: float    # at nominal voltage
-    nominal_voltage: float = 12.0
-    current_unit: float = 2.69e-3   # A per Goal/Present Current unit
+@dataclass(frozen=True, kw_only=True)
+class Model(ServoSpec):
+    """One X-series servo model: its data sheet at 12 V (ROBOTIS e-manual) and its control table.
+    The HAL (configuration, units, backend) and the simulated servo both read it from here."""
+    kind: str = "dynamixel"
+    model_number: int           # Model Number(0)
+    current_limit_max: int      # maximum and default of Current Limit(38), in current units
+    velocity_limit_default: int  # default of Velocity Limit(44), in velocity units
+    current_unit: float = 2.69e-3   # A per Goal / Present Current unit
+    ticks_per_rev: int = TICKS_PER_REV   # Goal / Present Position units per horn turn
+    velocity_unit: float = 0.229     # rpm per Goal / Present Velocity unit
     firmware: int = 46          # fast sync/bulk read need X430/540 firmware 45 or later
 
     @property
-    def no_load_speed(self) -> float:
-        return self.no_load_speed_rpm * 2 * math.pi / 60
+    def max_current(self) -> float:
+        return self.current_limit_max * self.current_unit
 
     def items(self) -> tuple[Item, ...]:
         return (
             # EEPROM
-            _ro("model_number", 0, 2, self.number),
+            _ro("model_number", 0, 2, self.model_number),
             _ro("model_information", 2, 4, 0),
             _ro("firmware_version", 6, 1, self.firmware),
             Item("id", 7, 1, 1, low=0, high=252),
@@ -103,8 +118,8 @@ class Model:
             Item("max_voltage_limit", 32, 2, 160, low=95, high=160),
             Item("min_voltage_limit", 34, 2, 95, low=95, high=160),
             Item("pwm_limit", 36, 2, PWM_FULL, low=0, high=PWM_FULL),
-            Item("current_limit", 38, 2, self.current_limit, low=0, high=self.current_limit),
-            Item("velocity_limit", 44, 4, self.velocity_limit, low=0, high=1023),
+            Item("current_limit", 38, 2, self.current_limit_max, low=0, high=self.current_limit_max),
+            Item("velocity_limit", 44, 4, self.velocity_limit_default, low=0, high=1023),
             Item("max_position_limit", 48, 4, TICKS_PER_REV - 1, low=0, high=TICKS_PER_REV - 1),
             Item("min_position_limit", 52, 4, 0, low=0, high=TICKS_PER_REV - 1),
             Item("shutdown", 63, 1, 0x34, mask=sum(HardwareError)),
@@ -142,8 +157,27 @@ class Model:
         )
 
 
-XM430_W350 = Model("XM430-W350", 1020, current_limit=1193, velocity_limit=200,
-                   stall_torque=4.1, stall_current=2.3, no_load_speed_rpm=46)
-XM540_W270 = Model("XM540-W270", 1120, current_limit=2047, velocity_limit=128,
-                   stall_torque=10.6, stall_current=4.4, no_load_speed_rpm=30)
-MODELS = {m.number: m for m in (XM430_W350, XM540_W270)}
+# the e-manual's 12 V rows; Velocity Limit defaults from the control tables (the XH540-W270's is not
+# in our notes: its no-load speed in 0.229 rpm units, rounded down)
+XM430_W350 = Model(name="XM430-W350", model_number=1020, gear_ratio=353.5, stall_torque=4.1, stall_current=2.3,
+                   no_load_speed_rpm=46.0, current_limit_max=1193, velocity_limit_default=200)
+XM540_W270 = Model(name="XM540-W270", model_number=1120, gear_ratio=272.5, stall_torque=10.6, stall_current=4.4,
+                   no_load_speed_rpm=30.0, current_limit_max=2047, velocity_limit_default=128)
+XH430_W350 = Model(name="XH430-W350", model_number=1000, gear_ratio=353.5, stall_torque=3.4, stall_current=1.3,
+                   no_load_speed_rpm=30.0, current_limit_max=648, velocity_limit_default=130)
+XH540_W270 = Model(name="XH540-W270", model_number=1100, gear_ratio=272.5, stall_torque=9.9, stall_current=4.9,
+                   no_load_speed_rpm=39.0, current_limit_max=2047, velocity_limit_default=170)
+SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270)}
+MODELS = {m.model_number: m for m in SERVOS.values()}
+
+# the items the host reads and writes, by address
+ITEMS = {item.name: item for item in XM430_W350.items()}
+ADDR_MODEL_NUMBER = ITEMS["model_number"].address
+ADDR_RETURN_DELAY = ITEMS["return_delay_time"].address
+ADDR_OPERATING_MODE = ITEMS["operating_mode"].address
+ADDR_TORQUE_ENABLE = ITEMS["torque_enable"].address
+ADDR_HARDWARE_ERROR = ITEMS["hardware_error_status"].address
+ADDR_BUS_WATCHDOG = ITEMS["bus_watchdog"].address
+ADDR_GOAL_CURRENT = ITEMS["goal_current"].address
+ADDR_PRESENT = ITEMS["present_current"].address      # Present Current (2), Velocity (4), Position (4)
+PRESENT_LENGTH = sum(ITEMS[n].size for n in ("present_current", "present_velocity", "present_position"))

@@ -1,0 +1,140 @@
+"""The control loop: one tick, a run of ticks against a servo bus, and its log.
+
+A tick (`tick`) is what the host loop, the HIL replay of the firmware and the firmware itself do
+every small_time_step: new PD gains from the schedule every `update_ticks`, the controller step
+on the measured state (inverse dynamics every time_step, held, plus the PD). `follow` wraps it
+between one `read_state()` and one `write()` of a bus — ros2_control's read → update → write —
+for each sample of a planned segment, and logs it. `summarize` turns a log into the run's figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .control.schedule import Segment
+from .hal.bus import JointCommand
+
+
+def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
+    """The controller's torque for sample k of the segment at the measured (q, qd)."""
+    traj = segment.traj
+    if k % controller.config.update_ticks == 0:
+        controller.set_gains(*segment.gains.at(traj.t[k] - traj.t[0]))
+    return controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q, qd)
+
+
+@dataclass
+class RunLog:
+    """Per tick: time, desired and measured state, commanded torque, measured current, and when
+    the tick began and what CPU it took."""
+    dof_names: tuple[str, ...]
+    t: list = field(default_factory=list)
+    q_d: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    qd: list = field(default_factory=list)
+    tau: list = field(default_factory=list)
+    current: list = field(default_factory=list)
+    tick_seconds: list = field(default_factory=list)    # wall time of each tick's work
+    tick_start: list = field(default_factory=list)      # s (perf_counter) when each tick began
+    cpu_seconds: list = field(default_factory=list)     # CPU time of the loop's thread in each tick
+    process_cpu_seconds: list = field(default_factory=list)   # CPU time of the whole process in it
+
+    def add(self, t, q_d, state, tau, seconds, start, cpu, process_cpu) -> None:
+        self.t.append(t)
+        self.q_d.append(np.array(q_d))
+        self.q.append(state.q)
+        self.qd.append(state.qd)
+        self.tau.append(np.array(tau))
+        self.current.append(state.current)
+        self.tick_seconds.append(seconds)
+        self.tick_start.append(start)
+        self.cpu_seconds.append(cpu)
+        self.process_cpu_seconds.append(process_cpu)
+
+    def write_csv(self, path: Path) -> None:
+        names = self.dof_names
+        header = ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in names]
+        with open(path, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(header)
+            for k in range(len(self.t)):
+                row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
+                writer.writerow([f"{v:.9g}" for v in row])
+
+
+def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,
+           on_tick=None, progress=None) -> None:
+    """Play a segment on the bus, one tick per sample: read, tick, write (and log). In real time
+    the loop sleeps to the next period; otherwise it runs as fast as the bus answers.
+    on_tick(k) runs before tick k (fault injection); progress(t, fraction, largest error) about
+    once a second of the segment's time."""
+    controller.reset()
+    traj = segment.traj
+    n = len(traj.t)
+    period = traj.t[1] - traj.t[0]
+    start = time.perf_counter()
+    next_report = 0.0
+    for k in range(n):
+        if on_tick is not None:
+            on_tick(k)
+        began = time.perf_counter()
+        cpu, process_cpu = time.thread_time(), time.process_time()
+        state = bus.read_state()
+        tau = tick(controller, segment, k, state.q, state.qd)
+        bus.write(JointCommand.torque(tau))
+        cpu, process_cpu = time.thread_time() - cpu, time.process_time() - process_cpu
+        if log is not None:
+            log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began, began, cpu, process_cpu)
+        if progress is not None and traj.t[k] >= next_report:
+            progress(traj.t[k], k / (n - 1), float(np.abs(traj.q[k] - state.q).max()))
+            next_report += 1.0
+        if realtime:
+            delay = start + (k + 1) * period - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+
+
+def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, error=None) -> dict:
+    """The figures of a run. The loop rate and the period jitter come from when the ticks began:
+    in real time the jitter is each period's distance from the nominal one, in lock-step (which
+    runs as fast as it can) from the median period. CPU per tick is the loop thread's CPU time
+    (time.thread_time) from the read to the end of the write; the process's (time.process_time)
+    also counts a simulated bus running in this process. These depend on the machine: they are
+    reported, and measured in `make bench`, never asserted by a test."""
+    if not log.t:
+        return {"completed": False, "ticks": 0, "error": str(error) if error else "no tick ran"}
+    names = log.dof_names
+    e = np.array(log.q_d) - np.array(log.q)
+    seconds = np.array(log.tick_seconds)
+    starts = np.array(log.tick_start, dtype=float)
+    if len(starts) > 1:
+        periods = np.diff(starts)
+        loop_hz = (len(starts) - 1) / float(starts[-1] - starts[0])
+    else:
+        periods, loop_hz = seconds, len(seconds) / float(np.sum(seconds))
+    jitter = np.abs(periods - (period if realtime else np.median(periods)))
+    cpu = np.array(log.cpu_seconds, dtype=float)
+    process_cpu = np.array(log.process_cpu_seconds, dtype=float)
+    return {
+        "completed": error is None and len(log.t) == planned_ticks,
+        "ticks": len(log.t),
+        "tracking_rms_rad": float(np.sqrt(np.mean(e**2))),
+        "tracking_max_rad": float(np.abs(e).max()),
+        "tracking_max_by_dof_rad": dict(zip(names, map(float, np.abs(e).max(axis=0)))),
+        "loop_hz": loop_hz,
+        "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
+        "clock": "realtime" if realtime else "lockstep",
+        "period_median_ms": float(np.median(periods) * 1e3),
+        "tick_median_ms": float(np.median(seconds) * 1e3),
+        "cpu_ms_per_tick": {"median": float(np.median(cpu) * 1e3), "p99": float(np.percentile(cpu, 99) * 1e3)},
+        "process_cpu_ms_per_tick": {"median": float(np.median(process_cpu) * 1e3),
+                                    "p99": float(np.percentile(process_cpu, 99) * 1e3)},
+        "peak_torque_nm": dict(zip(names, map(float, np.abs(np.array(log.tau)).max(axis=0)))),
+        "error": str(error) if error else None,
+        "last_tick_time_s": float(log.t[-1]),
+    }

@@ -1,0 +1,45 @@
+"""The model layer: a tree of rigid bodies (`Model`), built-in models, model files and URDF.
+
+    >>> from servodyn.model import load_model
+    >>> arm = load_model("human_arm")            # built-in, or a .urdf / servodyn .toml file
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .tree import INTEGRATORS, Body, Dof, Model, ModelError
+
+BUILTIN_DIR = Path(__file__).parent / "builtin"
+
+
+def builtin_models() -> dict[str, Path]:
+    """Built-in model names and their files."""
+    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.toml"))}
+
+
+def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
+    """A built-in model by name, a URDF file (.urdf) or a servodyn model file (.toml).
+
+    free_root: body 0 floats free (6 dofs; q starts with its origin and unit quaternion) instead
+    of being fixed to the base. For a URDF the root link itself becomes that body.
+    """
+    from .modelfile import load_model_file
+    from .urdf import load_urdf
+    builtins = builtin_models()
+    if str(name_or_path) in builtins:
+        model = load_model_file(builtins[str(name_or_path)])
+        return model.with_free_root() if free_root else model
+    path = Path(name_or_path)
+    if not path.exists():
+        raise ModelError(f"{name_or_path}: no such file, and not a built-in model "
+                         f"({', '.join(builtins) or 'none installed'})")
+    if path.suffix.lower() == ".urdf":
+        return load_urdf(path, free_root=free_root)
+    if path.suffix.lower() == ".toml":
+        model = load_model_file(path)
+        return model.with_free_root() if free_root else model
+    raise ModelError(f"{path}: unknown model format (expected .urdf or .toml)")
+
+
+__all__ = ["INTEGRATORS", "Body", "Dof", "Model", "ModelError", "builtin_models", "load_model"]

@@ -1,0 +1,76 @@
+"""The plant: the configured arm's physics, whatever wire its servos speak.
+
+The arm moves by the C core's direct dynamics (Armstrong-Green + RK4 at small_time_step). Each
+joint is driven by a `Drive` — a simulated servo or motor seen from its shaft: every step the
+plant tells each drive where its horn is (`set_present`), asks it for the motor current to hold
+over the step (`output_current`) and for the torque at the horn that current gives
+(`output_torque`), then integrates the joint torques. A Dynamixel servo is one kind of drive; a
+CAN motor model is another, and slots in without touching this file.
+
+The horn of joint k turns by direction·gear·q + zero_offset (hal.config's JointConfig).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from servodyn.control.timing import SMALL_TIME_STEP
+
+
+class Drive(Protocol):
+    """What the plant needs of an actuator, in SI at its horn."""
+
+    def set_present(self, position: float, velocity: float, current: float) -> None: ...
+
+    def output_current(self, position: float, velocity: float, dt: float) -> float: ...
+
+    def output_torque(self, current: float, velocity: float) -> float: ...
+
+
+class Plant:
+    """A model driven through its joints' drives; q and qd in the model's dof order."""
+
+    def __init__(self, model, joints: Sequence, drives: Sequence[Drive], *,
+                 small_time_step: float = SMALL_TIME_STEP, q0=None, integrator: str = "rk4"):
+        if [j.dof for j in joints] != list(model.dof_names) or len(drives) != len(joints):
+            raise ValueError("Plant: one joint and one drive per dof of the model, in its dof order")
+        self.model, self.drives = model, list(drives)
+        self.small_time_step, self.integrator = small_time_step, integrator
+        self.direction = np.array([j.direction for j in joints], dtype=float)
+        self.gear_ratio = np.array([j.gear_ratio for j in joints], dtype=float)
+        self.zero_offset = np.array([j.zero_offset for j in joints], dtype=float)
+        self.q = model.neutral_q() if q0 is None else np.array(q0, dtype=float)
+        self.qd = np.zeros(model.nv)
+        self.current = np.zeros(model.nv)          # A at each drive, over the last step
+        self.time = 0.0
+        self.publish()
+
+    def horn(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
+        """Each drive's horn angle and speed for the joint state."""
+        scale = self.direction * self.gear_ratio
+        return scale * q + self.zero_offset, scale * qd
+
+    def publish(self) -> None:
+        """Tell every drive where its horn is."""
+        position, velocity = self.horn(self.q, self.qd)
+        for drive, p, v, i in zip(self.drives, position, velocity, self.current):
+            drive.set_present(float(p), float(v), float(i))
+
+    def advance(self, duration: float) -> None:
+        """Run for `duration` seconds in small_time_step steps; each drive is sampled once per
+        step (its current held over it)."""
+        steps = max(1, int(round(duration / self.small_time_step)))
+        scale = self.direction * self.gear_ratio
+        horn_torque = np.empty(len(self.drives))
+        for _ in range(steps):
+            position, velocity = self.horn(self.q, self.qd)
+            for k, drive in enumerate(self.drives):
+                self.current[k] = drive.output_current(float(position[k]), float(velocity[k]),
+                                                       self.small_time_step)
+                horn_torque[k] = drive.output_torque(self.current[k], float(velocity[k]))
+            self.q, self.qd = self.model.step(self.q, self.qd, scale * horn_torque, self.small_time_step,
+                                              self.integrator)
+            self.time += self.small_time_step
+            self.publish()

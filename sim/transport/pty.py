@@ -1,0 +1,88 @@
+"""A simulated arm behind a pseudo-terminal, so dynamixel-sdk, or any serial client, opens it as
+a port. A background thread serves the bytes; in real time a second one advances the plant by
+the wall clock, in lock-step the host's command transactions do."""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+
+
+class PtyServer:
+    """A SimulatedArm behind a pseudo-terminal, served by a background thread."""
+
+    def __init__(self, arm, mode: str = "lockstep", control_period: float | None = None):
+        if mode not in ("lockstep", "realtime"):
+            raise ValueError("mode must be 'lockstep' or 'realtime'")
+        self.arm, self.mode = arm, mode
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)                 # bytes pass untouched: no echo, no line editing
+        tty.setraw(self.master)
+        self.path = os.ttyname(self.slave)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._serve, name="servodyn-sim", daemon=True)
+        if mode == "lockstep":
+            arm.lockstep(control_period)
+
+    def __enter__(self) -> "PtyServer":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        self._thread.start()
+        if self.mode == "realtime":
+            threading.Thread(target=self._clock, name="servodyn-plant", daemon=True).start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def inject_fault(self, servo_id: int, fault: str | int = "silent") -> None:
+        """SimulatedArm.inject_fault between two transactions: the packet in flight sees the servo
+        either before or after."""
+        with self._lock:
+            self.arm.inject_fault(servo_id, fault)
+
+    def clear_faults(self) -> None:
+        with self._lock:
+            self.arm.clear_faults()
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self.master], [], [], 0.05)
+                if not ready:
+                    continue
+                data = os.read(self.master, 4096)
+            except OSError:
+                return
+            with self._lock:
+                reply = self.arm.handle(data)
+            if reply:
+                try:
+                    os.write(self.master, reply)
+                except OSError:
+                    return
+
+    def _clock(self) -> None:
+        period = self.arm.small_time_step
+        start = time.perf_counter()
+        while not self._stop.is_set():
+            target = start + self.arm.time + period
+            delay = target - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            with self._lock:
+                self.arm.advance(period)
