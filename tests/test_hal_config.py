@@ -189,3 +189,25 @@ def test_swing_time_scale_is_the_smallest_that_fits():
     assert np.argmax(chosen["speed_ratio"]) == config.model.dof_names.index("r_shoulder_rotation")
     assert below["speed_ratio"].max() == pytest.approx(0.85, abs=0.02)
     assert chosen["current_ratio"].max() == pytest.approx(0.21, abs=0.02)
+
+
+@pytest.mark.parametrize("servo_name", sorted(SERVOS))
+def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
+    """One data sheet per servo model, read by the configuration and by the simulator: a replica
+    whose wrist servo is any accepted model loads, and the simulated servo answers a ping with
+    that model's number (a configuration with an XH430-W350 used to load and then crash the
+    simulator)."""
+    from servodyn.hal.dynamixel import decode_frame, instructions as inst
+    from servodyn.sim.arm import SimulatedArm
+    spec = SERVOS[servo_name]
+
+    def wrist(data):
+        joint = data["joint"][6]
+        joint.update(servo=servo_name, current_limit=min(joint["current_limit"], spec.max_current),
+                     torque_constant=spec.torque_constant)
+    config = build(wrist)
+    assert config.joints[6].servo is spec, "the configuration holds the catalogue's data sheet itself"
+    arm = SimulatedArm(config)
+    reply = decode_frame(arm.handle(inst.ping(7).encode()))
+    assert int.from_bytes(reply.params[:2], "little") == spec.model_number, \
+        f"servo 7 answers as model {spec.model_number} ({servo_name})"
