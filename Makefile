@@ -8,7 +8,7 @@
 #
 # On a fresh Debian machine the targets install what is missing: the virtual environment in
 # .venv with the project, and from Debian's packages a C compiler, the Python headers, the
-# arm-none-eabi toolchain and QEMU (scripts/install-*.sh).
+# arm-none-eabi toolchain and QEMU (scripts/install/).
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -44,10 +44,10 @@ venv: $(STAMP)
 # reinstall (and so rebuild the C extension) when the packaging or any C source changes
 $(STAMP): pyproject.toml $(wildcard setup.py) $(CORE_C) $(CORE_H) $(HOST_C)
 	@echo "== Python environment: installing servodyn into $(VENV)"
-	@PYTHON=$(PYTHON) scripts/install-host-deps.sh
+	@PYTHON=$(PYTHON) scripts/install/install-host-deps.sh
 	@if [ ! -x $(VENV)/bin/python ]; then \
 	  $(PYTHON) -m venv $(VENV) >/dev/null 2>&1 || { rm -rf $(VENV); \
-	    scripts/apt-install.sh python3-venv && $(PYTHON) -m venv $(VENV); }; \
+	    scripts/install/apt-install.sh python3-venv && $(PYTHON) -m venv $(VENV); }; \
 	fi
 	@echo "   pip install -e '.[test]' (log: $(VENV)/pip-install.log)"
 	@$(VENV)/bin/python -m pip install --disable-pip-version-check -e '.[test]' \
@@ -56,7 +56,7 @@ $(STAMP): pyproject.toml $(wildcard setup.py) $(CORE_C) $(CORE_H) $(HOST_C)
 	@touch $@
 
 toolchain:
-	@scripts/install-toolchain.sh
+	@scripts/install/install-toolchain.sh
 
 #---------------------------------- tests --------------------------------------------------------
 
@@ -69,7 +69,7 @@ $(MCU_OBJ): | toolchain
 
 test-python: venv fw
 	@echo "== import layers (import-linter contracts in pyproject.toml)"
-	@scripts/lint-imports.sh $(VENV) | sed -n '/^Contracts/,$$p'
+	@set -o pipefail; scripts/lint-imports.sh $(VENV) | sed -n '/^Contracts/,$$p'
 	@echo "== Python tests"
 	@$(VENV)/bin/python -m pytest -q tests
 

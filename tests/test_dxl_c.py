@@ -96,7 +96,7 @@ def dxl(tmp_path_factory):
     cc = shutil.which("cc")
     if cc is None:
         pytest.fail("no C compiler: `cc` is not on PATH. `make test` installs one "
-                    "(scripts/install-host-deps.sh), or install gcc and run again.", pytrace=False)
+                    "(scripts/install/install-host-deps.sh), or install gcc and run again.", pytrace=False)
     build = tmp_path_factory.mktemp("dxl_c")
     shim = build / "shim.c"
     shim.write_text(SHIM)

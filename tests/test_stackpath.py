@@ -65,7 +65,7 @@ int main(void) { return ping(5); }
 def compiler() -> str:
     path = shutil.which(CC)
     if path is None:
-        pytest.fail(f"{CC} not found: run scripts/install-toolchain.sh (make test installs it)")
+        pytest.fail(f"{CC} not found: run scripts/install/install-toolchain.sh (make test installs it)")
     return path
 
 
