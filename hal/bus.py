@@ -147,6 +147,17 @@ class ServoBus(ABC):
         """The largest current limit (A) a joint may configure, and how it follows."""
         return servo.max_current, f"{servo.max_current:g} A"
 
+    @classmethod
+    def wire_time(cls, joints, bus) -> tuple[float, str]:
+        """Seconds one tick's transactions occupy the wire of `bus` (hal.config.BusConfig) for
+        these joints, and what they are (the offline validator's bus check)."""
+        return 0.0, "no wire"
+
+    @classmethod
+    def command_range(cls, joint) -> tuple[float, float]:
+        """(largest joint torque the wire can command, its quantization step), N m."""
+        return float("inf"), 0.0
+
     def __init__(self, config: "RobotConfig", bus: str | None = None, *, position_margin: float = 0.05):
         if bus is None:
             if len(config.buses) != 1:

@@ -23,7 +23,8 @@ from .errors import ConfigError
 from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
-TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing"}
+TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply"}
+SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
               "torque_constant", "position_limits", "velocity_limit", "current_limit"}
@@ -60,6 +61,13 @@ class JointConfig:
 
 
 @dataclass(frozen=True)
+class SupplyConfig:
+    """The power supply every servo of the robot draws from."""
+    voltage: float                # V at the servos
+    current_limit: float | None   # A the supply can deliver (None: not given, not checked)
+
+
+@dataclass(frozen=True)
 class RobotConfig:
     name: str
     path: Path | None
@@ -68,6 +76,7 @@ class RobotConfig:
     buses: dict[str, BusConfig]
     joints: tuple[JointConfig, ...]       # model dof order
     swing_time_scale: float | None = None
+    supply: SupplyConfig | None = None    # None: the servos' nominal voltage, no current rating
 
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
@@ -226,11 +235,18 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     missing = [d for d in model.dof_names if d not in joints]
     if missing:
         raise ConfigError(f"{origin}: 'joint' missing for dof '{missing[0]}' (every dof of '{model.name}' needs one)")
+    nominal = {j.servo.nominal_voltage for j in joints.values()}
+    supply = SupplyConfig(voltage=max(nominal), current_limit=None)
+    if "supply" in data:
+        c = _Checker(data["supply"], f"{origin}: supply", SUPPLY_KEYS)
+        supply = SupplyConfig(voltage=c.positive("voltage", supply.voltage),
+                              current_limit=c.positive("current_limit") if "current_limit" in data["supply"] else None)
     time_scale = None
     if "swing" in data:
         time_scale = _Checker(data["swing"], f"{origin}: swing", {"time_scale"}).positive("time_scale")
     return RobotConfig(name=name, path=None, model_ref=model_ref, model=model, buses=buses,
-                       joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale)
+                       joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale,
+                       supply=supply)
 
 
 def builtin_configs() -> dict[str, Path]:

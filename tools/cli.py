@@ -130,6 +130,21 @@ def cmd_firmware(args) -> None:
                        f"(servo {summary['fault_servo']}, tick {summary['fault_tick']})")
 
 
+def cmd_validate(args) -> int:
+    from ..hal.config import load_config
+    from ..hal.errors import ConfigError
+    from .validate import validate
+    try:
+        config = load_config(args.config)
+        report = validate(config, args.motion, time_scale=args.time_scale, payload=args.payload,
+                          payload_body=args.payload_body, payload_com=args.payload_com,
+                          supply_voltage=args.supply_voltage, margin=args.margin, repeat=args.repeat,
+                          ambient=args.ambient, fit=args.fit, out=Path(args.out))
+    except (ConfigError, ValueError) as err:
+        raise CliError(str(err)) from None
+    return 0 if report["passed"] else 1
+
+
 def cmd_demo(args) -> None:
     from .demo import run_demo
     run_demo(args.model, Path(args.out))
@@ -212,6 +227,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/firmware", help="output folder (default out/firmware)")
     p.set_defaults(func=cmd_firmware)
 
+    p = sub.add_parser("validate", help="check a motion against the servos' limits before it runs",
+                       description="Samples the motion every control period, computes its joint torques "
+                       "(RNEA, gravity and payload included) and checks each joint against its position "
+                       "and speed limits, the servo's torque-speed envelope at the supply voltage, its "
+                       "current limit and winding temperature, the supply's rating, the bus's time per "
+                       "tick and the range the wire can command. Exit status 0 pass, 1 fail, 2 bad input.")
+    p.add_argument("config", help="robot configuration: built-in name or .toml file")
+    p.add_argument("motion", help="built-in motion, keyframe file (.toml) or trajectory CSV (.csv)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="S",
+                   help="play the motion S times slower (default 1: as written)")
+    p.add_argument("--payload", type=float, default=0.0, metavar="KG", help="a point mass carried at the hand")
+    p.add_argument("--payload-body", default=None, metavar="BODY", help="the body carrying it (default: the last)")
+    p.add_argument("--payload-com", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="where on that body, m in its frame (default: its centre of mass)")
+    p.add_argument("--supply-voltage", type=float, default=None, metavar="V",
+                   help="supply voltage (default: the configuration's)")
+    p.add_argument("--margin", type=float, default=1.0, metavar="F",
+                   help="fraction of each limit allowed (default 1.0; 0.8 keeps 20%% in reserve)")
+    p.add_argument("--repeat", type=int, default=1, metavar="N", help="plays in a row, for the heat (default 1)")
+    p.add_argument("--ambient", type=float, default=25.0, metavar="C", help="ambient temperature (default 25 °C)")
+    p.add_argument("--fit", action="store_true", help="also find the smallest time scale at which every check passes")
+    p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
+    p.set_defaults(func=cmd_validate)
+
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
@@ -224,14 +263,13 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "command", None) == "experiment" and args.out is None:
         args.out = f"out/{args.name}"
     try:
-        args.func(args)
+        return args.func(args) or 0
     except (CliError, ModelError, TrajectoryError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("servodyn: interrupted", file=sys.stderr)
         return 130
-    return 0
 
 
 if __name__ == "__main__":

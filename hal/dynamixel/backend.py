@@ -36,6 +36,7 @@ from ..errors import ServoHardwareError, ServoInitializationError, ServoOperatio
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
                             PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
+from . import instructions
 from .instructions import fast_reply_blocks, split_fast_reply
 from .protocol import (ALERT_BIT, BROADCAST_ID, FRAME_OVERHEAD, HEADER, MAX_ID, PacketError, StatusPacket,
                        encode_frame)
@@ -84,6 +85,24 @@ class DynamixelBus(ServoBus):
     def max_current(cls, servo, options: dict) -> tuple[float, str]:
         unit = options["current_unit"]
         return servo.current_limit_max * unit, f"{servo.current_limit_max} x {unit:g} A"
+
+    @classmethod
+    def wire_time(cls, joints, bus) -> tuple[float, str]:
+        """The tick's fast sync read (instruction and reply) and Goal Current sync write, 10 bits
+        a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside."""
+        ids = [j.id for j in joints]
+        read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, ids).encode())
+        reply = instructions.fast_reply_size([PRESENT_LENGTH] * len(ids))
+        write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
+        total = read + reply + write
+        return total * 10 / bus.baud, f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
+
+    @classmethod
+    def command_range(cls, joint) -> tuple[float, float]:
+        """Goal Current is clamped to ±Current Limit(38), in whole current units."""
+        unit = joint.options.get("current_unit", joint.servo.current_unit)
+        per_unit = unit * joint.torque_constant * joint.gear_ratio
+        return round(joint.current_limit / unit) * per_unit, per_unit
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
@@ -194,7 +213,7 @@ class DynamixelBus(ServoBus):
     def reply_size(self) -> int:
         """Bytes of the whole fast sync read reply: header, ID, LEN, INST, then per servo
         ERR ID DATA CRC(2) (the last block's CRC is the packet's)."""
-        return FRAME_OVERHEAD + 1 + len(self.ids) * (PRESENT_LENGTH + 4)
+        return instructions.fast_reply_size([PRESENT_LENGTH] * len(self.ids))
 
     def _fast_sync_read(self):
         """Send one fast sync read through the SDK's port and packet handler (so it is framed and

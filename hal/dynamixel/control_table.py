@@ -157,16 +157,25 @@ class Model(ServoSpec):
         )
 
 
-# the e-manual's 12 V rows; Velocity Limit defaults from the control tables (the XH540-W270's is not
-# in our notes: its no-load speed in 0.229 rpm units, rounded down)
-XM430_W350 = Model(name="XM430-W350", model_number=1020, gear_ratio=353.5, stall_torque=4.1, stall_current=2.3,
-                   no_load_speed_rpm=46.0, current_limit_max=1193, velocity_limit_default=200)
-XM540_W270 = Model(name="XM540-W270", model_number=1120, gear_ratio=272.5, stall_torque=10.6, stall_current=4.4,
-                   no_load_speed_rpm=30.0, current_limit_max=2047, velocity_limit_default=128)
-XH430_W350 = Model(name="XH430-W350", model_number=1000, gear_ratio=353.5, stall_torque=3.4, stall_current=1.3,
-                   no_load_speed_rpm=30.0, current_limit_max=648, velocity_limit_default=130)
-XH540_W270 = Model(name="XH540-W270", model_number=1100, gear_ratio=272.5, stall_torque=9.9, stall_current=4.9,
-                   no_load_speed_rpm=39.0, current_limit_max=2047, velocity_limit_default=170)
+# The e-manual's 12 V rows (stall torque and current, no-load speed), Current Limit(38) ranges and
+# Velocity Limit(44) defaults. The XH540-W270's Velocity Limit default is not in our notes: its
+# no-load speed in 0.229 rpm units, rounded down. No-load current: a fit of the XM430-W350's
+# torque-current curve gives 0.125 A (5.4 % of its stall current); the others are given the same
+# fraction. Temperature Limit(31) defaults to 80 °C. ROBOTIS publishes no thermal resistance or
+# time constant: R_th and τ_th are estimates for a 28 mm (X430) and a 33 mm (X540) motor in a
+# closed plastic case — R_th such that the winding reaches 80 °C from 25 °C at about 40 % of the
+# stall current, τ_th a few minutes — to be identified on the arm from Present Temperature(146)
+# under a known current.
+_X430 = dict(gear_ratio=353.5, thermal_resistance=12.0, thermal_time_constant=240.0)
+_X540 = dict(gear_ratio=272.5, thermal_resistance=6.0, thermal_time_constant=420.0)
+XM430_W350 = Model(name="XM430-W350", model_number=1020, stall_torque=4.1, stall_current=2.3, no_load_speed_rpm=46.0,
+                   no_load_current=0.125, current_limit_max=1193, velocity_limit_default=200, **_X430)
+XM540_W270 = Model(name="XM540-W270", model_number=1120, stall_torque=10.6, stall_current=4.4, no_load_speed_rpm=30.0,
+                   no_load_current=0.24, current_limit_max=2047, velocity_limit_default=128, **_X540)
+XH430_W350 = Model(name="XH430-W350", model_number=1000, stall_torque=3.4, stall_current=1.3, no_load_speed_rpm=30.0,
+                   no_load_current=0.07, current_limit_max=648, velocity_limit_default=130, **_X430)
+XH540_W270 = Model(name="XH540-W270", model_number=1100, stall_torque=9.9, stall_current=4.9, no_load_speed_rpm=39.0,
+                   no_load_current=0.26, current_limit_max=2047, velocity_limit_default=170, **_X540)
 SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270)}
 MODELS = {m.model_number: m for m in SERVOS.values()}
 

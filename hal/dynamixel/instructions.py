@@ -186,6 +186,11 @@ def encode_fast_reply(blocks: Sequence[FastReadBlock]) -> bytes:
 FAST_BLOCKS_START = 8       # header(4) ID LEN(2) INST, then ERR ID DATA CRC(2) per servo
 
 
+def fast_reply_size(lengths: Sequence[int]) -> int:
+    """Bytes of a whole fast read reply whose blocks hold `lengths` data bytes (unstuffed)."""
+    return FAST_BLOCKS_START + sum(n + 4 for n in lengths)
+
+
 def fast_reply_blocks(frame: bytes, lengths: Sequence[int], ids: Sequence[int] | None = None) -> list[FastReadBlock]:
     """The whole blocks at the start of a fast read reply frame, which may be cut short: block i
     holds lengths[i] data bytes and ends in the CRC of the frame up to there (the last block's is

@@ -308,6 +308,26 @@ class Model:
         return Model(out, name=self.name, gravity=self.gravity, description=self.description,
                      source=self.source)
 
+    def with_payload(self, mass: float, body: str | None = None, com=None) -> "Model":
+        """The same model carrying a point mass rigidly on a body (the last one, the hand, by
+        default) at `com` in that body's user frame (its centre of mass by default)."""
+        name = self.body_names[-1] if body is None else body
+        if name not in self.body_names:
+            raise ModelError(f"no body '{name}' in model '{self.name}' ({', '.join(self.body_names)})")
+        if not (math.isfinite(mass) and mass >= 0):
+            raise ModelError(f"payload mass must be a finite number >= 0 kg, got {mass}")
+        k = self.body_names.index(name)
+        host = self.bodies[k]
+        at = host.com if com is None else np.asarray(com, dtype=float)
+        if at.shape != (3,) or not np.all(np.isfinite(at)):
+            raise ModelError(f"payload position must be three finite numbers (m), got {com}")
+        from .modelfile import combine
+        total, centre, inertia = combine([(host.mass, host.com, host.inertia), (mass, at, np.zeros((3, 3)))])
+        bodies = list(self.bodies)
+        bodies[k] = replace(host, mass=total, com=centre, inertia=inertia)
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
+
     def with_free_root(self) -> "Model":
         """The same model with body 0 floating free instead of fixed to the base."""
         first = self.bodies[0]

@@ -1,0 +1,262 @@
+"""The offline validator (tools/validate.py): torques against Pinocchio, one motion per check
+built to break exactly that check, the margin, the fit, and one line with exit 2 for bad input."""
+
+import copy
+import csv
+import json
+import subprocess
+import sys
+import tomllib
+
+import numpy as np
+import pytest
+
+from servodyn.hal.config import CONFIGS_DIR, config_from_dict, load_config
+from servodyn.hal.dynamixel.control_table import XM540_W270
+from servodyn.tools.validate import CHECKS, Limits, check, motion_path, validate
+
+with open(CONFIGS_DIR / "replica.toml", "rb") as f:
+    REPLICA = tomllib.load(f)
+QUIET = dict(say=lambda *a, **k: None)
+ABDUCTED = [0.0, 1.4, 0.0, 0.0, 0.0, 0.0, 0.0]     # the arm held out sideways: the shoulder carries it
+
+
+def config(mutate=None):
+    data = copy.deepcopy(REPLICA)
+    if mutate is not None:
+        mutate(data)
+    return config_from_dict(data, origin="test.toml", base=CONFIGS_DIR)
+
+
+def write_csv(path, names, t, q, qd, qdd):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t"] + [f"{p}_{n}" for p in ("q", "qd", "qdd") for n in names])
+        w.writerows(np.hstack([t[:, None], q, qd, qdd]).tolist())
+    return str(path)
+
+
+def hold(path, names, pose, seconds=1.0):
+    t = np.arange(int(round(seconds / 1e-3)) + 1) * 1e-3
+    q = np.tile(pose, (len(t), 1))
+    return write_csv(path, names, t, q, 0 * q, 0 * q)
+
+
+def ramp(path, names, joint, speed, accel=0.0, seconds=0.5, start=None):
+    """Joint `joint` at constant acceleration from `speed` (constant speed when accel is 0)."""
+    t = np.arange(int(round(seconds / 1e-3)) + 1) * 1e-3
+    q = np.tile(np.zeros(len(names)) if start is None else start, (len(t), 1))
+    qd, qdd = np.zeros_like(q), np.zeros_like(q)
+    q[:, joint] += speed * t + accel * t**2 / 2
+    qd[:, joint] = speed + accel * t
+    qdd[:, joint] = accel
+    return write_csv(path, names, t, q, qd, qdd)
+
+
+def failing(report):
+    return {v["check"] for v in report["violations"]}
+
+
+def test_peak_torques_are_pinocchios(twin, tmp_path):
+    """The report's peak torques are the RNEA of every sample: Pinocchio's on the exported URDF,
+    within 1e-9 relative, for the swing and with a 0.5 kg payload at the hand (added to
+    Pinocchio's own inertia of the hand at its centre of mass)."""
+    cfg = load_config("replica")
+    traj = motion_path("tennis_forehand", cfg.model).at_scale(1.0)
+    pin = twin(cfg.model)
+    expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
+    report = validate(cfg, "tennis_forehand", **QUIET)
+    peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
+    assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), f"{peaks} vs Pinocchio {expected}"
+
+    hand = pin.model.getJointId(cfg.model.bodies[-1].dofs[-1].name)
+    inertia = pin.model.inertias[hand]
+    pin.model.inertias[hand] = inertia + pin.pin.Inertia(0.5, inertia.lever, np.zeros((3, 3)))
+    pin.data = pin.model.createData()
+    expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
+    report = validate(cfg, "tennis_forehand", payload=0.5, **QUIET)
+    peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
+    assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), "the payload as Pinocchio carries it"
+    assert report["payload"]["body"] == "r_hand"
+
+
+def test_the_replica_swing_at_human_speed_and_slower():
+    """At human speed the replica's servos cannot swing (the shoulder rotation needs 8 rad/s, an
+    XM540-W270 turns 3.1); at 3x everything is within the limits; with 20 % in reserve 3x fails on
+    the shoulder rotation's speed and 4x (the configuration's time scale) passes."""
+    cfg = load_config("replica")
+    human = validate(cfg, "tennis_forehand", **QUIET)
+    assert not human["passed"] and {"speed", "torque_speed"} <= failing(human), failing(human)
+    rotation = human["joints"]["r_shoulder_rotation"]
+    assert rotation["peak_speed_rad_s"] > 2.5 * XM540_W270.no_load_speed, "the swing's 8 rad/s"
+    assert validate(cfg, "tennis_forehand", time_scale=3.0, **QUIET)["passed"]
+    reserve = validate(cfg, "tennis_forehand", time_scale=3.0, margin=0.8, **QUIET)
+    assert not reserve["passed"] and reserve["joints"]["r_shoulder_rotation"]["worst_check"] in ("speed", "torque_speed")
+    assert validate(cfg, "tennis_forehand", time_scale=4.0, margin=0.8, **QUIET)["passed"]
+
+
+def test_fit_finds_the_smallest_passing_time_scale():
+    """The fitted scale passes and 0.2 % faster fails (the bisection stops at 0.1 %)."""
+    cfg = load_config("replica")
+    report = validate(cfg, "tennis_forehand", margin=0.8, fit=True, **QUIET)
+    scale = report["fit_time_scale"]
+    assert 3.0 < scale < 4.0, f"between the 3x that fails and the 4x that passes with 20 % reserve: {scale}"
+    assert validate(cfg, "tennis_forehand", time_scale=scale, margin=0.8, **QUIET)["passed"]
+    assert not validate(cfg, "tennis_forehand", time_scale=scale * 0.998, margin=0.8, **QUIET)["passed"]
+
+
+# --- one motion per check, each breaking that check alone --------------------------------------
+
+def test_position(tmp_path):
+    """The wrist configured to 0.5 rad of flexion, held at 0.6 (inside the model's 1.40)."""
+    def narrow(data):
+        data["joint"][5]["position_limits"] = [-0.5, 0.5]
+    cfg = config(narrow)
+    pose = np.zeros(7)
+    pose[5] = 0.6
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, pose), **QUIET)
+    assert failing(report) == {"position"}, report["violations"]
+    v = report["violations"][0]
+    assert (v["dof"], v["value"], v["limit"]) == ("r_wrist_flexion", pytest.approx(0.6), 0.5)
+
+
+def test_speed_and_within_one_percent(tmp_path):
+    """The wrist's velocity limit set to 1 rad/s: 1.01 rad/s fails on speed alone, 0.99 passes."""
+    def slow(data):
+        data["joint"][5]["velocity_limit"] = 1.0
+    cfg = config(slow)
+    names = cfg.model.dof_names
+    over = validate(cfg, ramp(tmp_path / "over.csv", names, 5, 1.01), **QUIET)
+    assert failing(over) == {"speed"}, over["violations"]
+    assert over["violations"][0]["t_s"] == 0.0, "from the first sample"
+    assert validate(cfg, ramp(tmp_path / "under.csv", names, 5, 0.99), **QUIET)["passed"], "1 % under the limit"
+
+
+def test_torque_speed(tmp_path):
+    """The elbow accelerated hard near its no-load speed: within its speed and current limits, but
+    torque and speed together leave the envelope (driving quadrant)."""
+    cfg = config()
+    names = cfg.model.dof_names
+    report = validate(cfg, ramp(tmp_path / "m.csv", names, 3, 3.8, accel=50.0, seconds=0.004,
+                                start=np.array([0, 0, 0, 1.0, 0, 0, 0])), **QUIET)
+    assert failing(report) == {"torque_speed"}, report["violations"]
+    row = report["joints"]["r_elbow_flexion"]
+    assert row["checks"]["speed"] < 1 and row["checks"]["current"] < 1, row["checks"]
+
+
+def test_current(tmp_path):
+    """The shoulder abduction holding the arm out, its current limit set between the motor current
+    the torque needs and that plus the no-load current: only the current check fails."""
+    cfg = load_config("replica")
+    tau = cfg.model.inverse_dynamics(np.array(ABDUCTED), np.zeros(7), np.zeros(7))[1]
+    motor = tau / cfg.joints[1].torque_constant
+
+    def tight(data):
+        data["joint"][1]["current_limit"] = motor + XM540_W270.no_load_current / 2
+    cfg = config(tight)
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED), **QUIET)
+    assert failing(report) == {"current"}, report["violations"]
+    assert report["violations"][0]["dof"] == "r_shoulder_abduction"
+
+
+def test_temperature(tmp_path):
+    """The arm held out with a 1 kg payload at the hand, 40 plays of 10 s in a row: the shoulder
+    abduction stays within its current limit but its winding passes 80 °C."""
+    cfg = config()
+    motion = hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED, seconds=10.0)
+    once = validate(cfg, motion, payload=1.0, **QUIET)
+    assert once["passed"], once["violations"]
+    report = validate(cfg, motion, payload=1.0, repeat=40, **QUIET)
+    assert failing(report) == {"temperature"}, report["violations"]
+    v = report["violations"][0]
+    assert v["dof"] == "r_shoulder_abduction" and v["value"] > 80.0 and v["limit"] == 80.0
+
+
+def test_supply(tmp_path):
+    """A supply rated below what holding the arm out draws."""
+    cfg = config()
+    motion = hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED)
+    drawn = validate(cfg, motion, **QUIET)["supply"]["peak_current_a"]
+
+    def weak(data):
+        data["supply"] = {"voltage": 12.0, "current_limit": 0.5 * drawn}
+    report = validate(config(weak), motion, **QUIET)
+    assert failing(report) == {"supply"}, report["violations"]
+    assert report["violations"][0]["dof"] is None, "the supply is the robot's, not a joint's"
+
+
+def test_bus(tmp_path):
+    """At 57,600 baud one tick's 162 bytes take 28 ms, far over the 1 ms period."""
+    def slow(data):
+        data["bus"]["arm"]["baud"] = 57600
+    cfg = config(slow)
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7)), **QUIET)
+    assert failing(report) == {"bus"}, report["violations"]
+    assert report["violations"][0]["value"] == pytest.approx(162 * 10 / 57600)
+
+
+def test_command_range_and_its_quantization():
+    """On Dynamixel the wire commands Goal Current within ±Current Limit in 2.69 mA units: the
+    range is the current limit's torque (so the current check, which adds the no-load current,
+    always trips first: the check exists for CAN dialects' TMAX), the step one unit's torque."""
+    cfg = load_config("replica")
+    limits = Limits.of(cfg, 12.0)
+    assert limits.command_step[0] == pytest.approx(2.69e-3 * 2.409), "one current unit at the shoulder"
+    assert limits.command[0] == pytest.approx(round(4.4 / 2.69e-3) * 2.69e-3 * 2.409)
+    result = check(cfg.model, limits, motion_path("tennis_forehand", cfg.model).at_scale(1.0))
+    assert np.all(result.ratios["command_range"] <= result.ratios["current"]), "current trips first"
+
+
+def test_every_check_is_in_the_report(tmp_path):
+    report = validate(load_config("replica"), "tennis_forehand", time_scale=4.0, out=tmp_path, **QUIET)
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert saved["passed"] and saved["time_scale"] == 4.0 and saved["duration_s"] == pytest.approx(7.2)
+    for row in saved["joints"].values():
+        assert set(row["checks"]) == set(CHECKS)
+        for key in ("peak_torque_nm", "peak_speed_rad_s", "peak_current_a", "peak_temperature_c",
+                    "worst_check", "worst_ratio", "passed"):
+            assert key in row, key
+    assert (tmp_path / "envelopes.png").stat().st_size > 10_000, "the torque-speed planes were drawn"
+    assert report["violations"] == []
+
+
+# --- the command line -----------------------------------------------------------------------------
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "validate", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_cli_exit_status(tmp_path):
+    """0 pass, 1 fail with the first violation in one line, 2 bad input with one line."""
+    ok = run("replica", "tennis_forehand", "--time-scale", 4, "--out", tmp_path / "a")
+    assert ok.returncode == 0 and "PASS" in ok.stdout, ok.stdout + ok.stderr
+    bad = run("replica", "tennis_forehand", "--out", tmp_path / "b")
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    assert "FAIL: r_shoulder_rotation" in bad.stdout, bad.stdout
+
+
+@pytest.mark.parametrize("args, words", [
+    (["replica", "no_such_motion"], ["no_such_motion"]),
+    (["no_such_config", "tennis_forehand"], ["no_such_config"]),
+    (["replica", "tennis_forehand", "--time-scale", "-1"], ["--time-scale"]),
+    (["replica", "tennis_forehand", "--margin", "0"], ["--margin"]),
+    (["replica", "tennis_forehand", "--repeat", "0"], ["--repeat"]),
+    (["replica", "tennis_forehand", "--supply-voltage", "nan"], ["--supply-voltage"]),
+    (["replica", "tennis_forehand", "--payload", "-2"], ["payload"]),
+    (["replica", "tennis_forehand", "--payload", "1", "--payload-body", "tail"], ["tail"]),
+])
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
+    res = run(*args, "--out", tmp_path)
+    assert res.returncode == 2, res.stdout + res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("servodyn: error:"), res.stderr
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+
+
+def test_cli_bad_csv(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,q_nothing\n0,0\n0.1,0.1\n")
+    res = run("replica", bad, "--out", tmp_path)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
