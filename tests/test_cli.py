@@ -43,10 +43,10 @@ def test_torques_with_full_state_equal_the_api(tmp_path):
     write_traj(tmp_path / "traj.csv", t, arm.dof_names, q, qd, qdd)
     res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
     assert res.returncode == 0, res.stderr
-    assert "2001 samples" in res.stdout
+    assert "2001 samples" in res.stdout, "the 2.0 s reach every 1 ms, both ends included"
     header, data = read_csv(tmp_path / "tau.csv")
-    assert header == ["t"] + [f"tau_{n}" for n in arm.dof_names]
-    assert np.array_equal(data[:, 0], t)
+    assert header == ["t"] + [f"tau_{n}" for n in arm.dof_names], "t, then one tau column per dof in model order"
+    assert np.array_equal(data[:, 0], t), "the time column is the trajectory's, unchanged"
     assert np.array_equal(data[:, 1:], arm.inverse_dynamics(q, qd, qdd)), "full precision in the CSV"
 
 
@@ -68,8 +68,8 @@ def test_torques_derive_velocity_and_acceleration_from_a_spline(tmp_path):
 
 def test_models_lists_the_builtins():
     res = run("models")
-    assert res.returncode == 0
-    assert "human_arm" in res.stdout and "human15" in res.stdout
+    assert res.returncode == 0, res.stderr
+    assert "human_arm" in res.stdout and "human15" in res.stdout, "both built-in models listed"
 
 
 def test_export_loads_in_pinocchio(tmp_path):
@@ -77,8 +77,8 @@ def test_export_loads_in_pinocchio(tmp_path):
     res = run("export", "human_arm", tmp_path / "arm.urdf")
     assert res.returncode == 0, res.stderr
     model = pin.buildModelFromUrdf(str(tmp_path / "arm.urdf"))
-    assert model.nq == 7
-    assert sum(i.mass for i in model.inertias) == pytest.approx(3.5)
+    assert model.nq == 7, "human_arm's 7 hinges: shoulder 3, elbow, forearm, wrist 2"
+    assert sum(i.mass for i in model.inertias) == pytest.approx(3.5), "human_arm's 3.50 kg, every body's mass kept"
 
 
 GOOD_HEADER = "t," + ",".join(f"q_{n}" for n in servodyn.load_model("human_arm").dof_names)
@@ -99,10 +99,10 @@ def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
     path = tmp_path / "bad.csv"
     path.write_text(content)
     res = run("torques", "human_arm", path, "-o", tmp_path / "out.csv")
-    assert res.returncode == 2
-    assert message in res.stderr
-    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
-    assert not (tmp_path / "out.csv").exists()
+    assert res.returncode == 2, f"bad input exits 2 (a CliError), got {res.returncode}: {res.stderr}"
+    assert message in res.stderr, res.stderr
+    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, "one line, no traceback"
+    assert not (tmp_path / "out.csv").exists(), "no torque file for a refused trajectory"
 
 
 @pytest.mark.parametrize("args,message", [
@@ -112,23 +112,23 @@ def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
 ])
 def test_bad_arguments_give_one_line(tmp_path, args, message):
     res = run(*args, cwd=tmp_path)
-    assert res.returncode == 2
-    assert message in res.stderr and "Traceback" not in res.stderr
+    assert res.returncode == 2, f"bad input exits 2 (a CliError), got {res.returncode}: {res.stderr}"
+    assert message in res.stderr and "Traceback" not in res.stderr, res.stderr
 
 
 def test_bad_model_file_gives_one_line(tmp_path):
     (tmp_path / "m.toml").write_text("[[body]]\nname='a'\n[body.solid]\ntype='sphere'\nradius=0\nmass=1\n")
     res = run("export", tmp_path / "m.toml", tmp_path / "m.urdf")
-    assert res.returncode == 2
-    assert "dimensions must be positive" in res.stderr and "Traceback" not in res.stderr
+    assert res.returncode == 2, f"a bad model exits 2 (a ModelError), got {res.returncode}: {res.stderr}"
+    assert "dimensions must be positive" in res.stderr and "Traceback" not in res.stderr, res.stderr
 
 
 def test_demo_prints_the_torque_profile(tmp_path):
     res = run("demo", "--out", tmp_path / "demo")
     assert res.returncode == 0, res.stderr
-    assert "peak" in res.stdout and "inverse dynamics" in res.stdout
+    assert "peak" in res.stdout and "inverse dynamics" in res.stdout, "the timing line and the peak row"
     for name in ("torques.csv", "motion.csv", "torques.png"):
-        assert (tmp_path / "demo" / name).stat().st_size > 0
+        assert (tmp_path / "demo" / name).stat().st_size > 0, f"{name} written and not empty"
 
 
 def test_torques_refuses_a_trajectory_beyond_the_limits(tmp_path):
@@ -137,13 +137,15 @@ def test_torques_refuses_a_trajectory_beyond_the_limits(tmp_path):
     q[100:, arm.dof_names.index("r_elbow_flexion")] = 3.0
     write_traj(tmp_path / "traj.csv", t, arm.dof_names, q, qd, qdd)
     res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
-    assert res.returncode == 2
-    assert "sample 101), dof 'r_elbow_flexion': position 3 rad beyond the limit" in res.stderr
+    assert res.returncode == 2, f"the elbow's limit is 2.618 rad (150 deg); 3 rad is refused: {res.stderr}"
+    assert "sample 101), dof 'r_elbow_flexion': position 3 rad beyond the limit" in res.stderr, \
+        f"the first sample out of range, q[100], is sample 101: {res.stderr}"
     res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv", "--ignore-limits")
-    assert res.returncode == 0
+    assert res.returncode == 0, f"--ignore-limits skips the check: {res.stderr}"
     write_traj(tmp_path / "ok.csv", t, arm.dof_names, *reach_motion(arm)[1:])
     res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", "--max-velocity", "0.5")
-    assert res.returncode == 2 and "speed" in res.stderr
+    assert res.returncode == 2 and "speed" in res.stderr, \
+        f"the reach peaks at 2.86 rad/s (shoulder flexion), beyond --max-velocity 0.5: {res.stderr}"
 
 
 def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
@@ -167,8 +169,9 @@ def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
         path = re.search(r" on (/dev/\S+)$", first.strip())
         assert path, first
         port = sdk.PortHandler(path.group(1))
-        assert port.openPort() and port.setBaudRate(4_000_000)
-        assert sdk.PacketHandler(2.0).ping(port, 1) == (1120, sdk.COMM_SUCCESS, 0)
+        assert port.openPort() and port.setBaudRate(4_000_000), "the replica's bus runs at 4 Mbps"
+        assert sdk.PacketHandler(2.0).ping(port, 1) == (1120, sdk.COMM_SUCCESS, 0), \
+            "servo 1, an XM540-W270 (model number 1120), answers with no error"
         proc.send_signal(signal.SIGINT)
         began = time.monotonic()
         out, err = proc.communicate(timeout=5)
@@ -179,6 +182,6 @@ def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
             proc.communicate()
         if port is not None:
             port.closePort()
-    assert proc.returncode == 0 and took < 5
-    assert "stopped after" in out
+    assert proc.returncode == 0 and took < 5, f"SIGINT ended it with status {proc.returncode} after {took:.1f} s"
+    assert "stopped after" in out, out
     assert err == "", err

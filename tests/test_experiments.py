@@ -15,11 +15,14 @@ def test_pendulum_goals(tmp_path):
     energy drift <= 1e-4 of the largest kinetic energy, the centre of mass still within 1e-6 m
     (the support cancels the weight)."""
     summary = experiment_pendulum(tmp_path, table=False)
-    assert summary["small_time_step_s"] == 1.25e-4
-    assert summary["energy_drift_rel"] <= 1e-4
-    assert summary["com_displacement_max_m"] <= 1e-6
-    assert (tmp_path / "pendulum_snapshots.png").stat().st_size > 10_000
-    assert json.loads((tmp_path / "summary.json").read_text())["energy_drift_rel"] == summary["energy_drift_rel"]
+    assert summary["small_time_step_s"] == 1.25e-4, "the chosen 0.125 ms step"
+    assert summary["energy_drift_rel"] <= 1e-4, \
+        f"energy drift {summary['energy_drift_rel']:.1e} of the largest kinetic energy"
+    assert summary["com_displacement_max_m"] <= 1e-6, \
+        f"centre of mass moved {summary['com_displacement_max_m']:.1e} m; the support cancels the weight"
+    assert (tmp_path / "pendulum_snapshots.png").stat().st_size > 10_000, "the snapshots drawn, not an empty figure"
+    assert json.loads((tmp_path / "summary.json").read_text())["energy_drift_rel"] == summary["energy_drift_rel"], \
+        "summary.json holds the returned figures"
 
 
 def test_still_goals(tmp_path):
@@ -27,30 +30,35 @@ def test_still_goals(tmp_path):
     joint within 1e-6 rad; feed-forward alone lets the inverted-pendulum head fall (more than
     1e-3 rad), starting from rounding."""
     summary = experiment_still(tmp_path)
-    assert summary["max_drift_rad"] <= 1e-6
-    assert summary["max_drift_ff_only_rad"] > 1e-3
+    assert summary["max_drift_rad"] <= 1e-6, f"feed-forward + PD let a joint drift {summary['max_drift_rad']:.1e} rad"
+    assert summary["max_drift_ff_only_rad"] > 1e-3, \
+        f"feed-forward alone drifted only {summary['max_drift_ff_only_rad']:.1e} rad; the head should fall"
     torques = summary["torques_nm"]
-    assert set(torques) >= {"neck_flexion", "r_shoulder_flexion", "l_elbow_flexion"}
+    assert set(torques) >= {"neck_flexion", "r_shoulder_flexion", "l_elbow_flexion"}, \
+        "holding torques of upper-body dofs"
     assert abs(torques["r_shoulder_flexion"]) > 1.0, "a raised arm needs a shoulder torque"
 
 
 def test_swing_keys_and_tracking(tmp_path):
     summary = experiment_swing(tmp_path)
-    assert summary["completed"]
-    assert summary["tracking_max_rad"] <= np.radians(5)
-    assert 0 < summary["tracking_rms_rad"] <= summary["tracking_max_rad"]
+    assert summary["completed"], "the plant stayed finite to the end of the swing"
+    assert summary["tracking_max_rad"] <= np.radians(5), \
+        f"largest tracking error {np.degrees(summary['tracking_max_rad']):.2f} deg"
+    assert 0 < summary["tracking_rms_rad"] <= summary["tracking_max_rad"], \
+        "an rms error is positive and cannot exceed the largest"
     peak = summary["peak_torque_nm"]
     assert 5.0 <= peak["r_shoulder_flexion"] <= 30.0, "a bare 3.5 kg arm: some 10 N m at the shoulder"
     for name in ("swing_postures.png", "swing_shoulder_torques.png", "swing_tau.csv"):
-        assert (tmp_path / name).stat().st_size > 1000
+        assert (tmp_path / name).stat().st_size > 1000, f"{name} written with content"
 
 
 def test_experiment_command_line(tmp_path):
     res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "experiment", "still", "--out",
                           str(tmp_path / "still")], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
-    assert "largest drift" in res.stdout
-    assert (tmp_path / "still" / "summary.json").exists()
+    assert "largest drift" in res.stdout, res.stdout
+    assert (tmp_path / "still" / "summary.json").exists(), "--out is where the summary goes"
     res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "experiment", "juggle"],
                          capture_output=True, text=True, timeout=60)
-    assert res.returncode == 2 and "invalid choice" in res.stderr
+    assert res.returncode == 2 and "invalid choice" in res.stderr, \
+        f"argparse refuses an unknown experiment: {res.stderr}"

@@ -47,12 +47,13 @@ def test_codegen_model_is_the_hosts(tmp_path):
     computes nothing at start-up."""
     config = load_config("replica")
     fields = model_fields(config.model)
-    assert fields["nbody"] == 7 and fields["ndof"] == 7 and fields["nq"] == 7
+    assert fields["nbody"] == 7 and fields["ndof"] == 7 and fields["nq"] == 7, "the replica: 7 bodies, one hinge each"
     # the derived first moment is mass x com, as sd_model_setup computes it
-    assert np.allclose(fields["body_mcom"], fields["body_mass"][:, None] * fields["body_com"], rtol=1e-12)
+    assert np.allclose(fields["body_mcom"], fields["body_mass"][:, None] * fields["body_com"], rtol=1e-12), \
+        "body_mcom is mass x com"
     files = generate(config)
-    assert "#define SD_MAX_BODY 7" in files["servodyn_gen.h"]
-    assert "#define SD_MAX_KNOT 11" in files["servodyn_gen.h"]
+    assert "#define SD_MAX_BODY 7" in files["servodyn_gen.h"], "the core's arrays sized to the replica's 7 bodies"
+    assert "#define SD_MAX_KNOT 11" in files["servodyn_gen.h"], "sized to the forehand's 11 keyframes"
     for key in ("const sd_model fw_model", "const sd_trajectory fw_swing", "const fw_servo fw_servos",
                 "const fw_gains fw_swing_gains", ".swing_ticks = 7201"):
         assert key in files["servodyn_gen.c"], key
@@ -63,9 +64,9 @@ def test_codegen_cli_refuses_bad_config(tmp_path):
     bad.write_text('name = "x"\nmodel = "replica"\n[bus.arm]\nkind = "dynamixel"\nbaud = 12\n')
     run = subprocess.run([str(ROOT / ".venv/bin/servodyn"), "codegen", "--config", str(bad), "-o",
                           str(tmp_path / "gen")], capture_output=True, text=True)
-    assert run.returncode == 2
-    assert run.stderr.startswith("servodyn: error:") and "baud" in run.stderr
-    assert "Traceback" not in run.stderr
+    assert run.returncode == 2, f"a bad configuration exits 2 (a ConfigError): {run.stderr}"
+    assert run.stderr.startswith("servodyn: error:") and "baud" in run.stderr, f"baud 12 is named: {run.stderr}"
+    assert "Traceback" not in run.stderr, run.stderr
 
 
 def test_firmware_swings_the_replica(swing_run, host_swing):
@@ -74,17 +75,18 @@ def test_firmware_swings_the_replica(swing_run, host_swing):
     report, record, arm, summary = swing_run
     expected_ticks = int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1 + 7201
     assert report["result"] == "done" and report["exit_code"] == 0, report
-    assert report["ticks"] == expected_ticks
-    assert len(record.goals) == expected_ticks
+    assert report["ticks"] == expected_ticks, "2 s of homing at 1 ms, then the 7201 ticks of the swing"
+    assert len(record.goals) == expected_ticks, "one Goal Current sync write per tick"
     # float firmware vs double host, same measured state: rounding can flip the last unit only
     assert summary["goal_max_diff_units"] <= 1, summary["goal_diff_counts"]
     host_max = host_swing["tracking_max_rad"]
     assert abs(summary["tracking_max_rad"] - host_max) <= 0.10 * host_max, (summary["tracking_max_rad"], host_max)
-    assert math.degrees(summary["tracking_max_rad"]) < 3.0
+    assert math.degrees(summary["tracking_max_rad"]) < 3.0, \
+        f"largest tracking error {math.degrees(summary['tracking_max_rad']):.2f} deg"
     # the end of the run switches every servo off
-    assert record.torque_off and not any(s.torque_enabled for s in arm.servos)
-    assert report["limited"] == 0
-    assert report["stack"] <= 2048
+    assert record.torque_off and not any(s.torque_enabled for s in arm.servos), "a servo left with torque on"
+    assert report["limited"] == 0, f"{report['limited']} ticks clamped: the swing's time scale fits the servos"
+    assert report["stack"] <= 2048, f"{report['stack']} B of stack used; the budget is 2 KB"
 
 
 def test_budget_flash_ram_stack(images):
@@ -92,11 +94,12 @@ def test_budget_flash_ram_stack(images):
     stack) <= 16 KB; the stack used is checked by the swing test (<= 2 KB)."""
     size = subprocess.run(["arm-none-eabi-size", str(images["an386"])], capture_output=True, text=True)
     text, data, bss = (int(v) for v in size.stdout.splitlines()[1].split()[:3])
-    assert text + data <= 64 * 1024
-    assert data + bss <= 16 * 1024
+    assert text + data <= 64 * 1024, f"flash {text + data} B over the 64 KB goal"
+    assert data + bss <= 16 * 1024, f"RAM {data + bss} B (4 KB stack included) over the 16 KB goal"
     nm = subprocess.run(["arm-none-eabi-nm", str(images["an386"])], capture_output=True, text=True).stdout
     names = {line.split()[-1] for line in nm.splitlines() if line.strip()}
-    assert not names & {"malloc", "_sbrk", "printf", "puts", "__aeabi_dadd", "__aeabi_f2d", "sin", "cos"}
+    assert not names & {"malloc", "_sbrk", "printf", "puts", "__aeabi_dadd", "__aeabi_f2d", "sin", "cos"}, \
+        "no heap, no stdio, no double arithmetic or double libm"
 
 
 def _fault_run(images, board="an386", **kwargs):
@@ -107,9 +110,9 @@ def _fault_run(images, board="an386", **kwargs):
 
 def _assert_safe_stop(report, record, arm, fault, code):
     assert report["result"] == "fault" and report["fault"] == fault, report
-    assert report["exit_code"] == code
+    assert report["exit_code"] == code, f"a {fault} fault exits {code} (firmware/app's fault codes)"
     assert record.torque_off, "no torque-off sync write after the fault"
-    assert not any(s.torque_enabled for s in arm.servos)
+    assert not any(s.torque_enabled for s in arm.servos), "a servo left with torque on"
 
 
 def test_silent_servo_stops_with_torque_off(images):
@@ -118,7 +121,7 @@ def test_silent_servo_stops_with_torque_off(images):
             arm.inject_fault(3, "silent")
     report, record, arm = _fault_run(images, on_tick=silence)
     _assert_safe_stop(report, record, arm, "timeout", 10)
-    assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1
+    assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1, "servo 3, at the read after the injection"
     assert len(record.goals) == FAULT_TICK + 1          # no command after the silent read
 
 
@@ -128,7 +131,8 @@ def test_hardware_error_stops_with_torque_off(images):
             arm.servos[4].set_hardware_error(0x20)     # overload
     report, record, arm = _fault_run(images, on_tick=overload)
     _assert_safe_stop(report, record, arm, "status", 11)
-    assert report["servo"] == 5 and report["fault_tick"] == FAULT_TICK + 1
+    assert report["servo"] == 5 and report["fault_tick"] == FAULT_TICK + 1, \
+        "servo 5 (servos[4]), at the read after the injection"
 
 
 def test_corrupt_reply_stops_with_torque_off(images):
@@ -146,14 +150,14 @@ def test_corrupt_reply_stops_with_torque_off(images):
 def test_nan_stops_with_torque_off(images):
     report, record, arm = _fault_run(images, args="ticks=300 nan_at=120")
     _assert_safe_stop(report, record, arm, "nonfinite", 13)
-    assert report["fault_tick"] == 120 and len(record.goals) == 120
+    assert report["fault_tick"] == 120 and len(record.goals) == 120, "the NaN at tick 120: no command from it"
 
 
 def test_overrun_stops_with_torque_off(images):
     """A period shorter than a tick's work (an inverse-dynamics tick takes ~100 us at 125 MIPS)."""
     report, record, arm = _fault_run(images, args="ticks=300 period_us=40")
     _assert_safe_stop(report, record, arm, "overrun", 14)
-    assert report["fault_tick"] == 0
+    assert report["fault_tick"] == 0, "a 40 us period is overrun by the first tick"
 
 
 def test_joint_out_of_range_stops_with_torque_off(images):
@@ -163,7 +167,7 @@ def test_joint_out_of_range_stops_with_torque_off(images):
             servo.set_present(arm.plant.horn(arm.q, arm.qd)[0][1] + 3.0, 0.0, 0.0)
     report, record, arm = _fault_run(images, on_tick=fling)
     _assert_safe_stop(report, record, arm, "range", 15)
-    assert report["servo"] == 2
+    assert report["servo"] == 2, "servo 2 (servos[1]) was flung 3 rad off"
 
 
 def test_current_limit_is_limiting_not_a_fault(images):
@@ -176,13 +180,14 @@ def test_current_limit_is_limiting_not_a_fault(images):
             arm.servos[1].set_present(position[1] - 0.5, velocity[1], 0.0)
     report, record, arm = _fault_run(images, on_tick=offset)
     assert report["result"] == "done" and report["exit_code"] == 0, report
-    assert report["limited"] >= 1
+    assert report["limited"] >= 1, "the clamp is counted as limiting"
     limit_units = round(4.4 / 2.69e-3)
-    assert max(abs(int(g[1])) for g in record.goals) == limit_units
+    assert max(abs(int(g[1])) for g in record.goals) == limit_units, \
+        "servo 2's goal clamped at the XM540's 4.4 A current limit, 1636 units of 2.69 mA"
 
 
 def test_cortex_m7_image_runs_the_same_loop(images):
     report, record, arm = _fault_run(images, board="an500")
     assert report["result"] == "done" and report["ticks"] == 300, report
     summary = summarize(report, record, "replica", 3, "an500")
-    assert summary["goal_max_diff_units"] <= 1
+    assert summary["goal_max_diff_units"] <= 1, "float firmware vs double host: rounding flips the last unit only"

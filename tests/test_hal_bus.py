@@ -18,7 +18,8 @@ MODEL = CONFIG.model
 
 def test_command_broadcasts_and_checks():
     c = JointCommand.position(np.ones(7), kp=2.0, kd=0.1)
-    assert c.qd.shape == c.tau_ff.shape == c.kp.shape == (7,) and np.all(c.kd == 0.1)
+    assert c.qd.shape == c.tau_ff.shape == c.kp.shape == (7,) and np.all(c.kd == 0.1), \
+        "scalars broadcast to one value per joint"
     q, qd = np.zeros(7), np.full(7, 0.5)
     assert np.allclose(c.torque_at(q, qd), 2.0 * 1.0 + 0.1 * (0.0 - 0.5)), "tau_ff + kp e + kd ė"
     t = JointCommand.torque(np.arange(7.0))
@@ -38,17 +39,19 @@ def test_exception_tree():
         assert issubclass(cls, HalError), cls
     assert issubclass(ConfigError, ValueError), "a bad configuration is a bad value too"
     timeout = ServoTimeoutError("r_elbow_flexion", 4)
-    assert isinstance(timeout, TimeoutError) and (timeout.joint, timeout.servo_id) == ("r_elbow_flexion", 4)
+    assert isinstance(timeout, TimeoutError) and (timeout.joint, timeout.servo_id) == ("r_elbow_flexion", 4), \
+        "also a built-in TimeoutError, carrying the joint and the servo ID"
     hardware = ServoHardwareError("r_wrist_flexion", 6, 0b100100, hardware_faults(0b100100))
     assert hardware.faults == ("overheating", "overload"), "bits 2 and 5 of Hardware Error Status"
-    assert "id 6" in str(hardware) and "0x24" in str(hardware)
+    assert "id 6" in str(hardware) and "0x24" in str(hardware), f"servo ID and raw status byte named: {hardware}"
 
 
 def test_make_bus_finds_backends_by_kind(monkeypatch):
     """The bus's kind picks the backend, imported on first use; `kind` overrides it; a backend
     that cannot be imported or an unknown kind is a ServoInitializationError."""
     bus = make_bus(CONFIG, kind="loopback")
-    assert isinstance(bus, LoopbackBus) and not bus.is_open and bus.dof_names == MODEL.dof_names
+    assert isinstance(bus, LoopbackBus) and not bus.is_open and bus.dof_names == MODEL.dof_names, \
+        "the loopback backend, not opened until used, driving the model's dofs in order"
     monkeypatch.setitem(hal_bus.BACKENDS, "dynamixel", "servodyn.hal.no_such_module:Bus")
     with pytest.raises(ServoInitializationError, match="no_such_module"):
         make_bus(CONFIG)
@@ -63,9 +66,9 @@ def test_closed_bus_refuses():
     with pytest.raises(ServoOperationError, match="not open"):
         bus.read_state()
     with bus:
-        assert bus.is_open
+        assert bus.is_open, "the with block opens the bus"
         bus.read_state()
-    assert not bus.is_open
+    assert not bus.is_open, "and closes it on leaving"
 
 
 def test_loopback_tracks_the_swing_with_feedforward():
@@ -84,14 +87,14 @@ def test_loopback_tracks_the_swing_with_feedforward():
             error = 0.0
             for k in range(len(swing.t)):
                 state = bus.read_state()
-                assert state.t == pytest.approx(k * 1e-3)
+                assert state.t == pytest.approx(k * 1e-3), "each write advances the loopback plant by 1 ms"
                 error = max(error, np.abs(state.q - swing.q[k]).max())
                 bus.write(JointCommand.position(swing.q[k], kp=kp, kd=kd, qd=swing.qd[k],
                                                 tau_ff=tau_ff[k] if feedforward else 0.0))
             assert bus.stats.limited.sum() == 0, "nothing clamped: the swing is inside every limit"
         worst[feedforward] = np.degrees(error)
-    assert worst[True] < 0.05
-    assert worst[False] > 2.0
+    assert worst[True] < 0.05, f"largest error with feed-forward {worst[True]:.3f} deg (measured 0.008)"
+    assert worst[False] > 2.0, f"the PD alone lagged only {worst[False]:.2f} deg (measured 8.3)"
 
 
 def test_loopback_clamps_to_the_current_limit():
@@ -102,8 +105,9 @@ def test_loopback_clamps_to_the_current_limit():
         bus.write(JointCommand.torque(np.full(7, 100.0)))
         state = bus.read_state()
     assert np.array_equal(bus.stats.limited, np.ones(7)), "each joint's command was clamped once"
-    assert np.allclose(state.tau, [2.409 * 4.4] * 3 + [1.783 * 2.3] * 4)
-    assert np.allclose(state.current, [4.4] * 3 + [2.3] * 4)
+    assert np.allclose(state.tau, [2.409 * 4.4] * 3 + [1.783 * 2.3] * 4), \
+        "kt x current limit: XM540-W270 2.409 N m/A x 4.4 A, XM430-W350 1.783 N m/A x 2.3 A"
+    assert np.allclose(state.current, [4.4] * 3 + [2.3] * 4), "each servo at its current limit (the stall current)"
 
 
 def test_limp_arm_falls_and_trips_the_limit():
@@ -116,10 +120,12 @@ def test_limp_arm_falls_and_trips_the_limit():
         with pytest.raises(ServoLimitError) as err:
             for _ in range(1000):
                 state = bus.read_state()
-                assert np.all(state.tau == 0) and np.all(state.current == 0)
+                assert np.all(state.tau == 0) and np.all(state.current == 0), "torque off: no current, no torque"
                 bus.write(JointCommand.position(q0, kp=10.0, kd=1.0))
     k = MODEL.dof_names.index(err.value.joint)
-    assert err.value.joint == "r_wrist_flexion" and err.value.state.q[k] == err.value.value
-    assert err.value.value < MODEL.lower[k] - bus.position_margin
-    assert err.value.state.t == pytest.approx(0.18, abs=0.02)
+    assert err.value.joint == "r_wrist_flexion" and err.value.state.q[k] == err.value.value, \
+        f"{err.value.joint} tripped; the limp wrist should, the error's value its position in the state"
+    assert err.value.value < MODEL.lower[k] - bus.position_margin, \
+        "read_state raises only beyond a limit by more than position_margin"
+    assert err.value.state.t == pytest.approx(0.18, abs=0.02), f"tripped at {err.value.state.t:.3f} s (measured 0.18)"
     assert err.value.state.q[0] < 3.0 - 0.1, "the shoulder is falling forward"

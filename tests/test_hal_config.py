@@ -35,28 +35,33 @@ def test_builtin_replica():
     """Seven joints in the model's dof order on one bus, IDs 1-7, the servos the model is built
     from, torque constants from the servo table (stall torque / stall current at 12 V)."""
     config = load_config("replica")
-    assert [j.dof for j in config.joints] == list(config.model.dof_names)
-    assert [j.id for j in config.joints] == list(range(1, 8))
-    assert {j.bus for j in config.joints} == {"arm"} and config.buses["arm"].baud == 4_000_000
-    assert [j.servo.name for j in config.joints] == ["XM540-W270"] * 3 + ["XM430-W350"] * 4
+    assert [j.dof for j in config.joints] == list(config.model.dof_names), "one joint per dof, in the model's order"
+    assert [j.id for j in config.joints] == list(range(1, 8)), "IDs 1-7 from the shoulder out"
+    assert {j.bus for j in config.joints} == {"arm"} and config.buses["arm"].baud == 4_000_000, \
+        "every joint on the one bus 'arm', at 4 Mbps"
+    assert [j.servo.name for j in config.joints] == ["XM540-W270"] * 3 + ["XM430-W350"] * 4, \
+        "XM540-W270 at the shoulder, XM430-W350 from the elbow out"
     for j in config.joints:
-        assert j.torque_constant == pytest.approx(j.servo.torque_constant, abs=5e-4)
+        assert j.torque_constant == pytest.approx(j.servo.torque_constant, abs=5e-4), \
+            f"{j.dof}: the file's kt is stall torque / stall current, rounded to 1e-3"
         assert j.position_limits == pytest.approx(
             (config.model.lower[config.model.dof_names.index(j.dof)],
-             config.model.upper[config.model.dof_names.index(j.dof)]))
-    assert config.swing_time_scale == 4.0
+             config.model.upper[config.model.dof_names.index(j.dof)])), \
+            f"{j.dof}: position_limits left out, so the model's"
+    assert config.swing_time_scale == 4.0, "the [swing] time_scale, the smallest that fits (test below)"
 
 
 def test_servo_table():
     """e-manual numbers: the XM540-W270 lists 2.409 N m/A at 12 V; Current Limit ranges 1193 and
     2047 units of 2.69 mA are 3.21 and 5.51 A, above the stall currents 2.3 and 4.4 A."""
     xm540, xm430 = SERVOS["XM540-W270"], SERVOS["XM430-W350"]
-    assert xm540.torque_constant == pytest.approx(2.409, abs=5e-4)
-    assert xm430.torque_constant == pytest.approx(1.783, abs=5e-4)
-    assert xm430.current_limit_max * xm430.current_unit == pytest.approx(3.209, abs=1e-3)
-    assert xm540.current_limit_max * xm540.current_unit == pytest.approx(5.506, abs=1e-3)
-    assert xm430.no_load_speed == pytest.approx(46 * 2 * math.pi / 60)
-    assert {s.model_number for s in SERVOS.values()} == {1020, 1120, 1000, 1100}
+    assert xm540.torque_constant == pytest.approx(2.409, abs=5e-4), "XM540-W270: 10.6 N m / 4.4 A"
+    assert xm430.torque_constant == pytest.approx(1.783, abs=5e-4), "XM430-W350: 4.1 N m / 2.3 A"
+    assert xm430.current_limit_max * xm430.current_unit == pytest.approx(3.209, abs=1e-3), "1193 x 2.69 mA"
+    assert xm540.current_limit_max * xm540.current_unit == pytest.approx(5.506, abs=1e-3), "2047 x 2.69 mA"
+    assert xm430.no_load_speed == pytest.approx(46 * 2 * math.pi / 60), "XM430-W350: 46 rpm no-load at 12 V"
+    assert {s.model_number for s in SERVOS.values()} == {1020, 1120, 1000, 1100}, \
+        "Model Number: XM430-W350 1020, XM540-W270 1120, XH430-W350 1000, XH540-W270 1100"
 
 
 def test_defaults_come_from_the_servo_and_the_model():
@@ -66,11 +71,13 @@ def test_defaults_come_from_the_servo_and_the_model():
         data["joint"] = [{k: j[k] for k in ("dof", "id", "servo")} for j in data["joint"]]
     config = build(strip)
     elbow = config.joints[3]
-    assert (elbow.direction, elbow.zero_offset, elbow.gear_ratio) == (1, 0.0, 1.0)
-    assert elbow.torque_constant == pytest.approx(4.1 / 2.3)
-    assert elbow.options["current_unit"] == 2.69e-3 and elbow.current_limit == 2.3
-    assert elbow.velocity_limit == pytest.approx(46 * 2 * math.pi / 60)
-    assert elbow.position_limits == pytest.approx((0.0, 2.618))
+    assert (elbow.direction, elbow.zero_offset, elbow.gear_ratio) == (1, 0.0, 1.0), \
+        "direction +1, no offset, direct drive"
+    assert elbow.torque_constant == pytest.approx(4.1 / 2.3), "the XM430-W350's stall torque / stall current"
+    assert elbow.options["current_unit"] == 2.69e-3 and elbow.current_limit == 2.3, \
+        "the XM430-W350's 2.69 mA unit; the limit is its 2.3 A stall current"
+    assert elbow.velocity_limit == pytest.approx(46 * 2 * math.pi / 60), "the XM430-W350's 46 rpm no-load speed"
+    assert elbow.position_limits == pytest.approx((0.0, 2.618)), "the model's elbow range, 0 to 150 deg"
     assert elbow.bus == "arm", "the only bus is the default"
     assert elbow.torque_limit == pytest.approx(4.1), "at the stall current the joint gives the stall torque"
 
@@ -78,7 +85,8 @@ def test_defaults_come_from_the_servo_and_the_model():
 def test_gear_ratio_scales_the_default_speed_limit():
     """With a 2:1 reduction after the horn the joint turns at half the servo's speed, with twice
     its torque; an explicit velocity_limit is kept as given."""
-    assert build(set_joint(0, "gear_ratio", 2.0)).joints[0].velocity_limit == 3.1416
+    assert build(set_joint(0, "gear_ratio", 2.0)).joints[0].velocity_limit == 3.1416, \
+        "replica.toml's velocity_limit for joint 1, kept as given"
 
     def geared(data):
         data["joint"][0]["gear_ratio"] = 2.0
@@ -148,7 +156,8 @@ def test_files(tmp_path):
     text = (CONFIGS_DIR / "replica.toml").read_text().replace('model = "replica"', 'model = "arm.toml"')
     (tmp_path / "robot.toml").write_text(text)
     config = load_config(tmp_path / "robot.toml")
-    assert config.model.name == "replica" and config.path == tmp_path / "robot.toml"
+    assert config.model.name == "replica" and config.path == tmp_path / "robot.toml", \
+        "model = 'arm.toml' found beside robot.toml"
     with pytest.raises(ConfigError, match="no such file"):
         load_config(tmp_path / "missing.toml")
     (tmp_path / "bad.toml").write_text("name = \n")
@@ -161,12 +170,13 @@ def test_replica_model_matches_human_arm():
     elbow and wrist axes meet at one point each, so the segment directions are human_arm's at
     every pose; 0.991 kg of moving arm (model description)."""
     replica, human = servodyn.load_model("replica"), servodyn.load_model("human_arm")
-    assert replica.dof_names == human.dof_names
-    assert np.array_equal(replica.lower, human.lower) and np.array_equal(replica.upper, human.upper)
+    assert replica.dof_names == human.dof_names, "same dof names in the same order"
+    assert np.array_equal(replica.lower, human.lower) and np.array_equal(replica.upper, human.upper), \
+        "same joint limits"
     axes = lambda m: {d.name: d.axis for b in m.bodies for d in b.dofs}
     for name, axis in axes(human).items():
         assert np.array_equal(axes(replica)[name], axis), name
-    assert replica.total_mass == pytest.approx(0.991, abs=1e-3)
+    assert replica.total_mass == pytest.approx(0.991, abs=1e-3), "0.991 kg of moving arm (the model's description)"
     unit = lambda v: v / np.linalg.norm(v)
     for q in np.random.default_rng(7).uniform(human.lower, human.upper, size=(50, 7)):
         (_, p), (_, h) = replica.body_poses(q), human.body_poses(q)
@@ -183,12 +193,17 @@ def test_swing_time_scale_is_the_smallest_that_fits():
     motion = load_motion("tennis_forehand", config.model)
     load = lambda s: servo_load(config, motion.sample(1e-3, time_scale=s))
     human, chosen, below = load(1.0), load(config.swing_time_scale), load(3.0)
-    assert human["speed_ratio"].max() == pytest.approx(2.56, abs=0.02)
-    assert within(chosen) and not within(below)
-    assert chosen["speed_ratio"].max() == pytest.approx(0.64, abs=0.02)
-    assert np.argmax(chosen["speed_ratio"]) == config.model.dof_names.index("r_shoulder_rotation")
-    assert below["speed_ratio"].max() == pytest.approx(0.85, abs=0.02)
-    assert chosen["current_ratio"].max() == pytest.approx(0.21, abs=0.02)
+    assert human["speed_ratio"].max() == pytest.approx(2.56, abs=0.02), \
+        f"at human speed the fastest joint needs {human['speed_ratio'].max():.2f}x its velocity limit"
+    assert within(chosen) and not within(below), "scale 4 keeps every joint within 80 % of its limits, 3 does not"
+    assert chosen["speed_ratio"].max() == pytest.approx(0.64, abs=0.02), \
+        f"at scale 4 the worst speed is {chosen['speed_ratio'].max():.0%} of the velocity limit (measured 64 %)"
+    assert np.argmax(chosen["speed_ratio"]) == config.model.dof_names.index("r_shoulder_rotation"), \
+        "the shoulder rotation is the fastest joint against its limit"
+    assert below["speed_ratio"].max() == pytest.approx(0.85, abs=0.02), \
+        f"at scale 3 the worst speed is {below['speed_ratio'].max():.0%} of the velocity limit (measured 85 %)"
+    assert chosen["current_ratio"].max() == pytest.approx(0.21, abs=0.02), \
+        f"worst current {chosen['current_ratio'].max():.0%} of its limit (measured 21 %, shoulder flexion)"
 
 
 @pytest.mark.parametrize("servo_name", sorted(SERVOS))

@@ -101,7 +101,7 @@ def test_tick_is_one_fast_sync_read_and_one_sync_write(sim):
     assert packets[0].id == BROADCAST_ID and packets[0].params == h("7E 00 0A 00 01 02 03 04 05 06 07"), \
         "addresses 126..135 (10 bytes) of servos 1..7"
     assert (len(sim.sent()), len(sim.received())) == (21 + 35, 106), "bytes host -> bus, bus -> host"
-    assert bus.reply_size == 106
+    assert bus.reply_size == 106, "the fast reply's size: the 8-byte header and seven 14-byte blocks"
     reply = decode_frame(sim.received())
     assert [b.id for b in split_fast_reply(reply, [10] * 7)] == IDS, "one block per servo, in request order"
     assert np.abs(state.q - q_plant).max() <= math.pi / 4096 + 1e-12, "Present Position rounds to a tick"
@@ -114,13 +114,15 @@ def test_tick_bytes_and_wire_limited_rate():
     request = inst.fast_sync_read(*PRESENT, IDS).encode()
     reply = encode_fast_reply([FastReadBlock(i, 0, bytes(PRESENT[1])) for i in IDS])
     goals = inst.sync_write(102, 2, {i: bytes(2) for i in IDS}).encode()
-    assert (len(request), len(reply), len(goals)) == (21, 106, 35)
+    assert (len(request), len(reply), len(goals)) == (21, 106, 35), "fast sync read, its reply, Goal Current write"
     tick = len(request) + len(reply) + len(goals)
-    assert tick == 162
-    assert (round(1e6 / (10 * tick)), round(4e6 / (10 * tick))) == (617, 2469)
+    assert tick == 162, "bytes per tick"
+    assert (round(1e6 / (10 * tick)), round(4e6 / (10 * tick))) == (617, 2469), \
+        "ticks per second the wire allows at 1 and 4 Mbps, 10 bits a byte"
     plain = len(inst.sync_read(*PRESENT, IDS).encode()) + len(IDS) * len(StatusPacket(1, 0, bytes(10)).encode())
-    assert plain + len(goals) == 203
-    assert (round(1e6 / (10 * 203)), round(4e6 / (10 * 203))) == (493, 1970)
+    assert plain + len(goals) == 203, "21-byte sync read, seven 21-byte status packets, the 35-byte write"
+    assert (round(1e6 / (10 * 203)), round(4e6 / (10 * 203))) == (493, 1970), \
+        "ticks per second with a plain sync read at 1 and 4 Mbps"
 
 
 def test_goal_current_sync_write_never_needs_stuffing():
@@ -131,7 +133,8 @@ def test_goal_current_sync_write_never_needs_stuffing():
         data = value.to_bytes(2, "little", signed=True)
         body = inst.sync_write(102, 2, {i: data for i in IDS}).params
         assert b"\xFF\xFF\xFD" not in bytes([Instruction.SYNC_WRITE]) + body, value
-    assert len(inst.sync_write(102, 2, {i: h("FF FF") for i in IDS}).encode()) == 35
+    assert len(inst.sync_write(102, 2, {i: h("FF FF") for i in IDS}).encode()) == 35, \
+        "Goal Current FF FF on every servo: nothing stuffed, still 35 bytes"
 
 
 # --- a silent servo ------------------------------------------------------------------------------
@@ -143,7 +146,7 @@ def test_fast_reply_stops_at_the_silent_servo():
     arm = SimulatedArm(CONFIG)
     request = inst.fast_sync_read(*PRESENT, IDS).encode()
     full = arm.handle(request)
-    assert len(full) == 106
+    assert len(full) == 106, "every servo answers: the 8-byte header and seven 14-byte blocks"
     for silent, kept in ((4, 3), (7, 6), (1, 0)):
         arm.clear_faults()
         arm.inject_fault(silent, "silent")
@@ -154,21 +157,23 @@ def test_fast_reply_stops_at_the_silent_servo():
             assert reply[5] | reply[6] << 8 == 99, "LEN still counts all seven blocks"
             for k in range(kept):                            # every block that came is whole
                 end = 8 + 14 * k + 12
-                assert reply[8 + 14 * k + 1] == IDS[k] and crc16(reply[:end]) == int.from_bytes(reply[end:end + 2], "little")
+                assert reply[8 + 14 * k + 1] == IDS[k] and crc16(reply[:end]) == int.from_bytes(reply[end:end + 2], "little"), \
+                    f"block {k}: servo {IDS[k]}'s ID, and the running CRC of the reply up to its end"
     arm.clear_faults()
     arm.inject_fault(4, "silent")
     plain = arm.handle(inst.sync_read(*PRESENT, IDS).encode())
-    assert len(plain) == 6 * 21
-    assert [decode_frame(plain[k:k + 21]).id for k in range(0, len(plain), 21)] == [1, 2, 3, 5, 6, 7]
+    assert len(plain) == 6 * 21, "six 21-byte status packets: only silent servo 4's is missing"
+    assert [decode_frame(plain[k:k + 21]).id for k in range(0, len(plain), 21)] == [1, 2, 3, 5, 6, 7], \
+        "the others answer in turn"
 
 
 def test_fast_bulk_reply_with_unequal_blocks_stops_at_the_silent_servo():
     """Blocks of 10, 4 and 1 data bytes: the boundaries come from the running CRCs."""
     arm = SimulatedArm(CONFIG)
     request = inst.fast_bulk_read([(1, 126, 10), (2, 132, 4), (3, 64, 1)]).encode()
-    assert len(arm.handle(request)) == 8 + 14 + 8 + 5
+    assert len(arm.handle(request)) == 8 + 14 + 8 + 5, "header, then error, ID, data and CRC: 4 bytes + data each"
     arm.inject_fault(3, "silent")
-    assert len(arm.handle(request)) == 8 + 14 + 8
+    assert len(arm.handle(request)) == 8 + 14 + 8, "servo 3 silent: its 5-byte block is cut"
 
 
 def test_silent_servo_is_named_after_the_retries(sim):
@@ -181,8 +186,8 @@ def test_silent_servo_is_named_after_the_retries(sim):
     with pytest.raises(ServoTimeoutError) as caught:
         bus.read_state()
     err = caught.value
-    assert (err.servo_id, err.joint) == (4, CONFIG.joints[3].dof)
-    assert "stopped after 3 of 7 blocks" in str(err) and "no answer to 3 pings" in str(err)
+    assert (err.servo_id, err.joint) == (4, CONFIG.joints[3].dof), "servo 4 and its joint, the elbow flexion"
+    assert "stopped after 3 of 7 blocks" in str(err) and "no answer to 3 pings" in str(err), str(err)
     kinds = [p.instruction for p in sim.instructions()]
     assert kinds.count(Instruction.FAST_SYNC_READ) == 3 and bus.stats.reads_retried == 3, "one try and two retries"
     assert kinds.count(Instruction.PING) == 3 + 3, "servos 1..3 answer the first ping, servo 4 none of 3"
@@ -201,16 +206,18 @@ def test_values_that_need_stuffing_arrive_intact_through_the_hal(sim):
     bus.sync_write(100, {5: h("FF FF FD FD")})
     sim.until(1)
     assert b"\xFF\xFF\xFD\xFD\xFD" in sim.sent(), "stuffed on the wire"
-    assert (sim.servo(5).get("goal_pwm"), sim.servo(5).get("goal_current")) == (-1, -515)
+    assert (sim.servo(5).get("goal_pwm"), sim.servo(5).get("goal_current")) == (-1, -515), \
+        "little-endian FF FF is -1, FD FD is 0xFDFD = -515"
     bus.sync_write(116, {2: (-131073).to_bytes(4, "little", signed=True), 6: h("00 01 00 00")})
     sim.until(2)
-    assert (sim.servo(2).get("goal_position"), sim.servo(6).get("goal_position")) == (-131073, 256)
+    assert (sim.servo(2).get("goal_position"), sim.servo(6).get("goal_position")) == (-131073, 256), \
+        "FF FF FD FF (stuffed) is -131073, 00 01 00 00 is 256"
     bus.enable_torque(True)
     bus.read_state()
     tau = bus.units.from_current_units(np.full(7, -1))      # -1 current unit on every servo
     bus.write(JointCommand.torque(tau))
     bus.read_state()
-    assert [sim.servo(i).get("goal_current") for i in IDS] == [-1] * 7
+    assert [sim.servo(i).get("goal_current") for i in IDS] == [-1] * 7, "FF FF on every servo, each ID after it"
 
 
 def test_the_sdk_alone_sends_it_unstuffed_and_the_servo_sees_another_packet(sim):
@@ -227,7 +234,8 @@ def test_the_sdk_alone_sends_it_unstuffed_and_the_servo_sees_another_packet(sim)
     assert b"\xFF\xFF\xFD\xFD\xFD" not in sim.sent() and b"\xFF\xFF\xFD\xFD" in sim.sent(), "sent unstuffed"
     seen = sim.instructions()[0]
     assert seen.params == h("64 00 04 00 05 FF FF FD"), "what the servo unstuffed: one byte short"
-    assert (sim.servo(5).get("goal_pwm"), sim.servo(5).get("goal_current")) == before
+    assert (sim.servo(5).get("goal_pwm"), sim.servo(5).get("goal_current")) == before, \
+        "the short write was dropped: servo 5's registers unchanged"
 
 
 # --- hardware errors -----------------------------------------------------------------------------
@@ -249,9 +257,11 @@ def test_hardware_error_mid_run_names_servo_and_bit(sim, bits, faults, torque_st
     with pytest.raises(ServoHardwareError) as caught:
         bus.read_state()
     err = caught.value
-    assert (err.servo_id, err.joint, err.status, err.faults) == (3, CONFIG.joints[2].dof, int(bits), faults)
+    assert (err.servo_id, err.joint, err.status, err.faults) == (3, CONFIG.joints[2].dof, int(bits), faults), \
+        "servo 3, its joint, Hardware Error Status and the bits' names"
     with pytest.raises(ServoHardwareError, match=r"\(id 3\)"):
         bus.write(JointCommand.torque(np.zeros(7)))
-    assert sim.servo(3).torque_enabled is torque_stays
+    assert sim.servo(3).torque_enabled is torque_stays, \
+        "Shutdown 0x34 (overheating, electrical shock, overload) cuts torque; an input-voltage error does not"
     assert bus.stop(), "every servo still answers: torque off everywhere"
-    assert not any(s.torque_enabled for s in sim.arm.servos)
+    assert not any(s.torque_enabled for s in sim.arm.servos), "stop() left a servo's torque on"

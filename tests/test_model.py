@@ -16,14 +16,14 @@ from servodyn.model.rotations import axis_angle, rpy_to_matrix
 def test_builtin_models_have_the_papers_masses():
     """Fig. 2 mass fractions of a 70 kg body."""
     arm = servodyn.load_model("human_arm")
-    assert arm.nq == 7 and len(arm.dof_names) == 7
+    assert arm.nq == 7 and len(arm.dof_names) == 7, "shoulder 3, elbow, pronation, wrist 2"
     masses = dict(zip(arm.body_names, (b.mass for b in arm.bodies)))
     assert masses == pytest.approx({"r_upper_arm": 0.028 * 70, "r_forearm": 0.016 * 70,
-                                    "r_hand": 0.006 * 70}, rel=1e-12)
+                                    "r_hand": 0.006 * 70}, rel=1e-12), "upper arm 2.8 %, forearm 1.6 %, hand 0.6 %"
     body = servodyn.load_model("human15")
-    assert body.nbody == 15
+    assert body.nbody == 15, "the paper's 15 segments"
     assert body.total_mass == pytest.approx(70.0, rel=1e-12), "the 15 fractions sum to one"
-    assert np.allclose(body.gravity, [0.0, 0.0, -9.81])
+    assert np.allclose(body.gravity, [0.0, 0.0, -9.81]), "default gravity: 9.81 m/s² down world z"
 
 
 def test_gravity_is_settable():
@@ -46,8 +46,8 @@ def test_gravity_is_settable():
 ])
 def test_solid_primitives(kind, dims, expected):
     com_z, inertia = _core.solid_inertia(kind, 2.0, dims)
-    assert inertia[0] == pytest.approx(expected[0], rel=1e-12)
-    assert inertia[2] == pytest.approx(expected[1], rel=1e-12)
+    assert inertia[0] == pytest.approx(expected[0], rel=1e-12), f"{kind}: transverse moment about the centroid"
+    assert inertia[2] == pytest.approx(expected[1], rel=1e-12), f"{kind}: moment about the axis of symmetry (z)"
 
 
 def test_frustum_by_slicing():
@@ -60,9 +60,10 @@ def test_frustum_by_slicing():
     zc = np.sum(dm * z) / mass
     axial = np.sum(dm * r**2 / 2)
     transverse = np.sum(dm * (r**2 / 4 + (z - zc) ** 2))
-    assert com_z == pytest.approx(zc, rel=1e-7)
-    assert inertia[2] == pytest.approx(axial, rel=1e-7)
-    assert inertia[0] == pytest.approx(transverse, rel=1e-7)
+    assert com_z == pytest.approx(zc, rel=1e-7), "centroid height against the stack of discs"
+    assert inertia[2] == pytest.approx(axial, rel=1e-7), "axial moment: sum of dm r²/2 over the discs"
+    assert inertia[0] == pytest.approx(transverse, rel=1e-7), \
+        "transverse moment about the centroid: sum of dm (r²/4 + (z - zc)²)"
 
 
 def one_body(**change):
@@ -89,7 +90,7 @@ def one_body(**change):
 def test_bad_models_are_refused_with_the_body_named(change, message):
     with pytest.raises(ModelError, match=message) as err:
         Model([one_body(**change)])
-    assert "link" in str(err.value) or "'j" in str(err.value)
+    assert "link" in str(err.value) or "'j" in str(err.value), f"neither body 'link' nor dof 'j' named: {err.value}"
 
 
 def test_size_limits_are_checked():
@@ -170,7 +171,8 @@ def test_urdf_import_groups_merges_and_matches_pinocchio(tmp_path):
     import pinocchio as pin
     path = write(tmp_path, "features.urdf", URDF_FEATURES)
     model = servodyn.load_model(path)
-    assert model.dof_names == ("waist", "sh_x", "sh_y", "sh_z", "finger_joint")
+    assert model.dof_names == ("waist", "sh_x", "sh_y", "sh_z", "finger_joint"), \
+        "the moving joints in tree order; the fixed tool_mount is no dof"
     assert [len(b.dofs) for b in model.bodies] == [1, 3, 1], "the shoulder is one 3-dof joint"
     assert model.bodies[1].mass == pytest.approx(2.5), "the fixed tool merged into the arm"
     pm = pin.buildModelFromUrdf(str(path))
@@ -182,20 +184,22 @@ def test_urdf_import_groups_merges_and_matches_pinocchio(tmp_path):
         pq = np.concatenate([[math.cos(q[0]), math.sin(q[0])], q[1:]])
         tau_pin = pin.rnea(pm, pd, pq, qd, qdd)
         tau = model.inverse_dynamics(q, qd, qdd)
-        assert np.abs(tau - tau_pin).max() <= 1e-9 * max(1.0, np.abs(tau_pin).max())
+        assert np.abs(tau - tau_pin).max() <= 1e-9 * max(1.0, np.abs(tau_pin).max()), \
+            "inverse dynamics differ from Pinocchio's parse of the same URDF"
         qdd_pin = pin.aba(pm, pd, pq, qd, tau)
-        assert np.abs(model.forward_dynamics(q, qd, tau) - qdd_pin).max() <= 1e-9 * np.abs(qdd_pin).max()
+        assert np.abs(model.forward_dynamics(q, qd, tau) - qdd_pin).max() <= 1e-9 * np.abs(qdd_pin).max(), \
+            "forward dynamics differ from Pinocchio's parse of the same URDF"
 
 
 def test_urdf_round_trip_keeps_the_dynamics(tmp_path):
     model = servodyn.load_model("human15")
     model.to_urdf(tmp_path / "h15.urdf")
     again = servodyn.load_model(tmp_path / "h15.urdf")
-    assert again.dof_names == model.dof_names
+    assert again.dof_names == model.dof_names, "the export keeps every dof's name and order"
     rng = np.random.default_rng(2)
     q, qd, qdd = rng.normal(size=(3, model.nq))
     assert np.allclose(again.inverse_dynamics(q, qd, qdd), model.inverse_dynamics(q, qd, qdd),
-                       rtol=1e-12, atol=1e-12)
+                       rtol=1e-12, atol=1e-12), "inverse dynamics changed through URDF export and import"
 
 
 @pytest.mark.parametrize("text,message", [
@@ -225,7 +229,8 @@ def test_multi_dof_axes_follow_each_other():
     model = Model([body])
     q = np.array([0.7, -1.1])
     expected = rot @ axis_angle(a1, q[0]) @ axis_angle(a2, q[1]) @ com
-    assert np.allclose(model.com_positions(q)[0], expected, atol=1e-14)
+    assert np.allclose(model.com_positions(q)[0], expected, atol=1e-14), \
+        "centre of mass not where rot · Rot(a1, q1) · Rot(a2, q2) puts it"
 
 
 def test_export_loads_in_mujoco(tmp_path):
@@ -245,4 +250,5 @@ def test_export_loads_in_mujoco(tmp_path):
         data.qpos[order], data.qvel[order], data.qacc[order] = q, qd, qdd
         mujoco.mj_inverse(mj, data)
         tau = model.inverse_dynamics(q, qd, qdd)
-        assert np.abs(data.qfrc_inverse[order] - tau).max() <= 1e-7 * np.abs(tau).max()
+        assert np.abs(data.qfrc_inverse[order] - tau).max() <= 1e-7 * np.abs(tau).max(), \
+            "MuJoCo's inverse dynamics of the export (connectors at 1e-9 kg) differ from servodyn's"

@@ -122,39 +122,44 @@ def test_worst_path_is_the_deepest_chain_and_sums_the_su_frames(program):
     assert done.returncode == 0, done.stdout + done.stderr
     su = su_frames(program)
     total, frames = path_line(done.stdout, "main")
-    assert [f for f, _ in frames] == ["main", "work", "filter", "dsp.c:helper"]
+    assert [f for f, _ in frames] == ["main", "work", "filter", "dsp.c:helper"], \
+        "the deepest chain, through dsp.c's static helper"
     # the static helper of dsp.c, not the smaller one of app.c
     expected = [su["main"]["app.c"], su["work"]["app.c"], su["filter"]["dsp.c"],
                 su["helper"]["dsp.c"]]
-    assert su["helper"]["dsp.c"] > su["helper"]["app.c"]
-    assert [b for _, b in frames] == expected
-    assert total == sum(expected)
+    assert su["helper"]["dsp.c"] > su["helper"]["app.c"], "64 taps against 16: merging by bare name would be wrong"
+    assert [b for _, b in frames] == expected, "each frame as GCC's .su file gives it"
+    assert total == sum(expected), "the path's total is the sum of its frames"
 
 
 def test_unknown_indirect_and_dynamic_frames_are_listed(program):
     out = run(program).stdout
     unknown = re.search(r"^stack: worst path from main .*\n  unknown frames[^:]*: (.*)$", out, re.M)
     assert unknown, out
-    assert "sinf" in unknown.group(1) and "indirect call in dispatch" in unknown.group(1)
+    assert "sinf" in unknown.group(1) and "indirect call in dispatch" in unknown.group(1), \
+        f"libm's sinf has no .ci node and dispatch calls through a pointer: {unknown.group(1)}"
     assert re.search(r"^  dynamic frames: vla \(unbounded", out, re.M), out
 
 
 def test_assume_counts_a_library_frame(program):
     su = su_frames(program)
     total, frames = path_line(run("--assume", "sinf=4096", program).stdout, "main")
-    assert frames == [("main", su["main"]["app.c"]), ("wave", su["wave"]["app.c"]), ("sinf", 4096)]
-    assert total == su["main"]["app.c"] + su["wave"]["app.c"] + 4096
+    assert frames == [("main", su["main"]["app.c"]), ("wave", su["wave"]["app.c"]), ("sinf", 4096)], \
+        "sinf at the assumed 4096 B makes main > wave > sinf the worst path"
+    assert total == su["main"]["app.c"] + su["wave"]["app.c"] + 4096, "the sum of its frames"
 
 
 def test_indirect_targets_join_the_graph(program):
     su = su_frames(program)
     base, _ = path_line(run("--entry", "SysTick_Handler", program).stdout, "SysTick_Handler")
-    assert base == su["SysTick_Handler"]["app.c"] + su["dispatch"]["app.c"]
+    assert base == su["SysTick_Handler"]["app.c"] + su["dispatch"]["app.c"], \
+        "without --indirect the pointer call counts 0 B"
     done = run("--entry", "SysTick_Handler", "--indirect", "dispatch=filter", program)
     total, frames = path_line(done.stdout, "SysTick_Handler")
-    assert [f for f, _ in frames] == ["SysTick_Handler", "dispatch", "filter", "dsp.c:helper"]
-    assert total == base + su["filter"]["dsp.c"] + su["helper"]["dsp.c"]
-    assert "indirect call" not in done.stdout
+    assert [f for f, _ in frames] == ["SysTick_Handler", "dispatch", "filter", "dsp.c:helper"], \
+        "dispatch=filter: the pointer call continues into filter"
+    assert total == base + su["filter"]["dsp.c"] + su["helper"]["dsp.c"], "filter's chain added to the handler's"
+    assert "indirect call" not in done.stdout, "a named target leaves no unknown indirect call"
 
 
 def test_handlers_nest_on_the_thread_worst_path(program):
@@ -163,46 +168,50 @@ def test_handlers_nest_on_the_thread_worst_path(program):
     # reset from the vector table, a static handler from the vector table, one by its name
     reset, _ = path_line(out, "reset_handler")
     main, _ = path_line(out, "main")
-    assert reset == su["reset_handler"]["app.c"] + main
+    assert reset == su["reset_handler"]["app.c"] + main, "reset_handler calls main: its frame on main's worst path"
     fault, frames = path_line(out, "app.c:fault")
-    assert frames == [("app.c:fault", su["fault"]["app.c"])]
-    assert re.search(r"^stack: worst path from app\.c:fault \d+ B \(ISR, \+104 B", out, re.M)
-    assert re.search(r"^stack: worst path from SysTick_Handler \d+ B \(ISR", out, re.M)
+    assert frames == [("app.c:fault", su["fault"]["app.c"])], "the static fault handler, found in the vector table"
+    assert re.search(r"^stack: worst path from app\.c:fault \d+ B \(ISR, \+104 B", out, re.M), \
+        "a handler is an ISR with the 104 B exception entry of an FP context (the default)"
+    assert re.search(r"^stack: worst path from SysTick_Handler \d+ B \(ISR", out, re.M), \
+        "SysTick_Handler is an ISR by its name"
     nested = re.search(r"^stack: reset_handler \+ deepest ISR (\d+) B: .*app\.c:fault", out, re.M)
     assert nested, out
-    assert int(nested.group(1)) == reset + 104 + fault
+    assert int(nested.group(1)) == reset + 104 + fault, "the thread's worst path, the exception entry, the handler"
     out32 = run("--exception-frame", "32", program).stdout
-    assert f"deepest ISR {reset + 32 + fault} B" in out32
+    assert f"deepest ISR {reset + 32 + fault} B" in out32, "with 32 B, the 8 core registers alone, as the entry"
 
 
 def test_limit(program):
     out = run(program).stdout
     need = int(re.search(r"deepest ISR (\d+) B", out).group(1))
     done = run("--limit", need - 1, program)
-    assert done.returncode == 1
-    assert re.search(rf"^stackpath: FAIL: .*{need} B, over the limit of {need - 1} B", done.stdout, re.M)
+    assert done.returncode == 1, f"a byte over the limit fails with status 1: {done.stdout}"
+    assert re.search(rf"^stackpath: FAIL: .*{need} B, over the limit of {need - 1} B", done.stdout, re.M), \
+        done.stdout
     done = run("--limit", need, program)
-    assert done.returncode == 0 and "stackpath: ok:" in done.stdout
+    assert done.returncode == 0 and "stackpath: ok:" in done.stdout, f"exactly at the limit passes: {done.stdout}"
     # only thread entries: the limit is on the worst single path
     main, _ = path_line(out, "main")
-    assert run("--entry", "main", "--limit", main, program).returncode == 0
-    assert run("--entry", "main", "--limit", main - 1, program).returncode == 1
+    assert run("--entry", "main", "--limit", main, program).returncode == 0, "main's worst path at the limit"
+    assert run("--entry", "main", "--limit", main - 1, program).returncode == 1, "main's worst path a byte over"
 
 
 def test_recursion_fails_naming_the_cycle(tmp_path):
     build(tmp_path, {"rec.c": RECURSIVE_C})
     done = run(tmp_path)
-    assert done.returncode == 1
+    assert done.returncode == 1, "recursion reachable from an entry fails with status 1"
     assert "stackpath: FAIL: recursion: ping > pong > ping" in done.stdout, done.stdout
 
 
 def test_bad_usage(tmp_path, program):
     done = run(tmp_path)
-    assert done.returncode == 2 and "no .ci file" in done.stderr
+    assert done.returncode == 2 and "no .ci file" in done.stderr, f"bad usage is status 2: {done.stderr}"
     done = run("--entry", "nowhere", program)
-    assert done.returncode == 2 and "no function nowhere" in done.stderr
+    assert done.returncode == 2 and "no function nowhere" in done.stderr, done.stderr
     done = run("--entry", "helper", program)
-    assert done.returncode == 2 and "ambiguous" in done.stderr
+    assert done.returncode == 2 and "ambiguous" in done.stderr, \
+        f"two static helpers, app.c's and dsp.c's: {done.stderr}"
 
 
 def test_importable(program):
@@ -215,8 +224,9 @@ def test_importable(program):
         del sys.modules[spec.name]
     graph = module.load(program)
     worst = module.Analysis(graph).path("main")
-    assert [t for t, _, _ in worst.frames] == ["main", "work", "filter", "dsp.c:helper"]
-    assert worst.total == sum(b for _, b, _ in worst.frames)
+    assert [t for t, _, _ in worst.frames] == ["main", "work", "filter", "dsp.c:helper"], \
+        "the module gives the command line's deepest chain"
+    assert worst.total == sum(b for _, b, _ in worst.frames), "the total is the sum of the frames"
 
 
 def test_the_core_has_no_recursion(tmp_path):
@@ -225,7 +235,7 @@ def test_the_core_has_no_recursion(tmp_path):
     flags = subprocess.run(["make", "-s", "--no-print-directory", "--eval",
                             "print-mcu-cflags: ; @echo $(MCU_CFLAGS)", "print-mcu-cflags"],
                            cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
-    assert "-mcpu=cortex-m4" in flags
+    assert "-mcpu=cortex-m4" in flags, f"rules.mk's MCU_CFLAGS target the Cortex-M4F: {flags}"
     for src in sorted((ROOT / "firmware" / "core").glob("*.c")):
         obj = tmp_path / src.relative_to(ROOT).with_suffix(".o")
         obj.parent.mkdir(parents=True, exist_ok=True)
@@ -235,8 +245,8 @@ def test_the_core_has_no_recursion(tmp_path):
     done = run("--entry", "sd_step", "--entry", "sd_rnea", "--entry", "sd_control_step", tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     for entry in ("sd_step", "sd_rnea", "sd_control_step"):
-        assert path_line(done.stdout, entry)[0] > 0
-    assert "dynamic frames" not in done.stdout
+        assert path_line(done.stdout, entry)[0] > 0, f"{entry}: its worst path counts no frame"
+    assert "dynamic frames" not in done.stdout, "no VLA or alloca in the core: every frame has a fixed size"
 
 
 def test_bounded_and_dynamic_frames_are_flagged(tmp_path):
@@ -251,6 +261,7 @@ def test_bounded_and_dynamic_frames_are_flagged(tmp_path):
         '}\n')
     done = run(tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "stack: worst path from main 80 B: main (16) > x.c:grow (64, bounded)" in done.stdout
+    assert "stack: worst path from main 80 B: main (16) > x.c:grow (64, bounded)" in done.stdout, \
+        "a bounded frame counted at its 64 B bound; vla's 8 B fixed part is the lighter branch"
     assert ("  dynamic frames: vla (unbounded: only its fixed part counted), "
             "x.c:grow (bounded: counted at its bound)") in done.stdout

@@ -52,8 +52,8 @@ def test_summary_reports_the_loop_figures(runs):
     ff, _ = runs
     for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "period_median_ms"):
         assert isinstance(ff[key], float) and math.isfinite(ff[key]), f"{key} = {ff[key]!r}"
-    assert ff["clock"] == "lockstep"
-    assert set(ff["cpu_ms_per_tick"]) == {"median", "p99"}
+    assert ff["clock"] == "lockstep", "run_swing's default: one plant period per sync write"
+    assert set(ff["cpu_ms_per_tick"]) == {"median", "p99"}, "CPU per tick as its median and 99th percentile"
     assert ff["tracking_rms_rad"] <= ff["tracking_max_rad"], "an rms cannot exceed the largest value"
 
 
@@ -61,11 +61,12 @@ def test_servo_that_stops_answering_stops_the_swing_safely(tmp_path):
     """Servo 5 goes silent 1 s into the swing: the HAL raises naming it, the torque goes off on
     every servo before the plant runs two more ticks, and the log holds every tick until then."""
     summary = run_swing(out=tmp_path, fault_at=(1.0, 5), **QUIET)
-    assert not summary["completed"]
+    assert not summary["completed"], "the silent servo stopped the swing"
     assert "servo 5" in summary["error"] or "r_forearm_pronation" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 answered and were logged; tick 1000 failed"
     # the plant advances one period per command: the stop came within two ticks of the last one
-    assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9
+    assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9, \
+        f"torque off {(summary['sim_time_at_stop_s'] - summary['last_tick_time_s']) * 1e3:.1f} ms after the last tick"
     assert all(summary["torque_off"]), "torque off on every servo, the silent one included"
     lines = (tmp_path / "swing_log.csv").read_text().splitlines()
     assert len(lines) == 1 + 1000, "the header and every tick that ran"
@@ -77,12 +78,13 @@ def test_hardware_error_stops_the_swing_safely(tmp_path):
     the HAL reads Hardware Error Status and raises naming servo and bit, torque goes off on every
     servo within two ticks of plant time, and the log holds the 1000 ticks before it."""
     summary = run_swing(out=tmp_path, fault_at=(1.0, 3, "overload"), **QUIET)
-    assert not summary["completed"]
+    assert not summary["completed"], "the overload stopped the swing"
     assert "(id 3) hardware error 0x20: overload" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 were clean; tick 1000's read saw the alert"
-    assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9
-    assert all(summary["torque_off"])
-    assert len((tmp_path / "swing_log.csv").read_text().splitlines()) == 1 + 1000
+    assert summary["sim_time_at_stop_s"] - summary["last_tick_time_s"] <= 2e-3 + 1e-9, \
+        f"torque off {(summary['sim_time_at_stop_s'] - summary['last_tick_time_s']) * 1e3:.1f} ms after the last tick"
+    assert all(summary["torque_off"]), "torque off on every servo, the overloaded one included"
+    assert len((tmp_path / "swing_log.csv").read_text().splitlines()) == 1 + 1000, "the header and the 1000 clean ticks"
 
 
 def test_realtime_swing_follows_the_wall_clock(tmp_path):
@@ -98,7 +100,7 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     assert summary["clock"] == "realtime" and summary["ticks"] == 1801, "every 1 ms sample of the 1.8 s swing"
     assert took >= planned, f"the paced run took {took:.2f} s, less than the {planned:.1f} s it plays"
     assert summary["sim_time_at_stop_s"] <= took, "the plant never runs ahead of the wall clock"
-    assert all(summary["torque_off"])
+    assert all(summary["torque_off"]), "every servo's torque is off after the run"
 
 
 def test_swing_on_a_loopback_configuration(tmp_path):
@@ -110,6 +112,6 @@ def test_swing_on_a_loopback_configuration(tmp_path):
                       .replace("baud = 4000000", "baud = 1000000"))
     summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
     assert summary["completed"], summary.get("error")
-    assert summary["ticks"] == SWING_TICKS
+    assert summary["ticks"] == SWING_TICKS, "one logged tick per 1 ms sample of the swing"
     assert summary["tracking_max_rad"] <= np.radians(5), "the same controller on the bare model"
     assert "torque_off" not in summary, "no simulated servos to report on"

@@ -17,7 +17,7 @@ def test_forehand_is_c2_at_every_keyframe():
     """Left and right limits of q, qd, qdd agree at every keyframe (1e-9 s either side, against
     the scale of each derivative), and the samples match finite differences inside segments."""
     motion = load_motion("tennis_forehand", ARM)
-    assert motion.duration == pytest.approx(1.8)
+    assert motion.duration == pytest.approx(1.8), "the forehand's keyframes span 1.8 s"
     h = 1e-9
     for t in motion.t[1:-1] - motion.t[0]:
         left, right = motion.at(t - h), motion.at(t + h)
@@ -27,15 +27,18 @@ def test_forehand_is_c2_at_every_keyframe():
     t = np.linspace(0.01, 1.79, 300)
     q, qd, qdd = motion.at(t)
     d = 1e-6
-    assert np.allclose(qd, (motion.at(t + d)[0] - motion.at(t - d)[0]) / (2 * d), atol=1e-6)
-    assert np.allclose(qdd, (motion.at(t + d)[1] - motion.at(t - d)[1]) / (2 * d), atol=1e-4)
+    assert np.allclose(qd, (motion.at(t + d)[0] - motion.at(t - d)[0]) / (2 * d), atol=1e-6), \
+        "qd is not the central difference of q"
+    assert np.allclose(qdd, (motion.at(t + d)[1] - motion.at(t - d)[1]) / (2 * d), atol=1e-4), \
+        "qdd is not the central difference of qd"
 
 
 def test_forehand_starts_and_ends_at_rest_inside_the_limits():
     traj = load_motion("tennis_forehand", ARM).sample(1e-3)
     for k in (0, -1):
-        assert np.abs(traj.qd[k]).max() == 0 and np.abs(traj.qdd[k]).max() == 0
-    assert np.all(traj.q >= ARM.lower) and np.all(traj.q <= ARM.upper)
+        assert np.abs(traj.qd[k]).max() == 0 and np.abs(traj.qdd[k]).max() == 0, \
+            f"sample {k}: not at rest (zero velocity and acceleration) at the swing's end"
+    assert np.all(traj.q >= ARM.lower) and np.all(traj.q <= ARM.upper), "a sample outside human_arm's joint limits"
     abduction = traj.q[:, ARM.dof_names.index("r_shoulder_abduction")]
     assert np.abs(abduction).max() <= np.radians(75), "the swing keeps away from the shoulder's lock"
 
@@ -44,10 +47,10 @@ def test_time_scaling():
     motion = load_motion("tennis_forehand", ARM)
     slow = motion.sample(1e-3, time_scale=2.0)
     fast = motion.sample(1e-3)
-    assert slow.t[-1] == pytest.approx(3.6)
-    assert np.allclose(slow.q[::2], fast.q, atol=1e-12)
-    assert np.allclose(slow.qd[::2], fast.qd / 2, atol=1e-12)
-    assert np.allclose(slow.qdd[::2], fast.qdd / 4, atol=1e-12)
+    assert slow.t[-1] == pytest.approx(3.6), "twice the 1.8 s forehand"
+    assert np.allclose(slow.q[::2], fast.q, atol=1e-12), "the same poses at twice the time"
+    assert np.allclose(slow.qd[::2], fast.qd / 2, atol=1e-12), "twice as slow: half the velocity"
+    assert np.allclose(slow.qdd[::2], fast.qdd / 4, atol=1e-12), "twice as slow: a quarter of the acceleration"
 
 
 def frames(body: str) -> str:
@@ -105,10 +108,10 @@ def test_keyframes_and_csv_round_trip(tmp_path):
     save_motion(motion, tmp_path / "again.toml")
     again = load_motion(tmp_path / "again.toml", ARM)
     assert np.array_equal(again.t, motion.t) and np.array_equal(again.q, motion.q)
-    assert again.phases == motion.phases
+    assert again.phases == motion.phases, "each keyframe's phase name saved and read back"
     traj = motion.sample(1e-3)
     write_trajectory_csv(tmp_path / "swing.csv", traj, ARM.dof_names)
     back = read_trajectory_csv(tmp_path / "swing.csv", ARM.dof_names)
-    assert not back.derived
+    assert not back.derived, "qd and qdd read from the CSV, not derived from a spline of q"
     for a, b in ((back.t, traj.t), (back.q, traj.q), (back.qd, traj.qd), (back.qdd, traj.qdd)):
         assert np.array_equal(a, b)
