@@ -15,8 +15,6 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
 from ..model import load_model
 from .bus import BACKENDS, backend_class, servo_catalogue
 from .errors import ConfigError
@@ -267,26 +265,3 @@ def load_config(name_or_path: str | Path) -> RobotConfig:
     config = config_from_dict(data, origin=path.name, base=path.parent)
     return replace(config, path=path)
 
-
-def servo_load(config: RobotConfig, traj) -> dict[str, np.ndarray]:
-    """Peaks over a trajectory (q, qd, qdd of the model) of what each servo must deliver, per joint:
-    torque (N m), current (A) and speed (rad/s), their ratios to the joint's current and velocity
-    limits, and the worst point against the servo's 12 V torque-speed line,
-    |τ| / stall torque + |ω| / no-load speed (1 = on the line)."""
-    tau = np.abs(config.model.inverse_dynamics(traj.q, traj.qd, traj.qdd))
-    speed = np.abs(traj.qd)
-    gear = np.array([j.gear_ratio for j in config.joints])
-    kt = np.array([j.torque_constant for j in config.joints])
-    stall = np.array([j.servo.stall_torque for j in config.joints]) * gear
-    no_load = np.array([j.servo.no_load_speed for j in config.joints]) / gear
-    current = tau.max(axis=0) / (gear * kt)
-    return {"torque": tau.max(axis=0), "current": current, "speed": speed.max(axis=0),
-            "current_ratio": current / np.array([j.current_limit for j in config.joints]),
-            "speed_ratio": speed.max(axis=0) / np.array([j.velocity_limit for j in config.joints]),
-            "torque_speed": (tau / stall + speed / no_load).max(axis=0)}
-
-
-def within(load: dict[str, np.ndarray], margin: float = 0.8) -> bool:
-    """True when every joint stays within `margin` of its current limit, its velocity limit and
-    its torque-speed line."""
-    return bool(max(load["current_ratio"].max(), load["speed_ratio"].max(), load["torque_speed"].max()) <= margin)

@@ -11,8 +11,7 @@ import pytest
 
 import servodyn
 from servodyn.hal.dynamixel.control_table import SERVOS
-from servodyn.hal.config import (CONFIGS_DIR, ConfigError, config_from_dict, load_config,
-                                 servo_load, within)
+from servodyn.hal.config import CONFIGS_DIR, ConfigError, config_from_dict, load_config
 from servodyn.control.motion import load_motion
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
@@ -182,28 +181,6 @@ def test_replica_model_matches_human_arm():
         (_, p), (_, h) = replica.body_poses(q), human.body_poses(q)
         assert np.allclose(unit(p[3]), unit(h[1]), atol=1e-12), "upper arm direction"
         assert np.allclose(unit(p[5] - p[3]), unit(h[2] - h[1]), atol=1e-12), "forearm direction"
-
-
-def test_swing_time_scale_is_the_smallest_that_fits():
-    """At human speed (s = 1) the shoulder rotation would need 2.6x the XM540's 30 rpm. The
-    recorded scale 4 keeps every joint within 80 % of its current and velocity limits and its
-    12 V torque-speed line (worst: shoulder rotation speed, 64 %); the candidate below, 3, does
-    not (85 %). Currents stay low (gravity dominates: 21 % at the shoulder flexion)."""
-    config = load_config("replica")
-    motion = load_motion("tennis_forehand", config.model)
-    load = lambda s: servo_load(config, motion.sample(1e-3, time_scale=s))
-    human, chosen, below = load(1.0), load(config.swing_time_scale), load(3.0)
-    assert human["speed_ratio"].max() == pytest.approx(2.56, abs=0.02), \
-        f"at human speed the fastest joint needs {human['speed_ratio'].max():.2f}x its velocity limit"
-    assert within(chosen) and not within(below), "scale 4 keeps every joint within 80 % of its limits, 3 does not"
-    assert chosen["speed_ratio"].max() == pytest.approx(0.64, abs=0.02), \
-        f"at scale 4 the worst speed is {chosen['speed_ratio'].max():.0%} of the velocity limit (measured 64 %)"
-    assert np.argmax(chosen["speed_ratio"]) == config.model.dof_names.index("r_shoulder_rotation"), \
-        "the shoulder rotation is the fastest joint against its limit"
-    assert below["speed_ratio"].max() == pytest.approx(0.85, abs=0.02), \
-        f"at scale 3 the worst speed is {below['speed_ratio'].max():.0%} of the velocity limit (measured 85 %)"
-    assert chosen["current_ratio"].max() == pytest.approx(0.21, abs=0.02), \
-        f"worst current {chosen['current_ratio'].max():.0%} of its limit (measured 21 %, shoulder flexion)"
 
 
 @pytest.mark.parametrize("servo_name", sorted(SERVOS))

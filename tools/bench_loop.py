@@ -22,7 +22,7 @@ from ..control.timing import SMALL_TIME_STEP
 from .swing import run_swing
 
 ROOT = Path(__file__).resolve().parents[1]
-RUNS = (("lock-step", dict(realtime=False)), ("real time", dict(realtime=True, time_scale=1.0)))
+RUNS = (("lock-step", dict(realtime=False)), ("real time", dict(realtime=True)))
 FIGURES = (("loop_hz", "loop (Hz)", "{:.0f}"), ("period_median_ms", "period median (ms)", "{:.3f}"),
            ("jitter_p99_ms", "jitter p99 (ms)", "{:.3f}"), ("cpu_median_ms", "CPU/tick median (ms)", "{:.3f}"),
            ("cpu_p99_ms", "CPU/tick p99 (ms)", "{:.3f}"), ("tracking_max_deg", "tracking max (deg)", "{:.3f}"))

@@ -77,8 +77,8 @@ def cmd_swing(args) -> None:
     try:
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
-                            realtime=args.realtime)
-    except (ConfigError, ServoError) as err:
+                            realtime=args.realtime, motion=args.motion, force=args.force)
+    except (ConfigError, ServoError, ValueError) as err:
         raise CliError(str(err)) from None
     if summary.get("error"):
         raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
@@ -189,9 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default out/<name>)")
     p.set_defaults(func=cmd_experiment)
 
-    p = sub.add_parser("swing", help="the tennis swing on servos (the simulated bus by default)",
-                       description="Home the arm, play the tennis forehand under closed-form control "
-                       "and log it. Without --port the simulated Dynamixel bus is started and used.")
+    p = sub.add_parser("swing", help="the tennis swing, or any motion, on servos (the simulated bus by default)",
+                       description="Validate the motion against the servos' limits, home the arm, play it "
+                       "under closed-form control and log it. Without --port the simulated Dynamixel bus "
+                       "is started and used.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--port", default=None, help="serial port of a real bus (default: simulated)")
     p.add_argument("--out", default="out/swing", help="output folder (default out/swing)")
@@ -200,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the swing this many times slower (default: the configuration's)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the loop and the simulated plant by the wall clock (default lock-step)")
+    p.add_argument("--motion", default="tennis_forehand", metavar="NAME|FILE",
+                   help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
+    p.add_argument("--force", action="store_true",
+                   help="play a motion the validator refuses (on the simulated bus only)")
     p.set_defaults(func=cmd_swing)
 
     p = sub.add_parser("sim", help="serve the simulated Dynamixel bus on a pseudo-terminal")

@@ -16,30 +16,50 @@ from pathlib import Path
 import numpy as np
 
 from ..control import ControlConfig, Controller
-from ..control.motion import load_motion
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
 from ..hal.bus import make_bus
 from ..hal.config import load_config
 from ..hal.errors import ServoError
 from ..loop import RunLog, follow, summarize
+from .validate import motion_path
+
+DEFAULT_MOTION = "tennis_forehand"
 
 SIM_REPLY_TIMEOUT = 0.25   # s to wait for a read reply from the embedded simulated bus
 
 
+class MotionRefused(ValueError):
+    """The validator says the motion would leave a servo's limits: nothing moved."""
+
+
 def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
-              say=print, fault_at: tuple | None = None) -> dict:
-    """Home, swing, log; returns the summary. fault_at = (time, servo id) or (time, servo id,
-    fault): on the simulated bus, that servo stops answering then (fault "silent", the default),
-    or raises Hardware Error Status bits ("overload", "overheating", ... or the bits as an int),
-    to show the safe stop."""
+              say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
+              force: bool = False) -> dict:
+    """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
+    file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
+    the forehand, else 1). Before anything moves the validator checks it against every servo
+    limit; a failing motion raises MotionRefused with its first violation, unless `force` on the
+    simulated bus. fault_at = (time, servo id) or (time, servo id, fault): on the simulated bus,
+    that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
+    bits ("overload", "overheating", ... or the bits as an int), to show the safe stop."""
+    from .validate import validate
     config = load_config(config_name)
     model = config.model
-    scale = time_scale or config.swing_time_scale or 1.0
-    swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
-    mode = "feedforward_pd" if feedforward else "pd"
+    scale = time_scale or (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
+    verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
     bus_config = next(iter(config.buses.values()))
+    simulated = port is None and bus_config.kind == "dynamixel" or bus_config.kind == "loopback"
+    if not verdict["passed"]:
+        first = verdict["violations"][0]["message"]
+        if not (force and simulated):
+            raise MotionRefused(f"'{verdict['motion']}' at time scale {scale:g} would leave a servo's limits: {first}"
+                                f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
+                                f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
+        say(f"forced past the validator: {first}")
+    swing = motion_path(motion, model).at_scale(scale)
+    mode = "feedforward_pd" if feedforward else "pd"
     server = arm = None
     options = {}
     if port is None and bus_config.kind == "dynamixel":
@@ -68,8 +88,8 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         home, played = plan_run(model, swing, bus.read_state().q)
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
         follow(bus, controller, home, realtime=realtime)
-        say(f"swing: tennis forehand, {swing.t[-1]:.1f} s (time scale {scale:g}: the servos' "
-            f"speed limits), {mode.replace('_', ' + ')}, inverse dynamics every "
+        say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
+            f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
         swing_start = arm.time if arm is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at),
@@ -83,7 +103,8 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
         if server is not None:
             server.stop()
     summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
-    summary.update(mode=mode, time_scale=scale, bus=bus.stats.as_dict(bus.dof_names))
+    summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
+                   bus=bus.stats.as_dict(bus.dof_names))
     if arm is not None:
         # what the simulated servos saw: plant time at the stop and every torque switched off
         summary["sim_time_at_stop_s"] = arm.time - swing_start     # on the swing's clock
@@ -120,5 +141,5 @@ def _write(out: Path, log: RunLog, summary: dict, say) -> None:
         f"{np.degrees(summary['tracking_rms_rad']):.3f} deg, max {np.degrees(summary['tracking_max_rad']):.3f} deg")
     from .plots import tracking_figure
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
-                    np.array(log.tau), log.dof_names, "tennis forehand on the servo bus")
+                    np.array(log.tau), log.dof_names, f"{summary['motion']} on the servo bus")
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")
