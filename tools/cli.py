@@ -139,7 +139,7 @@ def cmd_validate(args) -> int:
         report = validate(config, args.motion, time_scale=args.time_scale, payload=args.payload,
                           payload_body=args.payload_body, payload_com=args.payload_com,
                           supply_voltage=args.supply_voltage, margin=args.margin, repeat=args.repeat,
-                          ambient=args.ambient, fit=args.fit, out=Path(args.out))
+                          ambient=args.ambient, fit=args.fit, retime_motion=args.retime, out=Path(args.out))
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
     return 0 if report["passed"] else 1
@@ -253,6 +253,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=1, metavar="N", help="plays in a row, for the heat (default 1)")
     p.add_argument("--ambient", type=float, default=25.0, metavar="C", help="ambient temperature (default 25 °C)")
     p.add_argument("--fit", action="store_true", help="also find the smallest time scale at which every check passes")
+    p.add_argument("--retime", action="store_true",
+                   help="also re-time the path with TOPP-RA to the limits, check it densely and write it as "
+                        "OUT/retimed.csv (servodyn swing --motion plays it)")
     p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
     p.set_defaults(func=cmd_validate)
 

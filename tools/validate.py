@@ -35,7 +35,7 @@ import numpy as np
 
 from ..control.motion import builtin_motions, load_motion
 from ..control.timing import SMALL_TIME_STEP
-from ..control.trajectory import Trajectory, TrajectoryError, read_trajectory_csv, spline_derivatives
+from ..control.trajectory import Trajectory, TrajectoryError, read_trajectory_csv, write_trajectory_csv
 from ..hal.bus import backend_class
 
 CHECKS = ("position", "speed", "torque_speed", "current", "temperature", "supply", "bus", "command_range")
@@ -308,6 +308,61 @@ def fit_time_scale(model, limits: Limits, path: Path_, margin: float, repeat: in
     return above, f"scan x{ratio:g} then bisection to {FIT_TOLERANCE:.1%}: fails at {below:.4f}, passes at {above:.4f}"
 
 
+# ---------------------------------------------------------------------------- TOPP-RA
+
+RETIME_GRID = 400             # path points toppra plans on
+RETIME_SPEED_SHARE = 0.5      # of the no-load speed given to speed, the rest of the envelope to torque
+RETIME_SHRINK = 0.93          # each retry plans on limits this much tighter
+RETIME_TRIES = 12
+
+
+def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambient: float):
+    """The path re-timed by TOPP-RA (toppra), checked densely afterwards like any motion.
+
+    toppra plans with constant bounds, so the envelope is linearised: each joint may turn at up to
+    half its no-load speed at the supply voltage (and its velocity limit), and then needs at most
+    half the stall torque to stay inside the driving line τ_s·(1 − |ω|/ω₀); its current limit
+    bounds the torque too. Both are scaled by the margin. toppra sees servodyn's rigid-body RNEA
+    (gravity, any payload). Its result is then re-checked every small_time_step: between its grid
+    points it can exceed its bounds, so a failing plan is tried again on bounds 7 % tighter.
+    Returns (trajectory, result, {duration_s, tries, toppra_s}) or (None, None, why)."""
+    import time
+
+    import toppra as ta
+    import toppra.algorithm as algo
+    import toppra.constraint as constraint
+
+    ss = np.linspace(0.0, path.duration, RETIME_GRID)
+    waypoints = path.evaluate(ss)[0]
+    spline = ta.SplineInterpolator(ss, waypoints)
+    speed = np.minimum(limits.speed, RETIME_SPEED_SHARE * limits.no_load_speed / limits.gear)
+    envelope = limits.gear * limits.stall_torque * (1 - RETIME_SPEED_SHARE)
+    current = (limits.current - limits.no_load_current) * limits.torque_constant * limits.gear
+    torque = np.minimum(envelope, np.minimum(current, limits.command))
+
+    def inverse_dynamics(q, qd, qdd):
+        return model.inverse_dynamics(q, qd, qdd)
+
+    began, scale = time.perf_counter(), margin
+    for tries in range(1, RETIME_TRIES + 1):
+        vel = constraint.JointVelocityConstraint(np.column_stack([-scale * speed, scale * speed]))
+        tau = constraint.JointTorqueConstraint(inverse_dynamics, np.column_stack([-scale * torque, scale * torque]),
+                                               np.zeros(len(speed)),
+                                               discretization_scheme=constraint.DiscretizationType.Interpolation)
+        planned = algo.TOPPRA([vel, tau], spline, parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
+        if planned is None:
+            return None, None, f"toppra found no feasible timing (try {tries}: 'controllable set is empty')"
+        t = np.arange(int(np.floor(planned.duration / SMALL_TIME_STEP)) + 1) * SMALL_TIME_STEP
+        t = np.append(t, planned.duration) if planned.duration - t[-1] > 1e-9 else t
+        traj = Trajectory(t=t, q=planned(t), qd=planned(t, 1), qdd=planned(t, 2), derived=True)
+        result = check(model, limits, traj, margin, repeat, ambient)
+        if result.passed:
+            return traj, result, {"duration_s": float(planned.duration), "tries": tries,
+                                  "seconds": time.perf_counter() - began}
+        scale *= RETIME_SHRINK
+    return None, None, f"toppra's timings still failed the dense check after {RETIME_TRIES} tries"
+
+
 # ---------------------------------------------------------------------------- the report
 
 def joint_table(result: Result, dof_names) -> dict:
@@ -456,7 +511,7 @@ def plot_time(file: Path, result: Result, limits: Limits, dof_names, title: str)
 
 def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0.0, payload_body=None,
              payload_com=None, supply_voltage: float | None = None, margin: float = 1.0, repeat: int = 1,
-             ambient: float = AMBIENT, fit: bool = False, retime: bool = False, simulate: bool = False,
+             ambient: float = AMBIENT, fit: bool = False, retime_motion: bool = False, simulate: bool = False,
              out: Path | None = None, say=print) -> dict:
     """Validate `motion` on the configuration's servos; the report (and its files in `out`)."""
     if not (math.isfinite(time_scale) and time_scale > 0):
@@ -497,8 +552,24 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         report["fit_time_scale"] = scale
         report["fit_how"] = how
         say(f"fit: {'time scale ' + format(scale, '.4f') + f' ({path.duration * scale:.3f} s)' if scale else 'none'} — {how}")
+    if retime_motion:
+        traj, checked, info = retime(model, limits, path, margin, repeat, ambient)
+        if traj is None:
+            report["retime"] = {"passed": False, "why": info}
+            say(f"retime: {info}")
+        else:
+            report["retime"] = {"passed": True, **info}
+            fitted = report.get("fit_time_scale")
+            durations = f"as written {path.duration:.3f} s" + (f", uniform fit {path.duration * fitted:.3f} s"
+                                                               if fitted else "")
+            plans = f"{info['tries']} plan{'s' if info['tries'] > 1 else ''}"
+            say(f"retime (TOPP-RA): {info['duration_s']:.3f} s, passes the dense check ({plans}, "
+                f"{info['seconds']:.2f} s); {durations}")
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+        if report.get("retime", {}).get("passed"):
+            write_trajectory_csv(out / "retimed.csv", traj, model.dof_names)
+            report["retime"]["file"] = str(out / "retimed.csv")
         title = f"{path.name} on {config.name}, time scale {time_scale:g}, {voltage:g} V"
         plot_envelopes(out / "envelopes.png", result, limits, model.dof_names, title)
         plot_time(out / "current_temperature.png", result, limits, model.dof_names, title)
