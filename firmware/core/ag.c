@@ -324,7 +324,7 @@ static inline void rigid_inertia_and_bias(const sd_model* m, sd_data* d, int i,
   sd_mulsym(hang, I, w);
   sd_addcross(hang, h, v);
   sd_cross(hlin, w, h);
-  hlin[0] += mass*v[0]; hlin[1] += mass*v[1]; hlin[2] += mass*v[2];
+  sd_addtoscl3(hlin, v, mass);
   sd_real* pA = d->body_pA[i];
   sd_cross(pA, w, hang);
   sd_addcross(pA, v, hlin);
@@ -354,27 +354,25 @@ static inline void outbound_body(const sd_model* m, sd_data* d, int i, const sd_
   // v = R (v_p + w_p x p); w = R w_p + sum z qd, with c_ang = sum w_(k-1) x z_k qd_k
   sd_real t[3];
   sd_cross(t, wp, p);
-  t[0] += vp[0]; t[1] += vp[1]; t[2] += vp[2];
+  sd_addto3(t, vp);
   sd_mulmv(v, R, t);
   sd_mulmv(w, R, wp);
   sd_real wjoint[3] = {0, 0, 0};
-  c[0] = c[1] = c[2] = 0;
+  sd_zero3(c);
   int adr = m->body_dofadr[i];
   if (nd == 3 && m->body_ball[i]) {
     // a ball joint: its dofs are the body-frame rate, so c_ang = w_parent x w_joint only
-    for (int k = 0; k < 3; k++) {
-      wjoint[k] = qd[adr + k];
-    }
+    sd_copy3(wjoint, qd + adr);
     sd_cross(c, w, wjoint);
-    w[0] += wjoint[0]; w[1] += wjoint[1]; w[2] += wjoint[2];
+    sd_addto3(w, wjoint);
   } else {
     for (int k = 0; k < nd; k++) {
       const sd_real* z = d->dof_axis[adr + k];
-      sd_real rate = qd[adr + k];
-      sd_real zqd[3] = {z[0]*rate, z[1]*rate, z[2]*rate};
+      sd_real zqd[3];
+      sd_scl3(zqd, z, qd[adr + k]);
       sd_addcross(c, w, zqd);
-      w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
-      wjoint[0] += zqd[0]; wjoint[1] += zqd[1]; wjoint[2] += zqd[2];
+      sd_addto3(w, zqd);
+      sd_addto3(wjoint, zqd);
     }
   }
   // the joint turns about the origin, so the origin's spatial acceleration gains v x w_joint
@@ -394,7 +392,7 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
   // a' = (R dw_p; R (a_p + dw_p x p)) + c
   sd_real t[3];
   sd_cross(t, ap, m->body_pos[i]);
-  t[0] += ap[3]; t[1] += ap[4]; t[2] += ap[5];
+  sd_addto3(t, ap + 3);
   sd_mulmv(a, R, ap);
   sd_mulmv(a + 3, R, t);
   for (int k = 0; k < 6; k++) {
@@ -418,7 +416,7 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
   for (int k = 0; k < nd; k++) {
     const sd_real* z = d->dof_axis[adr + k];
     qdd[adr + k] = rhs[k];
-    a[0] += z[0]*rhs[k]; a[1] += z[1]*rhs[k]; a[2] += z[2]*rhs[k];
+    sd_addtoscl3(a, z, rhs[k]);
   }
 }
 
@@ -426,10 +424,8 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
 static inline void free_outbound(const sd_model* m, sd_data* d, const sd_real* q,
                                  const sd_real* qd, const sd_real* f_ext) {
   sd_free_kinematics(m, d, q);
-  for (int k = 0; k < 3; k++) {
-    d->body_v[0][k] = qd[k];
-    d->body_w[0][k] = qd[3 + k];
-  }
+  sd_copy3(d->body_v[0], qd);
+  sd_copy3(d->body_w[0], qd + 3);
   for (int k = 0; k < 6; k++) {
     d->body_c[0][k] = 0;
   }

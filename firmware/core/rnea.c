@@ -30,12 +30,10 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       // free joint's (spatial) acceleration plus w x v, with the base's -g seen from the body
       sd_free_kinematics(m, d, q);
       const sd_real* v = qd;
-      for (int k = 0; k < 3; k++) {
-        w[k] = qd[3 + k];
-        dw[k] = qdd[3 + k];
-      }
+      sd_copy3(w, qd + 3);
+      sd_copy3(dw, qdd + 3);
       sd_mulmv(a, d->body_R[0], base_acc);
-      a[0] += qdd[0]; a[1] += qdd[1]; a[2] += qdd[2];
+      sd_addto3(a, qdd);
       sd_addcross(a, w, v);
     } else {
       const sd_real* p = m->body_pos[i];
@@ -47,7 +45,7 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       sd_cross(wxp, wp, p);
       sd_cross(t, wp, wxp);
       sd_addcross(t, dwp, p);
-      t[0] += ap[0]; t[1] += ap[1]; t[2] += ap[2];
+      sd_addto3(t, ap);
       sd_mulmv(a, R, t);
 
       // angular velocity and acceleration, dof by dof: dw += z qdd + w x z qd, then w += z qd
@@ -57,16 +55,17 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       if (m->body_ball[i]) {
         // a ball joint's dofs are the body-frame rate itself: dw += qdd + w x qd, w += qd
         const sd_real* wj = qd + adr;
-        dw[0] += qdd[adr]; dw[1] += qdd[adr + 1]; dw[2] += qdd[adr + 2];
+        sd_addto3(dw, qdd + adr);
         sd_addcross(dw, w, wj);
-        w[0] += wj[0]; w[1] += wj[1]; w[2] += wj[2];
+        sd_addto3(w, wj);
       } else {
         for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
           const sd_real* z = d->dof_axis[j];
-          sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
-          dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
+          sd_real zqd[3];
+          sd_scl3(zqd, z, qd[j]);
+          sd_addtoscl3(dw, z, qdd[j]);
           sd_addcross(dw, w, zqd);
-          w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
+          sd_addto3(w, zqd);
         }
       }
     }
@@ -81,7 +80,7 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
     sd_cross(wxh, w, h);
     sd_cross(f, w, wxh);
     sd_addcross(f, dw, h);
-    f[0] += mass*a[0]; f[1] += mass*a[1]; f[2] += mass*a[2];
+    sd_addtoscl3(f, a, mass);
     sd_mulsym(Iw, I, w);
     sd_mulsym(n, I, dw);
     sd_addcross(n, w, Iw);
@@ -89,15 +88,14 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
 
     // minus what the environment applies
     if (f_ext) {
-      const sd_real* fe = f_ext + 6*i;
-      n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
-      f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
+      sd_subfrom3(n, f_ext + 6*i);
+      sd_subfrom3(f, f_ext + 6*i + 3);
     }
     if (i == 0 && m->free_root) {
       sd_real fe[6];
       sd_root_wrench(d, fe);
-      n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
-      f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
+      sd_subfrom3(n, fe);
+      sd_subfrom3(f, fe + 3);
     }
   }
 
@@ -108,10 +106,8 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
     int adr = m->body_dofadr[i];
     if (i == 0 && m->free_root) {
       // the free root's generalized force is its whole wrench: force, then moment
-      for (int k = 0; k < 3; k++) {
-        tau[k] = f[k];
-        tau[3 + k] = n[k];
-      }
+      sd_copy3(tau, f);
+      sd_copy3(tau + 3, n);
       continue;
     }
     for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
@@ -125,10 +121,8 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
       sd_mulmtv(fp, R, f);
       sd_mulmtv(np, R, n);
       sd_addcross(np, m->body_pos[i], fp);
-      sd_real* fpar = d->body_f[parent];
-      sd_real* npar = d->body_n[parent];
-      fpar[0] += fp[0]; fpar[1] += fp[1]; fpar[2] += fp[2];
-      npar[0] += np[0]; npar[1] += np[1]; npar[2] += np[2];
+      sd_addto3(d->body_f[parent], fp);
+      sd_addto3(d->body_n[parent], np);
     }
   }
 
