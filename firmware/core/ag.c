@@ -221,7 +221,7 @@ static inline void acceleration_body(const sd_model* m, sd_data* d, int i, const
 // The free root's first outbound step: its velocity is its own 6 dofs, and c = 0 (S = 1).
 static inline void free_outbound(const sd_model* m, sd_data* d, const sd_real* q,
                                  const sd_real* qd, const sd_real* f_ext) {
-  sd_free_kinematics(m, d, q);
+  sd_joint_kinematics(m, d, 0, q, 6);
   sd_copy3(d->body_v[0], qd);
   sd_copy3(d->body_w[0], qd + 3);
   for (int k = 0; k < 6; k++) {
