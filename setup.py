@@ -12,7 +12,7 @@ def core_module(name, *defines):
     return Extension(
         f"servodyn.{name}",
         sources=["host/_core.c", "host/_core_control.c", *CORE],
-        include_dirs=["firmware/core", "host", numpy.get_include()],
+        include_dirs=["firmware/core/include", "host", numpy.get_include()],
         define_macros=[("SD_MODULE_NAME", name), *[(d, "1") for d in defines]],
         extra_compile_args=FLAGS,
     )

@@ -1,4 +1,5 @@
-// sd_math.h: small fixed-size vector and matrix helpers shared by the core's algorithms.
+// sd_math.h (internal): small fixed-size vector and matrix helpers shared by the core's
+// algorithms.
 // Everything is static inline: no calls in the hot paths, no state.
 #ifndef SD_MATH_H
 #define SD_MATH_H

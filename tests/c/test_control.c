@@ -579,7 +579,8 @@ static void free_root_is_not_actuated(void) {
     const int U = 2;
     configure(&g_cfg, &g_model, mode, U, 11);
     sdt_context("free root, mode %d", mode);
-    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "a free root (no ball joint) is accepted");
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK,
+               "a free root (no ball joint) is accepted");
     memset(&g_data, 0, sizeof g_data);
     memset(&g_ref, 0, sizeof g_ref);
     sd_control_reset(&g_state);

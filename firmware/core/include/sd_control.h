@@ -1,4 +1,4 @@
-// sd_control.h: the closed-form controller step (paper §3.2, Fig. 4).
+// sd_control.h (public): the closed-form controller step (paper §3.2, Fig. 4).
 //
 // Every small_time_step the controller turns the desired state and the measured state into
 // joint torques; every time_step (an integer multiple, ~10 in the paper) it recomputes the
