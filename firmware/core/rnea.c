@@ -20,21 +20,19 @@ static inline void joint_motion(const sd_model* m, const sd_data* d, int i, cons
                                 sd_real* a) {
   int adr = m->body_dofadr[i];
 
-  // a free root: its rotation as a ball joint's below; its origin accelerates by qdd_lin + w x v
-  if (nd == 6) {
-    sd_addto3(dw, qdd + 3);
-    sd_addcross(dw, w, qd + 3);
-    sd_addto3(w, qd + 3);
-    sd_addto3(a, qdd);
-    sd_addcross(a, w, qd);
-    return;
-  }
+  // a ball joint, or a free root's rotation: the dofs are the body-frame rate itself,
+  // dw += qdd + w x qd, w += qd
+  if (nd == 6 || m->body_ball[i]) {
+    int rot = nd == 6 ? adr + 3 : adr;
+    sd_addto3(dw, qdd + rot);
+    sd_addcross(dw, w, qd + rot);
+    sd_addto3(w, qd + rot);
 
-  // a ball joint: its dofs are the body-frame rate itself, dw += qdd + w x qd, w += qd
-  if (m->body_ball[i]) {
-    sd_addto3(dw, qdd + adr);
-    sd_addcross(dw, w, qd + adr);
-    sd_addto3(w, qd + adr);
+    // a free root's translation: its origin accelerates by qdd_lin + w x v
+    if (nd == 6) {
+      sd_addto3(a, qdd + adr);
+      sd_addcross(a, w, qd + adr);
+    }
     return;
   }
 
