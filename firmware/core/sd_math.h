@@ -23,16 +23,6 @@ static inline void sd_scl3(sd_real r[3], const sd_real a[3], sd_real s) {
   r[0] = a[0]*s; r[1] = a[1]*s; r[2] = a[2]*s;
 }
 
-// r = a + b
-static inline void sd_add3(sd_real r[3], const sd_real a[3], const sd_real b[3]) {
-  r[0] = a[0] + b[0]; r[1] = a[1] + b[1]; r[2] = a[2] + b[2];
-}
-
-// r = a - b
-static inline void sd_sub3(sd_real r[3], const sd_real a[3], const sd_real b[3]) {
-  r[0] = a[0] - b[0]; r[1] = a[1] - b[1]; r[2] = a[2] - b[2];
-}
-
 // r += a
 static inline void sd_addto3(sd_real r[3], const sd_real a[3]) {
   r[0] += a[0]; r[1] += a[1]; r[2] += a[2];
