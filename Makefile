@@ -16,7 +16,7 @@ VENV := .venv
 STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
-CORE_H := $(wildcard firmware/core/*.h)
+CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
 
 .DEFAULT_GOAL := test

@@ -23,7 +23,7 @@ from servodyn.model.samples import random_model, serial_chain
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build" / "bench"
 SOURCES = [ROOT / "tools" / "bench_native" / "bench.cpp", ROOT / "tools" / "bench_native" / "build.sh",
-           *sorted((ROOT / "firmware" / "core").glob("*.[ch]"))]
+           *sorted((ROOT / "firmware" / "core").rglob("*.[ch]"))]
 GOALS = {"rnea": 0.6, "forward": 0.8, "rk4": 0.8}
 
 

@@ -17,7 +17,7 @@ FW_STACK := 4096
 FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
   -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
   -fcallgraph-info=su -DSD_SINGLE -include $(FW_GEN)/servodyn_gen.h \
-  -Ifirmware/core -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
+  -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
 FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(wildcard firmware/app/*.c) \
   hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
 FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/c/*.h) \

@@ -6,22 +6,43 @@
 #include "sd_math.h"
 
 int sd_control_check(const sd_model* m, const sd_control_config* c) {
-  if (c->mode < 0 || c->mode >= SD_NMODE || c->update_ticks < 1) {
-    return -1;
+  // the mode and the update period
+  if (c->mode < 0 || c->mode >= SD_NMODE) {
+    return SD_CONTROL_ERR_MODE;
   }
+  if (c->update_ticks < 1) {
+    return SD_CONTROL_ERR_UPDATE;
+  }
+
   // the joint PD works on angles: ball joints (quaternions) are for simulation only
   for (int i = 0; i < m->nbody; i++) {
     if (m->body_ball[i]) {
-      return -1;
+      return SD_CONTROL_ERR_BALL;
     }
   }
+
+  // gains and limits: zero or positive, and finite
   for (int j = 0; j < m->ndof; j++) {
-    if (!(c->kp[j] >= 0) || !(c->kd[j] >= 0) || !(c->tau_max[j] >= 0) ||
-        !SD_ISFINITE(c->kp[j]) || !SD_ISFINITE(c->kd[j]) || !SD_ISFINITE(c->tau_max[j])) {
-      return -1;
+    if (!(c->kp[j] >= 0) || !(c->kd[j] >= 0) || !SD_ISFINITE(c->kp[j]) || !SD_ISFINITE(c->kd[j])) {
+      return SD_CONTROL_ERR_GAIN;
+    }
+    if (!(c->tau_max[j] >= 0) || !SD_ISFINITE(c->tau_max[j])) {
+      return SD_CONTROL_ERR_LIMIT;
     }
   }
-  return 0;
+  return SD_CONTROL_OK;
+}
+
+const char* sd_control_strerror(int code) {
+  switch (code) {
+    case SD_CONTROL_OK:         return "ok";
+    case SD_CONTROL_ERR_MODE:   return "mode unknown";
+    case SD_CONTROL_ERR_UPDATE: return "update_ticks < 1";
+    case SD_CONTROL_ERR_BALL:   return "a ball joint: the joint PD works on angles";
+    case SD_CONTROL_ERR_GAIN:   return "a gain (kp or kd) negative or not finite";
+    case SD_CONTROL_ERR_LIMIT:  return "a torque limit negative or not finite";
+    default:                    return "unknown error";
+  }
 }
 
 void sd_control_reset(sd_control_state* s) {

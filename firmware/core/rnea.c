@@ -8,8 +8,62 @@
 //     axis turns with the dofs before it, alpha += w_(k-1) x z_k qd_k, not only w_parent x (...);
 //   - every quantity is taken about the body origin with the first moment h = m s, so gravity is
 //     the base's upward acceleration -g and needs no per-body term g_i.
+// Every joint goes through the same two steps, as with spatial_v2's jcalc: its kinematics
+// (sd_joint_kinematics) and its motion below; a free root is the joint of 6 dofs.
 #include "servodyn.h"
 #include "sd_joint.h"
+#include "sd_spatial.h"
+
+// Add the motion of body i's nd-dof joint to the motion w, dw, a it inherits from its parent.
+static inline void joint_motion(const sd_model* m, const sd_data* d, int i, const int nd,
+                                const sd_real* qd, const sd_real* qdd, sd_real* w, sd_real* dw,
+                                sd_real* a) {
+  int adr = m->body_dofadr[i];
+
+  // a ball joint, or a free root's rotation: the dofs are the body-frame rate itself,
+  // dw += qdd + w x qd, w += qd
+  if (nd == 6 || m->body_ball[i]) {
+    int rot = nd == 6 ? adr + 3 : adr;
+    sd_addto3(dw, qdd + rot);
+    sd_addcross(dw, w, qd + rot);
+    sd_addto3(w, qd + rot);
+
+    // a free root's translation: its origin accelerates by qdd_lin + w x v
+    if (nd == 6) {
+      sd_addto3(a, qdd + adr);
+      sd_addcross(a, w, qd + adr);
+    }
+    return;
+  }
+
+  // hinges, dof by dof: dw += z qdd + w x z qd, then w += z qd
+  for (int j = adr; j < adr + nd; j++) {
+    const sd_real* z = d->dof_axis[j];
+    sd_real zqd[3];
+    sd_scl3(zqd, z, qd[j]);
+    sd_addtoscl3(dw, z, qdd[j]);
+    sd_addcross(dw, w, zqd);
+    sd_addto3(w, zqd);
+  }
+}
+
+// The generalized force of body i's nd-dof joint from the wrench (n, f) the body receives.
+static inline void joint_force(const sd_model* m, const sd_data* d, int i, const int nd,
+                               const sd_real* n, const sd_real* f, sd_real* tau) {
+  int adr = m->body_dofadr[i];
+
+  // a free root: its whole wrench, force first, then moment
+  if (nd == 6) {
+    sd_copy3(tau + adr, f);
+    sd_copy3(tau + adr + 3, n);
+    return;
+  }
+
+  // a hinge or ball joint: the moment about each dof axis
+  for (int j = adr; j < adr + nd; j++) {
+    tau[j] = sd_dot(n, d->dof_axis[j]);
+  }
+}
 
 void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
              const sd_real* qdd, const sd_real* f_ext, sd_real* tau) {
@@ -18,70 +72,43 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
 
   // forward pass: velocities and accelerations from the base to the leaves
   for (int i = 0; i < m->nbody; i++) {
-    int parent = m->body_parent[i];
+    int parent = m->body_parent[i], nd = m->body_dofnum[i];
     const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
     const sd_real* dwp = parent < 0 ? zero : d->body_dw[parent];
     const sd_real* ap = parent < 0 ? base_acc : d->body_acc[parent];
+    const sd_real* p = m->body_pos[i];
     sd_real* w = d->body_w[i];
     sd_real* dw = d->body_dw[i];
     sd_real* a = d->body_acc[i];
-    if (i == 0 && m->free_root) {
-      // a free root: w and dw are its own dofs, and its origin's classical acceleration is the
-      // free joint's (spatial) acceleration plus w x v, with the base's -g seen from the body
-      sd_free_kinematics(m, d, q);
-      const sd_real* v = qd;
-      for (int k = 0; k < 3; k++) {
-        w[k] = qd[3 + k];
-        dw[k] = qdd[3 + k];
-      }
-      sd_mulmv(a, d->body_R[0], base_acc);
-      a[0] += qdd[0]; a[1] += qdd[1]; a[2] += qdd[2];
-      sd_addcross(a, w, v);
-    } else {
-      const sd_real* p = m->body_pos[i];
-      sd_joint_kinematics(m, d, i, q, m->body_dofnum[i]);
-      const sd_real* R = d->body_R[i];
 
-      // linear acceleration of the origin: a = R (a_p + dw_p x p + w_p x (w_p x p))
-      sd_real wxp[3], t[3];
-      sd_cross(wxp, wp, p);
-      sd_cross(t, wp, wxp);
-      sd_addcross(t, dwp, p);
-      t[0] += ap[0]; t[1] += ap[1]; t[2] += ap[2];
-      sd_mulmv(a, R, t);
+    // joint transform and dof axes
+    sd_joint_kinematics(m, d, i, q, nd);
+    const sd_real* R = d->body_R[i];
 
-      // angular velocity and acceleration, dof by dof: dw += z qdd + w x z qd, then w += z qd
-      sd_mulmv(w, R, wp);
-      sd_mulmv(dw, R, dwp);
-      int adr = m->body_dofadr[i];
-      if (m->body_ball[i]) {
-        // a ball joint's dofs are the body-frame rate itself: dw += qdd + w x qd, w += qd
-        const sd_real* wj = qd + adr;
-        dw[0] += qdd[adr]; dw[1] += qdd[adr + 1]; dw[2] += qdd[adr + 2];
-        sd_addcross(dw, w, wj);
-        w[0] += wj[0]; w[1] += wj[1]; w[2] += wj[2];
-      } else {
-        for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
-          const sd_real* z = d->dof_axis[j];
-          sd_real zqd[3] = {z[0]*qd[j], z[1]*qd[j], z[2]*qd[j]};
-          dw[0] += z[0]*qdd[j]; dw[1] += z[1]*qdd[j]; dw[2] += z[2]*qdd[j];
-          sd_addcross(dw, w, zqd);
-          w[0] += zqd[0]; w[1] += zqd[1]; w[2] += zqd[2];
-        }
-      }
-    }
+    // the parent's motion at the body origin: w = R w_p, dw = R dw_p and
+    // a = R (a_p + dw_p x p + w_p x (w_p x p))
+    sd_real wxp[3], t[3];
+    sd_cross(wxp, wp, p);
+    sd_cross(t, wp, wxp);
+    sd_addcross(t, dwp, p);
+    sd_addto3(t, ap);
+    sd_mulmv(a, R, t);
+    sd_mulmv(w, R, wp);
+    sd_mulmv(dw, R, dwp);
+
+    // plus the joint's own
+    joint_motion(m, d, i, nd, qd, qdd, w, dw, a);
 
     // the wrench that moves the body: f = m a + dw x h + w x (w x h), n = I dw + w x I w + h x a
     const sd_real* h = m->body_mcom[i];
     const sd_real* I = m->body_inertia0[i];
-    sd_real mass = m->body_mass[i];
     sd_real* f = d->body_f[i];
     sd_real* n = d->body_n[i];
     sd_real wxh[3], Iw[3];
     sd_cross(wxh, w, h);
     sd_cross(f, w, wxh);
     sd_addcross(f, dw, h);
-    f[0] += mass*a[0]; f[1] += mass*a[1]; f[2] += mass*a[2];
+    sd_addtoscl3(f, a, m->body_mass[i]);
     sd_mulsym(Iw, I, w);
     sd_mulsym(n, I, dw);
     sd_addcross(n, w, Iw);
@@ -89,46 +116,24 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
 
     // minus what the environment applies
     if (f_ext) {
-      const sd_real* fe = f_ext + 6*i;
-      n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
-      f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
+      sd_subfrom3(n, f_ext + 6*i);
+      sd_subfrom3(f, f_ext + 6*i + 3);
     }
-    if (i == 0 && m->free_root) {
+    if (nd == 6) {
       sd_real fe[6];
       sd_root_wrench(d, fe);
-      n[0] -= fe[0]; n[1] -= fe[1]; n[2] -= fe[2];
-      f[0] -= fe[3]; f[1] -= fe[4]; f[2] -= fe[5];
+      sd_subfrom3(n, fe);
+      sd_subfrom3(f, fe + 3);
     }
   }
 
   // backward pass: joint torques from the leaves, each body's wrench passed to its parent
   for (int i = m->nbody - 1; i >= 0; i--) {
-    const sd_real* f = d->body_f[i];
-    const sd_real* n = d->body_n[i];
-    int adr = m->body_dofadr[i];
-    if (i == 0 && m->free_root) {
-      // the free root's generalized force is its whole wrench: force, then moment
-      for (int k = 0; k < 3; k++) {
-        tau[k] = f[k];
-        tau[3 + k] = n[k];
-      }
-      continue;
-    }
-    for (int j = adr; j < adr + m->body_dofnum[i]; j++) {
-      tau[j] = sd_dot(n, d->dof_axis[j]);
-    }
     int parent = m->body_parent[i];
+    joint_force(m, d, i, m->body_dofnum[i], d->body_n[i], d->body_f[i], tau);
     if (parent >= 0) {
-      // f_p += R' f, n_p += R' n + p x R' f
-      const sd_real* R = d->body_R[i];
-      sd_real fp[3], np[3];
-      sd_mulmtv(fp, R, f);
-      sd_mulmtv(np, R, n);
-      sd_addcross(np, m->body_pos[i], fp);
-      sd_real* fpar = d->body_f[parent];
-      sd_real* npar = d->body_n[parent];
-      fpar[0] += fp[0]; fpar[1] += fp[1]; fpar[2] += fp[2];
-      npar[0] += np[0]; npar[1] += np[1]; npar[2] += np[2];
+      sd_addto_xtforce(d->body_n[parent], d->body_f[parent], d->body_R[i], m->body_pos[i],
+                       d->body_n[i], d->body_f[i]);
     }
   }
 

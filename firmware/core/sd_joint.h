@@ -1,4 +1,4 @@
-// sd_joint.h: the position kinematics of one joint, shared by sd_rnea and sd_forward.
+// sd_joint.h (internal): the position kinematics of one joint, shared by sd_rnea and sd_forward.
 #ifndef SD_JOINT_H
 #define SD_JOINT_H
 
@@ -15,15 +15,28 @@ static inline void sd_quat_to_rot(sd_real R[9], const sd_real* quat) {
   R[6] = s*(x*z - y*w);            R[7] = s*(y*z + x*w);            R[8] = SD_R(1) - s*(x*x + y*y);
 }
 
-// Compute body_R_parent of body i at q and the axes of its dofs in the body frame.
-// A joint's dof frames are chained: parent_R_body = body_rot Rz(q1) dof_rot2 Rz(q2) dof_rot3 Rz(q3),
-// so body_R_parent is built from the last dof inwards by pre-multiplying Rz(qk)' dof_rotk'.
-// nd is the joint's dof count, passed as a literal by callers that unroll per joint size.
+// The joint's transform and motion axes, as spatial_v2's jcalc: body_R_parent of body i at q
+// and the axes of its dofs in the body frame. nd is the joint's dof count, 6 for a free root;
+// callers that unroll per joint size pass it as a literal.
+// A hinge joint's dof frames are chained: parent_R_body = body_rot Rz(q1) dof_rot2 Rz(q2) dof_rot3
+// Rz(q3), so body_R_parent is built from the last dof inwards by pre-multiplying Rz(qk)' dof_rotk'.
 static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, const sd_real* q,
                                        const int nd) {
   int adr = m->body_dofadr[i];
-  q += m->body_qadr[i] - adr;  // q[adr + k] is then the k-th coordinate of this joint
   sd_real* R = d->body_R[i];
+
+  // a free root: the transpose of its quaternion's world_R_body; its dofs need no axes
+  if (nd == 6) {
+    sd_real Rw[9];
+    sd_quat_to_rot(Rw, q + m->body_qadr[i] + 3);
+    for (int r = 0; r < 3; r++) {
+      for (int c = 0; c < 3; c++) {
+        R[3*r + c] = Rw[3*c + r];
+      }
+    }
+    return;
+  }
+  q += m->body_qadr[i] - adr;  // q[adr + k] is then the k-th coordinate of this joint
 
   // a welded body: the fixed rotation alone
   if (nd == 0) {
@@ -77,18 +90,6 @@ static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, con
     d->dof_axis[j][0] = 0;
     d->dof_axis[j][1] = 0;
     d->dof_axis[j][2] = 1;
-  }
-}
-
-// body_R_parent of a free root: the transpose of the quaternion's world_R_body
-static inline void sd_free_kinematics(const sd_model* m, sd_data* d, const sd_real* q) {
-  sd_real Rw[9];
-  sd_quat_to_rot(Rw, q + m->body_qadr[0] + 3);
-  sd_real* R = d->body_R[0];
-  for (int r = 0; r < 3; r++) {
-    for (int c = 0; c < 3; c++) {
-      R[3*r + c] = Rw[3*c + r];
-    }
   }
 }
 

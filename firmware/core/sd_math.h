@@ -1,9 +1,42 @@
-// sd_math.h: small fixed-size vector and matrix helpers shared by the core's algorithms.
+// sd_math.h (internal): small fixed-size vector and matrix helpers shared by the core's
+// algorithms.
 // Everything is static inline: no calls in the hot paths, no state.
 #ifndef SD_MATH_H
 #define SD_MATH_H
 
 #include "sd_config.h"
+
+//---------------------------------- 3-vectors ---------------------------------------------------
+
+// r = 0
+static inline void sd_zero3(sd_real r[3]) {
+  r[0] = 0; r[1] = 0; r[2] = 0;
+}
+
+// r = a
+static inline void sd_copy3(sd_real r[3], const sd_real a[3]) {
+  r[0] = a[0]; r[1] = a[1]; r[2] = a[2];
+}
+
+// r = a s
+static inline void sd_scl3(sd_real r[3], const sd_real a[3], sd_real s) {
+  r[0] = a[0]*s; r[1] = a[1]*s; r[2] = a[2]*s;
+}
+
+// r += a
+static inline void sd_addto3(sd_real r[3], const sd_real a[3]) {
+  r[0] += a[0]; r[1] += a[1]; r[2] += a[2];
+}
+
+// r -= a
+static inline void sd_subfrom3(sd_real r[3], const sd_real a[3]) {
+  r[0] -= a[0]; r[1] -= a[1]; r[2] -= a[2];
+}
+
+// r += a s
+static inline void sd_addtoscl3(sd_real r[3], const sd_real a[3], sd_real s) {
+  r[0] += a[0]*s; r[1] += a[1]*s; r[2] += a[2]*s;
+}
 
 // r = a x b
 static inline void sd_cross(sd_real r[3], const sd_real a[3], const sd_real b[3]) {
@@ -20,9 +53,12 @@ static inline void sd_addcross(sd_real r[3], const sd_real a[3], const sd_real b
   r[2] += a[0]*b[1] - a[1]*b[0];
 }
 
+// a . b
 static inline sd_real sd_dot(const sd_real a[3], const sd_real b[3]) {
   return a[0]*b[0] + a[1]*b[1] + a[2]*b[2];
 }
+
+//---------------------------------- 3x3 matrices ------------------------------------------------
 
 // r = R v
 static inline void sd_mulmv(sd_real r[3], const sd_real R[9], const sd_real v[3]) {
@@ -67,6 +103,9 @@ static inline void sd_mulsym(sd_real r[3], const sd_real S[6], const sd_real v[3
   r[0] = x; r[1] = y; r[2] = z;
 }
 
+//---------------------------------- checks ------------------------------------------------------
+
+// 1 when the n numbers of x are all finite
 static inline int sd_allfinite(const sd_real* x, int n) {
   sd_real acc = 0;
   for (int i = 0; i < n; i++) {

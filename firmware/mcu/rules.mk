@@ -10,7 +10,7 @@ MCU_ELF := $(MCU_DIR)/servodyn-mcu.elf
 MCU_ARCH := -mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -mthumb
 MCU_CFLAGS := $(MCU_ARCH) -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion \
   -Wfloat-conversion -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
-  -DSD_SINGLE -DSD_MAX_BODY=16 -DSD_MAX_DOF=24 -DSD_MAX_KNOT=32 -Ifirmware/core -Ifirmware/mcu
+  -DSD_SINGLE -DSD_MAX_BODY=16 -DSD_MAX_DOF=24 -DSD_MAX_KNOT=32 -Ifirmware/core/include -Ifirmware/mcu
 MCU_LDFLAGS := $(MCU_ARCH) -nostartfiles --specs=nosys.specs -Wl,--gc-sections \
   -Wl,-T,firmware/mcu/mps2.ld -Wl,-Map,$(MCU_DIR)/servodyn-mcu.map
 MCU_SRC := $(CORE_C) $(wildcard firmware/mcu/*.c)

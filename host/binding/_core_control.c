@@ -33,9 +33,9 @@ static int Controller_init(ControllerObject* self, PyObject* args, PyObject* kwa
       sd_fill(c->tau_max, tau_max, nv, "tau_max")) {
     return -1;
   }
-  if (sd_control_check(&self->core->model, c)) {
-    PyErr_SetString(PyExc_ValueError, "controller: mode unknown, update_ticks < 1, or a gain or "
-                                      "torque limit negative or not finite");
+  int err = sd_control_check(&self->core->model, c);
+  if (err != SD_CONTROL_OK) {
+    PyErr_Format(PyExc_ValueError, "controller: %s", sd_control_strerror(err));
     return -1;
   }
   sd_control_reset(&self->state);
@@ -182,8 +182,9 @@ static PyObject* Controller_set_gains(ControllerObject* self, PyObject* args) {
   if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd")) {
     return NULL;
   }
-  if (sd_control_check(&self->core->model, &c)) {
-    PyErr_SetString(PyExc_ValueError, "controller: a gain negative or not finite");
+  int err = sd_control_check(&self->core->model, &c);
+  if (err != SD_CONTROL_OK) {
+    PyErr_Format(PyExc_ValueError, "controller: %s", sd_control_strerror(err));
     return NULL;
   }
   self->config = c;

@@ -6,8 +6,8 @@
 # with the tests of the firmware's Dynamixel codec (hal/dynamixel/c, test_dxl.c) in both.
 
 CC ?= cc
-CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core -Itests/c \
-  -Ihal/dynamixel/c
+CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core/include \
+  -Itests/c -Ihal/dynamixel/c
 CTEST_FLOAT_CFLAGS := -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion
 CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c
 CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h

@@ -64,12 +64,12 @@ static void pd_torque(const sd_model* m, const sd_control_config* c, const ctl_s
 
 //---------------------------------- sd_control_check --------------------------------------------
 
-#define CHECK_REJECTS(mutation, reason)                                  \
+#define CHECK_REJECTS(mutation, code, reason)                             \
   do {                                                                   \
     configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD_PD, 10, 1);          \
     mutation;                                                            \
     sdt_context("%s", #mutation);                                        \
-    EXPECT_INT(sd_control_check(&g_model, &g_cfg), -1, reason);          \
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), code, reason);        \
   } while (0)
 
 static void check_accepts_good_configs(void) {
@@ -82,7 +82,7 @@ static void check_accepts_good_configs(void) {
       g_cfg.kp[g_model.ndof - 1] = SD_R(0.0);   // zero gains and zero limits are allowed
       g_cfg.kd[g_model.ndof - 1] = SD_R(0.0);
       sdt_context("model %s, mode %d", name, mode);
-      EXPECT_INT(sd_control_check(&g_model, &g_cfg), 0,
+      EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK,
                  "every mode, update_ticks >= 1, gains and limits >= 0 (0: none) are accepted");
     }
   }
@@ -91,19 +91,45 @@ static void check_accepts_good_configs(void) {
 static void check_rejects_bad_configs(void) {
   if (sdt_model_chain3(&g_model) != SD_OK) return;
   int last = g_model.ndof - 1;
-  CHECK_REJECTS(g_cfg.mode = -1, "a mode below SD_MODE_FEEDFORWARD is rejected");
-  CHECK_REJECTS(g_cfg.mode = SD_NMODE, "SD_NMODE is not a mode");
-  CHECK_REJECTS(g_cfg.update_ticks = 0, "inverse dynamics need at least one small step per update");
-  CHECK_REJECTS(g_cfg.update_ticks = -3, "a negative update period is rejected");
-  CHECK_REJECTS(g_cfg.kp[last] = SD_R(-1.0), "a negative kp would push the error up");
-  CHECK_REJECTS(g_cfg.kd[0] = SD_R(-0.1), "a negative kd would pump energy in");
-  CHECK_REJECTS(g_cfg.tau_max[2] = SD_R(-2.0), "a negative torque limit is meaningless");
-  CHECK_REJECTS(g_cfg.kp[1] = (sd_real)NAN, "a NaN kp is rejected");
-  CHECK_REJECTS(g_cfg.kd[last] = (sd_real)NAN, "a NaN kd is rejected");
-  CHECK_REJECTS(g_cfg.tau_max[0] = (sd_real)NAN, "a NaN torque limit is rejected");
-  CHECK_REJECTS(g_cfg.kp[0] = (sd_real)INFINITY, "an infinite gain is rejected");
-  CHECK_REJECTS(g_cfg.tau_max[last] = (sd_real)INFINITY,
+  CHECK_REJECTS(g_cfg.mode = -1, SD_CONTROL_ERR_MODE,
+                "a mode below SD_MODE_FEEDFORWARD is rejected");
+  CHECK_REJECTS(g_cfg.mode = SD_NMODE, SD_CONTROL_ERR_MODE, "SD_NMODE is not a mode");
+  CHECK_REJECTS(g_cfg.update_ticks = 0, SD_CONTROL_ERR_UPDATE,
+                "inverse dynamics need at least one small step per update");
+  CHECK_REJECTS(g_cfg.update_ticks = -3, SD_CONTROL_ERR_UPDATE,
+                "a negative update period is rejected");
+  CHECK_REJECTS(g_cfg.kp[last] = SD_R(-1.0), SD_CONTROL_ERR_GAIN,
+                "a negative kp would push the error up");
+  CHECK_REJECTS(g_cfg.kd[0] = SD_R(-0.1), SD_CONTROL_ERR_GAIN,
+                "a negative kd would pump energy in");
+  CHECK_REJECTS(g_cfg.tau_max[2] = SD_R(-2.0), SD_CONTROL_ERR_LIMIT,
+                "a negative torque limit is meaningless");
+  CHECK_REJECTS(g_cfg.kp[1] = (sd_real)NAN, SD_CONTROL_ERR_GAIN, "a NaN kp is rejected");
+  CHECK_REJECTS(g_cfg.kd[last] = (sd_real)NAN, SD_CONTROL_ERR_GAIN, "a NaN kd is rejected");
+  CHECK_REJECTS(g_cfg.tau_max[0] = (sd_real)NAN, SD_CONTROL_ERR_LIMIT,
+                "a NaN torque limit is rejected");
+  CHECK_REJECTS(g_cfg.kp[0] = (sd_real)INFINITY, SD_CONTROL_ERR_GAIN,
+                "an infinite gain is rejected");
+  CHECK_REJECTS(g_cfg.tau_max[last] = (sd_real)INFINITY, SD_CONTROL_ERR_LIMIT,
                 "an infinite limit is rejected (0 means none)");
+}
+
+static void check_codes_have_messages(void) {
+  static const int codes[] = {SD_CONTROL_ERR_MODE, SD_CONTROL_ERR_UPDATE, SD_CONTROL_ERR_BALL,
+                              SD_CONTROL_ERR_GAIN, SD_CONTROL_ERR_LIMIT};
+  const int n = (int)(sizeof codes / sizeof codes[0]);
+  const char* unknown = sd_control_strerror(-100);
+  for (int k = 0; k < n; k++) {
+    sdt_context("code %d", codes[k]);
+    EXPECT_INT(codes[k] < 0, 1, "a fault is a negative code, SD_CONTROL_OK (0) is not one");
+    EXPECT_INT(strcmp(sd_control_strerror(codes[k]), unknown) != 0, 1,
+               "every fault names itself, so a caller can say which check failed");
+    for (int l = 0; l < k; l++) {
+      EXPECT_INT(codes[k] != codes[l] && strcmp(sd_control_strerror(codes[k]),
+                                                sd_control_strerror(codes[l])) != 0, 1,
+                 "no two faults share a code or a message");
+    }
+  }
 }
 
 static void check_rejects_ball_joints(void) {
@@ -118,7 +144,7 @@ static void check_rejects_ball_joints(void) {
     EXPECT_INT(code, SD_OK, "a 3-dof joint may be a ball joint: the model itself is valid");
     EXPECT_INT(g_model.nq, g_model.ndof + 1, "the ball's quaternion takes one coordinate more");
     configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD_PD, 10, 3);
-    EXPECT_INT(sd_control_check(&g_model, &g_cfg), -1,
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_ERR_BALL,
                "the joint PD works on angles: a model with a ball joint is rejected");
   }
 }
@@ -134,7 +160,7 @@ static void feedforward_is_rnea_held(void) {
     int n = g_model.ndof;
     // nonzero gains: feed-forward mode must ignore them
     configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD, U, 4);
-    EXPECT_INT(sd_control_check(&g_model, &g_cfg), 0, "a valid configuration");
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "a valid configuration");
     memset(&g_data, 0, sizeof g_data);
     memset(&g_ref, 0, sizeof g_ref);
     sd_control_reset(&g_state);
@@ -312,7 +338,7 @@ static void limits_clamp_and_count(void) {
   configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD_PD, 2, 8);
   free_cfg = g_cfg;   // the same controller without limits
   for (int j = 0; j < n; j++) g_cfg.tau_max[j] = SD_R(0.05);
-  EXPECT_INT(sd_control_check(&g_model, &g_cfg), 0, "a valid configuration");
+  EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "a valid configuration");
   memset(&g_data, 0, sizeof g_data);
   memset(&g_ref, 0, sizeof g_ref);
   sd_control_reset(&g_state);
@@ -553,7 +579,8 @@ static void free_root_is_not_actuated(void) {
     const int U = 2;
     configure(&g_cfg, &g_model, mode, U, 11);
     sdt_context("free root, mode %d", mode);
-    EXPECT_INT(sd_control_check(&g_model, &g_cfg), 0, "a free root (no ball joint) is accepted");
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK,
+               "a free root (no ball joint) is accepted");
     memset(&g_data, 0, sizeof g_data);
     memset(&g_ref, 0, sizeof g_ref);
     sd_control_reset(&g_state);
@@ -659,7 +686,7 @@ static void closed_loop_holds_pendulum(void) {
   g_cfg.update_ticks = 10;
   g_cfg.kp[0] = SD_R(20.0);
   g_cfg.kd[0] = SD_R(2.0);
-  EXPECT_INT(sd_control_check(&g_model, &g_cfg), 0, "a valid configuration");
+  EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "a valid configuration");
   const sd_real target = SD_R(0.7);
   double worst, last;
   run_loop(target, target, &worst, &last);
@@ -683,6 +710,7 @@ static void closed_loop_holds_pendulum(void) {
 const sdt_test sdt_control_tests[] = {
   {"check_accepts_good_configs", check_accepts_good_configs},
   {"check_rejects_bad_configs", check_rejects_bad_configs},
+  {"check_codes_have_messages", check_codes_have_messages},
   {"check_rejects_ball_joints", check_rejects_ball_joints},
   {"feedforward_is_rnea_held", feedforward_is_rnea_held},
   {"feedforward_pd_adds_joint_pd", feedforward_pd_adds_joint_pd},

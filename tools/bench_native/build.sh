@@ -53,14 +53,15 @@ mkdir -p "$out/obj"
 objs=()
 for src in "$root"/firmware/core/*.c; do
   obj="$out/obj/$(basename "${src%.c}").o"
-  gcc -O3 -std=c11 -ffp-contract=off -Wall -c "$src" -o "$obj" || fail "core does not compile: $src"
+  gcc -O3 -std=c11 -ffp-contract=off -Wall -I"$root/firmware/core/include" -c "$src" -o "$obj" ||
+    fail "core does not compile: $src"
   objs+=("$obj")
 done
 echo "build.sh: compiling bench.cpp (the Pinocchio headers take a minute or two)"
 g++ -std=c++17 -O3 -DNDEBUG -Wall \
   -DBOOST_MPL_LIMIT_LIST_SIZE=30 -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 \
   -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
-  -I"$root/firmware/core" -isystem "$eigen_dir" -isystem "$pin_prefix/include" \
+  -I"$root/firmware/core/include" -isystem "$eigen_dir" -isystem "$pin_prefix/include" \
   -isystem "$mj_dir/include" \
   -c "$root/tools/bench_native/bench.cpp" -o "$out/obj/bench.o" || fail "bench.cpp does not compile"
 

@@ -1,4 +1,4 @@
-// sd_control.h: the closed-form controller step (paper §3.2, Fig. 4).
+// sd_control.h (public): the closed-form controller step (paper §3.2, Fig. 4).
 //
 // Every small_time_step the controller turns the desired state and the measured state into
 // joint torques; every time_step (an integer multiple, ~10 in the paper) it recomputes the
@@ -49,8 +49,22 @@ typedef struct sd_control_state_ {
   long nfault;                    // steps refused for non-finite input
 } sd_control_state;
 
-// Check a configuration against a model: 0, or -1 for a bad mode, update period, gain or limit.
+// Error codes of sd_control_check.
+enum sd_control_error_ {
+  SD_CONTROL_OK = 0,
+  SD_CONTROL_ERR_MODE = -1,       // mode outside the sd_control_mode_ values
+  SD_CONTROL_ERR_UPDATE = -2,     // update_ticks < 1
+  SD_CONTROL_ERR_BALL = -3,       // the model has a ball joint: the joint PD works on angles
+  SD_CONTROL_ERR_GAIN = -4,       // a kp or kd negative or not finite
+  SD_CONTROL_ERR_LIMIT = -5,      // a torque limit negative or not finite
+};
+
+// Check a configuration against a model: SD_CONTROL_OK or the negative sd_control_error_ code of
+// the first fault found (mode, update period, ball joints, then each dof's gains and limit).
 int sd_control_check(const struct sd_model_* m, const sd_control_config* c);
+
+// A short static description of an sd_control_check code.
+const char* sd_control_strerror(int code);
 
 // Start a run: tick 0, nothing held, counters cleared.
 void sd_control_reset(sd_control_state* s);

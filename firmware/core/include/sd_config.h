@@ -1,4 +1,4 @@
-// sd_config.h: scalar type, compile-time limits and math wrappers of the servodyn core.
+// sd_config.h (public): scalar type, compile-time limits and math wrappers of the servodyn core.
 //
 // The core is built twice from one source: with sd_real = double for the host and the
 // simulation (the default), and with sd_real = float for the microcontroller (-DSD_SINGLE).

@@ -1,4 +1,8 @@
-// servodyn.h: the public API of the servodyn dynamics core.
+// servodyn.h (public): the API of the servodyn dynamics core.
+//
+// The public headers are the ones in firmware/core/include, the only core folder on the include
+// path of the binding, the firmware and the tests; the helpers beside the sources (sd_math.h,
+// sd_spatial.h, sd_cholesky.h, sd_joint.h) are internal to the core and may change freely.
 //
 // The model (sd_model) is constant once sd_model_setup() has accepted it; everything that
 // changes each step lives in sd_data. Every function takes (const sd_model*, sd_data*, ...),

@@ -1,4 +1,5 @@
-// sd_trajectory.h: keyframe trajectories of the servodyn core, twice continuously differentiable.
+// sd_trajectory.h (public): keyframe trajectories of the servodyn core, twice continuously
+// differentiable.
 //
 // A trajectory is nknot keyframes, each a time and ndof positions. sd_trajectory_setup() gives
 // every keyframe a velocity and an acceleration taken from the cubic spline through the
