@@ -260,3 +260,19 @@ def test_cli_bad_csv(tmp_path):
     bad.write_text("t,q_nothing\n0,0\n0.1,0.1\n")
     res = run("replica", bad, "--out", tmp_path)
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
+    """TOPP-RA plans the forehand to the linearised envelope: the result passes the dense check
+    (re-read from the CSV it writes, the way `servodyn swing --motion` would play it) and is
+    shorter than the uniform fit, which slows every part of the swing alike."""
+    cfg = load_config("replica")
+    report = validate(cfg, "tennis_forehand", fit=True, retime_motion=True, out=tmp_path, **QUIET)
+    retimed = report["retime"]
+    assert retimed["passed"], retimed
+    fitted = report["fit_time_scale"] * 1.8
+    assert retimed["duration_s"] < fitted, f"TOPP-RA {retimed['duration_s']:.2f} s vs uniform {fitted:.2f} s"
+    assert retimed["trimmed_rad"] < 1e-5, "cutting the rest at the ends moves the joints by nothing visible"
+    again = validate(cfg, retimed["file"], **QUIET)
+    assert again["passed"], again["violations"][:1]
+    assert again["duration_s"] == pytest.approx(retimed["duration_s"], abs=1e-3)

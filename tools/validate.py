@@ -314,6 +314,7 @@ RETIME_GRID = 400             # path points toppra plans on
 RETIME_SPEED_SHARE = 0.5      # of the no-load speed given to speed, the rest of the envelope to torque
 RETIME_SHRINK = 0.93          # each retry plans on limits this much tighter
 RETIME_TRIES = 12
+RETIME_TRIM = 1e-3            # s cut from each end of the path, where it is at rest
 
 
 def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambient: float):
@@ -325,6 +326,10 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
     bounds the torque too. Both are scaled by the margin. toppra sees servodyn's rigid-body RNEA
     (gravity, any payload). Its result is then re-checked every small_time_step: between its grid
     points it can exceed its bounds, so a failing plan is tried again on bounds 7 % tighter.
+    Where the path is at rest its speed along the path vanishes and toppra's controllable set at
+    that end is undefined (it reports none); so its first and last millisecond are cut, which
+    moves the start and the end by the `trimmed_rad` the result reports (~1e-7 rad on a motion
+    keyframed at rest).
     Returns (trajectory, result, {duration_s, tries, toppra_s}) or (None, None, why)."""
     import time
 
@@ -332,9 +337,12 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
     import toppra.algorithm as algo
     import toppra.constraint as constraint
 
-    ss = np.linspace(0.0, path.duration, RETIME_GRID)
+    ss = np.linspace(RETIME_TRIM, path.duration - RETIME_TRIM, RETIME_GRID)
     waypoints = path.evaluate(ss)[0]
+    ends = path.evaluate(np.array([0.0, path.duration]))[0]
+    trimmed = float(max(np.abs(waypoints[0] - ends[0]).max(), np.abs(waypoints[-1] - ends[1]).max()))
     spline = ta.SplineInterpolator(ss, waypoints)
+    grid = np.linspace(ss[0], ss[-1], RETIME_GRID + 1)
     speed = np.minimum(limits.speed, RETIME_SPEED_SHARE * limits.no_load_speed / limits.gear)
     envelope = limits.gear * limits.stall_torque * (1 - RETIME_SPEED_SHARE)
     current = (limits.current - limits.no_load_current) * limits.torque_constant * limits.gear
@@ -349,7 +357,8 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
         tau = constraint.JointTorqueConstraint(inverse_dynamics, np.column_stack([-scale * torque, scale * torque]),
                                                np.zeros(len(speed)),
                                                discretization_scheme=constraint.DiscretizationType.Interpolation)
-        planned = algo.TOPPRA([vel, tau], spline, parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
+        planned = algo.TOPPRA([vel, tau], spline, gridpoints=grid,
+                              parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
         if planned is None:
             return None, None, f"toppra found no feasible timing (try {tries}: 'controllable set is empty')"
         t = np.arange(int(np.floor(planned.duration / SMALL_TIME_STEP)) + 1) * SMALL_TIME_STEP
@@ -358,7 +367,7 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
         result = check(model, limits, traj, margin, repeat, ambient)
         if result.passed:
             return traj, result, {"duration_s": float(planned.duration), "tries": tries,
-                                  "seconds": time.perf_counter() - began}
+                                  "seconds": time.perf_counter() - began, "trimmed_rad": trimmed}
         scale *= RETIME_SHRINK
     return None, None, f"toppra's timings still failed the dense check after {RETIME_TRIES} tries"
 
