@@ -276,3 +276,17 @@ def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
     again = validate(cfg, retimed["file"], **QUIET)
     assert again["passed"], again["violations"][:1]
     assert again["duration_s"] == pytest.approx(retimed["duration_s"], abs=1e-3)
+
+
+def test_prediction_confirmed_by_simulation(tmp_path):
+    """The forehand at human speed on the simulated servos: the first servo to saturate is the one
+    the validator names first, within a few ticks of its time. At 3x, where it passes, no servo
+    saturates and the swing tracks within 5 degrees."""
+    cfg = load_config("replica")
+    fails = validate(cfg, "tennis_forehand", simulate_motion=True, out=tmp_path / "fast", **QUIET)["simulation"]
+    first = fails["first"]
+    assert first["saturated"]["dof"] == first["predicted"]["dof"] == "r_shoulder_rotation", first
+    assert abs(first["ticks_apart"]) <= 10, f"first saturation {first['ticks_apart']} ticks from the prediction"
+    passes = validate(cfg, "tennis_forehand", time_scale=3.0, simulate_motion=True, out=tmp_path / "slow", **QUIET)
+    assert passes["passed"] and passes["simulation"]["first"]["saturated"] is None, passes["simulation"]["first"]
+    assert passes["simulation"]["tracks"], f"tracking max {np.degrees(passes['simulation']['tracking_max_rad']):.2f} deg"

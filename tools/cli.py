@@ -139,7 +139,8 @@ def cmd_validate(args) -> int:
         report = validate(config, args.motion, time_scale=args.time_scale, payload=args.payload,
                           payload_body=args.payload_body, payload_com=args.payload_com,
                           supply_voltage=args.supply_voltage, margin=args.margin, repeat=args.repeat,
-                          ambient=args.ambient, fit=args.fit, retime_motion=args.retime, out=Path(args.out))
+                          ambient=args.ambient, fit=args.fit, retime_motion=args.retime,
+                          simulate_motion=args.simulate, out=Path(args.out))
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
     return 0 if report["passed"] else 1
@@ -256,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--retime", action="store_true",
                    help="also re-time the path with TOPP-RA to the limits, check it densely and write it as "
                         "OUT/retimed.csv (servodyn swing --motion plays it)")
+    p.add_argument("--simulate", action="store_true",
+                   help="also play the motion on the simulated servos and compare where they saturate "
+                        "with the prediction")
     p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
     p.set_defaults(func=cmd_validate)
 

@@ -19,7 +19,7 @@ from ..control import ControlConfig, Controller
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
 from ..hal.bus import make_bus
-from ..hal.config import load_config
+from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
 from ..loop import RunLog, follow, summarize
 from .validate import motion_path
@@ -33,7 +33,7 @@ class MotionRefused(ValueError):
     """The validator says the motion would leave a servo's limits: nothing moved."""
 
 
-def run_swing(config_name: str = "replica", port: str | None = None, out: Path = Path("out/swing"),
+def run_swing(config_name: str | RobotConfig = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
               force: bool = False) -> dict:
@@ -45,7 +45,7 @@ def run_swing(config_name: str = "replica", port: str | None = None, out: Path =
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
     bits ("overload", "overheating", ... or the bits as an int), to show the safe stop."""
     from .validate import validate
-    config = load_config(config_name)
+    config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
     scale = time_scale or (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
