@@ -3,9 +3,10 @@ same models and states, then the same calls through Python. Prints the table and
 out/bench/{results.json,table.md,per_dof.png}.
 
 The implementations are timed interleaved: each repetition times every one of them once, one
-after the other, so a busy neighbour slows them alike. Absolute times drift on shared machines;
-the figures to read are the ratios, taken within each repetition and reported as their median
-with the interquartile range.
+after the other, so a busy neighbour slows them alike; and in CPU time of the timing thread, so
+the milliseconds the scheduler gives a neighbour's build are charged to no one. Absolute times
+drift on shared machines; the figures to read are the ratios, taken within each repetition and
+reported as their median with the interquartile range.
 """
 
 from __future__ import annotations
@@ -90,24 +91,28 @@ def summary(sample: np.ndarray) -> dict:
 
 
 def time_interleaved(contests: dict[str, dict[str, tuple[Callable[[], object], int]]],
-                     reps: int) -> dict[str, np.ndarray]:
-    """µs per state of every pass in every repetition. A pass is (fn, count): fn() evaluates
-    count states. In each repetition, every contest runs its passes one after the other, in an
-    order rotated from one repetition to the next, so a busy neighbour slows them alike."""
+                     reps: int) -> tuple[dict[str, np.ndarray], float]:
+    """µs of CPU time per state of every pass in every repetition, and the share of passes during
+    which the thread waited for a core. A pass is (fn, count): fn() evaluates count states. In
+    each repetition, every contest runs its passes one after the other, in an order rotated from
+    one repetition to the next, so a busy neighbour slows them alike (as bench.cpp does)."""
     passes = [p for contest in contests.values() for p in contest.values()]
     for fn, _ in passes:
         fn()   # warm-up
     us = {name: np.empty(reps) for contest in contests.values() for name in contest}
+    descheduled = 0
     for r in range(reps):
         for contest in contests.values():
             names = list(contest)
             for k in range(len(names)):
                 name = names[(k + r) % len(names)]
                 fn, count = contest[name]
-                start = time.perf_counter()
+                wall, cpu = time.perf_counter(), time.thread_time()
                 fn()
-                us[name][r] = (time.perf_counter() - start) / count * 1e6
-    return us
+                cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+                descheduled += wall > 1.05 * cpu + 1e-5
+                us[name][r] = cpu / count * 1e6
+    return us, descheduled / (reps * len(passes))
 
 
 def each_state(fn: Callable[[int], object], count: int) -> tuple[Callable[[], None], int]:
@@ -138,7 +143,7 @@ def run_python(name: str, model, data, reps: int) -> dict:
         md.qpos[:], md.qvel[:], md.qfrc_applied[:] = q[i], qd[i], tau[i]
         mujoco.mj_forward(mm, md)
 
-    us = time_interleaved({
+    us, descheduled = time_interleaved({
         "rnea": {"sd_rnea": each_state(lambda i: model.inverse_dynamics(q[i], qd[i], qdd[i]), n),
                  "sd_rnea_batch": (lambda: model.inverse_dynamics(q, qd, qdd), len(q)),
                  "pin_rnea": each_state(lambda i: pin.rnea(pm, pd, q[i], qd[i], qdd[i]), n),
@@ -151,7 +156,7 @@ def run_python(name: str, model, data, reps: int) -> dict:
     ratio = {key: {"pin": summary(us[f"sd_{key}"] / us[pin_key]), "mj": summary(us[f"sd_{key}"] / us[mj_key])}
              for key, pin_key, mj_key in (("rnea", "pin_rnea", "mj_inverse"), ("forward", "pin_aba", "mj_forward"))}
     return {"us": {k: float(np.median(v)) for k, v in us.items()},
-            "us_per_rep": {k: v.tolist() for k, v in us.items()}, "ratio": ratio}
+            "us_per_rep": {k: v.tolist() for k, v in us.items()}, "ratio": ratio, "descheduled": descheduled}
 
 
 def ratio_text(s: dict, bold: bool = False) -> str:
@@ -204,6 +209,9 @@ def verdict(results: list[dict]) -> list[str]:
     name, label = max(spreads, key=spreads.get)
     lines.append(f"widest interquartile range of these ratios: {spreads[name, label] * 100:.1f} % of the median "
                  f"({label.split(' vs ')[0]} on {name})")
+    waited = [r["native"]["descheduled"] * 100 for r in results]
+    lines.append(f"timed passes during which the thread waited for a core: {min(waited):.0f}-{max(waited):.0f} % "
+                 "per model (CPU time leaves the wait out)")
     chains = [r for r in results if r["name"].startswith("chain")]
     per_dof = [r["native"]["us"]["sd_rnea"] / r["ndof"] for r in chains]
     lines.append(f"RNEA time per dof on chains 7..88: {min(per_dof) * 1e3:.0f}-{max(per_dof) * 1e3:.0f} ns "
@@ -235,8 +243,8 @@ def plot(results: list[dict], path: Path) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--states", type=int, default=1000, help="states per model (default 1000)")
-    parser.add_argument("--reps", type=int, default=21,
-                        help="interleaved timed repetitions, in C++ and in Python (default 21)")
+    parser.add_argument("--reps", type=int, default=31,
+                        help="interleaved timed repetitions, in C++ and in Python (default 31)")
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")
     args = parser.parse_args(argv)
     binary = build_binary()
@@ -256,10 +264,11 @@ def main(argv=None) -> int:
               "Python ...", end="", flush=True)
         python = run_python(name, model, data, args.reps)
         results.append({"name": name, "ndof": model.nq, "nbody": model.nbody, "native": native, "python": python})
-        print(" done", flush=True)
+        print(f" done; {native['descheduled'] * 100:.0f} % of passes waited for a core", flush=True)
     text = "\n".join([
         f"servodyn benchmark, {os.cpu_count()} cpus, {args.states} states per model, {args.reps} interleaved "
-        "repetitions: times are medians, ratios the medians of the per-repetition ratios (interquartile range)",
+        "repetitions: CPU times are medians, ratios the medians of the per-repetition ratios "
+        "(interquartile range)",
         "", "C/C++ in one process (servodyn core, Pinocchio headers, MuJoCo library):", "", table(results),
         "", "Through Python, per call (servodyn batch: N states in one call, per state):", "", python_table(results),
         "", *verdict(results)])

@@ -28,6 +28,8 @@
 #include <string>
 #include <vector>
 
+#include <time.h>
+
 #include <Eigen/Core>
 #include <pinocchio/algorithm/aba.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
@@ -489,7 +491,8 @@ volatile double g_sink;   // outputs end here so no call can be optimised away
 struct Timed {
   const char* name;
   std::function<void(int, double*)> call;
-  std::vector<double> us;   // µs per call in each repetition
+  std::vector<double> us;   // µs of CPU time per call in each repetition
+  int descheduled = 0;      // passes during which the thread waited for a core
 };
 
 // the servodyn, Pinocchio and MuJoCo implementations of one quantity, timed against each other
@@ -498,12 +501,26 @@ struct Contest {
   Timed impl[3];   // servodyn, Pinocchio, MuJoCo
 };
 
-// mean µs per call of one pass over all states
-double time_pass(int nstates, const Timed& t, double* sink) {
-  auto start = std::chrono::steady_clock::now();
+// µs of CPU time this thread has used
+double thread_cpu_us() {
+  timespec now;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &now);
+  return double(now.tv_sec) * 1e6 + double(now.tv_nsec) * 1e-3;
+}
+
+// mean µs of CPU time per call of one pass over all states. CPU time, not wall time: on a
+// machine with more runnable threads than cores the scheduler takes the core away for
+// milliseconds at a time, which wall time would charge to whichever call was running. Such
+// passes are counted, to say how busy the machine was.
+double time_pass(int nstates, Timed& t, double* sink) {
+  auto wall_start = std::chrono::steady_clock::now();
+  double cpu_start = thread_cpu_us();
   for (int i = 0; i < nstates; i++) t.call(i, sink);
-  auto stop = std::chrono::steady_clock::now();
-  return std::chrono::duration<double, std::micro>(stop - start).count() / nstates;
+  double cpu = thread_cpu_us() - cpu_start;
+  double wall = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() -
+                                                          wall_start).count();
+  if (wall > 1.05 * cpu + 10) t.descheduled++;
+  return cpu / nstates;
 }
 
 // Times the implementations interleaved: in each repetition, every contest runs its three
@@ -518,6 +535,7 @@ void time_interleaved(int reps, int nstates, std::vector<Contest>& contests) {
     for (Timed& t : c.impl) {
       time_pass(nstates, t, &sink);   // warm-up
       t.us.assign(reps, 0.0);
+      t.descheduled = 0;
     }
   }
   for (int r = 0; r < reps; r++) {
@@ -550,16 +568,20 @@ std::string list_json(const std::vector<double>& values) {
   return "[" + out + "]";
 }
 
-// three JSON members from the timed contests: "us" the median µs per call of each
-// implementation, "us_per_rep" every repetition's, and "ratio" servodyn's time over Pinocchio's
-// and over MuJoCo's, per repetition, summarised by contest
+// four JSON members from the timed contests: "us" the median µs per call of each
+// implementation, "us_per_rep" every repetition's, "ratio" servodyn's time over Pinocchio's and
+// over MuJoCo's, per repetition, summarised by contest, and "descheduled" the share of passes
+// during which the thread waited for a core
 std::string timing_json(const std::vector<Contest>& contests) {
   std::string us, per_rep, ratio;
+  int passes = 0, descheduled = 0;
   for (const Contest& c : contests) {
     for (const Timed& t : c.impl) {
       std::string key = std::string(us.empty() ? "" : ",") + "\"" + t.name + "\":";
       us += key + num(quantile(t.us, 0.5), 4);
       per_rep += key + list_json(t.us);
+      passes += int(t.us.size());
+      descheduled += t.descheduled;
     }
     size_t reps = c.impl[0].us.size();
     std::vector<double> to_pin(reps), to_mj(reps);
@@ -570,7 +592,8 @@ std::string timing_json(const std::vector<Contest>& contests) {
     ratio += std::string(ratio.empty() ? "" : ",") + "\"" + c.name + "\":{\"pin\":" +
              summary_json(to_pin) + ",\"mj\":" + summary_json(to_mj) + "}";
   }
-  return "\"us\":{" + us + "},\"us_per_rep\":{" + per_rep + "},\"ratio\":{" + ratio + "}";
+  return "\"us\":{" + us + "},\"us_per_rep\":{" + per_rep + "},\"ratio\":{" + ratio +
+         "},\"descheduled\":" + num(double(descheduled) / passes, 3);
 }
 
 }  // namespace
