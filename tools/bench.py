@@ -2,7 +2,11 @@
 same models and states, then the same calls through Python. Prints the table and writes
 out/bench/{results.json,table.md,per_dof.png}.
 
-Absolute times drift on shared machines; the ratios within one run are the figures to read.
+The implementations are timed interleaved: each repetition times every one of them once, one
+after the other, so a busy neighbour slows them alike; and in CPU time of the timing thread, so
+the milliseconds the scheduler gives a neighbour's build are charged to no one. Absolute times
+drift on shared machines; the figures to read are the ratios, taken within each repetition and
+reported as their median with the interquartile range.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -25,6 +30,10 @@ BUILD = ROOT / "build" / "bench"
 SOURCES = [ROOT / "tools" / "bench_native" / "bench.cpp", ROOT / "tools" / "bench_native" / "build.sh",
            *sorted((ROOT / "firmware" / "core").rglob("*.[ch]"))]
 GOALS = {"rnea": 0.6, "forward": 0.8, "rk4": 0.8}
+# the ratio each goal is judged on: contest, library servodyn is timed against, label
+GOAL_RATIOS = (("rnea", "pin", "inverse dynamics vs Pinocchio RNEA"),
+               ("forward", "pin", "direct dynamics vs Pinocchio ABA"),
+               ("rk4", "mj", "RK4 step vs MuJoCo mj_step RK4"))
 
 
 def models() -> list[tuple[str, servodyn.Model]]:
@@ -74,18 +83,47 @@ def run_native(binary: Path, name: str, model, data, reps: int) -> dict:
     return json.loads(res.stdout)
 
 
-def per_call(fn, count: int, reps: int = 7) -> float:
-    """Median over reps of the mean time per call of fn(i) for i < count, in microseconds."""
-    times = []
-    for _ in range(reps):
-        start = time.perf_counter()
+def summary(sample: np.ndarray) -> dict:
+    """Median, quartiles and range of a sample (bench.cpp reports its ratios the same way)."""
+    q1, median, q3 = np.percentile(sample, [25, 50, 75])
+    return {"median": float(median), "q1": float(q1), "q3": float(q3),
+            "min": float(np.min(sample)), "max": float(np.max(sample))}
+
+
+def time_interleaved(contests: dict[str, dict[str, tuple[Callable[[], object], int]]],
+                     reps: int) -> tuple[dict[str, np.ndarray], float]:
+    """µs of CPU time per state of every pass in every repetition, and the share of passes during
+    which the thread waited for a core. A pass is (fn, count): fn() evaluates count states. In
+    each repetition, every contest runs its passes one after the other, in an order rotated from
+    one repetition to the next, so a busy neighbour slows them alike (as bench.cpp does)."""
+    passes = [p for contest in contests.values() for p in contest.values()]
+    for fn, _ in passes:
+        fn()   # warm-up
+    us = {name: np.empty(reps) for contest in contests.values() for name in contest}
+    descheduled = 0
+    for r in range(reps):
+        for contest in contests.values():
+            names = list(contest)
+            for k in range(len(names)):
+                name = names[(k + r) % len(names)]
+                fn, count = contest[name]
+                wall, cpu = time.perf_counter(), time.thread_time()
+                fn()
+                cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+                descheduled += wall > 1.05 * cpu + 1e-5
+                us[name][r] = cpu / count * 1e6
+    return us, descheduled / (reps * len(passes))
+
+
+def each_state(fn: Callable[[int], object], count: int) -> tuple[Callable[[], None], int]:
+    """A pass of one call per state."""
+    def run():
         for i in range(count):
             fn(i)
-        times.append((time.perf_counter() - start) / count * 1e6)
-    return float(np.median(times))
+    return run, count
 
 
-def run_python(name: str, model, data) -> dict:
+def run_python(name: str, model, data, reps: int) -> dict:
     import mujoco
     import pinocchio as pin
     q, qd, qdd, tau = data
@@ -105,66 +143,88 @@ def run_python(name: str, model, data) -> dict:
         md.qpos[:], md.qvel[:], md.qfrc_applied[:] = q[i], qd[i], tau[i]
         mujoco.mj_forward(mm, md)
 
-    out = {
-        "sd_rnea": per_call(lambda i: model.inverse_dynamics(q[i], qd[i], qdd[i]), n),
-        "sd_rnea_batch": _batch_time(lambda: model.inverse_dynamics(q, qd, qdd), len(q)),
-        "pin_rnea": per_call(lambda i: pin.rnea(pm, pd, q[i], qd[i], qdd[i]), n),
-        "mj_inverse": per_call(mj_inverse, n),
-        "sd_forward": per_call(lambda i: model.forward_dynamics(q[i], qd[i], tau[i]), n),
-        "sd_forward_batch": _batch_time(lambda: model.forward_dynamics(q, qd, tau), len(q)),
-        "pin_aba": per_call(lambda i: pin.aba(pm, pd, q[i], qd[i], tau[i]), n),
-        "mj_forward": per_call(mj_forward, n),
-    }
-    return out
+    us, descheduled = time_interleaved({
+        "rnea": {"sd_rnea": each_state(lambda i: model.inverse_dynamics(q[i], qd[i], qdd[i]), n),
+                 "sd_rnea_batch": (lambda: model.inverse_dynamics(q, qd, qdd), len(q)),
+                 "pin_rnea": each_state(lambda i: pin.rnea(pm, pd, q[i], qd[i], qdd[i]), n),
+                 "mj_inverse": each_state(mj_inverse, n)},
+        "forward": {"sd_forward": each_state(lambda i: model.forward_dynamics(q[i], qd[i], tau[i]), n),
+                    "sd_forward_batch": (lambda: model.forward_dynamics(q, qd, tau), len(q)),
+                    "pin_aba": each_state(lambda i: pin.aba(pm, pd, q[i], qd[i], tau[i]), n),
+                    "mj_forward": each_state(mj_forward, n)},
+    }, reps)
+    ratio = {key: {"pin": summary(us[f"sd_{key}"] / us[pin_key]), "mj": summary(us[f"sd_{key}"] / us[mj_key])}
+             for key, pin_key, mj_key in (("rnea", "pin_rnea", "mj_inverse"), ("forward", "pin_aba", "mj_forward"))}
+    return {"us": {k: float(np.median(v)) for k, v in us.items()},
+            "us_per_rep": {k: v.tolist() for k, v in us.items()}, "ratio": ratio, "descheduled": descheduled}
 
 
-def _batch_time(fn, count: int) -> float:
-    times = []
-    for _ in range(7):
-        start = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - start) / count * 1e6)
-    return float(np.median(times))
+def ratio_text(s: dict, bold: bool = False) -> str:
+    """A ratio's median with its interquartile range: 0.47 (0.46–0.48)."""
+    median = f"**{s['median']:.2f}**" if bold else f"{s['median']:.2f}"
+    return f"{median} ({s['q1']:.2f}–{s['q3']:.2f})"
+
+
+def quiet_text(result: dict, key: str, ref: str) -> str:
+    """The median ratio over the quiet repetitions (bench.cpp's quiet_repetitions)."""
+    return f"quiet {result['native']['ratio_quiet'][key][ref]['median']:.2f}"
 
 
 def table(results: list[dict]) -> str:
-    lines = ["| model | dof | RNEA servodyn / Pinocchio / MuJoCo (µs) | ratio to Pinocchio "
-             "| direct dynamics servodyn / Pinocchio ABA / MuJoCo (µs) | ratio to Pinocchio "
-             "| RK4 step servodyn / Pinocchio / MuJoCo (µs) | ratio to MuJoCo | servodyn ns per dof (RNEA / ABA) |",
+    lines = ["| model | dof | RNEA servodyn / Pinocchio / MuJoCo (µs) | ratio to Pinocchio (IQR) "
+             "| direct dynamics servodyn / Pinocchio ABA / MuJoCo (µs) | ratio to Pinocchio (IQR) "
+             "| RK4 step servodyn / Pinocchio / MuJoCo (µs) | ratio to MuJoCo (IQR) "
+             "| servodyn ns per dof (RNEA / ABA) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
-        us, n = r["native"]["us"], r["ndof"]
+        us, ratio, n = r["native"]["us"], r["native"]["ratio"], r["ndof"]
         lines.append(
             f"| {r['name']} | {n} | {us['sd_rnea']:.2f} / {us['pin_rnea']:.2f} / {us['mj_inverse']:.2f} "
-            f"| **{us['sd_rnea'] / us['pin_rnea']:.2f}** "
+            f"| {ratio_text(ratio['rnea']['pin'], bold=True)}, {quiet_text(r, 'rnea', 'pin')} "
             f"| {us['sd_forward']:.2f} / {us['pin_aba']:.2f} / {us['mj_forward']:.2f} "
-            f"| **{us['sd_forward'] / us['pin_aba']:.2f}** "
+            f"| {ratio_text(ratio['forward']['pin'], bold=True)}, {quiet_text(r, 'forward', 'pin')} "
             f"| {us['sd_rk4']:.2f} / {us['pin_rk4']:.2f} / {us['mj_step_rk4']:.2f} "
-            f"| **{us['sd_rk4'] / us['mj_step_rk4']:.2f}** "
+            f"| {ratio_text(ratio['rk4']['mj'], bold=True)}, {quiet_text(r, 'rk4', 'mj')} "
             f"| {us['sd_rnea'] / n * 1e3:.0f} / {us['sd_forward'] / n * 1e3:.0f} |")
     return "\n".join(lines)
 
 
 def python_table(results: list[dict]) -> str:
-    lines = ["| model | dof | RNEA servodyn / batch / Pinocchio / MuJoCo (µs per call) "
-             "| direct servodyn / batch / Pinocchio / MuJoCo (µs per call) |", "|---|---|---|---|"]
+    lines = ["| model | dof | RNEA servodyn / batch / Pinocchio / MuJoCo (µs per call) | ratio to Pinocchio (IQR) "
+             "| direct servodyn / batch / Pinocchio / MuJoCo (µs per call) | ratio to Pinocchio (IQR) |",
+             "|---|---|---|---|---|---|"]
     for r in results:
-        p = r["python"]
+        p, ratio = r["python"]["us"], r["python"]["ratio"]
         lines.append(f"| {r['name']} | {r['ndof']} | {p['sd_rnea']:.2f} / {p['sd_rnea_batch']:.2f} / "
-                     f"{p['pin_rnea']:.2f} / {p['mj_inverse']:.2f} | {p['sd_forward']:.2f} / "
-                     f"{p['sd_forward_batch']:.2f} / {p['pin_aba']:.2f} / {p['mj_forward']:.2f} |")
+                     f"{p['pin_rnea']:.2f} / {p['mj_inverse']:.2f} | {ratio_text(ratio['rnea']['pin'])} "
+                     f"| {p['sd_forward']:.2f} / {p['sd_forward_batch']:.2f} / {p['pin_aba']:.2f} / "
+                     f"{p['mj_forward']:.2f} | {ratio_text(ratio['forward']['pin'])} |")
     return "\n".join(lines)
 
 
 def verdict(results: list[dict]) -> list[str]:
     lines = []
-    for key, ref, label in (("rnea", "pin_rnea", "inverse dynamics vs Pinocchio RNEA"),
-                            ("forward", "pin_aba", "direct dynamics vs Pinocchio ABA"),
-                            ("rk4", "mj_step_rk4", "RK4 step vs MuJoCo mj_step RK4")):
-        ratios = {r["name"]: r["native"]["us"][f"sd_{key}"] / r["native"]["us"][ref] for r in results}
+    for key, ref, label in GOAL_RATIOS:
+        ratios = {r["name"]: r["native"]["ratio"][key][ref] for r in results}
+        worst = max(ratios, key=lambda name: ratios[name]["median"])
+        status = "met" if ratios[worst]["median"] <= GOALS[key] else "NOT met"
+        lines.append(f"goal {label} <= {GOALS[key]}: {status} (worst {ratio_text(ratios[worst])} on {worst})")
+    quiet = []
+    for key, ref, label in GOAL_RATIOS:
+        ratios = {r["name"]: r["native"]["ratio_quiet"][key][ref]["median"] for r in results}
         worst = max(ratios, key=ratios.get)
-        status = "met" if ratios[worst] <= GOALS[key] else "NOT met"
-        lines.append(f"goal {label} <= {GOALS[key]}: {status} (worst {ratios[worst]:.2f} on {worst})")
+        quiet.append(f"{label.split(' vs ')[0]} {ratios[worst]:.2f} on {worst}")
+    reps = [r["native"]["quiet_reps"] for r in results]
+    lines.append(f"over the quiet repetitions only ({min(reps)}-{max(reps)} per model), the worst are: "
+                 + "; ".join(quiet))
+    spreads = {(r["name"], label): (s["q3"] - s["q1"]) / s["median"] for r in results
+               for key, ref, label in GOAL_RATIOS for s in [r["native"]["ratio"][key][ref]]}
+    name, label = max(spreads, key=spreads.get)
+    lines.append(f"widest interquartile range of these ratios: {spreads[name, label] * 100:.1f} % of the median "
+                 f"({label.split(' vs ')[0]} on {name})")
+    waited = [r["native"]["descheduled"] * 100 for r in results]
+    lines.append(f"timed passes during which the thread waited for a core: {min(waited):.0f}-{max(waited):.0f} % "
+                 "per model (CPU time leaves the wait out)")
     chains = [r for r in results if r["name"].startswith("chain")]
     per_dof = [r["native"]["us"]["sd_rnea"] / r["ndof"] for r in chains]
     lines.append(f"RNEA time per dof on chains 7..88: {min(per_dof) * 1e3:.0f}-{max(per_dof) * 1e3:.0f} ns "
@@ -196,22 +256,32 @@ def plot(results: list[dict], path: Path) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--states", type=int, default=1000, help="states per model (default 1000)")
-    parser.add_argument("--reps", type=int, default=21, help="timed repetitions (default 21)")
+    parser.add_argument("--reps", type=int, default=31,
+                        help="interleaved timed repetitions, in C++ and in Python (default 31)")
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")
     args = parser.parse_args(argv)
     binary = build_binary()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results = []
+    print(f"timing {args.reps} interleaved repetitions per model; servodyn's time over the others', "
+          "median (interquartile range):", flush=True)
     for name, model in models():
         print(f"  {name:<10} {model.nq:>3} dofs ...", end="", flush=True)
         data = states(model, args.states)
         native = run_native(binary, name, model, data, args.reps)
-        python = run_python(name, model, data)
+        ok = "ok" if native["agreement"]["ok"] else "NOT ok"
+        ratio = native["ratio"]
+        print(f" agreement {ok}; RNEA/Pinocchio {ratio_text(ratio['rnea']['pin'])}, "
+              f"direct/ABA {ratio_text(ratio['forward']['pin'])}, RK4/MuJoCo {ratio_text(ratio['rk4']['mj'])} "
+              f"({native['quiet_reps']} quiet); Python ...", end="", flush=True)
+        python = run_python(name, model, data, args.reps)
         results.append({"name": name, "ndof": model.nq, "nbody": model.nbody, "native": native, "python": python})
-        print(f" agreement ok={native['agreement']['ok']}")
+        print(f" done; {native['descheduled'] * 100:.0f} % of passes waited for a core", flush=True)
     text = "\n".join([
-        f"servodyn benchmark, {os.cpu_count()} cpus, {args.states} states per model, median of {args.reps} runs",
+        f"servodyn benchmark, {os.cpu_count()} cpus, {args.states} states per model, {args.reps} interleaved "
+        "repetitions: CPU times are medians, ratios the medians of the per-repetition ratios "
+        "(interquartile range), and over the quiet repetitions only (total time within 10 % of the fastest)",
         "", "C/C++ in one process (servodyn core, Pinocchio headers, MuJoCo library):", "", table(results),
         "", "Through Python, per call (servodyn batch: N states in one call, per state):", "", python_table(results),
         "", *verdict(results)])

@@ -1,15 +1,19 @@
-// bench.cpp: check servodyn against Pinocchio and MuJoCo on one model, then time all three.
+// bench.cpp: check servodyn against Pinocchio and MuJoCo on one model, then time all three,
+// interleaved.
 //
 // usage: bench [--strict] [--check K] [--reps R] [--mjcf OUT.xml] MODEL.bin STATES.bin
 //   MODEL.bin   the raw bytes of one sd_model (double build, after sd_model_setup)
 //   STATES.bin  int32 N, int32 ndof, then N*ndof doubles each of q, qd, qdd, tau (row-major)
 //   --strict    exit with status 3 when any relative disagreement exceeds 1e-8
 //   --check K   compare the three libraries on the first K states (default 10)
-//   --reps R    timed repetitions over all N states; the median is reported (default 21)
+//   --reps R    timed repetitions, each one pass of every call over all N states (default 21);
+//               the medians of the times and of servodyn's per-repetition ratios are reported
 //   --mjcf OUT  also write the generated MJCF, for timing MuJoCo from Python on the same model
 //
 // The same model is built in Pinocchio (a chain of RZ joints per servodyn joint) and in MuJoCo
 // (generated MJCF, up to 3 hinges per body). One JSON object goes to stdout; problems go to stderr.
+// Its "ratio" member holds servodyn's time over Pinocchio's and over MuJoCo's: median, quartiles
+// and range over the repetitions, each ratio taken within one repetition.
 
 #include <algorithm>
 #include <chrono>
@@ -23,6 +27,8 @@
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <time.h>
 
 #include <Eigen/Core>
 #include <pinocchio/algorithm/aba.hpp>
@@ -481,20 +487,142 @@ std::string check_agreement(Libraries& lib, const States& s, int count, bool* ok
 
 volatile double g_sink;   // outputs end here so no call can be optimised away
 
-// median over reps of the time per call, in microseconds; call(i, &sink) evaluates state i
-double time_us(int reps, int nstates, const std::function<void(int, double*)>& call) {
+// one implementation of one quantity; call(i, &sink) evaluates state i
+struct Timed {
+  const char* name;
+  std::function<void(int, double*)> call;
+  std::vector<double> us;   // µs of CPU time per call in each repetition
+  int descheduled = 0;      // passes during which the thread waited for a core
+};
+
+// the servodyn, Pinocchio and MuJoCo implementations of one quantity, timed against each other
+struct Contest {
+  const char* name;
+  Timed impl[3];   // servodyn, Pinocchio, MuJoCo
+};
+
+// µs of CPU time this thread has used
+double thread_cpu_us() {
+  timespec now;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &now);
+  return double(now.tv_sec) * 1e6 + double(now.tv_nsec) * 1e-3;
+}
+
+// mean µs of CPU time per call of one pass over all states. CPU time, not wall time: on a
+// machine with more runnable threads than cores the scheduler takes the core away for
+// milliseconds at a time, which wall time would charge to whichever call was running. Such
+// passes are counted, to say how busy the machine was.
+double time_pass(int nstates, Timed& t, double* sink) {
+  auto wall_start = std::chrono::steady_clock::now();
+  double cpu_start = thread_cpu_us();
+  for (int i = 0; i < nstates; i++) t.call(i, sink);
+  double cpu = thread_cpu_us() - cpu_start;
+  double wall = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() -
+                                                          wall_start).count();
+  if (wall > 1.05 * cpu + 10) t.descheduled++;
+  return cpu / nstates;
+}
+
+// Times the implementations interleaved: in each repetition, every contest runs its three
+// implementations one after the other, one pass over all states each, in the six orders in turn.
+// A neighbour that slows the machine for a while then slows the three alike, so their ratio
+// within one repetition holds; timing each in its own block of repetitions let it hit one only.
+void time_interleaved(int reps, int nstates, std::vector<Contest>& contests) {
+  static const int kOrders[6][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1},
+                                    {0, 2, 1}, {2, 1, 0}, {1, 0, 2}};
   double sink = 0;
-  for (int i = 0; i < nstates; i++) call(i, &sink);   // warm-up
-  std::vector<double> per_call(reps);
+  for (Contest& c : contests) {
+    for (Timed& t : c.impl) {
+      time_pass(nstates, t, &sink);   // warm-up
+      t.us.assign(reps, 0.0);
+      t.descheduled = 0;
+    }
+  }
   for (int r = 0; r < reps; r++) {
-    auto start = std::chrono::steady_clock::now();
-    for (int i = 0; i < nstates; i++) call(i, &sink);
-    auto stop = std::chrono::steady_clock::now();
-    per_call[r] = std::chrono::duration<double, std::micro>(stop - start).count() / nstates;
+    for (Contest& c : contests) {
+      for (int k : kOrders[r % 6]) c.impl[k].us[r] = time_pass(nstates, c.impl[k], &sink);
+    }
   }
   g_sink = g_sink + sink;
-  std::sort(per_call.begin(), per_call.end());
-  return per_call[reps / 2];
+}
+
+// the p-quantile of a sample, interpolated linearly between order statistics (as numpy does)
+double quantile(std::vector<double> sample, double p) {
+  std::sort(sample.begin(), sample.end());
+  double pos = p * double(sample.size() - 1);
+  size_t lo = size_t(pos), hi = std::min(lo + 1, sample.size() - 1);
+  return sample[lo] + (pos - double(lo)) * (sample[hi] - sample[lo]);
+}
+
+// median, quartiles and range of a sample
+std::string summary_json(const std::vector<double>& sample) {
+  return "{\"median\":" + num(quantile(sample, 0.5), 4) + ",\"q1\":" +
+         num(quantile(sample, 0.25), 4) + ",\"q3\":" + num(quantile(sample, 0.75), 4) +
+         ",\"min\":" + num(quantile(sample, 0), 4) + ",\"max\":" + num(quantile(sample, 1), 4) +
+         "}";
+}
+
+std::string list_json(const std::vector<double>& values) {
+  std::string out;
+  for (double v : values) out += (out.empty() ? "" : ",") + num(v, 4);
+  return "[" + out + "]";
+}
+
+// The repetitions that ran on a quiet machine: those whose total time is within 10 % of the
+// fastest one's. While a neighbour's build keeps the shared host busy, everything here runs up
+// to 1.6x slower, servodyn more so than Pinocchio, which shifts the ratios by up to 25 %:
+// interleaving cannot cancel that. The quiet repetitions agree from run to run within a few per
+// cent, as long as the run saw some quiet time at all.
+std::vector<bool> quiet_repetitions(const std::vector<Contest>& contests) {
+  size_t reps = contests[0].impl[0].us.size();
+  std::vector<double> total(reps, 0.0);
+  for (const Contest& c : contests) {
+    for (const Timed& t : c.impl) {
+      for (size_t r = 0; r < reps; r++) total[r] += t.us[r];
+    }
+  }
+  double fastest = *std::min_element(total.begin(), total.end());
+  std::vector<bool> quiet(reps);
+  for (size_t r = 0; r < reps; r++) quiet[r] = total[r] <= 1.1 * fastest;
+  return quiet;
+}
+
+// the JSON members from the timed contests: "us" the median µs per call of each implementation,
+// "us_per_rep" every repetition's, "ratio" servodyn's time over Pinocchio's and over MuJoCo's,
+// per repetition, summarised by contest, "ratio_quiet" the same over the quiet repetitions only,
+// "quiet_reps" their number, and "descheduled" the share of passes during which the thread
+// waited for a core
+std::string timing_json(const std::vector<Contest>& contests) {
+  std::string us, per_rep, ratio, ratio_quiet;
+  std::vector<bool> quiet = quiet_repetitions(contests);
+  int passes = 0, descheduled = 0;
+  for (const Contest& c : contests) {
+    for (const Timed& t : c.impl) {
+      std::string key = std::string(us.empty() ? "" : ",") + "\"" + t.name + "\":";
+      us += key + num(quantile(t.us, 0.5), 4);
+      per_rep += key + list_json(t.us);
+      passes += int(t.us.size());
+      descheduled += t.descheduled;
+    }
+    std::vector<double> to_pin, to_mj, quiet_to_pin, quiet_to_mj;
+    for (size_t r = 0; r < quiet.size(); r++) {
+      double pin = c.impl[0].us[r] / c.impl[1].us[r], mj = c.impl[0].us[r] / c.impl[2].us[r];
+      to_pin.push_back(pin);
+      to_mj.push_back(mj);
+      if (quiet[r]) {
+        quiet_to_pin.push_back(pin);
+        quiet_to_mj.push_back(mj);
+      }
+    }
+    std::string key = std::string(ratio.empty() ? "" : ",") + "\"" + c.name + "\":";
+    ratio += key + "{\"pin\":" + summary_json(to_pin) + ",\"mj\":" + summary_json(to_mj) + "}";
+    ratio_quiet += key + "{\"pin\":" + summary_json(quiet_to_pin) + ",\"mj\":" +
+                   summary_json(quiet_to_mj) + "}";
+  }
+  return "\"us\":{" + us + "},\"us_per_rep\":{" + per_rep + "},\"ratio\":{" + ratio +
+         "},\"ratio_quiet\":{" + ratio_quiet + "},\"quiet_reps\":" +
+         std::to_string(std::count(quiet.begin(), quiet.end(), true)) +
+         ",\"descheduled\":" + num(double(descheduled) / passes, 3);
 }
 
 }  // namespace
@@ -535,58 +663,53 @@ int main(int argc, char** argv) {
   bool ok = true;
   std::string agreement = check_agreement(lib, s, std::min(check, s.n), &ok);
 
-  // timing: each repetition evaluates every state once; steps restart from the stored state
+  // timing: each pass evaluates every state once; steps restart from the stored state
   std::vector<double> out(n), q_work(n), qd_work(n);
   auto row = [&](const std::vector<double>& v, int i) { return &v[size_t(i) * n]; };
   auto restart = [&](int i) {
     std::copy(row(s.q, i), row(s.q, i) + n, q_work.begin());
     std::copy(row(s.qd, i), row(s.qd, i) + n, qd_work.begin());
   };
-  struct Timing {
-    const char* name;
-    std::function<void(int, double*)> call;
+  std::vector<Contest> contests = {
+      {"rnea",
+       {{"sd_rnea", [&](int i, double* sink) {
+           lib.sd_inverse(row(s.q, i), row(s.qd, i), row(s.qdd, i), out.data());
+           *sink += out[0];
+         }},
+        {"pin_rnea", [&](int i, double* sink) {
+           *sink += lib.pin_inverse(row(s.q, i), row(s.qd, i), row(s.qdd, i))[0];
+         }},
+        {"mj_inverse", [&](int i, double* sink) {
+           *sink += lib.mj_inv(row(s.q, i), row(s.qd, i), row(s.qdd, i))[0];
+         }}}},
+      {"forward",
+       {{"sd_forward", [&](int i, double* sink) {
+           lib.sd_direct(row(s.q, i), row(s.qd, i), row(s.tau, i), out.data());
+           *sink += out[0];
+         }},
+        {"pin_aba", [&](int i, double* sink) {
+           *sink += lib.pin_direct(row(s.q, i), row(s.qd, i), row(s.tau, i))[0];
+         }},
+        {"mj_forward", [&](int i, double* sink) {
+           *sink += lib.mj_fwd(row(s.q, i), row(s.qd, i), row(s.tau, i))[0];
+         }}}},
+      {"rk4",
+       {{"sd_rk4", [&](int i, double* sink) {
+           restart(i);
+           lib.sd_rk4(q_work.data(), qd_work.data(), row(s.tau, i));
+           *sink += q_work[0] + qd_work[0];
+         }},
+        {"pin_rk4", [&](int i, double* sink) {
+           restart(i);
+           lib.pin_rk4(q_work.data(), qd_work.data(), row(s.tau, i));
+           *sink += q_work[0] + qd_work[0];
+         }},
+        {"mj_step_rk4", [&](int i, double* sink) {
+           lib.mj_rk4(row(s.q, i), row(s.qd, i), row(s.tau, i));
+           *sink += lib.mj_d->qpos[0] + lib.mj_d->qvel[0];
+         }}}},
   };
-  std::vector<Timing> timings = {
-      {"sd_rnea", [&](int i, double* sink) {
-         lib.sd_inverse(row(s.q, i), row(s.qd, i), row(s.qdd, i), out.data());
-         *sink += out[0];
-       }},
-      {"pin_rnea", [&](int i, double* sink) {
-         *sink += lib.pin_inverse(row(s.q, i), row(s.qd, i), row(s.qdd, i))[0];
-       }},
-      {"mj_inverse", [&](int i, double* sink) {
-         *sink += lib.mj_inv(row(s.q, i), row(s.qd, i), row(s.qdd, i))[0];
-       }},
-      {"sd_forward", [&](int i, double* sink) {
-         lib.sd_direct(row(s.q, i), row(s.qd, i), row(s.tau, i), out.data());
-         *sink += out[0];
-       }},
-      {"pin_aba", [&](int i, double* sink) {
-         *sink += lib.pin_direct(row(s.q, i), row(s.qd, i), row(s.tau, i))[0];
-       }},
-      {"mj_forward", [&](int i, double* sink) {
-         *sink += lib.mj_fwd(row(s.q, i), row(s.qd, i), row(s.tau, i))[0];
-       }},
-      {"sd_rk4", [&](int i, double* sink) {
-         restart(i);
-         lib.sd_rk4(q_work.data(), qd_work.data(), row(s.tau, i));
-         *sink += q_work[0] + qd_work[0];
-       }},
-      {"pin_rk4", [&](int i, double* sink) {
-         restart(i);
-         lib.pin_rk4(q_work.data(), qd_work.data(), row(s.tau, i));
-         *sink += q_work[0] + qd_work[0];
-       }},
-      {"mj_step_rk4", [&](int i, double* sink) {
-         lib.mj_rk4(row(s.q, i), row(s.qd, i), row(s.tau, i));
-         *sink += lib.mj_d->qpos[0] + lib.mj_d->qvel[0];
-       }},
-  };
-  std::string us;
-  for (const Timing& t : timings) {
-    us += std::string(us.empty() ? "" : ",") + "\"" + t.name + "\":" +
-          num(time_us(reps, s.n, t.call), 4);
-  }
+  time_interleaved(reps, s.n, contests);
 
   // servodyn counts bad numbers instead of failing; report any
   for (int w = 0; w < SD_NWARNING; w++) {
@@ -596,7 +719,7 @@ int main(int argc, char** argv) {
     }
   }
 
-  std::printf("{\"ndof\":%d,\"nbody\":%d,\"nstates\":%d,\"reps\":%d,\"agreement\":%s,"
-              "\"us\":{%s}}\n", n, model.nbody, s.n, reps, agreement.c_str(), us.c_str());
+  std::printf("{\"ndof\":%d,\"nbody\":%d,\"nstates\":%d,\"reps\":%d,\"agreement\":%s,%s}\n", n,
+              model.nbody, s.n, reps, agreement.c_str(), timing_json(contests).c_str());
   return strict && !ok ? 3 : 0;
 }
