@@ -348,8 +348,13 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
     current = (limits.current - limits.no_load_current) * limits.torque_constant * limits.gear
     torque = np.minimum(envelope, np.minimum(current, limits.command))
 
+    spent = {"rnea": 0.0, "toppra": 0.0}
+
     def inverse_dynamics(q, qd, qdd):
-        return model.inverse_dynamics(q, qd, qdd)
+        start = time.perf_counter()
+        tau = model.inverse_dynamics(q, qd, qdd)
+        spent["rnea"] += time.perf_counter() - start
+        return tau
 
     began, scale = time.perf_counter(), margin
     for tries in range(1, RETIME_TRIES + 1):
@@ -357,8 +362,10 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
         tau = constraint.JointTorqueConstraint(inverse_dynamics, np.column_stack([-scale * torque, scale * torque]),
                                                np.zeros(len(speed)),
                                                discretization_scheme=constraint.DiscretizationType.Interpolation)
+        start = time.perf_counter()
         planned = algo.TOPPRA([vel, tau], spline, gridpoints=grid,
                               parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
+        spent["toppra"] += time.perf_counter() - start
         if planned is None:
             return None, None, f"toppra found no feasible timing (try {tries}: 'controllable set is empty')"
         t = np.arange(int(np.floor(planned.duration / SMALL_TIME_STEP)) + 1) * SMALL_TIME_STEP
@@ -367,7 +374,8 @@ def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambie
         result = check(model, limits, traj, margin, repeat, ambient)
         if result.passed:
             return traj, result, {"duration_s": float(planned.duration), "tries": tries,
-                                  "seconds": time.perf_counter() - began, "trimmed_rad": trimmed}
+                                  "seconds": time.perf_counter() - began, "trimmed_rad": trimmed,
+                                  "toppra_s": spent["toppra"] - spent["rnea"], "rnea_s": spent["rnea"]}
         scale *= RETIME_SHRINK
     return None, None, f"toppra's timings still failed the dense check after {RETIME_TRIES} tries"
 
