@@ -3,8 +3,9 @@ and the offline validator need whatever wire the servo speaks. A backend's catal
 `ServoSpec` with its own registers and units (`hal/dynamixel/control_table.py`).
 
 The motor is a DC motor behind a gear (output-referred, at the horn): at supply voltage V its
-no-load speed is ω₀(V) = ω₀·V/V_nom and its stall torque τ_s(V) = τ_s·V/V_nom (the winding
-resistance R = V_nom/I_stall fixes the stall current, I_s = V/R); driving, |τ| ≤ τ_s(V)·(1 − |ω|/ω₀(V)).
+no-load speed ω₀(V) and stall torque τ_s(V) come from the data sheet's rows at the voltages it
+lists (ROBOTIS: 11.1, 12 and 14.8 V), linear between them and in proportion to V beyond; driving,
+|τ| ≤ τ_s(V)·(1 − |ω|/ω₀(V)). The winding resistance R = V_nom/I_stall at the nominal voltage.
 The current it draws is I = τ/K_t + I₀ (I₀ the no-load current), and its winding heats as a
 first-order body: C_th·dT/dt = I²·R·(1 + α(T − 25 °C)) − (T − T_amb)/R_th, τ_th = R_th·C_th."""
 
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 RPM = 2.0 * math.pi / 60.0          # rad/s per rpm
 
@@ -30,6 +33,9 @@ class ServoSpec:
     temperature_limit: float = 80.0      # °C: over it the servo faults
     thermal_resistance: float = 0.0      # K/W, winding to ambient (0: not modelled)
     thermal_time_constant: float = 0.0   # s, R_th·C_th
+    # the data sheet's rows at other supply voltages: (V, stall torque N m, stall current A,
+    # no-load speed rpm); the nominal row above counts as one of them
+    ratings: tuple[tuple[float, float, float, float], ...] = ()
 
     @property
     def torque_constant(self) -> float:
@@ -46,13 +52,29 @@ class ServoSpec:
         """Ω at 25 °C: what limits the stall current at the nominal voltage."""
         return self.nominal_voltage / self.stall_current
 
+    def _rows(self) -> np.ndarray:
+        rows = {self.nominal_voltage: (self.stall_torque, self.stall_current, self.no_load_speed_rpm)}
+        rows.update({v: (t, i, w) for v, t, i, w in self.ratings})
+        return np.array([(v, *rows[v]) for v in sorted(rows)])
+
+    def _at(self, voltage: float, column: int) -> float:
+        """A data-sheet figure at `voltage`: linear between the data sheet's rows, and beyond
+        them in proportion to the voltage from the nearest row (a DC motor's speed and stall
+        torque scale with its voltage)."""
+        rows = self._rows()
+        if voltage < rows[0, 0]:
+            return float(rows[0, column] * voltage / rows[0, 0])
+        if voltage > rows[-1, 0]:
+            return float(rows[-1, column] * voltage / rows[-1, 0])
+        return float(np.interp(voltage, rows[:, 0], rows[:, column]))
+
     def no_load_speed_at(self, voltage: float) -> float:
         """rad/s at the horn with no load, at supply `voltage`."""
-        return self.no_load_speed * voltage / self.nominal_voltage
+        return self._at(voltage, 3) * RPM
 
     def stall_torque_at(self, voltage: float) -> float:
         """N m at the horn at stall, at supply `voltage`."""
-        return self.stall_torque * voltage / self.nominal_voltage
+        return self._at(voltage, 1)
 
     @property
     def max_current(self) -> float:

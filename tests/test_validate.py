@@ -290,3 +290,17 @@ def test_prediction_confirmed_by_simulation(tmp_path):
     passes = validate(cfg, "tennis_forehand", time_scale=3.0, simulate_motion=True, out=tmp_path / "slow", **QUIET)
     assert passes["passed"] and passes["simulation"]["first"]["saturated"] is None, passes["simulation"]["first"]
     assert passes["simulation"]["tracks"], f"tracking max {np.degrees(passes['simulation']['tracking_max_rad']):.2f} deg"
+
+
+def test_the_envelope_follows_the_supply_voltage():
+    """The data sheet's rows at 11.1, 12 and 14.8 V, linear between them: at 14.8 V an XM540-W270
+    turns 37 rpm and stalls at 12.9 N m (e-manual), at 11.1 V 28 rpm and 10.0 N m; the forehand's
+    worst torque-speed ratio falls as the voltage rises."""
+    cfg = load_config("replica")
+    rpm = 2 * np.pi / 60
+    high, low = Limits.of(cfg, 14.8), Limits.of(cfg, 11.1)
+    assert high.no_load_speed[0] == pytest.approx(37 * rpm) and high.stall_torque[0] == pytest.approx(12.9)
+    assert low.no_load_speed[0] == pytest.approx(28 * rpm) and low.stall_torque[0] == pytest.approx(10.0)
+    worst = [validate(cfg, "tennis_forehand", time_scale=3.0, supply_voltage=v, **QUIET)["joints"]
+             ["r_shoulder_rotation"]["checks"]["torque_speed"] for v in (11.1, 12.0, 14.8)]
+    assert worst[0] > worst[1] > worst[2], f"torque-speed ratios at 11.1, 12, 14.8 V: {worst}"

@@ -157,7 +157,8 @@ class Model(ServoSpec):
         )
 
 
-# The e-manual's 12 V rows (stall torque and current, no-load speed), Current Limit(38) ranges and
+# The e-manual's rows at 12 V and at 11.1 and 14.8 V (stall torque and current, no-load speed; the
+# XH540-W270's other rows are not in our notes), Current Limit(38) ranges and
 # Velocity Limit(44) defaults. The XH540-W270's Velocity Limit default is not in our notes: its
 # no-load speed in 0.229 rpm units, rounded down. No-load current: a fit of the XM430-W350's
 # torque-current curve gives 0.125 A (5.4 % of its stall current); the others are given the same
@@ -169,11 +170,14 @@ class Model(ServoSpec):
 _X430 = dict(gear_ratio=353.5, thermal_resistance=12.0, thermal_time_constant=240.0)
 _X540 = dict(gear_ratio=272.5, thermal_resistance=6.0, thermal_time_constant=420.0)
 XM430_W350 = Model(name="XM430-W350", model_number=1020, stall_torque=4.1, stall_current=2.3, no_load_speed_rpm=46.0,
-                   no_load_current=0.125, current_limit_max=1193, velocity_limit_default=200, **_X430)
+                   no_load_current=0.125, current_limit_max=1193, velocity_limit_default=200,
+                   ratings=((11.1, 3.8, 2.1, 43.0), (14.8, 4.8, 2.7, 57.0)), **_X430)
 XM540_W270 = Model(name="XM540-W270", model_number=1120, stall_torque=10.6, stall_current=4.4, no_load_speed_rpm=30.0,
-                   no_load_current=0.24, current_limit_max=2047, velocity_limit_default=128, **_X540)
+                   no_load_current=0.24, current_limit_max=2047, velocity_limit_default=128,
+                   ratings=((11.1, 10.0, 4.2, 28.0), (14.8, 12.9, 5.5, 37.0)), **_X540)
 XH430_W350 = Model(name="XH430-W350", model_number=1000, stall_torque=3.4, stall_current=1.3, no_load_speed_rpm=30.0,
-                   no_load_current=0.07, current_limit_max=648, velocity_limit_default=130, **_X430)
+                   no_load_current=0.07, current_limit_max=648, velocity_limit_default=130,
+                   ratings=((11.1, 3.1, 1.2, 27.0), (14.8, 4.2, 1.5, 37.0)), **_X430)
 XH540_W270 = Model(name="XH540-W270", model_number=1100, stall_torque=9.9, stall_current=4.9, no_load_speed_rpm=39.0,
                    no_load_current=0.26, current_limit_max=2047, velocity_limit_default=170, **_X540)
 SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270)}
