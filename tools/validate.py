@@ -45,7 +45,7 @@ CHUNK = 4096                # samples of the thermal recurrence evaluated at onc
 
 
 @dataclass(frozen=True)
-class Path_:
+class MotionPath:
     """A motion as a path sampled at its own (human-speed) clock: played at time scale s it is
     sampled again every small_time_step of the played clock (`at_scale`)."""
     name: str
@@ -59,7 +59,7 @@ class Path_:
         return Trajectory(t=t, q=q, qd=qd / scale, qdd=qdd / scale**2, derived=True)
 
 
-def motion_path(spec: str, model) -> Path_:
+def motion_path(spec: str, model) -> MotionPath:
     """A built-in motion by name, a keyframe file (.toml) or a trajectory CSV (.csv)."""
     if str(spec).lower().endswith(".csv"):
         traj = read_trajectory_csv(spec, model.dof_names)
@@ -68,10 +68,10 @@ def motion_path(spec: str, model) -> Path_:
         raise TrajectoryError(f"{spec}: no such file, and not a built-in motion "
                               f"({', '.join(builtin_motions()) or 'none installed'})")
     motion = load_motion(spec, model)
-    return Path_(motion.name, motion.duration, motion.at)
+    return MotionPath(motion.name, motion.duration, motion.at)
 
 
-def csv_path(name: str, traj: Trajectory) -> Path_:
+def csv_path(name: str, traj: Trajectory) -> MotionPath:
     """A trajectory CSV as a path: its samples where it has them, and between them the C2 cubic
     spline of q (a CSV sampled coarser than the control period is refined, not held)."""
     t0 = traj.t[0]
@@ -85,7 +85,7 @@ def csv_path(name: str, traj: Trajectory) -> Path_:
 
         def evaluate(t):
             return spline(t), spline(t, 1), spline(t, 2)
-    return Path_(name, float(traj.t[-1] - t0), evaluate)
+    return MotionPath(name, float(traj.t[-1] - t0), evaluate)
 
 
 @dataclass
@@ -177,7 +177,7 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     middle, half = (L.lower + L.upper) / 2, (L.upper - L.lower) / 2
     ratios["position"] = np.abs(q - middle) / half
     values["position"] = q
-    bounds["position"] = np.where(q >= middle, L.upper, L.lower) + 0 * q
+    bounds["position"] = np.where(q >= middle, L.upper, L.lower)
 
     ratios["speed"] = np.abs(qd) / L.speed
     values["speed"], bounds["speed"] = np.abs(qd), np.broadcast_to(L.speed, qd.shape)
@@ -205,8 +205,7 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
 
     # the supply: each servo's electrical power, copper loss plus mechanical (negative braking:
     # regenerated into the shared bus), the no-load current's losses at the back-EMF aside
-    signed = tau / L.gear * qd * L.gear                   # horn torque x horn speed = joint power
-    power = (motor**2 * L.resistance + signed).sum(axis=1)
+    power = (motor**2 * L.resistance + tau * qd).sum(axis=1)   # horn τ·ω is the joint's τ·q̇
     supply = np.maximum(power, 0.0) / L.voltage
     if L.supply_current:
         ratios["supply"] = (supply / L.supply_current)[:, None]
@@ -278,7 +277,7 @@ FIT_GRID = (0.25, 64.0, 1.25)     # geometric scan of time scales: first, last, 
 FIT_TOLERANCE = 1e-3              # relative width the bisection stops at
 
 
-def fit_time_scale(model, limits: Limits, path: Path_, margin: float, repeat: int, ambient: float):
+def fit_time_scale(model, limits: Limits, path: MotionPath, margin: float, repeat: int, ambient: float):
     """The smallest uniform time scale at which every check passes, and how it was found.
 
     Played s times slower, the speeds fall as 1/s and the inertial and velocity-product torques as
@@ -317,7 +316,7 @@ RETIME_TRIES = 12
 RETIME_TRIM = 1e-3            # s cut from each end of the path, where it is at rest
 
 
-def retime(model, limits: Limits, path: Path_, margin: float, repeat: int, ambient: float):
+def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, ambient: float):
     """The path re-timed by TOPP-RA (toppra), checked densely afterwards like any motion.
 
     toppra plans with constant bounds, so the envelope is linearised: each joint may turn at up to
@@ -481,7 +480,7 @@ def _describe(violation: dict, config, limits: Limits, repeat: int) -> str:
     return f"{dof} needs {value:.2f} N·m {when}; its wire commands at most {limit:.2f} N·m"
 
 
-def make_report(config, path: Path_, scale: float, result: Result, limits: Limits, *, margin: float,
+def make_report(config, path: MotionPath, scale: float, result: Result, limits: Limits, *, margin: float,
                 repeat: int, ambient: float, payload: dict | None) -> dict:
     found = violations(result, config.model.dof_names)
     for v in found:
