@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ..hal.config import load_config
-from .validate import Limits, check, motion_path, retime
+from .retime import retime
+from .validate import Limits, check, motion_path
 
 ROOT = Path(__file__).resolve().parents[1]
 GOALS = {"validate_ms": 50.0, "retime_s": 2.0}

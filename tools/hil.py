@@ -16,7 +16,6 @@ recomputes each command with the host's double-precision controller from the sam
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import socket
 import subprocess

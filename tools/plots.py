@@ -157,3 +157,64 @@ def tracking_figure(path: Path, t, q_d, q, tau, names, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
+    """Per joint, the torque–speed plane as a motor data sheet draws it: the motion's path over
+    the envelope at the supply voltage (driving: the line from stall torque to no-load speed;
+    braking: widening with the back-EMF), the current limit and the velocity limit."""
+    plt = _pyplot()
+    n = len(dof_names)
+    cols = min(4, n)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.2 * rows), squeeze=False)
+    for j, dof in enumerate(dof_names):
+        ax = axes[j // cols][j % cols]
+        g, ts, w0 = limits.gear[j], limits.stall_torque[j] * limits.gear[j], limits.no_load_speed[j] / limits.gear[j]
+        w = np.linspace(-w0, w0, 201)
+        upper = np.where(w >= 0, ts * (1 - w / w0), ts * (1 - w / w0))    # driving right, braking left
+        current = (limits.current[j] - limits.no_load_current[j]) * limits.torque_constant[j] * g
+        ax.fill_between(w, np.minimum(upper, current), -np.minimum(upper[::-1], current), color="tab:green",
+                        alpha=0.12, label="envelope")
+        ax.plot(w, np.minimum(upper, current), color="tab:green", lw=1)
+        ax.plot(w, -np.minimum(upper[::-1], current), color="tab:green", lw=1)
+        ax.axvline(limits.speed[j], color="0.5", ls=":", lw=1)
+        ax.axvline(-limits.speed[j], color="0.5", ls=":", lw=1, label="velocity limit")
+        bad = result.ratios["torque_speed"][:, j] > result.allowed("torque_speed")
+        ax.plot(result.qd[:, j], result.tau[:, j], color="tab:blue", lw=1, label="motion")
+        if bad.any():
+            ax.plot(result.qd[bad, j], result.tau[bad, j], ".", color="tab:red", ms=2, label="outside")
+        ax.set_title(dof, fontsize=9)
+        ax.set_xlabel("speed (rad/s)", fontsize=8)
+        ax.set_ylabel("torque (N m)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].axis("off")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(file, dpi=100)
+    plt.close(fig)
+
+
+def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> None:
+    """Current and winding temperature of each joint against time, with their limits."""
+    plt = _pyplot()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for j, dof in enumerate(dof_names):
+        line, = top.plot(result.t, result.current[:, j], lw=1, label=dof)
+        top.axhline(limits.current[j], color=line.get_color(), ls=":", lw=1)
+        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=dof)
+    for limit in sorted(set(limits.temperature)):
+        bottom.axhline(limit, color="tab:red", ls=":", lw=1)
+    top.set_ylabel("current (A), dotted: limit")
+    bottom.set_ylabel("winding (°C), dotted: limit")
+    bottom.set_xlabel("time (s)")
+    top.legend(fontsize=7, ncol=2)
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    top.set_title(title)
+    fig.tight_layout()
+    fig.savefig(file, dpi=100)
+    plt.close(fig)

@@ -307,78 +307,6 @@ def fit_time_scale(model, limits: Limits, path: MotionPath, margin: float, repea
     return above, f"scan x{ratio:g} then bisection to {FIT_TOLERANCE:.1%}: fails at {below:.4f}, passes at {above:.4f}"
 
 
-# ---------------------------------------------------------------------------- TOPP-RA
-
-RETIME_GRID = 400             # path points toppra plans on
-RETIME_SPEED_SHARE = 0.5      # of the no-load speed given to speed, the rest of the envelope to torque
-RETIME_SHRINK = 0.93          # each retry plans on limits this much tighter
-RETIME_TRIES = 12
-RETIME_TRIM = 1e-3            # s cut from each end of the path, where it is at rest
-
-
-def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, ambient: float):
-    """The path re-timed by TOPP-RA (toppra), checked densely afterwards like any motion.
-
-    toppra plans with constant bounds, so the envelope is linearised: each joint may turn at up to
-    half its no-load speed at the supply voltage (and its velocity limit), and then needs at most
-    half the stall torque to stay inside the driving line τ_s·(1 − |ω|/ω₀); its current limit
-    bounds the torque too. Both are scaled by the margin. toppra sees servodyn's rigid-body RNEA
-    (gravity, any payload). Its result is then re-checked every small_time_step: between its grid
-    points it can exceed its bounds, so a failing plan is tried again on bounds 7 % tighter.
-    Where the path is at rest its speed along the path vanishes and toppra's controllable set at
-    that end is undefined (it reports none); so its first and last millisecond are cut, which
-    moves the start and the end by the `trimmed_rad` the result reports (~1e-7 rad on a motion
-    keyframed at rest).
-    Returns (trajectory, result, {duration_s, tries, toppra_s}) or (None, None, why)."""
-    import time
-
-    import toppra as ta
-    import toppra.algorithm as algo
-    import toppra.constraint as constraint
-
-    ss = np.linspace(RETIME_TRIM, path.duration - RETIME_TRIM, RETIME_GRID)
-    waypoints = path.evaluate(ss)[0]
-    ends = path.evaluate(np.array([0.0, path.duration]))[0]
-    trimmed = float(max(np.abs(waypoints[0] - ends[0]).max(), np.abs(waypoints[-1] - ends[1]).max()))
-    spline = ta.SplineInterpolator(ss, waypoints)
-    grid = np.linspace(ss[0], ss[-1], RETIME_GRID + 1)
-    speed = np.minimum(limits.speed, RETIME_SPEED_SHARE * limits.no_load_speed / limits.gear)
-    envelope = limits.gear * limits.stall_torque * (1 - RETIME_SPEED_SHARE)
-    current = (limits.current - limits.no_load_current) * limits.torque_constant * limits.gear
-    torque = np.minimum(envelope, np.minimum(current, limits.command))
-
-    spent = {"rnea": 0.0, "toppra": 0.0}
-
-    def inverse_dynamics(q, qd, qdd):
-        start = time.perf_counter()
-        tau = model.inverse_dynamics(q, qd, qdd)
-        spent["rnea"] += time.perf_counter() - start
-        return tau
-
-    began, scale = time.perf_counter(), margin
-    for tries in range(1, RETIME_TRIES + 1):
-        vel = constraint.JointVelocityConstraint(np.column_stack([-scale * speed, scale * speed]))
-        tau = constraint.JointTorqueConstraint(inverse_dynamics, np.column_stack([-scale * torque, scale * torque]),
-                                               np.zeros(len(speed)),
-                                               discretization_scheme=constraint.DiscretizationType.Interpolation)
-        start = time.perf_counter()
-        planned = algo.TOPPRA([vel, tau], spline, gridpoints=grid,
-                              parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
-        spent["toppra"] += time.perf_counter() - start
-        if planned is None:
-            return None, None, f"toppra found no feasible timing (try {tries}: 'controllable set is empty')"
-        t = np.arange(int(np.floor(planned.duration / SMALL_TIME_STEP)) + 1) * SMALL_TIME_STEP
-        t = np.append(t, planned.duration) if planned.duration - t[-1] > 1e-9 else t
-        traj = Trajectory(t=t, q=planned(t), qd=planned(t, 1), qdd=planned(t, 2), derived=True)
-        result = check(model, limits, traj, margin, repeat, ambient)
-        if result.passed:
-            return traj, result, {"duration_s": float(planned.duration), "tries": tries,
-                                  "seconds": time.perf_counter() - began, "trimmed_rad": trimmed,
-                                  "toppra_s": spent["toppra"] - spent["rnea"], "rnea_s": spent["rnea"]}
-        scale *= RETIME_SHRINK
-    return None, None, f"toppra's timings still failed the dense check after {RETIME_TRIES} tries"
-
-
 # ---------------------------------------------------------------------------- confirmed by simulation
 
 SATURATION_UNITS = 3          # current units between the asked and the delivered current that count
@@ -500,71 +428,6 @@ def make_report(config, path: MotionPath, scale: float, result: Result, limits: 
     }
 
 
-# ---------------------------------------------------------------------------- plots
-
-def plot_envelopes(file: Path, result: Result, limits: Limits, dof_names, title: str) -> None:
-    """Per joint, the torque–speed plane as a motor data sheet draws it: the motion's path over
-    the envelope at the supply voltage (driving: the line from stall torque to no-load speed;
-    braking: widening with the back-EMF), the current limit and the velocity limit."""
-    from .plots import _pyplot
-    plt = _pyplot()
-    n = len(dof_names)
-    cols = min(4, n)
-    rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.2 * rows), squeeze=False)
-    for j, dof in enumerate(dof_names):
-        ax = axes[j // cols][j % cols]
-        g, ts, w0 = limits.gear[j], limits.stall_torque[j] * limits.gear[j], limits.no_load_speed[j] / limits.gear[j]
-        w = np.linspace(-w0, w0, 201)
-        upper = np.where(w >= 0, ts * (1 - w / w0), ts * (1 - w / w0))    # driving right, braking left
-        current = (limits.current[j] - limits.no_load_current[j]) * limits.torque_constant[j] * g
-        ax.fill_between(w, np.minimum(upper, current), -np.minimum(upper[::-1], current), color="tab:green",
-                        alpha=0.12, label="envelope")
-        ax.plot(w, np.minimum(upper, current), color="tab:green", lw=1)
-        ax.plot(w, -np.minimum(upper[::-1], current), color="tab:green", lw=1)
-        ax.axvline(limits.speed[j], color="0.5", ls=":", lw=1)
-        ax.axvline(-limits.speed[j], color="0.5", ls=":", lw=1, label="velocity limit")
-        bad = result.ratios["torque_speed"][:, j] > result.allowed("torque_speed")
-        ax.plot(result.qd[:, j], result.tau[:, j], color="tab:blue", lw=1, label="motion")
-        if bad.any():
-            ax.plot(result.qd[bad, j], result.tau[bad, j], ".", color="tab:red", ms=2, label="outside")
-        ax.set_title(dof, fontsize=9)
-        ax.set_xlabel("speed (rad/s)", fontsize=8)
-        ax.set_ylabel("torque (N m)", fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.3)
-    for k in range(n, rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(file, dpi=100)
-    plt.close(fig)
-
-
-def plot_time(file: Path, result: Result, limits: Limits, dof_names, title: str) -> None:
-    """Current and winding temperature of each joint against time, with their limits."""
-    from .plots import _pyplot
-    plt = _pyplot()
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    for j, dof in enumerate(dof_names):
-        line, = top.plot(result.t, result.current[:, j], lw=1, label=dof)
-        top.axhline(limits.current[j], color=line.get_color(), ls=":", lw=1)
-        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=dof)
-    for limit in sorted(set(limits.temperature)):
-        bottom.axhline(limit, color="tab:red", ls=":", lw=1)
-    top.set_ylabel("current (A), dotted: limit")
-    bottom.set_ylabel("winding (°C), dotted: limit")
-    bottom.set_xlabel("time (s)")
-    top.legend(fontsize=7, ncol=2)
-    for ax in (top, bottom):
-        ax.grid(alpha=0.3)
-    top.set_title(title)
-    fig.tight_layout()
-    fig.savefig(file, dpi=100)
-    plt.close(fig)
-
-
 # ---------------------------------------------------------------------------- the command
 
 def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0.0, payload_body=None,
@@ -611,6 +474,7 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         report["fit_how"] = how
         say(f"fit: {'time scale ' + format(scale, '.4f') + f' ({path.duration * scale:.3f} s)' if scale else 'none'} — {how}")
     if retime_motion:
+        from .retime import retime
         traj, checked, info = retime(model, limits, path, margin, repeat, ambient)
         if traj is None:
             report["retime"] = {"passed": False, "why": info}
@@ -636,8 +500,9 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
             write_trajectory_csv(out / "retimed.csv", traj, model.dof_names)
             report["retime"]["file"] = str(out / "retimed.csv")
         title = f"{path.name} on {config.name}, time scale {time_scale:g}, {voltage:g} V"
-        plot_envelopes(out / "envelopes.png", result, limits, model.dof_names, title)
-        plot_time(out / "current_temperature.png", result, limits, model.dof_names, title)
+        from .plots import envelope_figure, limits_in_time_figure
+        envelope_figure(out / "envelopes.png", result, limits, model.dof_names, title)
+        limits_in_time_figure(out / "current_temperature.png", result, limits, model.dof_names, title)
         (out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
         say(f"wrote {out / 'report.json'}, {out / 'envelopes.png'}, {out / 'current_temperature.png'}")
     return report

@@ -38,7 +38,7 @@ from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_
                             PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
 from . import instructions
 from .instructions import fast_reply_blocks, split_fast_reply
-from .protocol import (ALERT_BIT, BROADCAST_ID, FRAME_OVERHEAD, HEADER, MAX_ID, PacketError, StatusPacket,
+from .protocol import (ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, PacketError, StatusPacket,
                        encode_frame)
 from .reader import BadFrame, Fault, PacketReader
 from .units import ServoMap
