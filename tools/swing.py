@@ -91,7 +91,10 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
-        swing_start = arm.time if arm is not None else 0.0
+        # the plant's time when the swing begins: in lock-step one period per homing tick (reading
+        # arm.time here would race the simulator's thread, which may not have taken the last
+        # homing write yet: a sync write gets no reply); in real time, the plant clock now
+        swing_start = (arm.time if realtime else len(home.traj.t) * SMALL_TIME_STEP) if arm is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at),
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                               f"largest error {np.degrees(err):6.3f} deg"))
