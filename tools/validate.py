@@ -393,7 +393,7 @@ def _describe(violation: dict, config, limits: Limits, repeat: int) -> str:
         return f"{dof} needs {abs(value):.2f} rad/s {when}; its {servo} turns {limit:.2f} rad/s at {V} (or its velocity limit)"
     if check_name == "torque_speed":
         return (f"{dof} needs {value:.2f} N·m at {abs(violation['speed_rad_s']):.2f} rad/s {when}: "
-                f"{violation['ratio']:.0%} of its {servo}'s torque-speed envelope at {V} (it gives {limit:.2f} N·m "
+                f"{violation['ratio']:.1%} of its {servo}'s torque-speed envelope at {V} (it gives {limit:.2f} N·m "
                 f"at that speed)")
     if check_name == "current":
         return f"{dof} draws {value:.2f} A {when}; its current limit is {limit:.2f} A"
