@@ -266,6 +266,8 @@ def violations(result: Result, dof_names) -> list[dict]:
                               "t_s": float(result.t[k]), "value": float(result.values[name][k, j]),
                               "limit": float(result.limits_at[name][k, j]),
                               "ratio": float(result.ratios[name][k, j])})
+                worst = int(np.argmax(result.ratios[name][:, j]))
+                found[-1].update(worst_ratio=float(result.ratios[name][worst, j]), worst_t_s=float(result.t[worst]))
                 if name == "torque_speed":
                     found[-1]["speed_rad_s"] = float(result.qd[k, j])
     return sorted(found, key=lambda v: (v["t_s"], CHECKS.index(v["check"])))
@@ -375,8 +377,10 @@ def joint_table(result: Result, dof_names) -> dict:
 def describe(violation: dict, config, limits: Limits, repeat: int, margin: float) -> str:
     """One line a person understands, for a violation (naming the margin when it is not 1)."""
     line = _describe(violation, config, limits, repeat)
+    if violation["worst_ratio"] > violation["ratio"] * 1.001:
+        line += f"; at worst {violation['worst_ratio']:.1%} of its limit, at t = {violation['worst_t_s']:.3f} s"
     if margin != 1 and violation["check"] != "position":
-        line += f" (the margin allows {margin:.0%} of it)"
+        line += f" (the margin allows {margin:.0%})"
     return line
 
 
