@@ -55,7 +55,6 @@ def test_summary_reports_the_loop_figures(runs):
     for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "period_median_ms"):
         assert isinstance(ff[key], float) and math.isfinite(ff[key]), f"{key} = {ff[key]!r}"
     assert ff["clock"] == "lockstep", "run_swing's default: one plant period per sync write"
-    assert set(ff["cpu_ms_per_tick"]) == {"median", "p99"}, "CPU per tick as its median and 99th percentile"
     assert ff["tracking_rms_rad"] <= ff["tracking_max_rad"], "an rms cannot exceed the largest value"
 
 

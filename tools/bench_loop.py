@@ -71,14 +71,17 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     print(f"servodyn control loop: the replica's swing on the simulated bus, {os.cpu_count()} cpus", flush=True)
     results = measure(args.reps)
-    text = table(results)
-    print("\n" + text)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "loop.md").write_text(text + "\n")
-    (out / "loop.json").write_text(json.dumps(results, indent=1) + "\n")
-    print(f"\nwrote {out / 'loop.md'}, {out / 'loop.json'}")
+    publish(Path(args.out), "loop", table(results), results)
     return 0
+
+
+def publish(out: Path, stem: str, text: str, data) -> None:
+    """Print a bench section's table and write it as OUT/STEM.md with its numbers in OUT/STEM.json."""
+    print("\n" + text)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.md").write_text(text + "\n")
+    (out / f"{stem}.json").write_text(json.dumps(data, indent=1) + "\n")
+    print(f"\nwrote {out / (stem + '.md')}, {out / (stem + '.json')}")
 
 
 if __name__ == "__main__":

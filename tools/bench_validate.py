@@ -8,7 +8,6 @@ Goals on the 2-core machine: validating the 1.8 s swing at 1 kHz (1801 samples, 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..hal.config import load_config
+from .bench_loop import publish
 from .retime import retime
 from .validate import Limits, check, motion_path
 
@@ -63,13 +63,7 @@ def main(argv=None) -> int:
         f"| of which toppra's own planning / servodyn's RNEA inside it | {rows['toppra_s']:.3f} s / "
         f"{rows['toppra_rnea_s']:.3f} s | |",
         "", f"retimed swing: {rows['retime_duration_s']:.3f} s (as written 1.800 s)"]
-    text = "\n".join(lines)
-    print("\n" + text)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "validate.md").write_text(text + "\n")
-    (out / "validate.json").write_text(json.dumps(rows, indent=1) + "\n")
-    print(f"\nwrote {out / 'validate.md'}")
+    publish(Path(args.out), "validate", "\n".join(lines), rows)
     return 0
 
 
