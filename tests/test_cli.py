@@ -1,6 +1,7 @@
 """The `servodyn` command line: torques, models, export, and one clear line for bad input."""
 
 import csv
+import os
 import subprocess
 import sys
 
@@ -185,3 +186,49 @@ def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
     assert proc.returncode == 0 and took < 5, f"SIGINT ended it with status {proc.returncode} after {took:.1f} s"
     assert "stopped after" in out, out
     assert err == "", err
+
+
+def assert_one_line_error(res, *words):
+    """Bad input: exit 2 and exactly one stderr line, `servodyn: error: ...`, naming the problem."""
+    assert res.returncode == 2, f"bad input exits 2, got {res.returncode}: {res.stderr}"
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("servodyn: error: "), f"one line, no traceback: {res.stderr}"
+    for word in words:
+        assert word in lines[0], f"'{word}' missing from: {lines[0]}"
+
+
+@pytest.mark.parametrize("column,value", [("qd", 1e154), ("qdd", 1e308)])
+def test_torques_that_overflow_are_refused_not_written_as_zero(tmp_path, column, value):
+    """Finite values whose torques overflow double precision: the core zeroes them; the CLI must
+    refuse, naming the file and the sample, and write no torque file."""
+    arm = servodyn.load_model("human_arm")
+    t = np.array([0.0, 0.5, 1.0])
+    state = {"qd": np.zeros((3, arm.nq)), "qdd": np.zeros((3, arm.nq))}
+    state[column][1] = value
+    write_traj(tmp_path / "traj.csv", t, arm.dof_names, np.zeros((3, arm.nq)), state["qd"], state["qdd"])
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv", "--ignore-limits")
+    assert_one_line_error(res, "traj.csv", "t = 0.500 s (sample 2)", "overflow")
+    assert not (tmp_path / "tau.csv").exists(), "no torque file of zeros"
+
+
+@pytest.mark.parametrize("args,words", [
+    (("torques", "human_arm", "ok.csv", "-o", "folder"), ("folder: is a folder",)),
+    (("torques", "human_arm", "ok.csv", "-o", "/dev/full"), ("/dev/full", "No space left")),
+    (("export", "human_arm", "folder.urdf"), ("folder.urdf: is a folder",)),
+    (("experiment", "still", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("swing", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("validate", "replica", "tennis_forehand", "--out", "ok.csv"), ("ok.csv: is a file where a folder",)),
+    (("codegen", "-o", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("demo", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("demo", "--out", "ok.csv/sub"), ("is a file where a folder is needed",)),
+])
+def test_unwritable_output_gives_one_line(tmp_path, args, words):
+    """Every command that writes: an output that is a folder, a full device, or a folder path
+    through a file is one line naming the path, not a traceback."""
+    arm = servodyn.load_model("human_arm")
+    write_traj(tmp_path / "ok.csv", np.array([0.0, 1.0]), arm.dof_names, np.zeros((2, arm.nq)))
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder.urdf").mkdir()
+    if not os.path.exists("/dev/full") and "/dev/full" in args:
+        pytest.skip("no /dev/full here")
+    assert_one_line_error(run(*args, cwd=tmp_path), *words)

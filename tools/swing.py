@@ -59,6 +59,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                 f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
         say(f"forced past the validator: {first}")
     swing = motion_path(motion, model).at_scale(scale)
+    out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     mode = "feedforward_pd" if feedforward else "pd"
     server = arm = None
     options = {}
