@@ -11,11 +11,11 @@ the file, the entry and the key.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..model import load_model
+from ..model.files import read_toml
 from .bus import BACKENDS, backend_class, servo_catalogue
 from .errors import ConfigError
 from .servos import ServoSpec
@@ -255,13 +255,10 @@ def load_config(name_or_path: str | Path) -> RobotConfig:
     """A built-in configuration by name, or a configuration file."""
     path = builtin_configs().get(str(name_or_path), Path(name_or_path))
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path, ConfigError, label=path.name)
     except FileNotFoundError:
         raise ConfigError(f"{name_or_path}: no such file, and not a built-in configuration "
                           f"({', '.join(builtin_configs()) or 'none installed'})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path.name}: not valid TOML ({err})") from None
     config = config_from_dict(data, origin=path.name, base=path.parent)
     return replace(config, path=path)
 

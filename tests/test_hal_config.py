@@ -203,3 +203,16 @@ def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
     reply = decode_frame(arm.handle(inst.ping(7).encode()))
     assert int.from_bytes(reply.params[:2], "little") == spec.model_number, \
         f"servo 7 answers as model {spec.model_number} ({servo_name})"
+
+
+@pytest.mark.parametrize("make,words", [
+    (lambda p: p.write_bytes(bytes(range(256)) * 4), ["robot.toml", "not a text file"]),
+    (lambda p: p.mkdir(), ["robot.toml", "is a folder"]),
+])
+def test_unreadable_config_files_are_one_config_error_naming_the_file(tmp_path, make, words):
+    make(tmp_path / "robot.toml")
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path / "robot.toml")
+    assert "\n" not in str(err.value), str(err.value)
+    for word in words:
+        assert word in str(err.value), f"{word!r} not in: {err.value}"

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .. import _core
+from ..model.files import read_toml
 from .trajectory import Trajectory, TrajectoryError
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
@@ -80,13 +80,10 @@ def load_motion(name_or_path: str | Path, model) -> Motion:
     builtins = builtin_motions()
     path = builtins.get(str(name_or_path), Path(name_or_path))
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path, TrajectoryError)
     except FileNotFoundError:
         raise TrajectoryError(f"{name_or_path}: no such keyframe file, and not a built-in motion "
                               f"({', '.join(builtins) or 'none installed'})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise TrajectoryError(f"{path}: not valid TOML ({err})") from None
     frames = data.get("keyframe")
     if not isinstance(frames, list) or len(frames) < 2:
         raise TrajectoryError(f"{path}: needs at least two [[keyframe]] entries")
