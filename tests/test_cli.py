@@ -232,3 +232,17 @@ def test_unwritable_output_gives_one_line(tmp_path, args, words):
     if not os.path.exists("/dev/full") and "/dev/full" in args:
         pytest.skip("no /dev/full here")
     assert_one_line_error(run(*args, cwd=tmp_path), *words)
+
+
+@pytest.mark.parametrize("args,words", [
+    (("export", "garbage.urdf", "out.urdf"), ("garbage.urdf: cannot read URDF", "not XML")),
+    (("codegen", "--config", "binary.toml", "-o", "gen"), ("binary.toml: not a text file",)),
+    (("swing", "--config", "folder.toml"), ("folder.toml: is a folder",)),
+    (("validate", "replica", "binary.toml"), ("binary.toml: not a text file",)),
+])
+def test_unreadable_input_files_give_one_line_naming_the_file(tmp_path, args, words):
+    """No library logging and no traceback: exactly one line that names the file."""
+    (tmp_path / "garbage.urdf").write_text("garbage <robot")
+    (tmp_path / "binary.toml").write_bytes(bytes(range(256)) * 4)
+    (tmp_path / "folder.toml").mkdir()
+    assert_one_line_error(run(*args, cwd=tmp_path), *words)
