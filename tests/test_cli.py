@@ -95,6 +95,10 @@ GOOD_HEADER = "t," + ",".join(f"q_{n}" for n in servodyn.load_model("human_arm")
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,x,0,0,0,0\n", "row 3, column 'q_r_shoulder_rotation': 'x' is not a number"),
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,nan,0,0,0,0\n", "not finite"),
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0,0,0,0,0,0,0,0\n", "time must increase"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,0_5,0,0,0,0\n", "row 3, column 'q_r_shoulder_rotation': '0_5' is not a number"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1,0,0,1e308,0,0,0,0\n2,0,0,-1e308,0,0,0,0\n3,0,0,0,0,0,0,0\n",
+     "t = 0 s (sample 1): the spline's velocity or acceleration overflows"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1e-300,0,0,1,0,0,0,0\n2e-300,0,0,0,0,0,0,0\n", "overflows"),
 ])
 def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
     path = tmp_path / "bad.csv"
@@ -104,6 +108,14 @@ def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
     assert message in res.stderr, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, "one line, no traceback"
     assert not (tmp_path / "out.csv").exists(), "no torque file for a refused trajectory"
+
+
+def test_a_byte_order_mark_before_the_header_is_dropped(tmp_path):
+    """Spreadsheets save UTF-8 CSV with a byte-order mark; the header's 't' is still 't'."""
+    (tmp_path / "bom.csv").write_text(GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1,0,0,0,0,0,0,0\n", encoding="utf-8-sig")
+    res = run("torques", "human_arm", tmp_path / "bom.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 0, res.stderr
+    assert read_csv(tmp_path / "tau.csv")[1].shape == (2, 8), "both samples, t and 7 torques"
 
 
 @pytest.mark.parametrize("args,message", [
