@@ -258,3 +258,11 @@ def test_unreadable_input_files_give_one_line_naming_the_file(tmp_path, args, wo
     (tmp_path / "binary.toml").write_bytes(bytes(range(256)) * 4)
     (tmp_path / "folder.toml").mkdir()
     assert_one_line_error(run(*args, cwd=tmp_path), *words)
+
+
+@pytest.mark.parametrize("scale,words", [
+    ("-1", ("--time-scale", "positive")), ("nan", ("--time-scale",)), ("inf", ("--time-scale",)),
+    ("0", ("--time-scale", "got 0")), ("1e9", ("1e+09", "at most 600 s")), ("1e-6", ("1e-06", "too fast")),
+])
+def test_swing_refuses_a_bad_time_scale_in_one_line(tmp_path, scale, words):
+    assert_one_line_error(run("swing", "--time-scale", scale, "--out", tmp_path / "out"), *words)

@@ -47,7 +47,10 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
-    scale = time_scale or (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
+    if time_scale is not None:
+        scale = time_scale       # as given: 0 is refused by the validator, not replaced
+    else:
+        scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
     bus_config = next(iter(config.buses.values()))
     simulated = port is None and bus_config.kind == "dynamixel" or bus_config.kind == "loopback"

@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _core
 from ..model.files import read_toml
+from .timing import played_periods
 from .trajectory import Trajectory, TrajectoryError
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
@@ -52,9 +53,9 @@ class Motion:
     def sample(self, dt: float, time_scale: float = 1.0) -> Trajectory:
         """The motion every dt seconds; time_scale > 1 plays it slower (velocities / scale,
         accelerations / scale²)."""
-        if not dt > 0 or not time_scale > 0:
-            raise ValueError("dt and time_scale must be positive")
-        n = int(round(self.duration * time_scale / dt))
+        if not dt > 0:
+            raise ValueError("dt must be positive")
+        n = played_periods(self.duration, time_scale, dt)
         t = np.arange(n + 1) * dt
         q, qd, qdd = self.at(t / time_scale)
         return Trajectory(t=t, q=q, qd=qd / time_scale, qdd=qdd / time_scale**2, derived=True)
