@@ -266,3 +266,14 @@ def test_unreadable_input_files_give_one_line_naming_the_file(tmp_path, args, wo
 ])
 def test_swing_refuses_a_bad_time_scale_in_one_line(tmp_path, scale, words):
     assert_one_line_error(run("swing", "--time-scale", scale, "--out", tmp_path / "out"), *words)
+
+
+@pytest.mark.parametrize("flag,value", [("--max-velocity", "nan"), ("--max-velocity", "-1"),
+                                        ("--max-acceleration", "nan")])
+def test_torques_refuses_a_limit_that_is_not_positive(tmp_path, flag, value):
+    """--max-velocity nan used to switch the check off and write the torques."""
+    arm = servodyn.load_model("human_arm")
+    write_traj(tmp_path / "ok.csv", np.array([0.0, 1.0]), arm.dof_names, np.zeros((2, arm.nq)))
+    res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", flag, value)
+    assert_one_line_error(res, "limit must be a positive number", f"got {value}")
+    assert not (tmp_path / "tau.csv").exists()

@@ -128,3 +128,13 @@ def test_unreadable_keyframe_files_are_one_trajectory_error(tmp_path, make, word
     assert "\n" not in str(err.value), str(err.value)
     for word in words:
         assert word in str(err.value), f"{word!r} not in: {err.value}"
+
+
+@pytest.mark.parametrize("limit", [float("nan"), -1.0, 0.0])
+def test_a_limit_that_is_not_positive_is_refused_not_ignored(limit):
+    """NaN compares false, so a NaN limit used to switch the check off; -1 refused everything
+    with a message about the trajectory rather than the limit."""
+    traj = load_motion("tennis_forehand", ARM).sample(1e-2)
+    for key in ("velocity", "acceleration"):
+        with pytest.raises(TrajectoryError, match=r"limit must be a positive number of rad/s.*, got"):
+            check_limits(traj, ARM, **{key: limit})

@@ -125,12 +125,16 @@ def check_limits(traj: Trajectory, model, origin: str = "trajectory", velocity=N
     given velocity or acceleration limits (rad/s, rad/s²; scalars or one per dof)."""
     names = model.dof_names
     checks = [("position", traj.q, model.lower, model.upper, "rad")]
-    if velocity is not None:
-        v = np.broadcast_to(np.asarray(velocity, dtype=float), (len(names),))
-        checks.append(("speed", np.abs(traj.qd), -np.inf * v, v, "rad/s"))
-    if acceleration is not None:
-        a = np.broadcast_to(np.asarray(acceleration, dtype=float), (len(names),))
-        checks.append(("acceleration", np.abs(traj.qdd), -np.inf * a, a, "rad/s²"))
+    for what, limit, values, unit in (("speed", velocity, traj.qd, "rad/s"),
+                                      ("acceleration", acceleration, traj.qdd, "rad/s²")):
+        if limit is None:
+            continue
+        limit = np.broadcast_to(np.asarray(limit, dtype=float), (len(names),))
+        # a NaN limit compares false and would switch the check off; a negative one refuses all
+        if not np.all(limit > 0):
+            raise TrajectoryError(f"the {what} limit must be a positive number of {unit}, got "
+                                  f"{limit[np.argmax(~(limit > 0))]:g}")
+        checks.append((what, np.abs(values), -np.inf * limit, limit, unit))
     tol = 1e-9
     for what, values, lo, hi, unit in checks:
         bad = (values < lo - tol) | (values > hi + tol)
