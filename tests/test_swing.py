@@ -162,3 +162,16 @@ def test_a_bad_time_scale_is_refused_not_replaced(tmp_path, scale, words):
     with pytest.raises(ValueError, match=words):
         run_swing("replica", out=tmp_path / "out", time_scale=scale, **QUIET)
     assert not (tmp_path / "out").exists(), "nothing ran, nothing was written"
+
+
+def test_a_configurations_real_port_is_used(tmp_path):
+    """port = "/dev/..." in the configuration and no --port: the swing opens that port (here one
+    that does not exist, so it stops before anything moves), never the simulator in its place."""
+    from servodyn.hal.config import CONFIGS_DIR
+    config = tmp_path / "real.toml"
+    missing = tmp_path / "ttyUSB9"
+    config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
+        'port = "auto"', f'port = "{missing}"', 1))
+    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
+    assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
+    assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"

@@ -201,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
                        "is started and used.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
-    p.add_argument("--port", default=None, help="serial port of a real bus (default: simulated)")
+    p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
+                                                       "'auto' there means the simulated bus)")
     p.add_argument("--out", default="out/swing", help="output folder (default out/swing)")
     p.add_argument("--no-feedforward", action="store_true", help="PD only, no inverse dynamics")
     p.add_argument("--time-scale", type=float, default=None,
