@@ -136,6 +136,12 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
     ("a bus kind without a backend", bus_kind_can, ["bus 'arm'", "'kind'", "'can'", "dynamixel"]),
     ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),
+    ("absurd zero offset", set_joint(0, "zero_offset", 1e300), ["joint 1", "'zero_offset'", "1e+300", "one turn"]),
+    ("absurd gear ratio", set_joint(1, "gear_ratio", 1e300), ["joint 2", "'gear_ratio'", "beyond 100", "gear stage"]),
+    ("absurd torque constant", set_joint(2, "torque_constant", 1e300), ["'torque_constant'", "beyond 100", "N m per A"]),
+    ("absurd current unit", set_joint(6, "current_unit", 1e300), ["joint 7", "'current_unit'", "beyond 1", "A per"]),
+    ("absurd velocity limit", set_joint(3, "velocity_limit", 1e300), ["'velocity_limit'", "beyond 1000"]),
+    ("absurd supply voltage", lambda d: d.update(supply={"voltage": 1e300}), ["supply", "'voltage'", "beyond 100"]),
 ]
 
 
