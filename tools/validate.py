@@ -81,7 +81,14 @@ def csv_path(name: str, traj: Trajectory) -> Path_:
             return traj.q[k], traj.qd[k], traj.qdd[k]
     else:
         from scipy.interpolate import CubicSpline
-        spline = CubicSpline(traj.t - t0, traj.q, axis=0)
+        with np.errstate(all="ignore"):
+            try:
+                spline = CubicSpline(traj.t - t0, traj.q, axis=0)
+            except ValueError:          # scipy refuses its own overflowed slopes
+                spline = None
+        if spline is None or not np.all(np.isfinite(spline.c)):
+            raise TrajectoryError(f"{name}.csv: the spline through q overflows between the samples (values "
+                                  "or time steps too extreme)")
 
         def evaluate(t):
             return spline(t), spline(t, 1), spline(t, 2)
