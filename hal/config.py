@@ -11,11 +11,11 @@ the file, the entry and the key.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..model import load_model
+from ..model.files import read_toml
 from .bus import BACKENDS, backend_class, servo_catalogue
 from .errors import ConfigError
 from .servos import ServoSpec
@@ -26,6 +26,19 @@ SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
               "torque_constant", "position_limits", "velocity_limit", "current_limit"}
+
+# physically sane ranges (lowest, highest, why): a typo like 1e300 would otherwise reach the
+# firmware's single-precision tables as inf
+RANGES = {
+    "zero_offset": (-2 * math.pi, 2 * math.pi, "rad, the horn's angle at dof = 0: one turn either way "
+                                               "covers every mounting"),
+    "gear_ratio": (0.0, 100.0, "horn turns per joint turn, a belt or gear stage after the servo"),
+    "torque_constant": (0.0, 100.0, "N m per A at the horn; servos' are 0.5 to 10"),
+    "velocity_limit": (0.0, 1000.0, "rad/s at the joint, ten times the fastest servo's no-load speed"),
+    "current_unit": (0.0, 1.0, "A per register unit; Dynamixel's is a few mA"),
+    "voltage": (0.0, 100.0, "V at the servos; their supplies are 5 to 48 V"),
+    "current_limit": (0.0, 1000.0, "A"),
+}
 
 
 @dataclass(frozen=True)
@@ -113,9 +126,20 @@ class _Checker:
         self.fail(key, f"must be {expected}, got {value!r}")
 
     def positive(self, key: str, default=None) -> float:
+        """A positive number, and no more than its physical range allows (RANGES)."""
         value = self.get(key, "float", default)
         if value <= 0:
             self.fail(key, f"must be positive, got {value:g}")
+        if key in RANGES and value > RANGES[key][1]:
+            self.fail(key, f"{value:g} is beyond {RANGES[key][1]:g} ({RANGES[key][2]})")
+        return value
+
+    def within(self, key: str, default: float) -> float:
+        """A number inside the key's physical range (RANGES)."""
+        value = self.get(key, "float", default)
+        low, high, why = RANGES[key]
+        if not low <= value <= high:
+            self.fail(key, f"{value:g} is outside [{low:g}, {high:g}] ({why})")
         return value
 
 
@@ -190,7 +214,7 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail("current_limit", f"{current_limit:g} A exceeds the {servo_name}'s largest current limit, "
                                 f"{how} = {highest:.3g} A")
     return JointConfig(dof=dof, bus=bus_name, id=servo_id, servo=servo, direction=direction,
-                       zero_offset=c.get("zero_offset", "float", 0.0), gear_ratio=gear_ratio,
+                       zero_offset=c.within("zero_offset", 0.0), gear_ratio=gear_ratio,
                        torque_constant=c.positive("torque_constant", servo.torque_constant),
                        position_limits=limits,
                        velocity_limit=c.positive("velocity_limit", servo.no_load_speed / gear_ratio),
@@ -255,13 +279,10 @@ def load_config(name_or_path: str | Path) -> RobotConfig:
     """A built-in configuration by name, or a configuration file."""
     path = builtin_configs().get(str(name_or_path), Path(name_or_path))
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path, ConfigError, label=path.name)
     except FileNotFoundError:
         raise ConfigError(f"{name_or_path}: no such file, and not a built-in configuration "
                           f"({', '.join(builtin_configs()) or 'none installed'})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path.name}: not valid TOML ({err})") from None
     config = config_from_dict(data, origin=path.name, base=path.parent)
     return replace(config, path=path)
 

@@ -78,6 +78,15 @@ def test_forward_of_inverse_is_identity(name):
     assert err <= 1e-10, f"{name}: forward(inverse(qdd)) differs from qdd by {err:.2e}"
 
 
+def test_overflowing_input_raises_and_names_the_row():
+    """A finite velocity whose accelerations overflow: an error naming the row, never qdd = 0."""
+    arm = servodyn.load_model("human_arm")
+    qd = np.zeros((2, arm.nq))
+    qd[1] = 1e154
+    with pytest.raises(FloatingPointError, match="forward dynamics: non-finite result at row 1"):
+        arm.forward_dynamics(np.zeros((2, arm.nq)), qd, np.zeros((2, arm.nq)))
+
+
 def test_float_build_matches_double_on_builtins():
     """The MCU's single precision (servodyn._core32, same source). Forward dynamics amplify
     rounding by cond(M), up to 2.5e3 on human_arm and 3e6 on human15 (light hands and feet on a

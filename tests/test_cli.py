@@ -1,6 +1,7 @@
 """The `servodyn` command line: torques, models, export, and one clear line for bad input."""
 
 import csv
+import os
 import subprocess
 import sys
 
@@ -94,6 +95,10 @@ GOOD_HEADER = "t," + ",".join(f"q_{n}" for n in servodyn.load_model("human_arm")
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,x,0,0,0,0\n", "row 3, column 'q_r_shoulder_rotation': 'x' is not a number"),
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,nan,0,0,0,0\n", "not finite"),
     (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0,0,0,0,0,0,0,0\n", "time must increase"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n0.001,0,0,0_5,0,0,0,0\n", "row 3, column 'q_r_shoulder_rotation': '0_5' is not a number"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1,0,0,1e308,0,0,0,0\n2,0,0,-1e308,0,0,0,0\n3,0,0,0,0,0,0,0\n",
+     "t = 0 s (sample 1): the spline's velocity or acceleration overflows"),
+    (GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1e-300,0,0,1,0,0,0,0\n2e-300,0,0,0,0,0,0,0\n", "overflows"),
 ])
 def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
     path = tmp_path / "bad.csv"
@@ -103,6 +108,14 @@ def test_bad_trajectories_give_one_line_and_exit_2(tmp_path, content, message):
     assert message in res.stderr, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, "one line, no traceback"
     assert not (tmp_path / "out.csv").exists(), "no torque file for a refused trajectory"
+
+
+def test_a_byte_order_mark_before_the_header_is_dropped(tmp_path):
+    """Spreadsheets save UTF-8 CSV with a byte-order mark; the header's 't' is still 't'."""
+    (tmp_path / "bom.csv").write_text(GOOD_HEADER + "\n0,0,0,0,0,0,0,0\n1,0,0,0,0,0,0,0\n", encoding="utf-8-sig")
+    res = run("torques", "human_arm", tmp_path / "bom.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 0, res.stderr
+    assert read_csv(tmp_path / "tau.csv")[1].shape == (2, 8), "both samples, t and 7 torques"
 
 
 @pytest.mark.parametrize("args,message", [
@@ -185,3 +198,82 @@ def test_sim_serves_the_bus_and_stops_cleanly_on_ctrl_c():
     assert proc.returncode == 0 and took < 5, f"SIGINT ended it with status {proc.returncode} after {took:.1f} s"
     assert "stopped after" in out, out
     assert err == "", err
+
+
+def assert_one_line_error(res, *words):
+    """Bad input: exit 2 and exactly one stderr line, `servodyn: error: ...`, naming the problem."""
+    assert res.returncode == 2, f"bad input exits 2, got {res.returncode}: {res.stderr}"
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("servodyn: error: "), f"one line, no traceback: {res.stderr}"
+    for word in words:
+        assert word in lines[0], f"'{word}' missing from: {lines[0]}"
+
+
+@pytest.mark.parametrize("column,value", [("qd", 1e154), ("qdd", 1e308)])
+def test_torques_that_overflow_are_refused_not_written_as_zero(tmp_path, column, value):
+    """Finite values whose torques overflow double precision: the core zeroes them; the CLI must
+    refuse, naming the file and the sample, and write no torque file."""
+    arm = servodyn.load_model("human_arm")
+    t = np.array([0.0, 0.5, 1.0])
+    state = {"qd": np.zeros((3, arm.nq)), "qdd": np.zeros((3, arm.nq))}
+    state[column][1] = value
+    write_traj(tmp_path / "traj.csv", t, arm.dof_names, np.zeros((3, arm.nq)), state["qd"], state["qdd"])
+    res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv", "--ignore-limits")
+    assert_one_line_error(res, "traj.csv", "t = 0.500 s (sample 2)", "overflow")
+    assert not (tmp_path / "tau.csv").exists(), "no torque file of zeros"
+
+
+@pytest.mark.parametrize("args,words", [
+    (("torques", "human_arm", "ok.csv", "-o", "folder"), ("folder: is a folder",)),
+    (("torques", "human_arm", "ok.csv", "-o", "/dev/full"), ("/dev/full", "No space left")),
+    (("export", "human_arm", "folder.urdf"), ("folder.urdf: is a folder",)),
+    (("experiment", "still", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("swing", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("validate", "replica", "tennis_forehand", "--out", "ok.csv"), ("ok.csv: is a file where a folder",)),
+    (("codegen", "-o", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("demo", "--out", "ok.csv"), ("ok.csv: is a file where a folder is needed",)),
+    (("demo", "--out", "ok.csv/sub"), ("is a file where a folder is needed",)),
+])
+def test_unwritable_output_gives_one_line(tmp_path, args, words):
+    """Every command that writes: an output that is a folder, a full device, or a folder path
+    through a file is one line naming the path, not a traceback."""
+    arm = servodyn.load_model("human_arm")
+    write_traj(tmp_path / "ok.csv", np.array([0.0, 1.0]), arm.dof_names, np.zeros((2, arm.nq)))
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder.urdf").mkdir()
+    if not os.path.exists("/dev/full") and "/dev/full" in args:
+        pytest.skip("no /dev/full here")
+    assert_one_line_error(run(*args, cwd=tmp_path), *words)
+
+
+@pytest.mark.parametrize("args,words", [
+    (("export", "garbage.urdf", "out.urdf"), ("garbage.urdf: cannot read URDF", "not XML")),
+    (("codegen", "--config", "binary.toml", "-o", "gen"), ("binary.toml: not a text file",)),
+    (("swing", "--config", "folder.toml"), ("folder.toml: is a folder",)),
+    (("validate", "replica", "binary.toml"), ("binary.toml: not a text file",)),
+])
+def test_unreadable_input_files_give_one_line_naming_the_file(tmp_path, args, words):
+    """No library logging and no traceback: exactly one line that names the file."""
+    (tmp_path / "garbage.urdf").write_text("garbage <robot")
+    (tmp_path / "binary.toml").write_bytes(bytes(range(256)) * 4)
+    (tmp_path / "folder.toml").mkdir()
+    assert_one_line_error(run(*args, cwd=tmp_path), *words)
+
+
+@pytest.mark.parametrize("scale,words", [
+    ("-1", ("--time-scale", "positive")), ("nan", ("--time-scale",)), ("inf", ("--time-scale",)),
+    ("0", ("--time-scale", "got 0")), ("1e9", ("1e+09", "at most 600 s")), ("1e-6", ("1e-06", "too fast")),
+])
+def test_swing_refuses_a_bad_time_scale_in_one_line(tmp_path, scale, words):
+    assert_one_line_error(run("swing", "--time-scale", scale, "--out", tmp_path / "out"), *words)
+
+
+@pytest.mark.parametrize("flag,value", [("--max-velocity", "nan"), ("--max-velocity", "-1"),
+                                        ("--max-acceleration", "nan")])
+def test_torques_refuses_a_limit_that_is_not_positive(tmp_path, flag, value):
+    """--max-velocity nan used to switch the check off and write the torques."""
+    arm = servodyn.load_model("human_arm")
+    write_traj(tmp_path / "ok.csv", np.array([0.0, 1.0]), arm.dof_names, np.zeros((2, arm.nq)))
+    res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", flag, value)
+    assert_one_line_error(res, "limit must be a positive number", f"got {value}")
+    assert not (tmp_path / "tau.csv").exists()

@@ -191,3 +191,19 @@ def test_cortex_m7_image_runs_the_same_loop(images):
     assert report["result"] == "done" and report["ticks"] == 300, report
     summary = summarize(report, record, "replica", 3, "an500")
     assert summary["goal_max_diff_units"] <= 1, "float firmware vs double host: rounding flips the last unit only"
+
+
+@pytest.mark.parametrize("content,words", [
+    (b"garbage", ("not an ELF file",)),
+    (None, ("not a 32-bit little-endian ARM image",)),      # the Python interpreter: x86-64
+])
+def test_firmware_refuses_an_image_that_is_not_an_arm_elf(tmp_path, content, words):
+    """Checked before QEMU starts: no eight-line register dump, one line naming the file."""
+    import sys
+    elf = tmp_path / "fw.elf"
+    elf.write_bytes(content if content is not None else Path(sys.executable).resolve().read_bytes()[:64])
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "firmware", "--elf", elf,
+                          "--out", tmp_path / "out"], capture_output=True, text=True, timeout=60)
+    lines = res.stderr.splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("servodyn: error: "), res.stderr
+    assert str(elf) in lines[0] and all(word in lines[0] for word in words), lines[0]

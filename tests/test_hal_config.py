@@ -136,6 +136,12 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
     ("a bus kind without a backend", bus_kind_can, ["bus 'arm'", "'kind'", "'can'", "dynamixel"]),
     ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),
+    ("absurd zero offset", set_joint(0, "zero_offset", 1e300), ["joint 1", "'zero_offset'", "1e+300", "one turn"]),
+    ("absurd gear ratio", set_joint(1, "gear_ratio", 1e300), ["joint 2", "'gear_ratio'", "beyond 100", "gear stage"]),
+    ("absurd torque constant", set_joint(2, "torque_constant", 1e300), ["'torque_constant'", "beyond 100", "N m per A"]),
+    ("absurd current unit", set_joint(6, "current_unit", 1e300), ["joint 7", "'current_unit'", "beyond 1", "A per"]),
+    ("absurd velocity limit", set_joint(3, "velocity_limit", 1e300), ["'velocity_limit'", "beyond 1000"]),
+    ("absurd supply voltage", lambda d: d.update(supply={"voltage": 1e300}), ["supply", "'voltage'", "beyond 100"]),
 ]
 
 
@@ -203,3 +209,16 @@ def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
     reply = decode_frame(arm.handle(inst.ping(7).encode()))
     assert int.from_bytes(reply.params[:2], "little") == spec.model_number, \
         f"servo 7 answers as model {spec.model_number} ({servo_name})"
+
+
+@pytest.mark.parametrize("make,words", [
+    (lambda p: p.write_bytes(bytes(range(256)) * 4), ["robot.toml", "not a text file"]),
+    (lambda p: p.mkdir(), ["robot.toml", "is a folder"]),
+])
+def test_unreadable_config_files_are_one_config_error_naming_the_file(tmp_path, make, words):
+    make(tmp_path / "robot.toml")
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path / "robot.toml")
+    assert "\n" not in str(err.value), str(err.value)
+    for word in words:
+        assert word in str(err.value), f"{word!r} not in: {err.value}"

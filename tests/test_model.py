@@ -252,3 +252,65 @@ def test_export_loads_in_mujoco(tmp_path):
         tau = model.inverse_dynamics(q, qd, qdd)
         assert np.abs(data.qfrc_inverse[order] - tau).max() <= 1e-7 * np.abs(tau).max(), \
             "MuJoCo's inverse dynamics of the export (connectors at 1e-9 kg) differ from servodyn's"
+
+
+BINARY = bytes(range(256)) * 4     # not UTF-8, not XML
+
+
+@pytest.mark.parametrize("name,make,words", [
+    ("m.toml", lambda p: p.write_bytes(BINARY), ["m.toml", "not a text file"]),
+    ("m.toml", lambda p: p.mkdir(), ["m.toml", "is a folder"]),
+    ("m.urdf", lambda p: p.write_bytes(BINARY), ["m.urdf", "cannot read URDF", "not XML"]),
+    ("m.urdf", lambda p: p.write_text("garbage <robot"), ["m.urdf", "cannot read URDF", "not XML"]),
+    ("m.urdf", lambda p: p.write_text("<mujoco/>"), ["m.urdf", "<mujoco>, not <robot>"]),
+    ("m.urdf", lambda p: p.mkdir(), ["m.urdf", "is a folder"]),
+])
+def test_unreadable_model_files_are_one_model_error_naming_the_file(tmp_path, name, make, words):
+    path = tmp_path / name
+    make(path)
+    with pytest.raises(ModelError) as err:
+        servodyn.load_model(path)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(str(path)), message
+    for word in words:
+        assert word in message, f"{word!r} not in: {message}"
+
+
+def _urdf(links, joints):
+    inertial = ('<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" '
+                'iyz="0"/></inertial>')
+    body = "".join(f'<link name="{n}">{inertial}</link>' for n in links)
+    body += "".join(f'<joint name="{n}" type="{kind}"><parent link="{p}"/><child link="{c}"/>'
+                    '<origin xyz="0 0 0.1"/><axis xyz="0 1 0"/></joint>' for n, kind, p, c in joints)
+    return f'<robot name="r">{body}</robot>'
+
+
+def test_urdf_loops_are_refused_by_name(tmp_path):
+    """A loop of joints is not a tree: a link with two parents, or a loop hanging from nothing."""
+    (tmp_path / "two_parents.urdf").write_text(_urdf(
+        ["base", "a", "b"], [("j1", "continuous", "base", "a"), ("j2", "continuous", "a", "b"),
+                             ("j3", "continuous", "b", "a")]))
+    with pytest.raises(ModelError, match="link 'a' is the child of both joint 'j1' and joint 'j3'"):
+        servodyn.load_model(tmp_path / "two_parents.urdf")
+    (tmp_path / "island.urdf").write_text(_urdf(
+        ["base", "a", "b", "c"], [("j1", "continuous", "base", "a"), ("j2", "continuous", "b", "c"),
+                                  ("j3", "continuous", "c", "b")]))
+    with pytest.raises(ModelError, match="island.urdf: link 'b' is not reached from the root 'base'"):
+        servodyn.load_model(tmp_path / "island.urdf")
+
+
+def test_long_urdf_chains_load_without_recursion(tmp_path):
+    """The tree walk keeps its own stack: 120 hinges with a fixed joint between each (240 links
+    deep, past Python's recursion limit at the old two frames a link) load in order; 500 joints
+    are refused by the core's body limit, in one line naming the file."""
+    def chain(n):
+        links = ["base"] + [f"l{i}" for i in range(n)]
+        joints = [(f"j{i}", "fixed" if i % 2 else "continuous", links[i], links[i + 1]) for i in range(n)]
+        return _urdf(links, joints)
+    (tmp_path / "chain.urdf").write_text(chain(240))
+    model = servodyn.load_model(tmp_path / "chain.urdf")
+    assert model.nq == 120 and model.dof_names[:2] == ("j0", "j2"), "one body per hinge, root first"
+    assert model.bodies[-1].parent == 118, "a chain: each body hangs from the one before"
+    (tmp_path / "long.urdf").write_text(chain(500))
+    with pytest.raises(ModelError, match=r"long.urdf: a model needs 1 to \d+ bodies, got 250"):
+        servodyn.load_model(tmp_path / "long.urdf")

@@ -101,6 +101,20 @@ def test_nonfinite_input_is_refused():
         arm.inverse_dynamics(np.zeros(6), np.zeros(arm.nq), np.zeros(arm.nq))
 
 
+@pytest.mark.parametrize("which,value", [("qd", 1e154), ("qdd", 1e308)])
+def test_overflowing_input_raises_and_names_the_row(which, value):
+    """Finite inputs whose torques overflow: the core zeroes the result and counts a warning;
+    the binding turns that into an error naming the row, never a torque of 0 (qd² of 1e154 at
+    every dof is 1e308, and the sums over the chain overflow)."""
+    arm = servodyn.load_model("human_arm")
+    state = {k: np.zeros((3, arm.nq)) for k in ("q", "qd", "qdd")}
+    state[which][2] = value
+    with pytest.raises(FloatingPointError, match="inverse dynamics: non-finite result at row 2"):
+        arm.inverse_dynamics(state["q"], state["qd"], state["qdd"])
+    with pytest.raises(FloatingPointError, match="row 0"):
+        arm.inverse_dynamics(state["q"][2], state["qd"][2], state["qdd"][2], precision="float")
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_free_root_matches_pinocchio_free_flyer(seed, twin):
     """The paper's FREE node: body 0 floats with 6 dofs (origin, unit quaternion), against

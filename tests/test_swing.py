@@ -151,3 +151,30 @@ def test_any_motion_plays(tmp_path):
     assert summary["completed"] and summary["motion"] == "forehand", summary.get("error")
     assert summary["ticks"] == SWING_TICKS, "the same 7.2 s at 1 ms"
     assert summary["tracking_max_rad"] <= np.radians(5), "tracked like the built-in forehand"
+
+
+@pytest.mark.parametrize("scale,words", [
+    (0.0, "--time-scale must be a positive number, got 0"),
+    (1e9, "at most 600 s"),
+    (1e-6, "too fast"),
+])
+def test_a_bad_time_scale_is_refused_not_replaced(tmp_path, scale, words):
+    """0 is not 'no time scale given' (the configuration's 4x would play instead); 1e9 would
+    sample 1.8e12 periods (terabytes), 1e-6 would play the forehand in two samples, its interior
+    never checked. Each is refused before anything moves."""
+    with pytest.raises(ValueError, match=words):
+        run_swing("replica", out=tmp_path / "out", time_scale=scale, **QUIET)
+    assert not (tmp_path / "out").exists(), "nothing ran, nothing was written"
+
+
+def test_a_configurations_real_port_is_used(tmp_path):
+    """port = "/dev/..." in the configuration and no --port: the swing opens that port (here one
+    that does not exist, so it stops before anything moves), never the simulator in its place."""
+    from servodyn.hal.config import CONFIGS_DIR
+    config = tmp_path / "real.toml"
+    missing = tmp_path / "ttyUSB9"
+    config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
+        'port = "auto"', f'port = "{missing}"', 1))
+    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
+    assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
+    assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"

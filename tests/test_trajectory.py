@@ -115,3 +115,26 @@ def test_keyframes_and_csv_round_trip(tmp_path):
     assert not back.derived, "qd and qdd read from the CSV, not derived from a spline of q"
     for a, b in ((back.t, traj.t), (back.q, traj.q), (back.qd, traj.qd), (back.qdd, traj.qdd)):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("make,words", [
+    (lambda p: p.write_bytes(bytes(range(256)) * 4), ["swing.toml", "not a text file"]),
+    (lambda p: p.mkdir(), ["swing.toml", "is a folder"]),
+])
+def test_unreadable_keyframe_files_are_one_trajectory_error(tmp_path, make, words):
+    make(tmp_path / "swing.toml")
+    with pytest.raises(TrajectoryError) as err:
+        load_motion(tmp_path / "swing.toml", ARM)
+    assert "\n" not in str(err.value), str(err.value)
+    for word in words:
+        assert word in str(err.value), f"{word!r} not in: {err.value}"
+
+
+@pytest.mark.parametrize("limit", [float("nan"), -1.0, 0.0])
+def test_a_limit_that_is_not_positive_is_refused_not_ignored(limit):
+    """NaN compares false, so a NaN limit used to switch the check off; -1 refused everything
+    with a message about the trajectory rather than the limit."""
+    traj = load_motion("tennis_forehand", ARM).sample(1e-2)
+    for key in ("velocity", "acceleration"):
+        with pytest.raises(TrajectoryError, match=r"limit must be a positive number of rad/s.*, got"):
+            check_limits(traj, ARM, **{key: limit})

@@ -240,6 +240,11 @@ def test_cli_exit_status(tmp_path):
     (["replica", "no_such_motion"], ["no_such_motion"]),
     (["no_such_config", "tennis_forehand"], ["no_such_config"]),
     (["replica", "tennis_forehand", "--time-scale", "-1"], ["--time-scale"]),
+    (["replica", "tennis_forehand", "--time-scale", "0"], ["--time-scale"]),
+    (["replica", "tennis_forehand", "--time-scale", "nan"], ["--time-scale"]),
+    (["replica", "tennis_forehand", "--time-scale", "inf"], ["--time-scale"]),
+    (["replica", "tennis_forehand", "--time-scale", "1e9"], ["time scale 1e+09", "at most 600 s"]),
+    (["replica", "tennis_forehand", "--time-scale", "1e-6"], ["time scale 1e-06", "too fast"]),
     (["replica", "tennis_forehand", "--margin", "0"], ["--margin"]),
     (["replica", "tennis_forehand", "--repeat", "0"], ["--repeat"]),
     (["replica", "tennis_forehand", "--supply-voltage", "nan"], ["--supply-voltage"]),
@@ -304,3 +309,17 @@ def test_the_envelope_follows_the_supply_voltage():
     worst = [validate(cfg, "tennis_forehand", time_scale=3.0, supply_voltage=v, **QUIET)["joints"]
              ["r_shoulder_rotation"]["checks"]["torque_speed"] for v in (11.1, 12.0, 14.8)]
     assert worst[0] > worst[1] > worst[2], f"torque-speed ratios at 11.1, 12, 14.8 V: {worst}"
+
+
+def test_cli_csv_whose_spline_overflows(tmp_path):
+    """Given qd and qdd, the reader never splines q, but the validator does between samples
+    coarser than the control period: values near the double range made scipy raise (after ten
+    lines of RuntimeWarnings) a message naming no file."""
+    names = load_config("replica").model.dof_names
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    q = np.tile(np.array([0.0, 1e308, -1e308, 0.0])[:, None], (1, len(names)))
+    path = write_csv(tmp_path / "huge.csv", names, t, q, 0 * q, 0 * q)
+    res = run("replica", path, "--out", tmp_path / "out")
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert "huge.csv: the spline through q overflows" in lines[0], lines[0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -45,7 +46,12 @@ def cmd_torques(args) -> None:
     except TrajectoryError as err:
         raise CliError(str(err)) from None
     start = time.perf_counter()
-    tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
+    try:
+        tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
+    except FloatingPointError as err:
+        row = int(re.search(r"row (\d+)", str(err)).group(1))
+        raise CliError(f"{args.trajectory}: t = {traj.t[row]:.3f} s (sample {row + 1}): the torques overflow "
+                       "double precision (qd or qdd far too large)") from None
     elapsed = time.perf_counter() - start
     write_columns_csv(args.output, traj.t, "tau", model.dof_names, tau)
     how = "qd, qdd from a C2 spline of q" if traj.derived else "qd, qdd from the file"
@@ -195,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
                        "is started and used.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
-    p.add_argument("--port", default=None, help="serial port of a real bus (default: simulated)")
+    p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
+                                                       "'auto' there means the simulated bus)")
     p.add_argument("--out", default="out/swing", help="output folder (default out/swing)")
     p.add_argument("--no-feedforward", action="store_true", help="PD only, no inverse dynamics")
     p.add_argument("--time-scale", type=float, default=None,
@@ -270,14 +277,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _file_error(err: OSError, args) -> str:
+    """One line for a file the command could not read or write: the path and the reason. A
+    write that fails on close (a full device) carries no file name; the command's output does."""
+    path = err.filename or getattr(args, "output", None) or getattr(args, "out", None)
+    if isinstance(err, IsADirectoryError):
+        reason = "is a folder, not a file"
+    elif isinstance(err, (FileExistsError, NotADirectoryError)):
+        reason = "is a file where a folder is needed"
+    else:
+        reason = err.strerror or str(err)
+    return f"{path}: {reason}" if path else reason
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "command", None) == "experiment" and args.out is None:
         args.out = f"out/{args.name}"
     try:
         return args.func(args) or 0
-    except (CliError, ModelError, TrajectoryError) as err:
+    except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"servodyn: error: {_file_error(err, args)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("servodyn: interrupted", file=sys.stderr)

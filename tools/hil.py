@@ -139,6 +139,22 @@ def parse_report(text: str) -> dict:
     return report
 
 
+def check_arm_elf(elf: Path) -> None:
+    """FirmwareError unless `elf` is a 32-bit little-endian ARM executable: QEMU given anything
+    else starts, faults and prints its registers instead of an error."""
+    try:
+        with open(elf, "rb") as f:
+            header = f.read(20)
+    except OSError as err:
+        raise FirmwareError(f"{elf}: cannot read ({err.strerror or err})") from None
+    if header[:4] != b"\x7fELF":
+        raise FirmwareError(f"{elf}: not an ELF file (build the firmware with `make fw`)")
+    # e_ident: class 1 = 32-bit, data 1 = little-endian; e_machine 40 = ARM
+    if header[4] != 1 or header[5] != 1 or int.from_bytes(header[18:20], "little") != 40:
+        raise FirmwareError(f"{elf}: an ELF file, but not a 32-bit little-endian ARM image "
+                            "(build the firmware with `make fw`)")
+
+
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
              q0=None) -> tuple[dict, Record, object]:
@@ -149,6 +165,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     elf = Path(elf) if elf else default_elf(board)
     if not elf.is_file():
         raise FirmwareError(f"no firmware image at {elf} (build it with `make fw`)")
+    check_arm_elf(elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedArm(load_config(config), small_time_step=SMALL_TIME_STEP, q0=q0)

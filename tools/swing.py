@@ -1,6 +1,6 @@
 """`servodyn swing`: the tennis forehand on servos — real ones on a serial port, or (the default)
-the simulated Dynamixel bus, which speaks the same protocol to the same driver; or, for a loopback
-configuration, the model alone behind the HAL.
+the simulated Dynamixel bus (when neither --port nor the configuration's port names one), which
+speaks the same protocol to the same driver; or, for a loopback configuration, the model alone behind the HAL.
 
 plan → run → summarize → write: the swing is sampled at small_time_step and planned with its
 homing move and gain schedules; the loop (servodyn.loop) homes the arm and plays it, one read and
@@ -47,9 +47,14 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
-    scale = time_scale or (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
+    if time_scale is not None:
+        scale = time_scale       # as given: 0 is refused by the validator, not replaced
+    else:
+        scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
     bus_config = next(iter(config.buses.values()))
+    if port is None and bus_config.port != "auto":
+        port = bus_config.port       # the configuration's real bus; "auto" is the simulated one
     simulated = port is None and bus_config.kind == "dynamixel" or bus_config.kind == "loopback"
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
@@ -59,6 +64,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                 f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
         say(f"forced past the validator: {first}")
     swing = motion_path(motion, model).at_scale(scale)
+    out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     mode = "feedforward_pd" if feedforward else "pd"
     server = arm = None
     options = {}

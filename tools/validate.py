@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control.motion import builtin_motions, load_motion
-from ..control.timing import SMALL_TIME_STEP
+from ..control.timing import SMALL_TIME_STEP, played_periods
 from ..control.trajectory import Trajectory, TrajectoryError, read_trajectory_csv, write_trajectory_csv
 from ..hal.bus import backend_class
 
@@ -53,7 +53,7 @@ class MotionPath:
     evaluate: object                      # t (s, scale-1 clock) -> (q, qd, qdd)
 
     def at_scale(self, scale: float, dt: float = SMALL_TIME_STEP) -> Trajectory:
-        n = max(1, int(round(self.duration * scale / dt)))
+        n = played_periods(self.duration, scale, dt)
         t = np.arange(n + 1) * dt
         q, qd, qdd = self.evaluate(np.minimum(t / scale, self.duration))
         return Trajectory(t=t, q=q, qd=qd / scale, qdd=qdd / scale**2, derived=True)
@@ -81,7 +81,14 @@ def csv_path(name: str, traj: Trajectory) -> MotionPath:
             return traj.q[k], traj.qd[k], traj.qdd[k]
     else:
         from scipy.interpolate import CubicSpline
-        spline = CubicSpline(traj.t - t0, traj.q, axis=0)
+        with np.errstate(all="ignore"):
+            try:
+                spline = CubicSpline(traj.t - t0, traj.q, axis=0)
+            except ValueError:          # scipy refuses its own overflowed slopes
+                spline = None
+        if spline is None or not np.all(np.isfinite(spline.c)):
+            raise TrajectoryError(f"{name}.csv: the spline through q overflows between the samples (values "
+                                  "or time steps too extreme)")
 
         def evaluate(t):
             return spline(t), spline(t, 1), spline(t, 2)

@@ -207,7 +207,16 @@ static PyObject* run_dynamics(CoreObject* self, PyObject* args, sd_dynamics_fn f
       sd_load_row(rqd, qd + r * n, n);
       sd_load_row(rx, x + r * n, n);
       if (fe) sd_load_row(rf, fe + (bf ? r * nfe : 0), nfe);
+      // the core zeroes a non-finite result and counts it: here that is an error, never a 0
+      int nonfinite = self->data.warning[SD_WARN_NONFINITE];
       fn(m, &self->data, rq, rqd, rx, fe ? rf : NULL, ry);
+      if (self->data.warning[SD_WARN_NONFINITE] != nonfinite) {
+        PyErr_Format(PyExc_FloatingPointError,
+                     "%s: non-finite result at row %ld (the inputs overflow double precision)",
+                     fn == sd_rnea ? "inverse dynamics" : "forward dynamics", (long)r);
+        Py_CLEAR(out);
+        goto done;
+      }
       sd_store_row(y + r * n, ry, n);
     }
   }
@@ -274,10 +283,13 @@ static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
       sd_load_row(rt, (const double*)PyArray_DATA(at) + r * n, n);
       if (fe) sd_load_row(rf, fe + (bf ? r * nfe : 0), nfe);
       for (int s = 0; s < nsteps; s++) {
+        int nonfinite = self->data.warning[SD_WARN_NONFINITE];
         sd_step(m, &self->data, rq, rqd, rt, fe ? rf : NULL, (sd_real)dt, integrator);
-        // a diverging integration is an error the caller must see, never a silent inf or NaN
+        // a diverging integration is an error the caller must see, never a silent inf or NaN,
+        // nor a step taken with an acceleration the core zeroed because it overflowed
+        int diverged = self->data.warning[SD_WARN_NONFINITE] != nonfinite;
         for (int j = 0; j < nqc; j++) {
-          if (!isfinite((double)rq[j]) || (j < n && !isfinite((double)rqd[j]))) {
+          if (diverged || !isfinite((double)rq[j]) || (j < n && !isfinite((double)rqd[j]))) {
             PyErr_Format(PyExc_FloatingPointError,
                          "the integration diverged: non-finite state after step %d of row %ld",
                          s + 1, (long)r);

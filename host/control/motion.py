@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .. import _core
+from ..model.files import read_toml
+from .timing import played_periods
 from .trajectory import Trajectory, TrajectoryError
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
@@ -52,9 +53,9 @@ class Motion:
     def sample(self, dt: float, time_scale: float = 1.0) -> Trajectory:
         """The motion every dt seconds; time_scale > 1 plays it slower (velocities / scale,
         accelerations / scale²)."""
-        if not dt > 0 or not time_scale > 0:
-            raise ValueError("dt and time_scale must be positive")
-        n = int(round(self.duration * time_scale / dt))
+        if not dt > 0:
+            raise ValueError("dt must be positive")
+        n = played_periods(self.duration, time_scale, dt)
         t = np.arange(n + 1) * dt
         q, qd, qdd = self.at(t / time_scale)
         return Trajectory(t=t, q=q, qd=qd / time_scale, qdd=qdd / time_scale**2, derived=True)
@@ -80,13 +81,10 @@ def load_motion(name_or_path: str | Path, model) -> Motion:
     builtins = builtin_motions()
     path = builtins.get(str(name_or_path), Path(name_or_path))
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path, TrajectoryError)
     except FileNotFoundError:
         raise TrajectoryError(f"{name_or_path}: no such keyframe file, and not a built-in motion "
                               f"({', '.join(builtins) or 'none installed'})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise TrajectoryError(f"{path}: not valid TOML ({err})") from None
     frames = data.get("keyframe")
     if not isinstance(frames, list) or len(frames) < 2:
         raise TrajectoryError(f"{path}: needs at least two [[keyframe]] entries")
@@ -127,12 +125,16 @@ def check_limits(traj: Trajectory, model, origin: str = "trajectory", velocity=N
     given velocity or acceleration limits (rad/s, rad/s²; scalars or one per dof)."""
     names = model.dof_names
     checks = [("position", traj.q, model.lower, model.upper, "rad")]
-    if velocity is not None:
-        v = np.broadcast_to(np.asarray(velocity, dtype=float), (len(names),))
-        checks.append(("speed", np.abs(traj.qd), -np.inf * v, v, "rad/s"))
-    if acceleration is not None:
-        a = np.broadcast_to(np.asarray(acceleration, dtype=float), (len(names),))
-        checks.append(("acceleration", np.abs(traj.qdd), -np.inf * a, a, "rad/s²"))
+    for what, limit, values, unit in (("speed", velocity, traj.qd, "rad/s"),
+                                      ("acceleration", acceleration, traj.qdd, "rad/s²")):
+        if limit is None:
+            continue
+        limit = np.broadcast_to(np.asarray(limit, dtype=float), (len(names),))
+        # a NaN limit compares false and would switch the check off; a negative one refuses all
+        if not np.all(limit > 0):
+            raise TrajectoryError(f"the {what} limit must be a positive number of {unit}, got "
+                                  f"{limit[np.argmax(~(limit > 0))]:g}")
+        checks.append((what, np.abs(values), -np.inf * limit, limit, unit))
     tol = 1e-9
     for what, values, lo, hi, unit in checks:
         bad = (values < lo - tol) | (values > hi + tol)

@@ -9,3 +9,26 @@ MIN_STIFFNESS = 2.0      # N m/rad: a servo's friction (~0.02 N m) then leaves ~
 HOME_DURATION = 2.0      # s to move from wherever the arm is to a motion's start pose
 GAIN_PERIOD = 0.1        # s between two knots of a gain schedule (on the played, scaled clock)
 BUS_WATCHDOG = 0.1       # s of bus silence after which the servos drop torque by themselves
+
+MIN_PLAYED_PERIODS = 10      # a motion played faster than written spans at least this many control
+                             # periods: sampled any coarser, its interior falls between two samples
+MAX_PLAYED_DURATION = 600.0  # s: a played motion is sampled whole into memory (about 1 kB a period
+                             # through the checks), so ten minutes is the most it may last
+
+
+def played_periods(duration: float, time_scale: float, dt: float = SMALL_TIME_STEP) -> int:
+    """How many control periods of dt a motion of `duration` s lasts played `time_scale` times
+    slower; ValueError for a time scale that is not a positive number, or that makes it too long
+    to sample, or so much faster than written that it spans under MIN_PLAYED_PERIODS (a motion
+    played as written or slower is sampled at least as finely as its own clock: never refused)."""
+    if not (time_scale > 0 and time_scale < float("inf")):
+        raise ValueError(f"the time scale must be a positive number, got {time_scale}")
+    played = duration * time_scale
+    if played > MAX_PLAYED_DURATION:
+        raise ValueError(f"at time scale {time_scale:g} the motion would last {played:.3g} s; at most "
+                         f"{MAX_PLAYED_DURATION:g} s is played or checked, sampled every {dt * 1e3:g} ms")
+    if time_scale < 1 and duration > 0 and played < MIN_PLAYED_PERIODS * dt:
+        raise ValueError(f"at time scale {time_scale:g} the motion would last {played * 1e3:.3g} ms, under "
+                         f"{MIN_PLAYED_PERIODS} control periods ({MIN_PLAYED_PERIODS * dt * 1e3:g} ms): too "
+                         "fast to play, and its samples would skip the motion between its ends")
+    return max(1, int(round(played / dt)))

@@ -25,21 +25,34 @@ class Trajectory:
 
 
 def spline_derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """qd and qdd of the C2 cubic spline through (t, q); constant for a single sample."""
+    """qd and qdd of the C2 cubic spline through (t, q); constant for a single sample. Values
+    or time steps so extreme that the derivatives overflow raise TrajectoryError naming the
+    first such sample."""
     if len(t) < 2:
         return np.zeros_like(q), np.zeros_like(q)
-    if len(t) == 2:
-        slope = (q[1] - q[0]) / (t[1] - t[0])
-        return np.tile(slope, (2, 1)), np.zeros_like(q)
-    from scipy.interpolate import CubicSpline
-    spline = CubicSpline(t, q, axis=0, bc_type="not-a-knot" if len(t) > 3 else "natural")
-    return spline(t, 1), spline(t, 2)
+    with np.errstate(all="ignore"):
+        if len(t) == 2:
+            slope = (q[1] - q[0]) / (t[1] - t[0])
+            qd, qdd = np.tile(slope, (2, 1)), np.zeros_like(q)
+        else:
+            from scipy.interpolate import CubicSpline
+            try:
+                spline = CubicSpline(t, q, axis=0, bc_type="not-a-knot" if len(t) > 3 else "natural")
+                qd, qdd = spline(t, 1), spline(t, 2)
+            except ValueError:      # scipy refuses its own overflowed slopes
+                qd = qdd = np.full_like(q, np.inf)
+    bad = ~(np.isfinite(qd) & np.isfinite(qdd)).all(axis=-1)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise TrajectoryError(f"t = {t[row]:g} s (sample {row + 1}): the spline's velocity or acceleration "
+                              "overflows (values or time steps too extreme)")
+    return qd, qdd
 
 
 def read_trajectory_csv(path: str | Path, dof_names: tuple[str, ...]) -> Trajectory:
     path = Path(path)
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:     # a UTF-8 byte-order mark is dropped
             rows = list(csv.reader(f))
     except OSError as err:
         raise TrajectoryError(f"{path}: cannot read ({err.strerror})") from None
@@ -72,6 +85,8 @@ def read_trajectory_csv(path: str | Path, dof_names: tuple[str, ...]) -> Traject
             raise TrajectoryError(f"{path}: row {r} has {len(row)} values, the header has {len(header)}")
         for c, cell in enumerate(row):
             try:
+                if "_" in cell:     # Python reads 0_5 as 5.0; no CSV writer means that
+                    raise ValueError(cell)
                 value = float(cell)
             except ValueError:
                 raise TrajectoryError(f"{path}: row {r}, column '{header[c]}': '{cell.strip()}' is not a number") from None
@@ -88,14 +103,17 @@ def read_trajectory_csv(path: str | Path, dof_names: tuple[str, ...]) -> Traject
     col = {name: c for c, name in enumerate(header)}
     q = data[:, [col[f"q_{d}"] for d in dof_names]]
     derived = not all(has_qd)
-    if all(has_qd):
-        qd = data[:, [col[f"qd_{d}"] for d in dof_names]]
-        qdd = (data[:, [col[f"qdd_{d}"] for d in dof_names]] if all(has_qdd)
-               else spline_derivatives(t, qd)[0])
-    else:
-        qd, qdd = spline_derivatives(t, q)
-        if all(has_qdd):
-            qdd = data[:, [col[f"qdd_{d}"] for d in dof_names]]
+    try:
+        if all(has_qd):
+            qd = data[:, [col[f"qd_{d}"] for d in dof_names]]
+            qdd = (data[:, [col[f"qdd_{d}"] for d in dof_names]] if all(has_qdd)
+                   else spline_derivatives(t, qd)[0])
+        else:
+            qd, qdd = spline_derivatives(t, q)
+            if all(has_qdd):
+                qdd = data[:, [col[f"qdd_{d}"] for d in dof_names]]
+    except TrajectoryError as err:
+        raise TrajectoryError(f"{path}: {err}") from None
     return Trajectory(t=t, q=q, qd=qd, qdd=qdd, derived=derived)
 
 

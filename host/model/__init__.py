@@ -34,12 +34,18 @@ def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
     if not path.exists():
         raise ModelError(f"{name_or_path}: no such file, and not a built-in model "
                          f"({', '.join(builtins) or 'none installed'})")
-    if path.suffix.lower() == ".urdf":
-        return load_urdf(path, free_root=free_root)
-    if path.suffix.lower() == ".toml":
+    if path.suffix.lower() not in (".urdf", ".toml"):
+        raise ModelError(f"{path}: unknown model format (expected .urdf or .toml)")
+    try:
+        if path.suffix.lower() == ".urdf":
+            return load_urdf(path, free_root=free_root)
         model = load_model_file(path)
         return model.with_free_root() if free_root else model
-    raise ModelError(f"{path}: unknown model format (expected .urdf or .toml)")
+    except ModelError as err:
+        # every error names the file, also those raised where the model is built
+        if str(err).startswith(str(path)):
+            raise
+        raise ModelError(f"{path}: {err}") from None
 
 
 __all__ = ["INTEGRATORS", "Body", "Dof", "Model", "ModelError", "builtin_models", "load_model"]

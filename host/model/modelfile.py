@@ -6,12 +6,12 @@ See host/model/builtin/README.md for the schema; every error names the body and 
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
 from .. import _core
+from .files import read_toml
 from .tree import Body, Dof, Model, ModelError
 from .rotations import rpy_to_matrix
 
@@ -151,8 +151,7 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
 def load_model_file(path: str | Path) -> Model:
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as err:
-        raise ModelError(f"{path}: not valid TOML ({err})") from None
+        data = read_toml(path, ModelError)
+    except FileNotFoundError:
+        raise ModelError(f"{path}: no such file") from None
     return model_from_dict(data, origin=path.stem)

@@ -38,28 +38,67 @@ def _moved(part, R, p):
     return mass, R @ com + p, R @ inertia @ R.T
 
 
+def _read_robot(path: Path):
+    """yourdfpy's robot of a URDF file, or a ModelError naming the file. The file is read and
+    parsed here first: yourdfpy logs a parse error and then fails with an unrelated TypeError."""
+    import logging
+    import xml.etree.ElementTree as ET
+    import yourdfpy
+    try:
+        root = ET.fromstring(path.read_bytes())
+    except IsADirectoryError:
+        raise ModelError(f"{path}: is a folder, not a URDF file") from None
+    except OSError as err:
+        raise ModelError(f"{path}: cannot read ({err.strerror or err})") from None
+    except ET.ParseError as err:
+        raise ModelError(f"{path}: cannot read URDF (not XML: {err})") from None
+    if root.tag != "robot":
+        raise ModelError(f"{path}: cannot read URDF (the top element is <{root.tag}>, not <robot>)")
+    logger = logging.getLogger("yourdfpy")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)     # its errors become ours, in one line
+    try:
+        return yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False,
+                                  build_collision_scene_graph=False, load_collision_meshes=False).robot
+    except Exception as err:  # yourdfpy raises many kinds; all mean "not a usable URDF"
+        raise ModelError(f"{path}: cannot read URDF ({type(err).__name__}: {err})") from None
+    finally:
+        logger.setLevel(level)
+
+
+def _check_tree(path, root: str, children: dict, links: dict) -> None:
+    """Every link hangs from the root (each already has at most one parent joint): a loop of
+    joints would otherwise be left out, or walked forever."""
+    seen, stack = {root}, [root]
+    while stack:
+        for joint in children[stack.pop()]:
+            seen.add(joint.child)
+            stack.append(joint.child)
+    detached = [name for name in links if name not in seen]
+    if detached:
+        raise ModelError(f"{path}: link '{detached[0]}' is not reached from the root '{root}' (a loop of "
+                         "joints with no way in)")
+
+
 def load_urdf(path: str | Path, free_root: bool = False) -> Model:
     """A model from a URDF file; with free_root the root link floats free (6 dofs) instead of
     being the fixed base."""
-    import yourdfpy
-    path = Path(path)
-    try:
-        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False)
-    except Exception as err:  # yourdfpy raises many kinds; all mean "not a usable URDF"
-        raise ModelError(f"{path}: cannot read URDF ({type(err).__name__}: {err})") from None
-    robot = urdf.robot
+    robot = _read_robot(Path(path))
     links = {link.name: link for link in robot.links}
     children: dict[str, list] = {name: [] for name in links}
-    has_parent = set()
+    parent_joint: dict[str, str] = {}
     for joint in robot.joints:
         if joint.parent not in links or joint.child not in links:
             raise ModelError(f"joint '{joint.name}': links '{joint.parent}' or '{joint.child}' do not exist")
+        if joint.child in parent_joint:
+            raise ModelError(f"{path}: link '{joint.child}' is the child of both joint "
+                             f"'{parent_joint[joint.child]}' and joint '{joint.name}' (a URDF is a tree)")
         children[joint.parent].append(joint)
-        has_parent.add(joint.child)
-    roots = [name for name in links if name not in has_parent]
+        parent_joint[joint.child] = joint.name
+    roots = [name for name in links if name not in parent_joint]
     if len(roots) != 1:
         raise ModelError(f"{path}: a URDF needs exactly one root link, found {roots}")
+    _check_tree(path, roots[0], children, links)
 
     bodies: list[Body] = []
     parts: dict[int, list] = {}
@@ -70,23 +109,32 @@ def load_urdf(path: str | Path, free_root: bool = False) -> Model:
 
     def attach(link_name, body, R, p):
         """Merge a link (at R, p in the body frame) and its fixed descendants into body; start
-        new bodies at its moving joints."""
-        if body >= 0:
-            parts[body].append(_moved(_inertial(links[link_name]), R, p))
-        for joint in children[link_name]:
-            Rj, pj = origin(joint)
-            R_child, p_child = R @ Rj, R @ pj + p
-            if joint.type == "fixed":
-                attach(joint.child, body, R_child, p_child)
-            elif joint.type in ("revolute", "continuous"):
-                start_joint(joint, body, R_child, p_child)
-            else:
-                raise ModelError(f"joint '{joint.name}': type '{joint.type}' is not supported "
-                                 "(servodyn joints are rotational: revolute, continuous, fixed)")
+        new bodies at its moving joints. Depth first in file order (a parent's body before its
+        children's), on a stack of its own: a chain of any length, not Python's recursion limit."""
+        stack = [("link", link_name, body, R, p)]
+        while stack:
+            kind, item, body, R, p = stack.pop()
+            if kind == "joint":
+                link, index = start_joint(item, body, R, p)
+                stack.append(("link", link, index, np.eye(3), np.zeros(3)))
+                continue
+            if body >= 0:
+                parts[body].append(_moved(_inertial(links[item]), R, p))
+            for joint in reversed(children[item]):
+                Rj, pj = origin(joint)
+                R_child, p_child = R @ Rj, R @ pj + p
+                if joint.type == "fixed":
+                    stack.append(("link", joint.child, body, R_child, p_child))
+                elif joint.type in ("revolute", "continuous"):
+                    stack.append(("joint", joint, body, R_child, p_child))
+                else:
+                    raise ModelError(f"joint '{joint.name}': type '{joint.type}' is not supported "
+                                     "(servodyn joints are rotational: revolute, continuous, fixed)")
 
     def start_joint(joint, parent, R0, p0):
         """A body whose joint begins with `joint`; absorb following revolute joints at the same
-        origin behind massless links into the same multi-dof joint."""
+        origin behind massless links into the same multi-dof joint. Returns its last link and
+        the body's index."""
         dofs, post = [], np.eye(3)
         while True:
             axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, dtype=float)
@@ -108,7 +156,7 @@ def load_urdf(path: str | Path, free_root: bool = False) -> Model:
         index = len(bodies)
         bodies.append(Body(name=link, parent=parent, pos=p0, rot=R0, dofs=dofs, post=post))
         parts[index] = []
-        attach(link, index, np.eye(3), np.zeros(3))
+        return link, index
 
     if free_root:
         # the root link is body 0, floating free; its inertia and fixed children move with it

@@ -1,0 +1,27 @@
+"""Reading the TOML files every layer loads (models, motions, configurations): one place that
+turns a missing, unreadable, binary or malformed file into the caller's one-line error."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+
+def read_toml(path: str | Path, error: type[Exception], label: str | None = None) -> dict:
+    """The parsed TOML of `path`, or `error` with one line naming the file (`label`, default
+    the path) and what is wrong. FileNotFoundError passes through for callers that explain
+    it (a name that is neither a file nor a built-in)."""
+    label = label or str(path)
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise
+    except IsADirectoryError:
+        raise error(f"{label}: is a folder, not a TOML file") from None
+    except OSError as err:
+        raise error(f"{label}: cannot read ({err.strerror or err})") from None
+    except UnicodeDecodeError:
+        raise error(f"{label}: not a text file (TOML is UTF-8 text)") from None
+    except tomllib.TOMLDecodeError as err:
+        raise error(f"{label}: not valid TOML ({err})") from None
