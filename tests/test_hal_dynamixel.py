@@ -3,6 +3,8 @@
 wire, a silent servo's truncated fast reply, values that need byte stuffing, hardware errors."""
 
 import math
+import os
+import select
 import time
 
 import numpy as np
@@ -265,3 +267,46 @@ def test_hardware_error_mid_run_names_servo_and_bit(sim, bits, faults, torque_st
         "Shutdown 0x34 (overheating, electrical shock, overload) cuts torque; an input-voltage error does not"
     assert bus.stop(), "every servo still answers: torque off everywhere"
     assert not any(s.torque_enabled for s in sim.arm.servos), "stop() left a servo's torque on"
+
+
+def test_an_answer_the_wire_cannot_carry_leaves_the_bus_answering():
+    """A fast sync read of 10,000 bytes from each of the seven servos would need a reply of
+    70,000 bytes, more than a 16-bit LEN can say: nobody answers, it is counted, and the next
+    ping is answered as before (the simulator used to raise in its serving thread and go deaf)."""
+    arm = SimulatedArm(CONFIG)
+    assert arm.handle(inst.fast_sync_read(0, 10_000, IDS).encode()) == b"", "no reply can be encoded"
+    assert arm.bus.unanswerable == 1, "and the refusal is counted"
+    assert decode_frame(arm.handle(inst.ping(1).encode())).id == 1, "the next ping is answered"
+
+
+def test_the_pty_server_survives_an_exception_in_the_arm():
+    """Whatever the arm raises while answering, the server reports it in one line and goes on."""
+    arm = SimulatedArm(CONFIG)
+    seen = []
+    server = PtyServer(arm, "lockstep", on_error=seen.append)
+    handle = arm.handle
+    calls = {"n": 0}
+
+    def flaky(data):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise FloatingPointError("the plant diverged")
+        return handle(data)
+    arm.handle = flaky
+    with server:
+        fd = os.open(server.path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd, inst.ping(1).encode())
+            time.sleep(0.3)
+            os.write(fd, inst.ping(1).encode())
+            reply = b""
+            deadline = time.monotonic() + 5
+            while len(reply) < 14 and time.monotonic() < deadline:
+                ready, _, _ = select.select([fd], [], [], 0.1)
+                if ready:
+                    reply += os.read(fd, 64)
+        finally:
+            os.close(fd)
+    assert server.errors == 1 and seen == ["simulated bus: FloatingPointError while answering the host: "
+                                           "the plant diverged"], seen
+    assert decode_frame(reply[:14]).id == 1, "the second ping was answered"

@@ -19,6 +19,7 @@ from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParame
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
+from servodyn.hal.errors import ProtocolError
 
 from .servo import Servo
 
@@ -82,6 +83,7 @@ class VirtualBus:
         self.on_command: Callable[[], None] | None = None
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
+        self.unanswerable = 0          # instructions whose answer cannot be encoded
         self._handlers = {
             Instruction.PING: self._ping, Instruction.READ: self._read, Instruction.WRITE: self._write,
             Instruction.REG_WRITE: self._reg_write, Instruction.ACTION: self._action,
@@ -115,7 +117,13 @@ class VirtualBus:
                 if event.fault is Fault.CRC:
                     out += self._crc_error(event)
             elif isinstance(event, InstructionPacket):
-                replies = self._execute(event, now)
+                try:
+                    replies = self._execute(event, now)
+                except ProtocolError:
+                    # an answer the wire cannot carry (a fast reply of over 65,535 bytes): a
+                    # real chain garbles it; here nobody answers, and it is counted
+                    self.unanswerable += 1
+                    replies = []
                 out += replies
                 if self.on_command is not None and event.instruction in COMMANDS:
                     self.on_command()

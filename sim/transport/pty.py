@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import select
+import sys
 import threading
 import time
 import tty
@@ -14,7 +15,9 @@ import tty
 class PtyServer:
     """A SimulatedArm behind a pseudo-terminal, served by a background thread."""
 
-    def __init__(self, arm, mode: str = "lockstep", control_period: float | None = None):
+    def __init__(self, arm, mode: str = "lockstep", control_period: float | None = None, on_error=None):
+        """on_error(message): told, in one line, of an exception the arm raised while handling the
+        host's bytes (default: standard error); the server goes on serving."""
         if mode not in ("lockstep", "realtime"):
             raise ValueError("mode must be 'lockstep' or 'realtime'")
         self.arm, self.mode = arm, mode
@@ -25,6 +28,8 @@ class PtyServer:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._serve, name="servodyn-sim", daemon=True)
+        self.errors = 0
+        self.on_error = on_error or (lambda message: print(message, file=sys.stderr, flush=True))
         if mode == "lockstep":
             arm.lockstep(control_period)
 
@@ -69,7 +74,12 @@ class PtyServer:
             except OSError:
                 return
             with self._lock:
-                reply = self.arm.handle(data)
+                try:
+                    reply = self.arm.handle(data)
+                except Exception as err:       # a serving thread that died would leave the bus deaf
+                    self.errors += 1
+                    self.on_error(f"simulated bus: {type(err).__name__} while answering the host: {err}")
+                    reply = b""
             if reply:
                 try:
                     os.write(self.master, reply)
