@@ -222,3 +222,13 @@ def test_unreadable_config_files_are_one_config_error_naming_the_file(tmp_path, 
     assert "\n" not in str(err.value), str(err.value)
     for word in words:
         assert word in str(err.value), f"{word!r} not in: {err.value}"
+
+
+def test_a_byte_order_mark_before_the_toml_is_dropped(tmp_path):
+    """Some editors start a UTF-8 file with a byte-order mark; TOML has none, but the file is the
+    same configuration: it loads as the one without."""
+    plain = (CONFIGS_DIR / "replica.toml").read_bytes()
+    marked = tmp_path / "marked.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.replace(b'model = "replica"', b'model = "replica"', 1))
+    config = load_config(marked)
+    assert config.name == "replica" and len(config.joints) == 7, "the marked file is the replica"

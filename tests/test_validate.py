@@ -247,6 +247,7 @@ def test_cli_exit_status(tmp_path):
     (["replica", "tennis_forehand", "--time-scale", "1e-6"], ["time scale 1e-06", "too fast"]),
     (["replica", "tennis_forehand", "--margin", "0"], ["--margin"]),
     (["replica", "tennis_forehand", "--repeat", "0"], ["--repeat"]),
+    (["replica", "tennis_forehand", "--repeat", "100000000"], ["--repeat", "10000"]),
     (["replica", "tennis_forehand", "--supply-voltage", "nan"], ["--supply-voltage"]),
     (["replica", "tennis_forehand", "--payload", "-2"], ["payload"]),
     (["replica", "tennis_forehand", "--payload", "1", "--payload-body", "tail"], ["tail"]),

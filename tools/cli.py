@@ -180,7 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-acceleration", type=float, default=None, metavar="RAD_S2",
                    help="refuse a trajectory accelerating harder than this at any dof")
     p.add_argument("--ignore-limits", action="store_true",
-                   help="skip the joint-limit check (positions outside the model's limits)")
+                   help="skip the trajectory checks: joint limits, and --max-velocity and "
+                        "--max-acceleration when given")
     p.set_defaults(func=cmd_torques)
 
     p = sub.add_parser("export", help="write a model as URDF")

@@ -42,6 +42,7 @@ CHECKS = ("position", "speed", "torque_speed", "current", "temperature", "supply
 COPPER_ALPHA = 0.00393      # 1/°C: copper's resistance rises with temperature
 AMBIENT = 25.0              # °C
 CHUNK = 4096                # samples of the thermal recurrence evaluated at once
+MAX_REPEAT = 10_000         # plays of a motion for the heat: hours of even a short motion
 
 
 @dataclass(frozen=True)
@@ -450,8 +451,9 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         raise ValueError(f"--time-scale must be a positive number, got {time_scale}")
     if not (math.isfinite(margin) and 0 < margin <= 10):
         raise ValueError(f"--margin must be a fraction of each limit in (0, 10], got {margin}")
-    if repeat < 1:
-        raise ValueError(f"--repeat must be at least 1, got {repeat}")
+    if not 1 <= repeat <= MAX_REPEAT:
+        raise ValueError(f"--repeat must be from 1 to {MAX_REPEAT} plays (the winding settles within a few "
+                         f"thermal time constants: minutes of play), got {repeat}")
     if not math.isfinite(ambient) or ambient >= min(j.servo.temperature_limit for j in config.joints):
         raise ValueError(f"--ambient must be a temperature below the servos' limits, got {ambient}")
     model = config.model

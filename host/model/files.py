@@ -14,7 +14,9 @@ def read_toml(path: str | Path, error: type[Exception], label: str | None = None
     label = label or str(path)
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            data = f.read()
+        # an editor's UTF-8 byte-order mark is not TOML, but it is not the author's mistake either
+        return tomllib.loads(data.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError:
         raise
     except IsADirectoryError:
