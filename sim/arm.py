@@ -15,12 +15,12 @@ from __future__ import annotations
 
 from servodyn.control.timing import SMALL_TIME_STEP
 from servodyn.hal.config import RobotConfig
-from servodyn.hal.dynamixel.control_table import HardwareError
+from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 
 from .dynamixel import Servo, VirtualBus
 from .plant import Plant
 
-FAULTS = ("silent", *(bit.name.lower().replace("_", " ") for bit in HardwareError))
+FAULTS = ("silent", *HARDWARE_FAULTS)
 
 
 class SimulatedArm:
@@ -82,7 +82,7 @@ class SimulatedArm:
         if isinstance(fault, str):
             if fault not in FAULTS:
                 raise ValueError(f"unknown fault {fault!r} (one of {', '.join(FAULTS)})")
-            fault = HardwareError[fault.upper().replace(" ", "_")]
+            fault = HARDWARE_FAULTS[fault]
         servo.set_hardware_error(int(fault))
 
     def clear_faults(self) -> None:

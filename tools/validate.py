@@ -37,6 +37,7 @@ from ..control.motion import builtin_motions, load_motion
 from ..control.timing import SMALL_TIME_STEP, played_periods
 from ..control.trajectory import Trajectory, TrajectoryError, read_trajectory_csv, write_trajectory_csv
 from ..hal.bus import backend_class
+from ..hal.dynamixel.units import ServoMap
 
 CHECKS = ("position", "speed", "torque_speed", "current", "temperature", "supply", "bus", "command_range")
 COPPER_ALPHA = 0.00393      # 1/°C: copper's resistance rises with temperature
@@ -333,7 +334,7 @@ def simulate(config, motion: str, scale: float, result: Result, limits: Limits, 
     summary = run_swing(config, out=out, time_scale=scale, motion=motion, force=True, say=lambda *a, **k: None)
     log = np.genfromtxt(out / "swing_log.csv", delimiter=",", names=True)
     names = config.model.dof_names
-    unit = np.array([j.options.get("current_unit", 0.0) for j in config.joints])
+    unit = ServoMap.from_joints(config.joints).current_unit       # the simulated bus is Dynamixel
     joints = {}
     for j, dof in enumerate(names):
         asked = log[f"tau_{dof}"] / (limits.torque_constant[j] * limits.gear[j])     # A

@@ -41,7 +41,7 @@ from .instructions import fast_reply_blocks, split_fast_reply
 from .protocol import (ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, PacketError, StatusPacket,
                        encode_frame)
 from .reader import BadFrame, Fault, PacketReader
-from .units import ServoMap
+from .units import ServoMap, current_unit
 
 
 def _stuffing_packet_handler():
@@ -100,7 +100,7 @@ class DynamixelBus(ServoBus):
     @classmethod
     def command_range(cls, joint) -> tuple[float, float]:
         """Goal Current is clamped to ±Current Limit(38), in whole current units."""
-        unit = joint.options.get("current_unit", joint.servo.current_unit)
+        unit = current_unit(joint)
         per_unit = unit * joint.torque_constant * joint.gear_ratio
         return round(joint.current_limit / unit) * per_unit, per_unit
 

@@ -47,9 +47,12 @@ def watchdog_units(seconds: float) -> int:
     return max(1, int(round(seconds / WATCHDOG_UNIT)))
 
 
+HARDWARE_FAULTS = {bit.name.lower().replace("_", " "): bit for bit in HardwareError}   # "overload" -> bit
+
+
 def hardware_faults(status: int) -> tuple[str, ...]:
     """The names of the bits set in a Hardware Error Status value ("overload", ...)."""
-    return tuple(bit.name.lower().replace("_", " ") for bit in HardwareError if status & bit)
+    return tuple(name for name, bit in HARDWARE_FAULTS.items() if status & bit)
 
 
 @dataclass(frozen=True)

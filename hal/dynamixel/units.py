@@ -24,6 +24,11 @@ from ..servos import RPM
 TWO_PI = 2.0 * np.pi
 
 
+def current_unit(joint) -> float:
+    """A (hal.config) joint's A per Goal / Present Current unit: its configuration's, else its servo's."""
+    return joint.options.get("current_unit", joint.servo.current_unit)
+
+
 @dataclass(frozen=True)
 class ServoMap:
     """Conversion constants of n joints, each an (n,) float array."""
@@ -51,7 +56,7 @@ class ServoMap:
                    zero_offset=[j.zero_offset for j in joints],
                    gear_ratio=[j.gear_ratio for j in joints],
                    torque_constant=[j.torque_constant for j in joints],
-                   current_unit=[j.options.get("current_unit", j.servo.current_unit) for j in joints],
+                   current_unit=[current_unit(j) for j in joints],
                    ticks_per_rev=[j.servo.ticks_per_rev for j in joints],
                    velocity_unit=[j.servo.velocity_unit for j in joints])
 
