@@ -55,7 +55,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     bus_config = next(iter(config.buses.values()))
     if port is None and bus_config.port != "auto":
         port = bus_config.port       # the configuration's real bus; "auto" is the simulated one
-    simulated = port is None and bus_config.kind == "dynamixel" or bus_config.kind == "loopback"
+    simulated = port is None and bus_config.kind in ("dynamixel", "can") or bus_config.kind == "loopback"
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
         if not (force and simulated):
@@ -81,6 +81,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         say(f"simulated bus: {len(arm.servos)} virtual servos of '{config.name}' on {port} "
             f"({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
             f"{SMALL_TIME_STEP * 1e3:g} ms")
+    if port is None and bus_config.kind == "can":
+        arm, server, options = _simulated_can(config, realtime, say)
     if port is not None:
         options["port"] = port
     bus = make_bus(config, **options)
@@ -111,15 +113,36 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         bus.stop()
         if server is not None:
             server.stop()
+        if "can_bus" in options:
+            options["can_bus"].shutdown()
     summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    bus=bus.stats.as_dict(bus.dof_names))
     if arm is not None:
         # what the simulated servos saw: plant time at the stop and every torque switched off
         summary["sim_time_at_stop_s"] = arm.time - swing_start     # on the swing's clock
-        summary["torque_off"] = [not servo.torque_enabled for servo in arm.servos]
+        summary["torque_off"] = ([not servo.torque_enabled for servo in arm.servos] if hasattr(arm, "servos")
+                                 else [not motor.enabled for motor in arm.motors])
     _write(out, log, summary, say)
     return summary
+
+
+def _simulated_can(config, realtime: bool, say):
+    """The configuration's CAN motors simulated on python-can's virtual bus in this process; the
+    backend gets the host's end of it."""
+    import can
+
+    from ..sim.can.arm import SimulatedCanArm
+    from ..sim.transport.can import VirtualCanServer
+    arm = SimulatedCanArm(config, small_time_step=SMALL_TIME_STEP)
+    channel = f"servodyn-{id(arm):x}"
+    server = VirtualCanServer(arm, channel, mode="realtime" if realtime else "lockstep")
+    server.start()
+    say(f"simulated CAN bus: {len(arm.motors)} virtual motors of '{config.name}' on python-can's virtual "
+        f"channel {channel} ({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
+        f"{SMALL_TIME_STEP * 1e3:g} ms")
+    return arm, server, {"can_bus": can.Bus(interface="virtual", channel=channel),
+                         "reply_timeout": SIM_REPLY_TIMEOUT}
 
 
 def _fault_injector(server, fault_at):
