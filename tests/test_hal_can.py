@@ -19,7 +19,7 @@ from servodyn.hal.config import config_from_dict, load_config
 from servodyn.hal.errors import (ConfigError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                                  ServoTimeoutError)
 from servodyn.sim.can import CanMotor
-from servodyn.sim.can.arm import SimulatedCanArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import VirtualCanServer
 
 PATIENT = 0.5          # s: a loaded machine can hold a thread back far beyond a real bus's deadline
@@ -31,7 +31,7 @@ HOLD = dict(kp=3.0, kd=0.03)
 def rig():
     """(arm, server, bus), the bus open on the simulated replica_can in lock-step."""
     config = load_config("replica_can")
-    arm = SimulatedCanArm(config)
+    arm = SimulatedRobot(config)
     channel = next(CHANNELS)
     server = VirtualCanServer(arm, channel, mode="lockstep")
     server.start()

@@ -15,7 +15,7 @@ import pytest
 from servodyn.hal.bus import JointCommand, make_bus
 from servodyn.hal.can import frames
 from servodyn.hal.config import load_config
-from servodyn.sim.can.arm import SimulatedCanArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
 
 CLIENT = textwrap.dedent(r'''
@@ -54,7 +54,7 @@ CLIENT = textwrap.dedent(r'''
 
 @pytest.fixture
 def adapter():
-    arm = SimulatedCanArm(load_config("replica_can"))
+    arm = SimulatedRobot(load_config("replica_can"))
     server = SlcanServer(arm, mode="realtime", on_error=lambda m: None)
     server.start()
     yield arm, server
@@ -84,7 +84,7 @@ def test_python_can_in_another_process_drives_the_simulated_motors(adapter):
 
 
 def test_the_can_backend_through_the_slcan_adapter():
-    arm = SimulatedCanArm(load_config("replica_can"))
+    arm = SimulatedRobot(load_config("replica_can"))
     with SlcanServer(arm, mode="lockstep") as server:
         bus = make_bus(arm.config, port=server.path, reply_timeout=0.5)
         try:

@@ -118,11 +118,11 @@ def cmd_sim(args) -> None:
 def _serve_can(config, args) -> None:
     """The configuration's CAN motors behind an SLCAN adapter on a pseudo-terminal."""
     import time as _time
-    from ..sim.can.arm import SimulatedCanArm
+    from ..sim.robot import SimulatedRobot
     from ..sim.transport.can import SlcanServer
     if len(config.buses) != 1:
         raise CliError(f"'{config.name}' has {len(config.buses)} CAN buses; the SLCAN adapter serves one")
-    arm = SimulatedCanArm(config)
+    arm = SimulatedRobot(config)
     bus = next(iter(config.buses.values()))
     with SlcanServer(arm, mode="lockstep" if args.lockstep else "realtime") as server:
         motors = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors)

@@ -36,7 +36,7 @@ class _Server:
         self.arm, self.mode = arm, mode
         self.bus = bus or next(iter(arm.networks))
         self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._lock = getattr(arm, "lock", None) or threading.Lock()   # shared by every bus of one robot
         self.errors = 0
         self.on_error = on_error or (lambda message: print(message, file=sys.stderr, flush=True))
         self._threads = [threading.Thread(target=self._serve, name="servodyn-can-sim", daemon=True)]
