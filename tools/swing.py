@@ -152,8 +152,6 @@ def _simulated_robot(config, realtime: bool, say):
     """A configuration with CAN buses simulated in this process: one plant, each CAN bus on
     python-can's virtual interface, each Dynamixel bus on a pseudo-terminal; the options that point
     each bus's backend at its simulated bus."""
-    import can
-
     from ..sim.robot import SimulatedRobot
     from ..sim.transport.can import VirtualCanServer
     from ..sim.transport.pty import PtyServer
@@ -163,8 +161,12 @@ def _simulated_robot(config, realtime: bool, say):
     for name, bus in config.buses.items():
         if bus.kind == "can":
             channel = f"servodyn-{id(robot):x}-{name}"
-            servers.append(VirtualCanServer(robot, channel, bus=name, mode=mode if not servers else "lockstep"))
-            per_bus[name] = {"can_bus": can.Bus(interface="virtual", channel=channel)}
+            # lock-step: the motors answer in the loop's thread when it waits for them (no thread
+            # hand-over per frame); real time: from the server's thread
+            server = VirtualCanServer(robot, channel, bus=name, mode=mode if not servers else "lockstep",
+                                      threaded=realtime)
+            servers.append(server)
+            per_bus[name] = {"can_bus": server.host_bus()}
             where = f"python-can's virtual channel {channel}"
         else:
             servers.append(PtyServer(robot.dynamixel_port(name), mode if not servers else "lockstep"))

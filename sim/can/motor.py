@@ -35,6 +35,8 @@ class CanMotor:
         self.feedback_id = self.dialect.feedback_id(can_id) if feedback_id is None else feedback_id
         self.ranges = ranges or spec.ranges
         self.voltage = supply_voltage or spec.nominal_voltage
+        self.peak_torque = spec.stall_torque_at(self.voltage)       # N m at stall, this supply
+        self.no_load_speed = spec.no_load_speed_at(self.voltage)    # rad/s, this supply
         self.registers = {dialects.REG_CTRL_MODE: dialects.MIT_MODE, dialects.REG_MST_ID: self.feedback_id,
                           dialects.REG_ESC_ID: can_id, dialects.REG_OT: spec.temperature_limit,
                           dialects.REG_TIMEOUT: 0}
@@ -80,10 +82,10 @@ class CanMotor:
         self._check_timeout()
         tau = 0.0
         if self.enabled and not self.fault:
-            peak = min(self.ranges.t_max, self.spec.stall_torque_at(self.voltage))
+            peak = min(self.ranges.t_max, self.peak_torque)
             tau = max(-peak, min(peak, self.torque_wanted(position, velocity)))
             if tau * velocity > 0:           # driving: back-EMF leaves less torque as speed rises
-                room = self.spec.stall_torque_at(self.voltage) * (1 - abs(velocity) / self.spec.no_load_speed_at(self.voltage))
+                room = self.peak_torque * (1 - abs(velocity) / self.no_load_speed)
                 tau = math.copysign(min(abs(tau), max(0.0, room)), tau)
         current = tau / self.spec.torque_constant
         self._heat(current, dt)

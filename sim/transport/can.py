@@ -87,23 +87,47 @@ class _Server:
 
 
 class VirtualCanServer(_Server):
-    """The arm's bus on python-can's virtual interface, channel `channel`, in this process."""
+    """The arm's bus on python-can's virtual interface, channel `channel`, in this process: the
+    motors answer from a thread, or (threaded=False) in the thread of whoever waits for them, through
+    `host_bus()`: the frames still travel through python-can's virtual channel, but a lock-step run
+    no longer pays two threads' hand-over of the interpreter lock for every frame."""
 
     def __init__(self, arm, channel: str, bus: str | None = None, mode: str = "lockstep",
-                 control_period: float | None = None, on_error=None):
+                 control_period: float | None = None, on_error=None, threaded: bool = True):
         import can
         self.channel = channel
         self.can = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self._message = can.Message
         super().__init__(arm, bus, mode, control_period, on_error)
+        if not threaded:
+            self._threads = [t for t in self._threads if t.name != "servodyn-can-sim"]
 
     def _serve(self) -> None:
         while not self._stop.is_set():
-            msg = self.can.recv(0.05)
-            if msg is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-                continue
-            for reply_id, data in self._answer(msg.arbitration_id, bytes(msg.data)):
-                self.can.send(self._message(arbitration_id=reply_id, data=data, is_extended_id=False))
+            self._take(self.can.recv(0.05))
+
+    def _take(self, msg) -> None:
+        if msg is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        for reply_id, data in self._answer(msg.arbitration_id, bytes(msg.data)):
+            self.can.send(self._message(arbitration_id=reply_id, data=data, is_extended_id=False))
+
+    def pump(self) -> None:
+        """Answer every frame waiting on the channel, in this thread."""
+        while (msg := self.can.recv(0.0)) is not None:
+            self._take(msg)
+
+    def host_bus(self):
+        """A python-can virtual bus on the channel whose recv() lets the motors answer first."""
+        import can
+        server = self
+
+        class PumpedBus(can.interfaces.virtual.VirtualBus):
+            def _recv_internal(self, timeout):
+                server.pump()
+                return super()._recv_internal(timeout)
+
+        return PumpedBus(channel=self.channel)
 
     def _close(self) -> None:
         self.can.shutdown()
