@@ -35,6 +35,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench
 	@$(VENV)/bin/python -m servodyn.tools.bench_loop
 	@$(VENV)/bin/python -m servodyn.tools.bench_validate
+	@$(VENV)/bin/python -m servodyn.tools.bench_can
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 
