@@ -228,3 +228,37 @@ def test_can_configuration_errors_name_the_key():
     assert base.buses["arm"].options == {"interface": "slcan"} and base.buses["arm"].baud == 1_000_000
     assert [j.options["feedback_id"] for j in base.joints] == list(range(0x11, 0x18)), "command id + 0x10"
     assert [j.servo.name for j in base.joints] == ["DM-J4340"] * 4 + ["DM-J4310"] * 3
+
+
+@pytest.mark.parametrize("dialect", ["mit", "cubemars"])
+def test_dialects_that_answer_on_one_shared_id_are_routed_by_motor_id(dialect):
+    """mit and cubemars motors all answer on id 0; the backend routes each reply by its byte 0."""
+    import tomllib
+    from servodyn.hal.config import builtin_configs
+    data = tomllib.loads(builtin_configs()["replica_can"].read_text())
+    for joint in data["joint"]:
+        joint["dialect"] = dialect
+        del joint["feedback_id"]
+    config = config_from_dict(data, "x.toml")
+    assert {j.options["feedback_id"] for j in config.joints} == {0}, "every reply on id 0"
+    arm = SimulatedRobot(config)
+    server = VirtualCanServer(arm, next(CHANNELS), threaded=False)
+    server.start()
+    host = server.host_bus()
+    bus = make_bus(config, can_bus=host, reply_timeout=PATIENT)
+    try:
+        bus.open()
+        bus.enable_torque(True)
+        q = np.array([0.1, 0.2, -0.1, 0.5, 0.3, 0.1, -0.1])
+        hold(bus, q, 200)
+        state = bus.read_state()
+        assert np.abs(state.q - arm.q).max() < 0.01, "each joint reads its own motor's position (one tick old)"
+        assert np.abs(state.q - q).max() < 0.2, f"held near the target against gravity: {state.q}"
+        server.inject_fault(3, 1 if dialect == "cubemars" else "silent")
+        with pytest.raises(ServoHardwareError if dialect == "cubemars" else ServoTimeoutError,
+                           match="r_shoulder_rotation"):
+            hold(bus, q, 3)
+    finally:
+        bus.stop()
+        server.stop()
+        host.shutdown()
