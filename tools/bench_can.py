@@ -38,12 +38,19 @@ PATIENT = 2.0
 
 
 def _ticks(bus, n: int) -> float:
-    """Seconds per tick over n ticks (write, then read the replies)."""
-    start = time.perf_counter()
-    for _ in range(n):
-        bus.write(HOLD)
+    """Open the bus, switch torque on, then seconds per tick over n ticks (write, then read the
+    replies); the bus is stopped whatever happens."""
+    try:
+        bus.open()
+        bus.enable_torque(True)
         bus.read_state()
-    return (time.perf_counter() - start) / n
+        start = time.perf_counter()
+        for _ in range(n):
+            bus.write(HOLD)
+            bus.read_state()
+        return (time.perf_counter() - start) / n
+    finally:
+        bus.stop()
 
 
 def _virtual(config, threaded: bool, n: int) -> float:
@@ -51,27 +58,15 @@ def _virtual(config, threaded: bool, n: int) -> float:
     server = VirtualCanServer(robot, f"bench-{id(robot):x}", threaded=threaded)
     server.start()
     host = server.host_bus() if not threaded else __import__("can").Bus(interface="virtual", channel=server.channel)
-    bus = make_bus(config, can_bus=host, reply_timeout=PATIENT)
     try:
-        bus.open()
-        bus.enable_torque(True)
-        bus.read_state()
-        return _ticks(bus, n)
+        return _ticks(make_bus(config, can_bus=host, reply_timeout=PATIENT), n)
     finally:
-        bus.stop()
         server.stop()
         host.shutdown()
 
 
 def _slcan_tick(config, path: str, n: int) -> float:
-    bus = make_bus(config, port=path, reply_timeout=PATIENT)
-    try:
-        bus.open()
-        bus.enable_torque(True)
-        bus.read_state()
-        return _ticks(bus, n)
-    finally:
-        bus.stop()
+    return _ticks(make_bus(config, port=path, reply_timeout=PATIENT), n)
 
 
 def _slcan_raw(path: str, n: int) -> float:
