@@ -181,7 +181,9 @@ def test_an_error_frame_is_a_clear_error(rig):
         with pytest.raises(ServoOperationError, match="error frame"):
             bus.write(JointCommand.position(np.zeros(7) + 0.2, **HOLD))
             bus.read_state()
-    assert bus.stop() is True, "the safe stop after a bus error still reaches every motor"
+        other.send(can.Message(arbitration_id=0x20000080, is_error_frame=True, data=bytes(8)))
+    assert bus.stop() is True, "the safe stop, with another error frame waiting, still reaches every motor"
+    assert not any(m.enabled for m in arm.motors), "every motor out of motor mode"
 
 
 def test_back_emf_leaves_no_driving_torque_at_the_no_load_speed():

@@ -239,8 +239,12 @@ class CanBus(ServoBus):
                 self._collect(check_faults=False)
             except ServoError:
                 pass
-        while self._recv(0.0) is not None:
-            pass
+        for _ in range(1000):          # a bounded drain: a flooding bus cannot hold the stop
+            try:
+                if self._recv(0.0) is None:
+                    break
+            except ServoOperationError:   # an error frame already seen: keep draining
+                continue
 
     def _special_all(self, code: int) -> None:
         self._flush()
@@ -295,13 +299,21 @@ class CanBus(ServoBus):
         self._torque_on = on
 
     def _stop(self) -> bool:
+        """Exit motor mode on every motor: each is sent its frame even if another's send fails."""
         self._torque_on = False
+        self._flush()
+        sent = True
+        for k, joint in enumerate(self.joints):
+            try:
+                self._send(joint.id, frames.pack_special(frames.EXIT))
+                self._pending.add(k)
+            except ServoError:
+                sent = False
         try:
-            self._special_all(frames.EXIT)
             self._collect(check_faults=False)
         except ServoError:
             return False
-        return True
+        return sent
 
     def _read(self) -> JointState:
         if not self._pending and not self._fresh:
