@@ -21,23 +21,25 @@ FAULT_TIME = 0.2              # s into the swing
 FAULT_TICKS = 200
 
 
+# one swing per fixture, so no single test pays for two under the per-test timeout
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    ff = run_swing("replica_can", out=tmp_path_factory.mktemp("can_ff"), **QUIET)
-    pd = run_swing("replica_can", out=tmp_path_factory.mktemp("can_pd"), feedforward=False, **QUIET)
-    return ff, pd
+def ff(tmp_path_factory):
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_ff"), **QUIET)
 
 
-def test_the_forehand_completes_on_can_motors(runs):
-    ff, _ = runs
+@pytest.fixture(scope="module")
+def pd(tmp_path_factory):
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_pd"), feedforward=False, **QUIET)
+
+
+def test_the_forehand_completes_on_can_motors(ff):
     assert ff["completed"] and ff["ticks"] == SWING_TICKS, f"every tick of the swing ran: {ff['ticks']}"
     assert ff["tracking_max_rad"] < 0.2, f"largest error {ff['tracking_max_rad']:.3f} rad: the arm followed"
     assert ff["bus"]["reads"] == ff["bus"]["writes"] + 1, "one read and one write a tick, and the start pose read"
     assert all(ff["torque_off"]), "every motor out of motor mode at the end"
 
 
-def test_feedforward_cuts_the_largest_error_threefold_on_can(runs):
-    ff, pd = runs
+def test_feedforward_cuts_the_largest_error_threefold_on_can(ff, pd):
     ratio = pd["tracking_max_rad"] / ff["tracking_max_rad"]
     assert ratio >= 3.0, (f"feed-forward {ff['tracking_max_rad']:.4f} rad vs PD alone {pd['tracking_max_rad']:.4f} "
                           f"rad: only {ratio:.2f}x")
