@@ -177,7 +177,9 @@ class DynamixelBus(ServoBus):
         self._armed, self._last_packet = on, time.monotonic()
 
     def _stop(self) -> bool:
-        """Torque off on every servo that answers, each with its retries; True if all did."""
+        """Torque off on every servo that answers, each with its retries; True if all did. A
+        transaction cut short (a signal in the middle of one) must not leave the port busy."""
+        self.port.is_using = False
         ok = True
         for joint in self.joints:
             for _ in range(self.retries + 1):
