@@ -15,10 +15,12 @@ moves the plant. Every transport serving the robot takes `robot.lock` around it.
 from __future__ import annotations
 
 import threading
+import time as _time
 
 from servodyn.control.timing import SMALL_TIME_STEP
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
+from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .can import CanMotor, CanNetwork
 from .dynamixel import Servo, VirtualBus
@@ -51,7 +53,9 @@ class SimulatedRobot:
                            integrator=integrator)
         on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name]
         self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
-        self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self.plant.time, byte_timeout=None)
+        # the servos' clock is the plant's until wall_clock() (as sim/arm.py's)
+        self._servo_clock = lambda: self.plant.time
+        self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
         self.small_time_step = small_time_step
         self.lock = threading.RLock()
@@ -72,7 +76,12 @@ class SimulatedRobot:
     def advance(self, duration: float) -> None:
         self.plant.advance(duration)
         for chain in self.chains.values():
-            chain.tick(self.plant.time)
+            chain.tick()
+
+    def wall_clock(self) -> None:
+        """The Dynamixel servos' clocks (Bus Watchdog) follow the wall clock from now on."""
+        offset = _time.monotonic() - self.plant.time
+        self._servo_clock = lambda: _time.monotonic() - offset
 
     def handle(self, bus: str, arbitration_id: int, data: bytes) -> list[tuple[int, bytes]]:
         return self.networks[bus].handle(arbitration_id, data)
@@ -156,7 +165,15 @@ class DynamixelPort:
         return self.robot.time
 
     def handle(self, data: bytes) -> bytes:
-        return self.chain.handle(data, self.robot.time)
+        return self.chain.handle(data)
+
+    def wall_clock(self) -> None:
+        self.robot.wall_clock()
+
+    def wire_clock(self, clock=_time.monotonic) -> None:
+        """A frame whose bytes arrive more than BYTE_TIMEOUT apart on `clock` is dropped."""
+        self.chain.reader.byte_timeout = BYTE_TIMEOUT
+        self.chain.wire_clock = clock
 
     def advance(self, duration: float) -> None:
         self.robot.advance(duration)
