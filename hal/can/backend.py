@@ -234,11 +234,14 @@ class CanBus(ServoBus):
     def _flush(self) -> None:
         """Take the answers still owed, then drop whatever else waits (late replies of a tick that
         failed), so the next round's replies are matched to their own frames."""
-        if self._pending:
+        for _ in range(100):            # error frames interleaved with the owed answers: keep taking them
             try:
                 self._collect(check_faults=False)
+                break
+            except ServoOperationError:
+                continue
             except ServoError:
-                pass
+                break
         for _ in range(1000):          # a bounded drain: a flooding bus cannot hold the stop
             try:
                 if self._recv(0.0) is None:
