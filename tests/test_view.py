@@ -181,12 +181,13 @@ def test_a_logged_run_plays_planned_against_measured(tmp_path):
         homing = 2001
         assert feed.ticks == homing + summary["ticks"], "the observer saw every tick, homing and motion"
         assert feed.frames >= 1, "the live view drew the arm"
-        tl = log_timeline(model, cfg, tmp_path / "run")
+        v.close()
+        v = open_view(str(config), log=str(tmp_path / "run"), port=0, **QUIET)
+        tl = v.timeline
         assert len(tl.t) == summary["ticks"] and tl.measured is not None
         error = np.abs(tl.planned - tl.measured).max()
         assert error == pytest.approx(summary["tracking_max_rad"], rel=1e-6), \
             "the replayed tracking error is the run's"
-        v.show_timeline(tl, "run")
         assert v.ghost.frames[0].visible, "the planned arm is shown as a ghost beside the measured one"
         assert "error °" in v.readout.content
     finally:

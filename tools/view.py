@@ -39,6 +39,7 @@ DEFAULT_MOTION = "tennis_forehand"
 PUBLISH_HZ = 30.0          # live view: frames a second drawn at most (a tick's state, decimated)
 PLAY_HZ = 30.0             # playback: frames a second
 PLOT_POINTS = 600          # samples per plotted series (decimated from the 1 ms samples)
+PLOTS = ("angle (°)", "tracking error (°)", "torque (N·m)")
 PLOT_WINDOW = 2.0          # s of the plots around the cursor
 SOLID_RGB = (178, 184, 196)
 GHOST_RGB = (90, 160, 255)
@@ -178,7 +179,7 @@ class ArmDrawing:
             for k, solid in enumerate(body.solids):
                 vertices, faces = solid_mesh(solid)
                 scene.add_mesh_simple(f"{root}/{body.name}/solid{k}", vertices.astype(np.float32), faces,
-                                      color=rgb, opacity=opacity, flat_shading=False)
+                                      color=rgb, opacity=opacity, cast_shadow=False, receive_shadow=False)
             if markers and body.dofs and self._joint_of(body) is body:
                 self.markers[body.name] = scene.add_icosphere(f"{root}/{body.name}/torque", radius=markers,
                                                               color=share_rgb(0.0), opacity=0.6)
@@ -234,10 +235,19 @@ class Viewer:
         self.lock = threading.RLock()
         server = self.server
         server.scene.set_up_direction("+z")
+        server.gui.configure_theme(control_width="large")
+        # lit by lights alone: an environment map's prefiltering takes software WebGL many seconds
+        server.scene.configure_environment_map(hdri=None)
+        server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+        server.scene.add_light_ambient("/ambient", intensity=1.2)
         R, p = model.user_poses(model.neutral_q())
         reach = max(0.2, float(np.linalg.norm(p - p[0], axis=1).max()))     # the arm's length
-        centre = p[0] - np.array([0.0, 0.0, 0.3 * reach])
-        server.initial_camera.position = tuple(centre + np.array([1.3, -1.9, 0.7]) * reach)
+        # looking at the shoulder from the front right, the arm left of the page's centre (the
+        # panel covers the right)
+        behind = np.array([1.3, -1.9, 0.7])
+        right = np.cross(-behind, [0.0, 0.0, 1.0])
+        centre = p[0] - np.array([0.0, 0.0, 0.3 * reach]) + 0.35 * reach * right / np.linalg.norm(right)
+        server.initial_camera.position = tuple(centre + behind * reach)
         server.initial_camera.look_at = tuple(centre)
         server.scene.add_grid("/floor", width=4 * reach, height=4 * reach, cell_size=0.1,
                               position=(p[0][0], p[0][1], float(p[:, 2].min()) - 0.4 * reach), plane="xy")
@@ -249,8 +259,8 @@ class Viewer:
         what = f"configuration '{config.name}', " if config is not None else ""
         self.status = server.gui.add_markdown(
             f"**servodyn** — {what}model '{model.name}' loaded: {model.nbody} bodies, {model.nv} dofs, "
-            f"{model.total_mass:.2f} kg")
-        self.readout = server.gui.add_markdown("")
+            f"{model.total_mass:.2f} kg", order=0)
+        self.readout = server.gui.add_markdown("", order=1)
         self.timeline: Timeline | None = None
         self.plots = {}
         self.player = None
@@ -282,7 +292,7 @@ class Viewer:
 
     def _add_player(self) -> None:
         gui = self.server.gui
-        with gui.add_folder("Play"):
+        with gui.add_folder("Play", order=2):
             title = gui.add_markdown("")
             play = gui.add_checkbox("Playing", False)
             speed = gui.add_slider("Speed", min=0.05, max=2.0, step=0.05, initial_value=1.0)
@@ -347,10 +357,10 @@ class Viewer:
         import viser.uplot as uplot
         step = max(1, len(tl.t) // PLOT_POINTS)
         t = tl.t[::step]
-        series = {"angle (°)": np.degrees(tl.measured if tl.measured is not None else tl.planned)[::step],
-                  "torque (N·m)": tl.tau[::step]}
+        series = {PLOTS[0]: np.degrees(tl.measured if tl.measured is not None else tl.planned)[::step],
+                  PLOTS[2]: tl.tau[::step]}
         if tl.measured is not None:
-            series["tracking error (°)"] = np.degrees(tl.planned - tl.measured)[::step]
+            series[PLOTS[1]] = np.degrees(tl.planned - tl.measured)[::step]
         palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
                    "#7f7f7f", "#bcbd22", "#17becf"]
         names = self.model.dof_names
@@ -361,7 +371,8 @@ class Viewer:
                 uplot.Series(label=name, stroke=palette[j % len(palette)], width=1.5) for j, name in enumerate(names))
             handle = self.plots.get(title)
             if handle is None:
-                with self.server.gui.add_folder(title.split(" (")[0].capitalize(), expand_by_default=True):
+                order = 3 + list(PLOTS).index(title)
+                with self.server.gui.add_folder(title.split(" (")[0].capitalize(), order=order):
                     self.plots[title] = self.server.gui.add_uplot(
                         data=data, series=specs, title=title, aspect=1.6,
                         scales={"x": uplot.Scale(time=False, auto=False, range=(0.0, PLOT_WINDOW))},
@@ -411,7 +422,7 @@ class MotionEditor:
         self.edits = 0
         gui = viewer.server.gui
         names = self.model.dof_names
-        with gui.add_folder("Shape the motion"):
+        with gui.add_folder("Shape the motion", order=10):
             self.verdict = gui.add_markdown("")
             self.key = gui.add_slider("Keyframe", min=1, max=len(motion.t), step=1, initial_value=1)
             self.key_time = gui.add_number("Keyframe time (s)", float(motion.t[0]), step=0.01)
@@ -563,9 +574,10 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
               save_to: Path | None = None, say=print) -> Viewer:
     """Serve the page for a configuration or model, with a logged run or a motion loaded."""
     config, model = load_subject(spec)
+    timeline = None
     if log is not None:
         timeline = log_timeline(model, config, Path(log))
-    motion_obj = timeline = None
+    motion_obj = None
     if log is None and motion is None:
         try:                           # the forehand, where the model has its dofs
             motion_obj = load_motion(DEFAULT_MOTION, model)
