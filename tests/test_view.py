@@ -204,9 +204,23 @@ def test_bad_log_and_share_colours(tmp_path):
         "at and past the limit is red"
 
 
-def test_view_command_bad_input_is_one_line():
+@pytest.mark.parametrize("args, message", [
+    (["nothing"], "nothing: no such file, and not a built-in configuration"),
+    (["--port", "99999"], "--port must be from 0 to 65535"),
+    (["--host", "192.0.2.1"], "cannot serve on 192.0.2.1:8080"),
+    (["--time-scale", "0"], "--time-scale must be a positive number"),
+    (["--motion", "LOG"], "unknown column 'q_x'"),
+    (["--log", "LOG"], "not a swing log of model 'replica'"),
+])
+def test_view_command_bad_input_is_one_line(tmp_path, args, message):
+    """Bad input is one line and exit 2, before anything is served (viser itself would fail inside
+    its own thread on an address it cannot bind)."""
     import subprocess
     import sys
-    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "view", "nothing"],
+    log = tmp_path / "swing_log.csv"
+    log.write_text("t,q_x\n0,1\n")
+    args = [str(log) if a == "LOG" else a for a in args]
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "view", *args],
                          capture_output=True, text=True, timeout=120)
-    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "nothing: no such file" in res.stderr, res.stderr
+    assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"
+    assert res.stderr.count("\n") == 1 and message in res.stderr, res.stderr

@@ -20,6 +20,7 @@ model file's frames). What the page shows:
 from __future__ import annotations
 
 import csv
+import errno
 import math
 import threading
 import time
@@ -225,11 +226,29 @@ class ArmDrawing:
 
 # ---------------------------------------------------------------------------- the page
 
+def check_address(host: str, port: int) -> None:
+    """ViewError unless host:port can be served (viser would fail in its own thread, and hang)."""
+    import socket
+    if not 0 <= port <= 65535:
+        raise ViewError(f"--port must be from 0 to 65535, got {port}")
+    try:
+        family, kind, _, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind(address)
+    except (socket.gaierror, UnicodeError) as err:
+        raise ViewError(f"--host {host}: not an address this machine can serve on ({err})") from None
+    except OSError as err:
+        if err.errno != errno.EADDRINUSE:          # a port in use: viser takes the next free one
+            raise ViewError(f"cannot serve on {host}:{port}: {err.strerror or err}") from None
+
+
 class Viewer:
     """One viser server and its page: the arm, the ghost, the plots, the player and the editor."""
 
     def __init__(self, config, model, host: str = "127.0.0.1", port: int = 8080, say=print):
         import viser
+        check_address(host, port)
         self.config, self.model, self.say = config, model, say
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.lock = threading.RLock()
