@@ -107,9 +107,13 @@ def _own_peak_share(tau: np.ndarray) -> np.ndarray:
 def motion_timeline(model, config, motion: Motion, time_scale: float):
     """The motion sampled every control period at the time scale, its torques (one batched RNEA)
     and, with a configuration, the validator's verdict: (timeline, result or None, limits)."""
-    from .validate import MotionPath, check
-    path = MotionPath(motion.name, motion.duration, motion.at)
-    traj = path.at_scale(time_scale)
+    from .validate import MotionPath
+    return trajectory_timeline(model, config, MotionPath(motion.name, motion.duration, motion.at).at_scale(time_scale))
+
+
+def trajectory_timeline(model, config, traj):
+    """(timeline, the validator's result or None, limits or None) of a sampled trajectory."""
+    from .validate import check
     limits = limits_of(config)
     if limits is None:
         tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
@@ -630,17 +634,11 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
 
 
 def _csv_timeline(model, config, name: str, time_scale: float) -> Timeline:
-    from .validate import check, motion_path
+    from .validate import motion_path
     try:
-        traj = motion_path(name, model).at_scale(time_scale)
+        return trajectory_timeline(model, config, motion_path(name, model).at_scale(time_scale))[0]
     except (TrajectoryError, ValueError) as err:
         raise ViewError(str(err)) from None
-    limits = limits_of(config)
-    if limits is None:
-        tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
-        return Timeline(traj.t, traj.q, tau, _own_peak_share(tau), share_of="the motion's peak")
-    result = check(model, limits, traj)
-    return Timeline(traj.t, traj.q, result.tau, result.ratios["torque_speed"])
 
 
 def serve_forever(viewer: Viewer, say=print) -> None:
