@@ -224,3 +224,20 @@ def test_view_command_bad_input_is_one_line(tmp_path, args, message):
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"
     assert res.stderr.count("\n") == 1 and message in res.stderr, res.stderr
+
+
+def test_a_trajectory_csv_plays_with_its_torques(tmp_path):
+    """A trajectory CSV is played (not edited): its torques are the RNEA of the validator's
+    sampling of it, and its share of the servos' limits the validator's torque-speed ratio."""
+    from servodyn.tools.validate import Limits, check, motion_path
+    config, model = load_subject("replica")
+    csv = tmp_path / "reach.csv"
+    rows = [f"{t},{0.5 * t},{0.2 * t},0,{0.3 + 0.4 * t},0,0,0" for t in (0.0, 0.5, 1.0)]
+    csv.write_text("t," + ",".join(f"q_{n}" for n in model.dof_names) + "\n" + "\n".join(rows) + "\n")
+    v = open_view("replica", motion=str(csv), port=0, **QUIET)
+    try:
+        assert v.editor is None, "a CSV has no keyframes to shape"
+        result = check(model, Limits.of(config, config.supply.voltage), motion_path(str(csv), model).at_scale(1.0))
+        assert np.array_equal(v.timeline.tau, result.tau) and np.array_equal(v.timeline.share, result.ratios["torque_speed"])
+    finally:
+        v.close()
