@@ -124,6 +124,24 @@ def test_the_drawn_pose_is_the_forward_kinematics(viewer):
     assert "r_shoulder_flexion" in viewer.readout.content and f"t = {tl.t[k]:.3f} s" in viewer.readout.content
 
 
+def test_play_advances_the_cursor_and_the_plots_follow(viewer):
+    """Playing moves the time cursor (polled: no rate is asserted); the plots' window holds it."""
+    viewer.seek(0.0)
+    viewer.player["playing"].value = True
+    try:
+        deadline = time.monotonic() + 30
+        while viewer.cursor_t == 0.0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        viewer.player["playing"].value = False
+    t = viewer.cursor_t
+    assert t > 0.0, "the player did not move the cursor"
+    assert viewer.player["time"].value == pytest.approx(t), "the time slider follows the cursor"
+    for handle in viewer.plots.values():
+        lo, hi = handle.scales["x"]["range"]
+        assert lo <= t <= hi, f"the plot shows {lo:.2f}..{hi:.2f} s, the cursor is at {t:.2f} s"
+
+
 def test_shaping_a_keyframe_recomputes_torques_and_verdict(viewer, tmp_path):
     """One keyframe's elbow angle changed: the editor's torque profile is the RNEA of the edited
     motion (computed here independently), the verdict comes from the validator; a keyframe moved
