@@ -36,6 +36,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench_loop
 	@$(VENV)/bin/python -m servodyn.tools.bench_view
 	@$(VENV)/bin/python -m servodyn.tools.bench_validate
+	@$(VENV)/bin/python -m servodyn.tools.bench_can
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 

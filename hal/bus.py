@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 BACKENDS = {   # kind -> "module:class", imported on first use
     "dynamixel": "servodyn.hal.dynamixel.backend:DynamixelBus",
     "loopback": "servodyn.hal.loopback:LoopbackBus",
+    "can": "servodyn.hal.can.backend:CanBus",
 }
 
 
@@ -136,6 +137,13 @@ class ServoBus(ABC):
     protocols: tuple[float, ...] | None = None   # the protocol versions it speaks (None: any)
     max_id: int = 255
     joint_keys: frozenset[str] = frozenset()   # configuration keys of this backend's own
+    port_key, baud_key = "port", "baud"        # what its [bus] table calls the port and the rate
+    bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
+
+    @classmethod
+    def bus_options(cls, checker) -> dict:
+        """This backend's own keys of a [bus] table, checked (checker: hal.config's)."""
+        return {}
 
     @classmethod
     def joint_options(cls, checker, servo) -> dict:

@@ -48,6 +48,7 @@ class BusConfig:
     port: str                     # serial device path, or "auto": the simulated bus
     baud: int
     protocol: float
+    options: dict = field(default_factory=dict)   # the backend's own keys (CAN: interface)
 
 
 @dataclass(frozen=True)
@@ -148,22 +149,25 @@ def _is_number(value) -> bool:
 
 
 def _bus(name: str, table, where: str) -> BusConfig:
-    c = _Checker(table, where, BUS_KEYS)
-    kind = c.get("kind", "str")
+    first = _Checker(table, where, set(table) if isinstance(table, dict) else BUS_KEYS)
+    kind = first.get("kind", "str")
     if kind not in BACKENDS:
-        c.fail("kind", f"must be one of {', '.join(BACKENDS)}, got {kind!r}")
+        first.fail("kind", f"must be one of {', '.join(BACKENDS)}, got {kind!r}")
     backend = backend_class(kind)
-    port = c.get("port", "str", "auto")
-    baud = c.get("baud", "int", backend.default_baud)
+    # a backend may name the port and the rate in its own words (CAN: channel, bitrate)
+    port_key, baud_key = backend.port_key, backend.baud_key
+    c = _Checker(table, where, {"kind", "protocol", port_key, baud_key} | backend.bus_keys)
+    port = c.get(port_key, "str", "auto")
+    baud = c.get(baud_key, "int", backend.default_baud)
     if backend.bauds is not None and baud not in backend.bauds:
-        c.fail("baud", f"must be a {kind} rate ({', '.join(map(str, backend.bauds))}), got {baud}")
+        c.fail(baud_key, f"must be a {kind} rate ({', '.join(map(str, backend.bauds))}), got {baud}")
     if baud <= 0:
-        c.fail("baud", f"must be positive, got {baud}")
+        c.fail(baud_key, f"must be positive, got {baud}")
     protocol = c.get("protocol", "float", backend.protocols[0] if backend.protocols else 1.0)
     if backend.protocols is not None and protocol not in backend.protocols:
         c.fail("protocol", f"must be {' or '.join(f'{p:.1f}' for p in backend.protocols)} (what servodyn "
                            f"speaks on a {kind} bus), got {protocol:.1f}")
-    return BusConfig(name, kind, port, baud, protocol)
+    return BusConfig(name, kind, port, baud, protocol, backend.bus_options(c))
 
 
 def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig:

@@ -99,6 +99,10 @@ def drop_last_joint(data):
     data["joint"].pop()
 
 
+def bus_kind_ethercat(data):
+    data["bus"]["arm"]["kind"] = "ethercat"
+
+
 def bus_kind_can(data):
     data["bus"]["arm"]["kind"] = "can"
 
@@ -134,7 +138,8 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("bus kind", lambda d: d["bus"]["arm"].update(kind="rs485"), ["bus 'arm'", "'kind'", "rs485"]),
     ("baud rate", lambda d: d["bus"]["arm"].update(baud=12345), ["bus 'arm'", "'baud'", "12345"]),
     ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
-    ("a bus kind without a backend", bus_kind_can, ["bus 'arm'", "'kind'", "'can'", "dynamixel"]),
+    ("a bus kind without a backend", bus_kind_ethercat, ["bus 'arm'", "'kind'", "'ethercat'", "dynamixel, loopback, can"]),
+    ("a CAN bus with a serial bus's keys", bus_kind_can, ["bus 'arm'", "unknown key 'baud'", "bitrate, channel"]),
     ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),
     ("absurd zero offset", set_joint(0, "zero_offset", 1e300), ["joint 1", "'zero_offset'", "1e+300", "one turn"]),
     ("absurd gear ratio", set_joint(1, "gear_ratio", 1e300), ["joint 2", "'gear_ratio'", "beyond 100", "gear stage"]),

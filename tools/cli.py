@@ -115,6 +115,8 @@ def cmd_sim(args) -> None:
     from ..sim.transport.pty import PtyServer
     try:
         config = load_config(args.config)
+        if {bus.kind for bus in config.buses.values()} == {"can"}:
+            return _serve_can(config, args)
         arm = SimulatedArm(config)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
@@ -123,6 +125,28 @@ def cmd_sim(args) -> None:
               f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
         print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
               flush=True)
+        try:
+            while True:
+                _time.sleep(0.5)
+        except KeyboardInterrupt:
+            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+
+
+def _serve_can(config, args) -> None:
+    """The configuration's CAN motors behind an SLCAN adapter on a pseudo-terminal."""
+    import time as _time
+    from ..sim.robot import SimulatedRobot
+    from ..sim.transport.can import SlcanServer
+    if len(config.buses) != 1:
+        raise CliError(f"'{config.name}' has {len(config.buses)} CAN buses; the SLCAN adapter serves one")
+    arm = SimulatedRobot(config)
+    bus = next(iter(config.buses.values()))
+    with SlcanServer(arm, mode="lockstep" if args.lockstep else "realtime") as server:
+        motors = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors)
+        print(f"simulated CAN bus of '{config.name}' (SLCAN adapter): {len(arm.motors)} motors ({motors}) "
+              f"on {server.path}", flush=True)
+        print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{server.path}\", bitrate={bus.baud})  or  "
+              f"servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)", flush=True)
         try:
             while True:
                 _time.sleep(0.5)
@@ -269,7 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)
 
-    p = sub.add_parser("sim", help="serve the simulated Dynamixel bus on a pseudo-terminal")
+    p = sub.add_parser("sim", help="serve the simulated bus on a pseudo-terminal (Dynamixel, or an SLCAN "
+                                              "adapter for a CAN configuration)")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")

@@ -28,7 +28,7 @@ class PtyServer:
         tty.setraw(self.master)
         self.path = os.ttyname(self.slave)
         self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._lock = getattr(arm, "lock", None) or threading.Lock()   # shared by every bus of one robot
         self._thread = threading.Thread(target=self._serve, name="servodyn-sim", daemon=True)
         self._paused_until = 0.0
         self.errors = 0

@@ -1,0 +1,3 @@
+"""Everything CAN: MIT-style motors over python-can. `frames` (the codec, the C one's twin in
+`c/`), `dialects` (mit, damiao, cubemars: reply layouts, ids, status and registers), `motors`
+(data sheets and default ranges), `backend` (`CanBus`)."""

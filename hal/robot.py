@@ -1,0 +1,86 @@
+"""The robot: every bus of a configuration behind one interface, in the model's dof order — as
+ros2_control's controller manager runs several hardware interfaces in one loop.
+
+    with Robot(load_config("replica_mixed"), options={"wrist": {"port": "/dev/ttyUSB0"}}) as robot:
+        robot.enable_torque(True)
+        state = robot.read_state()       # every bus read, one state for all dofs
+        robot.write(JointCommand.torque(tau))   # every bus written
+        robot.stop()                     # the safe stop on every bus, whatever failed; never raises
+
+A tick is one read of every bus, one control step, one write of every bus. A failure on any bus
+raises as that bus raised it; the caller's stop() then stops them all.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .bus import BusStats, JointCommand, JointState, ServoBus, make_bus
+
+
+class Robot:
+    def __init__(self, config, options: dict | None = None, **common):
+        """options: bus name -> that backend's keyword options; common: options for every bus."""
+        options = options or {}
+        self.config = config
+        self.buses: dict[str, ServoBus] = {name: make_bus(config, name, **{**common, **options.get(name, {})})
+                                           for name in config.buses}
+        self.dof_names = tuple(config.model.dof_names)
+        self.n = len(self.dof_names)
+        self._reads = self._writes = 0
+
+    @property
+    def stats(self) -> BusStats:
+        limited = np.zeros(self.n, dtype=np.int64)
+        retried = 0
+        for bus in self.buses.values():
+            limited[bus.dof_index] += bus.stats.limited
+            retried += bus.stats.reads_retried
+        return BusStats(reads=self._reads, writes=self._writes, reads_retried=retried, limited=limited)
+
+    def open(self) -> None:
+        try:
+            for bus in self.buses.values():
+                bus.open()
+        except BaseException:
+            self.stop()
+            raise
+
+    def close(self) -> None:
+        for bus in self.buses.values():
+            bus.close()
+
+    def __enter__(self) -> "Robot":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def enable_torque(self, on: bool) -> None:
+        for bus in self.buses.values():
+            bus.enable_torque(on)
+
+    def read_state(self) -> JointState:
+        q, qd, current, tau = (np.zeros(self.n) for _ in range(4))
+        t = 0.0
+        for bus in self.buses.values():
+            s = bus.read_state()
+            k = bus.dof_index
+            q[k], qd[k], current[k], tau[k] = s.q, s.qd, s.current, s.tau
+            t = max(t, s.t)
+        self._reads += 1
+        return JointState(t=t, q=q, qd=qd, current=current, tau=tau)
+
+    def write(self, command: JointCommand) -> None:
+        if command.q.shape != (self.n,):
+            raise ValueError(f"JointCommand for {command.q.shape[0]} joints, the robot has {self.n}")
+        for bus in self.buses.values():
+            k = bus.dof_index
+            bus.write(JointCommand(q=command.q[k], qd=command.qd[k], tau_ff=command.tau_ff[k], kp=command.kp[k],
+                                   kd=command.kd[k]))
+        self._writes += 1
+
+    def stop(self) -> bool:
+        """The safe stop on every bus (each never raises); True if every device confirmed."""
+        return all([bus.stop() for bus in self.buses.values()])

@@ -1,0 +1,127 @@
+"""The simulated CAN motors behind an SLCAN adapter on a pseudo-terminal (sim/transport/can.py),
+driven from another process by python-can's own slcan interface, as a user's program would: the
+open handshake, frames both ways (enable, an MIT command, a register read), the adapter's
+version, garbage lines refused with BEL while the adapter keeps working; and the CAN backend
+through the same adapter."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from servodyn.hal.bus import JointCommand, make_bus
+from servodyn.hal.can import frames
+from servodyn.hal.config import load_config
+from servodyn.sim.robot import SimulatedRobot
+from servodyn.sim.transport.can import SlcanServer
+
+CLIENT = textwrap.dedent(r'''
+    import json, struct, sys, time
+    import can, serial
+    path = sys.argv[1]
+    out = {}
+    bus = can.Bus(interface="slcan", channel=path, bitrate=1000000)
+    out["version"] = bus.get_version(2.0)
+
+    def ask(arbitration_id, data):
+        bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            msg = bus.recv(0.5)
+            if msg is not None:
+                return [msg.arbitration_id, bytes(msg.data).hex()]
+        return None
+
+    out["enable"] = ask(0x001, bytes([0xFF] * 7 + [0xFC]))
+    # an MIT command to motor 5: p 0, v 0, kp 0, kd 0, t code 2047 + 100
+    out["command"] = ask(0x005, bytes([0x7F, 0xFF, 0x7F, 0xF0, 0x00, 0x00, 0x08, 0x63]))
+    out["register"] = ask(0x7FF, bytes([0x06, 0x00, 0x33, 23, 0, 0, 0, 0]))
+    bus.shutdown()
+    raw = serial.Serial(path, timeout=0.5)
+    raw.write(b"garbage\rS9\rt12Z\rt0018FFFFFFFFFFFFFFFC\r")
+    time.sleep(0.3)
+    out["raw"] = raw.read(raw.in_waiting or 1).decode("ascii", "replace")
+    raw.write(b"O\rt0018FFFFFFFFFFFFFFFD\r")
+    time.sleep(0.3)
+    out["after"] = raw.read(raw.in_waiting or 1).decode("ascii", "replace")
+    raw.close()
+    print(json.dumps(out))
+''')
+
+
+@pytest.fixture
+def adapter():
+    arm = SimulatedRobot(load_config("replica_can"))
+    server = SlcanServer(arm, mode="realtime", on_error=lambda m: None)
+    server.start()
+    yield arm, server
+    server.stop()
+
+
+def test_python_can_in_another_process_drives_the_simulated_motors(adapter):
+    arm, server = adapter
+    done = subprocess.run([sys.executable, "-c", CLIENT, server.path], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"the python-can client failed:\n{done.stderr[-2000:]}"
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["version"] == [10, 13], "V answered as Vhhss"
+    arbitration_id, data = out["enable"]
+    assert arbitration_id == 0x11 and bytes.fromhex(data)[0] == 0x11, \
+        "motor 1 answers on its feedback id 0x11 with status 1 (enabled) and id 1 in byte 0"
+    arbitration_id, data = out["command"]
+    assert arbitration_id == 0x15 and len(bytes.fromhex(data)) == 8, "motor 5 answers an MIT frame on 0x15"
+    arbitration_id, data = out["register"]
+    reply = frames.unpack_register(bytes.fromhex(data))
+    assert arbitration_id == 0x16 and (reply.can_id, reply.cmd, reply.rid) == (6, 0x33, 23), "register echo"
+    assert reply.as_float == 10.0, "TMAX of a DM-J4310"
+    # after python-can's shutdown (C) the adapter is closed: garbage and frames get BEL (the
+    # acknowledgement of C itself may still be waiting, unread by python-can)
+    assert out["raw"].lstrip("\r") == "\a\a\a\a", f"closed adapter refuses garbage, S9, a bad frame, a frame: {out['raw']!r}"
+    assert out["after"].startswith("\rz\rt011"), f"open again, the adapter acks and motor 1 answers: {out['after']!r}"
+    assert not arm.motor(1).enabled, "motor 1 took the exit frame sent as a raw line"
+    assert server.refused >= 4 and server.errors == 0
+
+
+def test_the_can_backend_through_the_slcan_adapter():
+    arm = SimulatedRobot(load_config("replica_can"))
+    with SlcanServer(arm, mode="lockstep") as server:
+        bus = make_bus(arm.config, port=server.path, reply_timeout=0.5)
+        try:
+            bus.open()
+            bus.enable_torque(True)
+            for _ in range(30):
+                bus.read_state()
+                bus.write(JointCommand.position(np.full(7, 0.2), kp=3.0, kd=0.03))
+            bus.read_state()
+            assert arm.time == pytest.approx(0.030, abs=1e-9), "one plant period per round of 7 command frames"
+            assert bus.stop() is True, "every motor confirmed the exit"
+        finally:
+            bus.stop()
+    assert not any(m.enabled for m in arm.motors)
+    assert server.refused == 0, "python-can's open sequence (C, S8, empty line, O) is all accepted"
+
+
+def test_servodyn_sim_serves_replica_can_to_another_process():
+    sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica_can", "--lockstep"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = sim.stdout.readline()
+        assert "SLCAN adapter" in line and "7->0x17 DM-J4310" in line, f"the served bus described: {line!r}"
+        path = line.rsplit(" on ", 1)[-1].strip()
+        client = textwrap.dedent('''
+            import sys, can
+            bus = can.Bus(interface="slcan", channel=sys.argv[1], bitrate=1000000)
+            bus.send(can.Message(arbitration_id=7, data=bytes([0xFF] * 7 + [0xFC]), is_extended_id=False))
+            msg = bus.recv(5.0)
+            bus.shutdown()
+            print(hex(msg.arbitration_id), bytes(msg.data).hex())
+        ''')
+        done = subprocess.run([sys.executable, "-c", client, path], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-1500:]
+        arbitration_id, data = done.stdout.split()
+        assert arbitration_id == "0x17" and data[:2] == "17", f"motor 7 enabled answers on 0x17: {done.stdout}"
+    finally:
+        sim.terminate()
+        sim.wait(timeout=10)

@@ -1,0 +1,82 @@
+"""The tennis swing on CAN motors: replica_can (seven Damiao motors on one simulated CAN bus,
+python-can's virtual interface) and replica_mixed (Damiao shoulder and elbow on CAN, Dynamixel
+forearm and wrist on a simulated serial bus: one robot, two buses, one tick), in lock-step.
+
+Both configurations put more frames on a 1 Mbit/s bus than one 1 ms tick can carry (seven motors:
+14 frames x 111-135 bits = 1.6-1.9 ms), so the validator refuses the 1 kHz swing for real hardware;
+the simulated buses carry no wire time, and the swing is played there with force=True. What is
+asserted is deterministic in lock-step: tick counts, tracking errors, which motor faulted and that
+every motor was switched off."""
+
+import json
+
+import pytest
+
+from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.tools.swing import run_swing
+
+QUIET = dict(say=lambda *a, **k: None, force=True)
+SWING_TICKS = 7201            # the 1.8 s forehand at time scale 4, every 1 ms
+FAULT_TIME = 0.2              # s into the swing
+FAULT_TICKS = 200
+
+
+# one swing per fixture, so no single test pays for two under the per-test timeout
+@pytest.fixture(scope="module")
+def ff(tmp_path_factory):
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_ff"), **QUIET)
+
+
+@pytest.fixture(scope="module")
+def pd(tmp_path_factory):
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_pd"), feedforward=False, **QUIET)
+
+
+def test_the_forehand_completes_on_can_motors(ff):
+    assert ff["completed"] and ff["ticks"] == SWING_TICKS, f"every tick of the swing ran: {ff['ticks']}"
+    assert ff["tracking_max_rad"] < 0.2, f"largest error {ff['tracking_max_rad']:.3f} rad: the arm followed"
+    assert ff["bus"]["reads"] == ff["bus"]["writes"] + 1, "one read and one write a tick, and the start pose read"
+    assert all(ff["torque_off"]), "every motor out of motor mode at the end"
+
+
+def test_feedforward_cuts_the_largest_error_threefold_on_can(ff, pd):
+    ratio = pd["tracking_max_rad"] / ff["tracking_max_rad"]
+    assert ratio >= 3.0, (f"feed-forward {ff['tracking_max_rad']:.4f} rad vs PD alone {pd['tracking_max_rad']:.4f} "
+                          f"rad: only {ratio:.2f}x")
+
+
+def _stopped_at_the_fault(summary, out):
+    assert not summary["completed"], "the fault stopped the swing"
+    assert summary["ticks"] in (FAULT_TICKS, FAULT_TICKS + 1), \
+        f"stopped within a tick of the fault: {summary['ticks']} ticks"
+    lines = (out / "swing_log.csv").read_text().splitlines()
+    assert len(lines) == 1 + summary["ticks"], "the log holds the header and every tick that ran"
+    assert json.loads((out / "summary.json").read_text()) == summary, "summary.json is the summary"
+
+
+def test_a_silent_motor_stops_the_swing_safely(tmp_path):
+    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, 4), **QUIET)
+    _stopped_at_the_fault(summary, tmp_path)
+    assert "r_elbow_flexion" in summary["error"] and "did not answer" in summary["error"], summary["error"]
+    off = summary["torque_off"]
+    assert off[:3] + off[4:] == [True] * 6, "every answering motor out of motor mode"
+
+
+@pytest.mark.parametrize("motor, fault, words", [(2, 0xE, "r_shoulder_abduction' (id 2) hardware error 0x0e: overload"),
+                                                  (6, "overheat", "(id 6) hardware error 0x0c: coil over-temperature")])
+def test_a_motor_fault_stops_the_swing_safely(tmp_path, motor, fault, words):
+    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, motor, fault), **QUIET)
+    _stopped_at_the_fault(summary, tmp_path)
+    assert words in summary["error"], summary["error"]
+    assert all(summary["torque_off"]), "every motor out of motor mode, the faulted one included"
+
+
+def test_a_fault_on_one_bus_of_a_mixed_robot_stops_both(tmp_path):
+    """An overload on Dynamixel servo 6 (the wrist bus) ends the run; the safe stop switches off the
+    Damiao motors on the CAN bus as well."""
+    summary = run_swing("replica_mixed", out=tmp_path, fault_at=(FAULT_TIME, 6, "overload"), **QUIET)
+    _stopped_at_the_fault(summary, tmp_path)
+    assert "r_wrist_flexion" in summary["error"] and "overload" in summary["error"], summary["error"]
+    assert summary["torque_off"] == [True] * 7, "CAN motors and Dynamixel servos all off"
+    homing = int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1
+    assert summary["bus"]["writes"] == homing + FAULT_TICKS, "one robot write a tick over both buses, until the fault"
