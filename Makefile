@@ -3,6 +3,7 @@
 #   make test    every test: the C core (double and float), the Cortex-M4F build under QEMU,
 #                then the Python tests
 #   make demo    the main job on the simulated servo bus
+#   make fuzz    the wire codecs under libFuzzer with ASan and UBSan (FUZZ_SECONDS each, default 60)
 #   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget
 #   make clean   remove what the build made (keeps .venv; make distclean removes it too)
 #
@@ -23,7 +24,7 @@ HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
 .PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean
 
 test: venv toolchain
-	@$(MAKE) --no-print-directory test-c test-mcu test-python
+	@$(MAKE) --no-print-directory test-c test-mcu test-fuzz test-python
 
 demo: venv
 	@echo "== servodyn demo"
@@ -64,6 +65,7 @@ toolchain:
 include tests/c/rules.mk
 include firmware/mcu/rules.mk
 include firmware/app/rules.mk
+include fuzz/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain
