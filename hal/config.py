@@ -167,7 +167,7 @@ def _bus(name: str, table, where: str) -> BusConfig:
 
 
 def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig:
-    bus_name = table.get("bus") if isinstance(table, dict) and "bus" in table else None
+    bus_name = table.get("bus") if isinstance(table, dict) and isinstance(table.get("bus"), str) else None
     if bus_name is None and len(buses) == 1:
         bus_name = next(iter(buses))
     backend = backend_class(buses[bus_name].kind) if bus_name in buses else None
