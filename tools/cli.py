@@ -16,7 +16,11 @@ from ..model import ModelError, builtin_models, load_model
 
 
 class CliError(Exception):
-    """A user-facing failure: printed as one line, exit status 2."""
+    """A user-facing failure: printed as one line, exit status `code` (default 2)."""
+
+    def __init__(self, message: str, code: int = 2):
+        super().__init__(message)
+        self.code = code
 
 
 def _load(name: str):
@@ -87,7 +91,8 @@ def cmd_swing(args) -> None:
     except (ConfigError, ServoError, ValueError) as err:
         raise CliError(str(err)) from None
     if summary.get("error"):
-        raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
+        raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})",
+                       summary["exit_code"])
 
 
 def cmd_sim(args) -> None:
@@ -200,7 +205,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("swing", help="the tennis swing, or any motion, on servos (the simulated bus by default)",
                        description="Validate the motion against the servos' limits, home the arm, play it "
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
-                       "is started and used.")
+                       "is started and used. Exit status: 0 completed; 2 bad input; after a safe stop "
+                       "(torque off on every servo, the log written up to the stop) the firmware's fault "
+                       "codes: 10 a servo or the bus did not answer, 11 a servo's hardware error, 12 a "
+                       "corrupt or refused reply, 13 a non-finite desired or measured state, 15 a joint "
+                       "beyond its limits.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
                                                        "'auto' there means the simulated bus)")
@@ -299,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args) or 0
     except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
-        return 2
+        return getattr(err, "code", 2)
     except OSError as err:
         print(f"servodyn: error: {_file_error(err, args)}", file=sys.stderr)
         return 2
