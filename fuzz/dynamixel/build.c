@@ -5,17 +5,6 @@
 // from; a builder that returns 0 had a bad id or too small a buffer.
 #include "fuzz.h"
 
-typedef struct input_ {
-  const uint8_t* p;
-  size_t n;
-} input;
-
-static uint8_t take(input* in) {
-  if (in->n == 0) return 0;
-  in->n--;
-  return *in->p++;
-}
-
 static uint16_t take16(input* in) {
   uint16_t low = take(in);
   return (uint16_t)(low | take(in) << 8);

@@ -12,17 +12,6 @@
 
 enum { MAX_BLOCKS = 16 };
 
-typedef struct input_ {
-  const uint8_t* p;
-  size_t n;
-} input;
-
-static uint8_t take(input* in) {
-  if (in->n == 0) return 0;
-  in->n--;
-  return *in->p++;
-}
-
 // where block k's id sits in a reply of these sizes: ID0 DATA0 CRC0 ERR1 ID1 ...
 static size_t id_at(const uint16_t* sizes, size_t k) {
   size_t at = 0;

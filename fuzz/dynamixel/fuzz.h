@@ -23,6 +23,18 @@ static inline int same_packet(const dxl_reader* a, const dxl_reader* b) {
          a->nparam == b->nparam && memcmp(a->param, b->param, a->nparam) == 0;
 }
 
+// the input read as arguments, a byte at a time (zeros once it runs out)
+typedef struct input_ {
+  const uint8_t* p;
+  size_t n;
+} input;
+
+static inline uint8_t take(input* in) {
+  if (in->n == 0) return 0;
+  in->n--;
+  return *in->p++;
+}
+
 // the reader's invariants after any byte
 static inline void check_reader(const dxl_reader* r, int result) {
   CHECK(result >= DXL_BAD_FRAME && result <= DXL_PACKET);
