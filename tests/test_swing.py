@@ -98,9 +98,13 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     began = time.monotonic()
     summary = run_swing(out=tmp_path, realtime=True, time_scale=3.0, **QUIET)
     took = time.monotonic() - began
-    assert summary["clock"] == "realtime"
-    ran = summary["ticks"]
     assert summary["completed"] or summary["error"], "either the whole swing or a safe stop with its reason"
+    ran = summary["ticks"]
+    assert all(summary["torque_off"]), "torque off on every servo at the end"
+    if ran == 0:       # a host starved past the servos' Bus Watchdog while homing: they stopped it
+        assert "Bus Watchdog" in summary["error"], summary["error"]
+        return
+    assert summary["clock"] == "realtime"
     assert 0 < ran <= 5401, f"{ran} ticks of the 5.4 s swing"
     planned = HOME_DURATION + (ran - 1) * SMALL_TIME_STEP
     assert took >= planned, f"the paced run took {took:.2f} s, less than the {planned:.2f} s its ticks play"

@@ -18,7 +18,8 @@ no alert). So the SDK is used for the port and to send: every packet goes out th
 so data that contains FF FF FD arrives intact. The fast reply is read from the port and parsed
 by the codec: packet CRC, each block's running CRC, ID and error byte.
 A missing or short reply is retried; then each servo is pinged to name the one that is silent
-(ServoTimeoutError). An error byte with the alert bit set makes the backend read that servo's
+(ServoTimeoutError) — the silent ones twice, so a bus that went quiet as a whole and came back
+while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. An error byte with the alert bit set makes the backend read that servo's
 Hardware Error Status and raise ServoHardwareError with its bits.
 """
 
@@ -32,7 +33,8 @@ import numpy as np
 
 from ...control.timing import BUS_WATCHDOG
 from ..bus import JointCommand, JointState, ServoBus
-from ..errors import ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
+from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
+                      ServoTimeoutError)
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
                             PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
@@ -57,6 +59,9 @@ def _patient(port, reply_timeout: float | None):
         port.packet_timeout = max(port.packet_timeout, reply_timeout * 1e3)
     port.setPacketTimeout = at_least
     return port
+
+
+NO_REPLY = "no fast sync read reply"
 
 
 def _stuffing_packet_handler():
@@ -136,6 +141,8 @@ class DynamixelBus(ServoBus):
         self.reply_timeout = reply_timeout
         self.ids = [j.id for j in self.joints]
         self._last: JointState | None = None
+        self._armed = False              # the servos' Bus Watchdog is set (torque on)
+        self._last_packet = None         # time.monotonic() of the tick's last instruction packet
 
     # ---------------------------------------------------------------- set-up
     def _open(self) -> None:
@@ -170,18 +177,25 @@ class DynamixelBus(ServoBus):
         self.port.closePort()
 
     def _enable_torque(self, on: bool) -> None:
-        units = watchdog_units(self.watchdog)
         for joint in self.joints:
             if on:
                 self._write_item(joint, ADDR_GOAL_CURRENT, 2, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 1)
-                self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
             else:
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)
+        if on:
+            # the watchdogs armed last, back to back: a servo does not hear packets to the others,
+            # so one armed first would count a slow host's whole set-up as silence
+            units = watchdog_units(self.watchdog)
+            for joint in self.joints:
+                self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
+        self._armed, self._last_packet = on, time.monotonic()
 
     def _stop(self) -> bool:
-        """Torque off on every servo that answers, each with its retries; True if all did."""
+        """Torque off on every servo that answers, each with its retries; True if all did. A
+        transaction cut short (a signal in the middle of one) must not leave the port busy."""
+        self.port.is_using = False
         ok = True
         for joint in self.joints:
             for _ in range(self.retries + 1):
@@ -197,7 +211,12 @@ class DynamixelBus(ServoBus):
         """One fast sync read of Present Current, Velocity and Position of every servo. A missing,
         short or corrupt reply is retried; after the last retry each servo is pinged and the one
         that does not answer is named. A block whose error byte carries the alert bit makes the
-        backend read that servo's Hardware Error Status and raise ServoHardwareError."""
+        backend read that servo's Hardware Error Status and raise ServoHardwareError. After a
+        silence of over half the Bus Watchdog (the servos' clocks and this one's are not the same)
+        the servos may have stopped themselves: they are asked, and a tripped watchdog is a
+        BusStallError (their goals are refused until it is cleared)."""
+        if self._armed and self._last_packet is not None and time.monotonic() - self._last_packet > self.watchdog / 2:
+            self._check_watchdog(time.monotonic() - self._last_packet)
         for _ in range(self.retries + 1):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
@@ -221,6 +240,7 @@ class DynamixelBus(ServoBus):
         velocity = np.array([int.from_bytes(r[2:6], "little", signed=True) for r in rows])
         position = np.array([int.from_bytes(r[6:10], "little", signed=True) for r in rows])
         u = self.units
+        self._last_packet = time.monotonic()
         state = JointState(t=time.monotonic(), q=u.from_ticks(position), qd=u.from_velocity_units(velocity),
                            current=u.current_from_units(current), tau=u.from_current_units(current))
         self._last = state
@@ -303,7 +323,7 @@ class DynamixelBus(ServoBus):
         complete: a chain answers in order, so the blocks that came are whole and checkable."""
         start = raw.find(HEADER)
         if start < 0:
-            return self.joints[0], "no fast sync read reply"
+            return None, NO_REPLY
         got = len(fast_reply_blocks(raw[start:], [PRESENT_LENGTH] * len(self.ids), self.ids))
         if got == len(self.ids):
             return None, "fast sync read reply incomplete"
@@ -324,6 +344,7 @@ class DynamixelBus(ServoBus):
         for servo_id, value in zip(self.ids, units):
             self._writer.addParam(servo_id, list(int(value).to_bytes(2, "little", signed=True)))
         result = self._writer.txPacket()
+        self._last_packet = time.monotonic()
         if result != self._sdk.COMM_SUCCESS:
             raise ServoOperationError(f"bus '{self.bus.name}': goal write failed "
                                       f"({self.packets.getTxRxResult(result)})")
@@ -345,14 +366,25 @@ class DynamixelBus(ServoBus):
                                       f"({self.packets.getTxRxResult(result)})")
 
     # ---------------------------------------------------------------- helpers
-    def _diagnose(self, detail: str, suspect=None) -> ServoTimeoutError:
-        """After the retries, ping each servo (with as many tries) to name the one that stopped
-        answering; if all answer, name the one whose block the short reply lacked."""
-        for joint in self.joints:
-            if not any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS
-                       for _ in range(self.retries + 1)):
-                return ServoTimeoutError(joint.dof, joint.id, f"{detail}; no answer to {self.retries + 1} pings")
-        joint = suspect or self.joints[0]
+    def _diagnose(self, detail: str, suspect=None) -> ServoTimeoutError | BusStallError:
+        """After the retries, ping every servo (with as many tries) to find those that stopped
+        answering. None answers: the bus stalled. Some did not: once the others have answered
+        (the bus is alive), ping those again and name the first still silent. If every servo
+        answers, name the one whose block the short reply lacked — or, when no byte of the reply
+        came at all, the whole bus had stalled and came back."""
+        silent = [joint for joint in self.joints if not self._answers_ping(joint)]
+        pings = f"{self.retries + 1} pings"
+        if len(silent) == len(self.joints):
+            return BusStallError(self.bus.name, f"{detail}; no answer to {pings} of each servo")
+        still = [joint for joint in silent if not self._answers_ping(joint)]
+        if still:
+            joint = still[0]
+            return ServoTimeoutError(joint.dof, joint.id, f"{detail}; no answer to {pings}, twice, while the "
+                                                          "others answered")
+        if detail == NO_REPLY:
+            return BusStallError(self.bus.name, f"{detail} to {self.retries + 1} tries, then every servo answered "
+                                                "a ping")
+        joint = suspect or (silent or self.joints)[0]
         return ServoTimeoutError(joint.dof, joint.id, f"{detail} (every servo answers a ping)")
 
     def _corrupt_line(self, detail: str) -> ServoOperationError | None:
@@ -363,6 +395,19 @@ class DynamixelBus(ServoBus):
                 return ServoOperationError(f"bus '{self.bus.name}': corrupt replies ({detail}; joint "
                                            f"'{joint.dof}' (id {joint.id}) answers a ping with a corrupt packet)")
         return None
+
+    def _answers_ping(self, joint) -> bool:
+        return any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS
+                   for _ in range(self.retries + 1))
+
+    def _check_watchdog(self, silence: float) -> None:
+        """After `silence` s without a packet: raise BusStallError if a servo tripped its Bus
+        Watchdog (it reads -1, 255 unsigned)."""
+        tripped = [joint.id for joint in self.joints if self._read_item(joint, ADDR_BUS_WATCHDOG, 1) == 0xFF]
+        if tripped:
+            raise BusStallError(self.bus.name, f"{silence * 1e3:.0f} ms without a packet, over the servos' Bus "
+                                f"Watchdog of {self.watchdog * 1e3:.0f} ms: servos {', '.join(map(str, tripped))} "
+                                "tripped it and stopped")
 
     def _check_hardware(self, joint) -> None:
         status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
