@@ -141,6 +141,10 @@ def test_bad_model_files_give_one_clear_line(tmp_path, text, message):
 def test_unknown_model_name():
     with pytest.raises(ModelError, match="not a built-in model"):
         servodyn.load_model("human_leg")
+    # a name with a line break (found by the property tests through a configuration's 'model')
+    with pytest.raises(ModelError, match=r"^'\\n': no such file") as err:
+        servodyn.load_model("\n")
+    assert "\n" not in str(err.value), "the error stays one line"
 
 
 URDF_FEATURES = """\

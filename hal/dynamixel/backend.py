@@ -222,7 +222,12 @@ class DynamixelBus(ServoBus):
             if blocks is not None:
                 break
             self.stats.reads_retried += 1
-            self._drain()
+            late = self._drain()
+            if late and failure == NO_REPLY:
+                # nothing in time, then the reply after its time-out: the whole bus held back
+                # (a stall, or a chain waiting on a slow servo); retrying would take late replies
+                raise BusStallError(self.bus.name, f"{NO_REPLY} in time; {late} bytes came after the "
+                                                   "time-out and were dropped")
         else:
             raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
         for joint, block in zip(self.joints, blocks):
@@ -303,20 +308,24 @@ class DynamixelBus(ServoBus):
             if self._fileno is not None:
                 select.select([self._fileno], [], [], remaining)
 
-    def _drain(self) -> None:
+    def _drain(self) -> int:
         """After a failed read, drop what still arrives until the line has been quiet for a reply
         timeout: a reply that comes after its time-out must not be taken for the retry's (it
-        would be a tick old, and every later one too)."""
+        would be a tick old, and every later one too). Returns the bytes dropped."""
         quiet = max(1e-3, self.reply_timeout if self.reply_timeout is not None else self.port.packet_timeout * 1e-3)
         deadline = time.monotonic() + 4 * quiet
+        dropped = 0
         while time.monotonic() < deadline:
             if self._fileno is not None:
                 ready, _, _ = select.select([self._fileno], [], [], quiet)
                 if not ready:
-                    return
-            if not self.port.readPort(4096) and self._fileno is None:
+                    return dropped
+            chunk = self.port.readPort(4096)
+            dropped += len(chunk)
+            if not chunk and self._fileno is None:
                 time.sleep(quiet)
-                return
+                return dropped
+        return dropped
 
     def _short_reply(self, raw: bytes):
         """(the first joint whose block is missing, a description) for a reply that did not
