@@ -52,7 +52,6 @@ CLASSES = {
     "beyond limit": (("pushed",), {15}, {"range"}),
     "stall 300 ms": (("stall",), {10}, None),
 }
-RIDE_THROUGH = {"stall 300 ms"}   # classes where completing the run is also safe (see run_host)
 
 
 def _motion(path: Path, rng: random.Random, model, config) -> None:
@@ -103,10 +102,7 @@ def run_host(spec: dict, folder: Path) -> dict:
     error = summary.get("error")
     expected = CLASSES[spec["class"]][1]
     stopped = error is not None
-    # a pause of the whole bus in lock-step: the plant waits with it, and a HAL that rides
-    # through (the late reply dropped, the retry answered) has lost nothing; counted apart
-    rode_through = not stopped and spec["class"] in RIDE_THROUGH and summary.get("completed")
-    if not stopped and not rode_through:
+    if not stopped:
         problems.append("no safe stop: the run completed")
     elif stopped and "\n" in error:
         problems.append("error in more than one line")
@@ -120,8 +116,7 @@ def run_host(spec: dict, folder: Path) -> dict:
         problems.append(f"exit status {code}, expected {' or '.join(map(str, sorted(expected)))} "
                         f"({summary.get('error_class')}: {error})")
     problems += _check_log(out / "swing_log.csv", summary["ticks"], len(config.model.dof_names))
-    return {**spec, "stopped": stopped, "rode_through": rode_through, "code": code, "late_ticks": late,
-            "error": error, "problems": problems}
+    return {**spec, "stopped": stopped, "code": code, "late_ticks": late, "error": error, "problems": problems}
 
 
 def _check_log(path: Path, ticks: int, ndof: int) -> list[str]:
@@ -176,7 +171,7 @@ def _one(spec: dict) -> dict:
     except BaseException as err:            # a traceback is a failure of the soak, reported in one line
         import traceback
         where = traceback.extract_tb(err.__traceback__)[-1]
-        result = {**spec, "stopped": False, "code": None, "late_ticks": None, "error": None, "rode_through": False,
+        result = {**spec, "stopped": False, "code": None, "late_ticks": None, "error": None,
                   "problems": [f"raised {type(err).__name__}: {err} ({Path(where.filename).name}:{where.lineno})"],
                   "traceback": True}
     result["seconds"] = time.perf_counter() - began
@@ -220,24 +215,21 @@ def main(argv=None) -> int:
         row["safe stops"] += r["stopped"] and not r["problems"]
         row["failed"] += bool(r["problems"])
         row["tracebacks"] += bool(r.get("traceback"))
-        row["rode through"] += bool(r.get("rode_through")) and not r["problems"]
         if r["late_ticks"] is not None and r["stopped"]:
             row["worst late"] = max(row["worst late"], r["late_ticks"])
-    print(f"\n  {'fault class':<16} {'where':<9} {'runs':>5} {'safe stops':>11} {'rode through':>13} {'failed':>7}"
+    print(f"\n  {'fault class':<16} {'where':<9} {'runs':>5} {'safe stops':>11} {'failed':>7}"
           f" {'tracebacks':>11} {'exit':>16} {'ticks to off':>13}")
     for name in CLASSES:
         for where in ("host", "firmware"):
             row = table.get((name, where))
             if row:
                 code = "/".join(map(str, sorted(CLASSES[name][1 if where == "host" else 2])))
-                print(f"  {name:<16} {where:<9} {row['runs']:>5} {row['safe stops']:>11} {row['rode through']:>13} "
+                print(f"  {name:<16} {where:<9} {row['runs']:>5} {row['safe stops']:>11} "
                       f"{row['failed']:>7} {row['tracebacks']:>11} {code:>16} "
                       f"{row['worst late'] if where == 'host' else '-':>13}")
     failed = [r for r in results if r["problems"]]
-    total = Counter(runs=len(results), stops=sum(r["stopped"] and not r["problems"] for r in results),
-                    through=sum(bool(r.get("rode_through")) and not r["problems"] for r in results))
-    print(f"\n  {total['runs']} runs, {total['stops']} safe stops, {total['through']} rode through a stall, "
-          f"{len(failed)} failed, {len(hung)} hung, "
+    total = Counter(runs=len(results), stops=sum(r["stopped"] and not r["problems"] for r in results))
+    print(f"\n  {total['runs']} runs, {total['stops']} safe stops, {len(failed)} failed, {len(hung)} hung, "
           f"{sum(bool(r.get('traceback')) for r in results)} tracebacks in {wall:.0f} s "
           f"(2 busy cores: the wall time is this machine's)")
     for r in failed[:20]:
