@@ -246,6 +246,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     joints, seen_ids = {}, {}
     for k, entry in enumerate(entries):
         label = entry.get("dof") if isinstance(entry, dict) and isinstance(entry.get("dof"), str) else "?"
+        label = label if label.isprintable() else repr(label)     # a line break would split the error
         joint = _joint(entry, f"{origin}: joint {k + 1} ({label})", model, buses)
         if joint.dof in joints:
             raise ConfigError(f"{origin}: joint {k + 1} ({label}): 'dof' {joint.dof!r} already has a joint")
