@@ -3,6 +3,8 @@
 #   make test    every test: the C core (double and float), the Cortex-M4F build under QEMU,
 #                then the Python tests
 #   make demo    the main job on the simulated servo bus
+#   make soak    swings with one random fault each, host and firmware (a few minutes; not in make test)
+#   make fuzz    the wire codecs under libFuzzer with ASan and UBSan (FUZZ_SECONDS each, default 60)
 #   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget
 #   make clean   remove what the build made (keeps .venv; make distclean removes it too)
 #
@@ -20,10 +22,10 @@ CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
 
 .DEFAULT_GOAL := test
-.PHONY: test demo bench venv toolchain browser test-c test-mcu test-python clean distclean
+.PHONY: test demo bench soak venv toolchain browser test-c test-mcu test-python clean distclean
 
 test: venv toolchain browser
-	@$(MAKE) --no-print-directory test-c test-mcu test-python
+	@$(MAKE) --no-print-directory test-c test-mcu test-fuzz test-python
 
 demo: venv
 	@echo "== servodyn demo"
@@ -39,6 +41,10 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench_can
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
+
+soak: venv fw
+	@echo "== fault-injection soak"
+	@$(VENV)/bin/python -m servodyn.tools.soak $(SOAK_ARGS)
 
 #---------------------------------- set-up -------------------------------------------------------
 
@@ -70,6 +76,7 @@ browser:
 include tests/c/rules.mk
 include firmware/mcu/rules.mk
 include firmware/app/rules.mk
+include fuzz/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain

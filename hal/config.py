@@ -171,7 +171,7 @@ def _bus(name: str, table, where: str) -> BusConfig:
 
 
 def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig:
-    bus_name = table.get("bus") if isinstance(table, dict) and "bus" in table else None
+    bus_name = table.get("bus") if isinstance(table, dict) and isinstance(table.get("bus"), str) else None
     if bus_name is None and len(buses) == 1:
         bus_name = next(iter(buses))
     backend = backend_class(buses[bus_name].kind) if bus_name in buses else None
@@ -250,6 +250,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     joints, seen_ids = {}, {}
     for k, entry in enumerate(entries):
         label = entry.get("dof") if isinstance(entry, dict) and isinstance(entry.get("dof"), str) else "?"
+        label = label if label.isprintable() else repr(label)     # a line break would split the error
         joint = _joint(entry, f"{origin}: joint {k + 1} ({label})", model, buses)
         if joint.dof in joints:
             raise ConfigError(f"{origin}: joint {k + 1} ({label}): 'dof' {joint.dof!r} already has a joint")

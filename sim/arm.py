@@ -24,9 +24,12 @@ from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .dynamixel import Servo, VirtualBus
+from .faults import WIRE_FAULTS, WireFault
 from .plant import Plant
 
-FAULTS = ("silent", *HARDWARE_FAULTS)
+PUSHED = 0.5     # rad beyond its upper limit an external push moves a joint ("pushed"): past
+                 # the host's and the firmware's range margins (0.05, 0.35 rad)
+FAULTS = ("silent", "pushed", *HARDWARE_FAULTS, *WIRE_FAULTS)
 
 
 class SimulatedArm:
@@ -47,6 +50,7 @@ class SimulatedArm:
         self._servo_clock = lambda: self.plant.time
         self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None)
         self.small_time_step = small_time_step
+        self.wire: WireFault | None = None      # a fault of the wire, on every reply from then on
 
     # the plant's state, for tests and reports
     @property
@@ -68,7 +72,8 @@ class SimulatedArm:
 
     def handle(self, data: bytes) -> bytes:
         """Bytes from the host in, the servos' replies out."""
-        return self.bus.handle(data)
+        reply = self.bus.handle(data)
+        return reply if self.wire is None else self.wire.apply(reply)
 
     def wall_clock(self) -> None:
         """The servos' clocks (Bus Watchdog, Realtime Tick) follow the wall clock from now on (its
@@ -93,11 +98,20 @@ class SimulatedArm:
         return self.bus.servo(servo_id)
 
     def inject_fault(self, servo_id: int, fault: str | int = "silent") -> None:
-        """A servo fault from now on: "silent" (it stops answering), or Hardware Error Status bits
-        by name ("overload", "overheating", ...) or as an int."""
+        """A servo fault from now on: "silent" (it stops answering), "pushed" (an external push
+        moves its joint PUSHED rad beyond the configuration's upper limit), Hardware Error Status
+        bits by name ("overload", "overheating", ...) or as an int, or a fault of the wire
+        (sim/faults.py: "flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")."""
         servo = self.servo(servo_id)
         if fault == "silent":
             servo.silent = True
+            return
+        if fault == "pushed":
+            j = self.servos.index(servo)
+            self.plant.q[j] = self.joints[j].position_limits[1] + PUSHED
+            return
+        if fault in WIRE_FAULTS:
+            self.wire = WireFault(fault, len(self.servos), seed=servo_id)
             return
         if isinstance(fault, str):
             if fault not in FAULTS:
@@ -109,3 +123,4 @@ class SimulatedArm:
         """Every servo answers again (hardware errors stay until a reboot, as on a real servo)."""
         for servo in self.servos:
             servo.silent = False
+        self.wire = None

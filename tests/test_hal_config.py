@@ -125,6 +125,7 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
      ["'position_limits'", "outside the model's limits"]),
     ("limits not numbers", set_joint(0, "position_limits", [0.0, "1"]), ["'position_limits'", "two finite"]),
     ("unknown bus", set_joint(2, "bus", "leg"), ["joint 3", "'bus'", "leg"]),
+    ("bus as a list", set_joint(2, "bus", []), ["joint 3", "'bus'", "non-empty string"]),
     ("id as a string", set_joint(0, "id", "1"), ["'id'", "integer"]),
     ("offset as a string", set_joint(0, "zero_offset", "0"), ["'zero_offset'", "finite number"]),
     ("offset not finite", set_joint(0, "zero_offset", math.nan), ["'zero_offset'", "finite number"]),

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from servodyn.hal import JointCommand, ServoHardwareError, ServoTimeoutError, make_bus
+from servodyn.hal import BusStallError, JointCommand, ServoHardwareError, ServoOperationError, ServoTimeoutError, make_bus
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel import (BROADCAST_ID, FastReadBlock, Instruction, InstructionPacket, PacketReader,
                                     StatusPacket, crc16, decode_frame, encode_fast_reply, split_fast_reply)
@@ -193,10 +193,38 @@ def test_silent_servo_is_named_after_the_retries(sim):
     assert "stopped after 3 of 7 blocks" in str(err) and "no answer to 3 pings" in str(err), str(err)
     kinds = [p.instruction for p in sim.instructions()]
     assert kinds.count(Instruction.FAST_SYNC_READ) == 3 and bus.stats.reads_retried == 3, "one try and two retries"
-    assert kinds.count(Instruction.PING) == 6 + 3 + 3, \
-        "servos 1..3 and 5..7 answer the first ping; servo 4 none of 3, nor of 3 more once the others answered"
+    assert kinds.count(Instruction.PING) == 7 + 6 + 3 + 3, \
+        ("one ping of each servo for a corrupt line; then servos 1..3 and 5..7 answer the first ping, "
+         "servo 4 none of 3, nor of 3 more once the others answered")
     sim.server.clear_faults()
     assert bus.read_state().q.shape == (7,), "answers again: the next read succeeds"
+
+
+@pytest.mark.parametrize("fault", ["garbage", "flipped_byte"])
+def test_a_corrupt_line_is_an_operation_error_not_a_silent_servo(sim, fault):
+    """Every reply garbled on the wire: after the retries the servos do answer a ping, with
+    corrupt bytes; that is a corrupt line (ServoOperationError), not a servo that stopped."""
+    bus = sim.bus
+    bus.read_state()
+    sim.server.inject_fault(1, fault)
+    with pytest.raises(ServoOperationError, match="corrupt replies") as caught:
+        bus.read_state()
+    assert not isinstance(caught.value, ServoTimeoutError), str(caught.value)
+    sim.server.clear_faults()
+    assert bus.read_state().q.shape == (7,), "a clean line again: the next read succeeds"
+
+
+def test_a_reply_later_than_its_timeout_is_dropped_not_taken_for_the_retry(sim):
+    """Each fast read reply held back past the reply timeout: the late one is drained before the
+    retry, so no reply is ever taken for a later request's (it would be a tick old); the read
+    fails as a stall of the bus (nothing in time, the reply after its time-out)."""
+    bus = sim.bus
+    bus.read_state()
+    sim.server.inject_fault(1, "delayed_reply")
+    with pytest.raises(BusStallError, match="came after the time-out and were dropped"):
+        bus.read_state()
+    sim.server.clear_faults()
+    assert bus.read_state().q.shape == (7,), "prompt replies again: the next read succeeds"
 
 
 # --- byte stuffing -------------------------------------------------------------------------------

@@ -122,6 +122,14 @@ def write(tmp_path, name, text):
     ("[[body]]\nname='a'\n[[body.dof]]\nname='j'\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "'axis' must be"),
     ("[[body]]\nname='a'\n", "needs a \\[body.solid\\]"),
     ("[[body]\nname='a'\n", "not valid TOML"),
+    # tables where a table belongs, found by the property tests (AttributeError, TypeError before)
+    ("body = [1]\n", "body #1 must be a table"),
+    ("[[body]]\nname='a'\ndof=[0]\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "dof #1 must be a table"),
+    ("[[body]]\nname='a'\ndof=7\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "dof must be an array of tables"),
+    ("[[body]]\nname='a'\nsolid=['x']\n", "solid #1 must be a table"),
+    ("[[body]]\nname='a'\ninertial=2\n", "inertial must be a table"),
+    ("[[body]]\nname='a'\nparent=[]\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "parent '\\[\\]' is not"),
+    ("[[body]]\nname='a'\n[body.solid]\ntype=[]\nradius=0.1\nmass=1\n", "'type' must be one of"),
 ])
 def test_bad_model_files_give_one_clear_line(tmp_path, text, message):
     path = write(tmp_path, "bad.toml", text)
@@ -133,6 +141,10 @@ def test_bad_model_files_give_one_clear_line(tmp_path, text, message):
 def test_unknown_model_name():
     with pytest.raises(ModelError, match="not a built-in model"):
         servodyn.load_model("human_leg")
+    # a name with a line break (found by the property tests through a configuration's 'model')
+    with pytest.raises(ModelError, match=r"^'\\n': no such file") as err:
+        servodyn.load_model("\n")
+    assert "\n" not in str(err.value), "the error stays one line"
 
 
 URDF_FEATURES = """\
@@ -210,12 +222,35 @@ def test_urdf_round_trip_keeps_the_dynamics(tmp_path):
     ("<robot name='x'><link name='a'/><link name='b'/>"
      "<joint name='j' type='continuous'><parent link='a'/><child link='b'/></joint></robot>", "positive mass"),
     ("this is not xml", "cannot read URDF"),
+    # numbers a URDF may carry that no geometry can use (an SVD error, a shape error before)
+    ("<robot name='x'><link name='a'/><link name='b'><inertial><mass value='1'/><inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/></inertial></link>"
+     "<joint name='j' type='continuous'><origin xyz='0 0 0' rpy='nan 0 0'/><parent link='a'/><child link='b'/></joint></robot>",
+     "joint 'j' <origin>: a NaN or infinite"),
+    ("<robot name='x'><link name='a'/><link name='b'><inertial><mass value='1'/><inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/></inertial></link>"
+     "<joint name='j' type='continuous'><axis xyz='nan'/><parent link='a'/><child link='b'/></joint></robot>",
+     "joint 'j' <axis>: needs 3 numbers"),
+    ("<robot name='x'><link name='a'/><link name='b'><inertial><mass value='inf'/><inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/></inertial></link>"
+     "<joint name='j' type='continuous'><parent link='a'/><child link='b'/></joint></robot>",
+     "link 'b' <inertial> <mass>: a NaN or infinite"),
 ])
 def test_bad_urdf_gives_one_clear_line(tmp_path, text, message):
     path = write(tmp_path, "bad.urdf", text)
     with pytest.raises(ModelError, match=message) as err:
         servodyn.load_model(path)
     assert "\n" not in str(err.value)
+
+
+def test_an_axis_of_any_finite_length_is_a_direction():
+    """An axis is normalised without squaring it first: 1e300 (whose square overflows) points
+    where 1 does; it once gave a NaN rotation and a misleading 'not orthonormal' error."""
+    def arm(axis):
+        body = one_body(dofs=[Dof("j", np.asarray(axis, dtype=float))])
+        return Model([body, one_body(name="b", parent=0, dofs=[Dof("k", np.array([0, 1.0, 0]))])])
+    q, qd, qdd = np.array([0.3, -0.2]), np.array([0.5, 1.0]), np.array([-1.0, 2.0])
+    reference = arm([1.0, 1.0, 0.0]).inverse_dynamics(q, qd, qdd)
+    for axis in ([1e300, 1e300, 0.0], [3.0, 3.0, 0.0], [1e308, 1e308, 0.0]):
+        tau = arm(axis).inverse_dynamics(q, qd, qdd)
+        assert np.allclose(tau, reference, rtol=1e-12, atol=1e-12), f"axis {axis} is not the direction (1, 1, 0)"
 
 
 def test_multi_dof_axes_follow_each_other():

@@ -66,6 +66,7 @@ def frames(body: str) -> str:
     ("[[keyframe]]\nt = 0.0\nq = { ZERO, r_knee = 1.0 }\n[[keyframe]]\nt = 1.0\nq = { ZERO }\n", "unknown dof 'r_knee'"),
     ("[[keyframe]]\nt = 0.0\nq = { ZERO }\n[[keyframe]]\nt = 'soon'\nq = { ZERO }\n", "keyframe 2: 't' must be a finite number"),
     ("[[keyframe]]\nt = 0.0\nq = { ZERO }\n[[keyframe]]\nt = 1.0\nq = { ZERO }\n[[keyframe]]\nt = 2.0\nq = { ZERO }\n[keyframe.q]\n", "not valid TOML"),
+    ("keyframe = [0, 1]\n", "at least two \\[\\[keyframe\\]\\] entries"),   # not tables: an AttributeError before
 ])
 def test_bad_keyframe_files(tmp_path, body, message):
     path = tmp_path / "bad.toml"

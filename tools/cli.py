@@ -17,7 +17,11 @@ from ..model import ModelError, builtin_models, load_model
 
 
 class CliError(Exception):
-    """A user-facing failure: printed as one line, exit status 2."""
+    """A user-facing failure: printed as one line, exit status `code` (default 2)."""
+
+    def __init__(self, message: str, code: int = 2):
+        super().__init__(message)
+        self.code = code
 
 
 def _load(name: str):
@@ -101,7 +105,8 @@ def cmd_swing(args) -> int | None:
               file=sys.stderr)
         return 128 + signal.Signals[summary["signal"]].value
     if summary.get("error"):
-        raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
+        raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})",
+                       summary["exit_code"])
     if viewer is not None:
         from .view import replay_after_live
         replay_after_live(viewer, feed, Path(args.out))
@@ -253,8 +258,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
                        "is started and used. The log streams to OUT/swing_log.csv (on disk at least every "
                        "100 ms); OUT/summary.json is written at the end. Exit status: 0 the whole swing, "
-                       "2 a bad input or a safe stop on a fault (one line says which), 130 SIGINT and "
-                       "143 SIGTERM (a safe stop too: torque off, log and summary written).")
+                       "2 a bad input, 130 SIGINT and 143 SIGTERM (a safe stop too: torque off, log and "
+                       "summary written); after a safe stop on a fault (one line says which) the "
+                       "firmware's fault codes: 10 a servo or the bus did not answer, 11 a servo's "
+                       "hardware error, 12 a corrupt or refused reply, 13 a non-finite desired or "
+                       "measured state, 15 a joint beyond its limits.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
                                                        "'auto' there means the simulated bus)")
@@ -377,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args) or 0
     except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
-        return 2
+        return getattr(err, "code", 2)
     except OSError as err:
         print(f"servodyn: error: {_file_error(err, args)}", file=sys.stderr)
         return 2

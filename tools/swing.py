@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control import ControlConfig, Controller
+from ..control import ControlConfig, ControlFault, Controller
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
 from ..hal.robot import Robot
 from ..hal.config import RobotConfig, load_config
-from ..hal.errors import ServoError
+from ..hal.errors import ServoError, ServoHardwareError, ServoLimitError, ServoOperationError
 from ..loop import RunLog, follow, summarize
 from .validate import motion_path
 
@@ -34,6 +34,28 @@ SIM_REPLY_TIMEOUT = 0.25   # s to wait for a read reply from the embedded simula
 # s for a tick's replies from simulated CAN motors: their server is a thread of this process, and on a
 # loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured); a real bus gets 20 ms
 SIM_CAN_REPLY_TIMEOUT = 2.0
+
+# The exit status of `servodyn swing` after a safe stop names what stopped it, with the
+# firmware's fault codes (firmware/app/fw_app.h, FW_FAULT_*; tests/test_soak.py checks they
+# agree): 0 completed, 2 bad input or an unexpected error; summary.json's "error_class" too.
+EXIT_CODES = {
+    TimeoutError: 10,          # FW_FAULT_TIMEOUT: a servo, or the whole bus, did not answer
+    ServoHardwareError: 11,    # FW_FAULT_STATUS: a servo reported a hardware error
+    ServoOperationError: 12,   # FW_FAULT_CORRUPT: a corrupt or refused reply, a failed write
+    ControlFault: 13,          # FW_FAULT_NONFINITE: a non-finite desired or measured state,
+    FloatingPointError: 13,    # or a torque the controller could not compute finite
+    ServoLimitError: 15,       # FW_FAULT_RANGE: a joint measured beyond its limits
+}
+MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
+
+
+def exit_code(error) -> int:
+    """The exit status for a run stopped by `error` (None: completed)."""
+    if error is None:
+        return 0
+    if isinstance(error, Interrupted):
+        return 128 + error.signum            # the shell's status for that signal
+    return next((code for kind, code in EXIT_CODES.items() if isinstance(error, kind)), 2)
 
 
 class MotionRefused(ValueError):
@@ -66,15 +88,19 @@ def _signals_stop_the_run(stopping: dict):
 def run_swing(config_name: str | RobotConfig = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
-              force: bool = False, observer=None) -> dict:
+              force: bool = False, observer=None, home_duration: float = HOME_DURATION,
+              figure: bool = True) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
     the forehand, else 1). Before anything moves the validator checks it against every servo
     limit; a failing motion raises MotionRefused with its first violation, unless `force` on the
     simulated bus. fault_at = (time, servo id) or (time, servo id, fault): on the simulated bus,
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
-    bits ("overload", "overheating", ... or the bits as an int), to show the safe stop. observer:
-    called by the loop with every tick's state (servodyn.loop.follow), e.g. the browser view's."""
+    bits ("overload", "overheating", ... or the bits as an int), or any other fault of
+    SimulatedArm.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
+    from then on), to show the safe stop. observer: called by the loop with every tick's state
+    (servodyn.loop.follow), e.g. the browser view's. home_duration: s of the homing move (shorter
+    for the soak, whose motions start where the simulated arm does); figure: write the tracking plot."""
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
@@ -129,7 +155,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     restore_signals = _signals_stop_the_run(stopping)
     try:
         bus.open()
-        home, played = plan_run(model, swing, bus.read_state().q)
+        home, played = plan_run(model, swing, bus.read_state().q, home_duration)
         bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
         follow(bus, controller, home, realtime=realtime, observer=observer)
@@ -140,10 +166,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         # arm.time here would race the simulator's thread, which may not have taken the last
         # homing write yet: a sync write gets no reply); in real time, the plant clock now
         swing_start = (arm.time if realtime else len(home.traj.t) * SMALL_TIME_STEP) if arm is not None else 0.0
-        follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at), observer=observer,
+        follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
+               observer=observer,
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                               f"largest error {np.degrees(err):6.3f} deg"))
-    except (ServoError, FloatingPointError, Interrupted) as err:
+    except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
         stopping["now"] = True
         error = err
         say(f"{'servo error' if isinstance(err, ServoError) else 'stopped'}: {err} — torque off on every servo")
@@ -160,6 +187,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                 extra["can_bus"].shutdown()
         log.close()
     summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    bus=bus.stats.as_dict(bus.dof_names))
     if isinstance(error, Interrupted):
@@ -171,7 +199,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         summary["torque_off"] = [not (d.torque_enabled if hasattr(d, "torque_enabled") else d.enabled)
                                  for d in drives]
     try:
-        _write(out, log, summary, say)
+        _write(out, log, summary, say, figure)
     finally:
         restore_signals()          # until the summary is written a signal is ignored, not fatal
     return summary
@@ -226,16 +254,26 @@ def _simulated_robot(config, realtime: bool, say):
     return robot, _Servers(robot, servers), per_bus
 
 
-def _fault_injector(server, fault_at):
-    """on_tick for follow(): fault_at's fault, on the simulated bus, before its tick."""
+def _fault_injector(server, fault_at, played, config):
+    """on_tick for follow(): fault_at's fault before its tick, on the simulated bus or, for a
+    motion fault, in the played motion."""
     if fault_at is None or server is None:
         return None
     fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
     fault = fault_at[2] if len(fault_at) > 2 else "silent"
-    return lambda k: server.inject_fault(fault_at[1], fault) if k == fault_tick else None
+
+    def inject(k):
+        if k != fault_tick:
+            return
+        if fault == "nan_motion":
+            dof = next(j.dof for j in config.joints if j.id == fault_at[1])
+            played.traj.q[k:, config.model.dof_names.index(dof)] = np.nan
+        else:
+            server.inject_fault(fault_at[1], fault)
+    return inject
 
 
-def _write(out: Path, log: RunLog, summary: dict, say) -> None:
+def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> None:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not log.t:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
@@ -250,6 +288,9 @@ def _write(out: Path, log: RunLog, summary: dict, say) -> None:
         f"{summary['period_median_ms']:.3f} ms, p99 jitter {summary['jitter_p99_ms']:.3f} ms; CPU per tick "
         f"median {cpu['median']:.3f} ms, p99 {cpu['p99']:.3f} ms); tracking rms "
         f"{np.degrees(summary['tracking_rms_rad']):.3f} deg, max {np.degrees(summary['tracking_max_rad']):.3f} deg")
+    if not figure:
+        say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
+        return
     from .plots import tracking_figure
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
                     np.array(log.tau), log.dof_names, f"{summary['motion']} on the servo bus")

@@ -46,6 +46,21 @@ from .reader import BadFrame, Fault, PacketReader
 from .units import ServoMap, current_unit
 
 
+def _patient(port, reply_timeout: float | None):
+    """The SDK's port, whose every packet timeout (a ping, a register read or write) is at least
+    reply_timeout: a pseudo-terminal under load holds a reply back longer than the SDK's 34 ms,
+    and a register read then looked like a servo that stopped answering."""
+    if reply_timeout is None:
+        return port
+    set_timeout = port.setPacketTimeout
+
+    def at_least(packet_length):
+        set_timeout(packet_length)
+        port.packet_timeout = max(port.packet_timeout, reply_timeout * 1e3)
+    port.setPacketTimeout = at_least
+    return port
+
+
 NO_REPLY = "no fast sync read reply"
 
 
@@ -112,8 +127,9 @@ class DynamixelBus(ServoBus):
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
         """retries: tries after the first before a read fails; watchdog: s of bus silence after
-        which the servos stop; reply_timeout: s to wait for the fast sync read reply (None: the
-        SDK's packet timeout, wire time + 2 x 16 ms USB latency + 2 ms)."""
+        which the servos stop; reply_timeout: s to wait for the fast sync read reply, and at least
+        as long for any other (None: the SDK's packet timeout, wire time + 2 x 16 ms USB latency
+        + 2 ms)."""
         super().__init__(config, bus, **kwargs)
         self.port_name = port or self.bus.port
         if self.port_name in (None, "", "auto"):
@@ -132,7 +148,7 @@ class DynamixelBus(ServoBus):
     def _open(self) -> None:
         import dynamixel_sdk as sdk
         self._sdk = sdk
-        self.port = sdk.PortHandler(self.port_name)
+        self.port = _patient(sdk.PortHandler(self.port_name), self.reply_timeout)
         try:
             opened = self.port.openPort()
         except Exception as err:      # pyserial raises its own kinds
@@ -206,8 +222,14 @@ class DynamixelBus(ServoBus):
             if blocks is not None:
                 break
             self.stats.reads_retried += 1
+            late = self._drain()
+            if late and failure == NO_REPLY:
+                # nothing in time, then the reply after its time-out: the whole bus held back
+                # (a stall, or a chain waiting on a slow servo); retrying would take late replies
+                raise BusStallError(self.bus.name, f"{NO_REPLY} in time; {late} bytes came after the "
+                                                   "time-out and were dropped")
         else:
-            raise self._diagnose(failure, suspect)
+            raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
         for joint, block in zip(self.joints, blocks):
             if block.error & ALERT_BIT:
                 status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
@@ -286,6 +308,25 @@ class DynamixelBus(ServoBus):
             if self._fileno is not None:
                 select.select([self._fileno], [], [], remaining)
 
+    def _drain(self) -> int:
+        """After a failed read, drop what still arrives until the line has been quiet for a reply
+        timeout: a reply that comes after its time-out must not be taken for the retry's (it
+        would be a tick old, and every later one too). Returns the bytes dropped."""
+        quiet = max(1e-3, self.reply_timeout if self.reply_timeout is not None else self.port.packet_timeout * 1e-3)
+        deadline = time.monotonic() + 4 * quiet
+        dropped = 0
+        while time.monotonic() < deadline:
+            if self._fileno is not None:
+                ready, _, _ = select.select([self._fileno], [], [], quiet)
+                if not ready:
+                    return dropped
+            chunk = self.port.readPort(4096)
+            dropped += len(chunk)
+            if not chunk and self._fileno is None:
+                time.sleep(quiet)
+                return dropped
+        return dropped
+
     def _short_reply(self, raw: bytes):
         """(the first joint whose block is missing, a description) for a reply that did not
         complete: a chain answers in order, so the blocks that came are whole and checkable."""
@@ -354,6 +395,15 @@ class DynamixelBus(ServoBus):
                                                 "a ping")
         joint = suspect or (silent or self.joints)[0]
         return ServoTimeoutError(joint.dof, joint.id, f"{detail} (every servo answers a ping)")
+
+    def _corrupt_line(self, detail: str) -> ServoOperationError | None:
+        """After the retries, one ping of each servo: a servo whose answer comes but is corrupt
+        (bad CRC, garbage, cut) is on a corrupt line, not silent. None when no answer is corrupt."""
+        for joint in self.joints:
+            if self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_RX_CORRUPT:
+                return ServoOperationError(f"bus '{self.bus.name}': corrupt replies ({detail}; joint "
+                                           f"'{joint.dof}' (id {joint.id}) answers a ping with a corrupt packet)")
+        return None
 
     def _answers_ping(self, joint) -> bool:
         return any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS

@@ -5,6 +5,6 @@ controller step), homing and gain schedules, and the loop's timing.
     >>> from servodyn.control.motion import load_motion
 """
 
-from .controller import DEFAULT_MODE, MODES, ControlConfig, Controller, RunResult
+from .controller import DEFAULT_MODE, MODES, ControlConfig, ControlFault, Controller, RunResult
 
-__all__ = ["DEFAULT_MODE", "MODES", "ControlConfig", "Controller", "RunResult"]
+__all__ = ["DEFAULT_MODE", "MODES", "ControlConfig", "ControlFault", "Controller", "RunResult"]

@@ -23,6 +23,11 @@ MODES = {
 DEFAULT_MODE = "feedforward_pd"
 
 
+class ControlFault(ValueError):
+    """The controller refused a step: a desired or measured state that is not finite (the
+    core's fault, SD_STATUS_NONFINITE). A loop stops on it, torque off."""
+
+
 @dataclass
 class ControlConfig:
     """What a user sets. Gains default from a bandwidth: for the PD modes kp = M_ii w², kd =
@@ -117,7 +122,13 @@ class Controller:
 
     def step(self, q_d, qd_d, qdd_d, q, qd) -> np.ndarray:
         """One small_time_step: the torques for the measured (q, qd) and the desired state."""
-        return self._c.step(q_d, qd_d, qdd_d, q, qd)
+        try:
+            return self._c.step(q_d, qd_d, qdd_d, q, qd)
+        except ValueError as err:
+            # the binding refuses a non-finite input as the core would (zero torque, a fault)
+            if all(np.all(np.isfinite(np.asarray(v, dtype=float))) for v in (q_d, qd_d, qdd_d, q, qd)):
+                raise
+            raise ControlFault(f"the controller refused the step: {err}") from None
 
     @property
     def status(self) -> int:

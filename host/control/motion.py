@@ -86,7 +86,7 @@ def load_motion(name_or_path: str | Path, model) -> Motion:
         raise TrajectoryError(f"{name_or_path}: no such keyframe file, and not a built-in motion "
                               f"({', '.join(builtins) or 'none installed'})") from None
     frames = data.get("keyframe")
-    if not isinstance(frames, list) or len(frames) < 2:
+    if not isinstance(frames, list) or len(frames) < 2 or not all(isinstance(f, dict) for f in frames):
         raise TrajectoryError(f"{path}: needs at least two [[keyframe]] entries")
     names = model.dof_names
     t = np.empty(len(frames))

@@ -79,8 +79,8 @@ def plan_gains(model, motion: Trajectory) -> tuple[GainSchedule, GainSchedule]:
     return GainSchedule.along(model, rest_move), GainSchedule.along(model, motion)
 
 
-def plan_run(model, motion: Trajectory, q_start) -> tuple[Segment, Segment]:
+def plan_run(model, motion: Trajectory, q_start, home_duration: float = HOME_DURATION) -> tuple[Segment, Segment]:
     """Homing from the measured q_start to the motion's start, then the motion, with their gains."""
     home_gains, motion_gains = plan_gains(model, motion)
-    home = homing(q_start, motion.q[0], HOME_DURATION, motion.t[1] - motion.t[0])
+    home = homing(q_start, motion.q[0], home_duration, motion.t[1] - motion.t[0])
     return Segment("home", home, home_gains), Segment("motion", motion, motion_gains)

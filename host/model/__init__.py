@@ -32,7 +32,9 @@ def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
         return model.with_free_root() if free_root else model
     path = Path(name_or_path)
     if not path.exists():
-        raise ModelError(f"{name_or_path}: no such file, and not a built-in model "
+        # a name with a line break or a control character is shown quoted: the error stays one line
+        shown = str(name_or_path) if str(name_or_path).isprintable() else repr(str(name_or_path))
+        raise ModelError(f"{shown}: no such file, and not a built-in model "
                          f"({', '.join(builtins) or 'none installed'})")
     if path.suffix.lower() not in (".urdf", ".toml"):
         raise ModelError(f"{path}: unknown model format (expected .urdf or .toml)")

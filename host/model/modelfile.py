@@ -56,6 +56,20 @@ def _number(table: dict, key: str, where: str, default=None) -> float:
     return float(value)
 
 
+def _table(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise ModelError(f"{where} must be a table, got {value!r}")
+    return value
+
+
+def _tables(value, where: str) -> list[dict]:
+    """An array of tables ([[body]], [[body.dof]]); one table is taken as an array of one."""
+    items = [value] if isinstance(value, dict) else value
+    if not isinstance(items, list):
+        raise ModelError(f"{where} must be an array of tables, got {value!r}")
+    return [_table(item, f"{where} #{k + 1}") for k, item in enumerate(items)]
+
+
 def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, np.ndarray, np.ndarray]:
     """Mass, com and inertia about the com of rigidly joined parts (mass, com, inertia about own com)."""
     mass = sum(m for m, _, _ in parts)
@@ -72,7 +86,7 @@ def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, n
 def _solid(solid: dict, where: str, total_mass: float | None):
     """((mass, com, inertia about com) in the body frame, the solid's shape) of one solid."""
     kind = solid.get("type")
-    if kind not in SOLID_DIMS:
+    if not isinstance(kind, str) or kind not in SOLID_DIMS:
         raise ModelError(f"{where}: 'type' must be one of {', '.join(SOLID_DIMS)}, got {kind!r}")
     if kind == "ellipsoid":
         dims = list(_vector(solid, "semi_axes", where, default=None))
@@ -115,16 +129,16 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
         raise ModelError(f"{origin}: needs at least one [[body]]")
     index: dict[str, int] = {}
     bodies: list[Body] = []
-    for n, entry in enumerate(bodies_in):
+    for n, entry in enumerate(_tables(bodies_in, f"{origin}: body")):
         name = entry.get("name")
         if not isinstance(name, str) or not name:
             raise ModelError(f"{origin}: body #{n + 1} needs a 'name'")
         where = f"body '{name}'"
         parent_name = entry.get("parent", "base")
-        if parent_name != "base" and parent_name not in index:
+        if not isinstance(parent_name, str) or (parent_name != "base" and parent_name not in index):
             raise ModelError(f"{where}: parent '{parent_name}' is not an earlier body")
         dofs = []
-        for k, dof in enumerate(entry.get("dof", [])):
+        for k, dof in enumerate(_tables(entry.get("dof", []), f"{where}: dof")):
             dname = dof.get("name")
             if not isinstance(dname, str) or not dname:
                 raise ModelError(f"{where}: dof #{k + 1} needs a 'name'")
@@ -132,12 +146,11 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
             dofs.append(Dof(dname, _vector(dof, "axis", dwhere, default=None),
                             _number(dof, "lower", dwhere, default=-math.inf),
                             _number(dof, "upper", dwhere, default=math.inf)))
-        solids = entry.get("solid", [])
-        solids = [solids] if isinstance(solids, dict) else list(solids)
+        solids = _tables(entry.get("solid", []), f"{where}: solid")
         shaped = [_solid(s, f"{where} solid", total_mass) for s in solids]
         parts = [part for part, _ in shaped]
         if "inertial" in entry:
-            inertial = entry["inertial"]
+            inertial = _table(entry["inertial"], f"{where}: inertial")
             iwhere = f"{where} inertial"
             I6 = _vector(inertial, "inertia", iwhere, default=None, size=6)
             parts.append((_number(inertial, "mass", iwhere), _vector(inertial, "com", iwhere),

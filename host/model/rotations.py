@@ -25,10 +25,17 @@ def matrix_to_rpy(R) -> np.ndarray:
     return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
 
 
+def unit(v) -> np.ndarray:
+    """v / |v|, scaled first so that no square overflows or underflows (an axis of 1e300 or
+    1e-200 is a direction like any other)."""
+    a = np.asarray(v, dtype=float)
+    a = a / np.max(np.abs(a))
+    return a / np.linalg.norm(a)
+
+
 def axis_angle(axis, angle) -> np.ndarray:
     """Rotation by `angle` about the unit vector `axis` (Rodrigues)."""
-    a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
+    a = unit(axis)
     K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
 
@@ -43,8 +50,7 @@ def frame_with_z(axis) -> np.ndarray:
 
     It is the identity when the axis already is z, which keeps the core on its fast path.
     """
-    a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
+    a = unit(axis)
     z = np.array([0.0, 0.0, 1.0])
     cos_t = float(a @ z)
     if cos_t > 1 - 1e-15:

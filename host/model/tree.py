@@ -114,7 +114,7 @@ class Model:
                 if dof.name in seen_dofs:
                     raise ModelError(f"dof '{dof.name}': the name is used twice")
                 seen_dofs.add(dof.name)
-                if not np.all(np.isfinite(dof.axis)) or np.linalg.norm(dof.axis) < 1e-9:
+                if not np.all(np.isfinite(dof.axis)) or np.max(np.abs(dof.axis)) < 1e-9:
                     raise ModelError(f"dof '{dof.name}': the axis must be a finite non-zero vector")
                 if not dof.lower <= dof.upper:
                     raise ModelError(f"dof '{dof.name}': lower limit above upper limit")

@@ -15,11 +15,23 @@ import numpy as np
 
 from .tree import Body, Dof, Model, ModelError
 from .modelfile import combine
-from .rotations import orthonormalize
+from .rotations import orthonormalize, unit
 
 MASSLESS = 1e-12   # kg: below this a link is a connector between the dofs of one joint
 MUJOCO_EXTENSION = ('  <mujoco>\n    <compiler boundmass="1e-9" boundinertia="1e-12" fusestatic="false" '
                     'discardvisual="false"/>\n  </mujoco>\n')
+
+
+def _finite(values, where: str, shape: tuple | None = None) -> np.ndarray:
+    """The numbers of a URDF element, or a ModelError naming it: a NaN, an infinity or a missing
+    number read from the file would otherwise reach the geometry (an SVD that does not converge,
+    a silent NaN, a shape error)."""
+    array = np.asarray(values, dtype=float)
+    if shape is not None and array.shape != shape:
+        raise ModelError(f"{where}: needs {' x '.join(map(str, shape))} numbers, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise ModelError(f"{where}: a NaN or infinite number")
+    return array
 
 
 def _inertial(link):
@@ -27,10 +39,11 @@ def _inertial(link):
     inertial = link.inertial
     if inertial is None or not inertial.mass:
         return 0.0, np.zeros(3), np.zeros((3, 3))
-    T = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, dtype=float)
+    where = f"link '{link.name}' <inertial>"
+    T = np.eye(4) if inertial.origin is None else _finite(inertial.origin, f"{where} <origin>", (4, 4))
     R = T[:3, :3]
-    I = np.zeros((3, 3)) if inertial.inertia is None else np.asarray(inertial.inertia, dtype=float)
-    return float(inertial.mass), T[:3, 3].copy(), R @ I @ R.T
+    I = np.zeros((3, 3)) if inertial.inertia is None else _finite(inertial.inertia, f"{where} <inertia>", (3, 3))
+    return float(_finite(inertial.mass, f"{where} <mass>")), T[:3, 3].copy(), R @ I @ R.T
 
 
 def _moved(part, R, p):
@@ -104,7 +117,7 @@ def load_urdf(path: str | Path, free_root: bool = False) -> Model:
     parts: dict[int, list] = {}
 
     def origin(joint):
-        T = np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float)
+        T = np.eye(4) if joint.origin is None else _finite(joint.origin, f"joint '{joint.name}' <origin>", (4, 4))
         return orthonormalize(T[:3, :3]), T[:3, 3].copy()
 
     def attach(link_name, body, R, p):
@@ -137,7 +150,8 @@ def load_urdf(path: str | Path, free_root: bool = False) -> Model:
         the body's index."""
         dofs, post = [], np.eye(3)
         while True:
-            axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, dtype=float)
+            axis = (np.array([1.0, 0.0, 0.0]) if joint.axis is None
+                    else _finite(joint.axis, f"joint '{joint.name}' <axis>", (3,)))
             lower, upper = -math.inf, math.inf
             if joint.type == "revolute" and joint.limit is not None:
                 lower = -math.inf if joint.limit.lower is None else float(joint.limit.lower)
@@ -235,7 +249,7 @@ def write_urdf(model: Model, path: str | Path) -> None:
             bounded = math.isfinite(dof.lower) and math.isfinite(dof.upper)
             joints.append(Joint(name=dof.name, type="revolute" if bounded else "continuous",
                                 parent=parent, child=child, origin=origin,
-                                axis=np.asarray(dof.axis, dtype=float) / np.linalg.norm(dof.axis),
+                                axis=unit(dof.axis),
                                 limit=Limit(effort=1e3, velocity=1e3,
                                             lower=dof.lower if bounded else None,
                                             upper=dof.upper if bounded else None)))

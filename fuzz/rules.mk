@@ -1,0 +1,36 @@
+# fuzz/rules.mk: libFuzzer targets with AddressSanitizer and UndefinedBehaviorSanitizer for the
+# wire codecs (included by the top Makefile).
+#
+#   make fuzz        each target for FUZZ_SECONDS (default 60) on its seed corpus; prints the
+#                    executions and crashes of each
+#   make test-fuzz   a smoke of each (FUZZ_SMOKE_SECONDS, default 3), part of make test
+#
+# clang and libFuzzer's runtime (Debian's clang and libclang-rt-14-dev) are installed when missing
+# (scripts/install/install-fuzz.sh).
+
+FUZZ_SECONDS ?= 60
+FUZZ_SMOKE_SECONDS ?= 3
+FUZZ_CFLAGS := -g -O1 -std=c11 -Wall -Wextra -Werror -fsanitize=fuzzer,address,undefined \
+  -fno-sanitize-recover=undefined
+
+# one target per file in fuzz/dynamixel: build/fuzz/dxl_NAME
+FUZZ_DXL := $(patsubst fuzz/dynamixel/%.c,build/fuzz/dxl_%,$(wildcard fuzz/dynamixel/*.c))
+FUZZ_TARGETS := $(FUZZ_DXL)
+
+build/fuzz/.cc:
+	@mkdir -p $(@D)
+	@scripts/install/install-fuzz.sh >$@.tmp && mv $@.tmp $@
+
+build/fuzz/dxl_%: fuzz/dynamixel/%.c fuzz/dynamixel/fuzz.h hal/dynamixel/c/dxl.c \
+                  hal/dynamixel/c/dxl.h | build/fuzz/.cc
+	@echo "   clang -fsanitize=fuzzer,address,undefined $@"
+	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -Ihal/dynamixel/c -o $@ $< hal/dynamixel/c/dxl.c
+
+.PHONY: fuzz test-fuzz
+fuzz: $(FUZZ_TARGETS)
+	@echo "== libFuzzer + ASan + UBSan, $(FUZZ_SECONDS) s per target"
+	@fuzz/run.sh $(FUZZ_SECONDS) $(FUZZ_TARGETS)
+
+test-fuzz: $(FUZZ_TARGETS)
+	@echo "== fuzz smoke, $(FUZZ_SMOKE_SECONDS) s per target"
+	@fuzz/run.sh $(FUZZ_SMOKE_SECONDS) $(FUZZ_TARGETS)

@@ -1,0 +1,97 @@
+"""Faults of the wire between the simulated servos and the host, for the fault-injection soak
+(servodyn.tools.soak) and the tests: from the moment one is injected, every reply the simulated
+bus puts on the wire goes through it.
+
+    flipped_byte    one bit of one byte of each reply inverted (its CRC no longer matches)
+    garbage         each reply replaced by a burst of random bytes of its length and more
+    delayed_reply   each fast read reply held back for `delay` s, past the host's reply timeout
+                    (the chain waits for a slow servo; pings and writes are answered at once)
+    wrong_id        each reply carries another servo's ID (frames and CRCs otherwise valid)
+    stall           the whole bus paused for `delay` s, once (no reply, no plant time)
+
+They act on bytes only: the servos' registers and the plant are untouched, as on a real bus
+whose cable, transceiver or adapter fails."""
+
+from __future__ import annotations
+
+import random
+import time
+
+from servodyn.hal.dynamixel import BROADCAST_ID, FastReadBlock, PacketError, StatusPacket, decode_frame
+from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START, encode_fast_reply
+from servodyn.hal.dynamixel.protocol import FRAME_OVERHEAD, frame_length
+
+WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
+STALL = 0.3                     # s the simulator pauses for a stall
+DELAY = 0.3                     # s a delayed reply waits (the simulated bus's timeout is 0.25 s)
+
+
+class WireFault:
+    """One wire fault, applied to every reply from now on (`stall`: once). `nservos` lets a fast
+    read reply be cut into its blocks, for `wrong_id`; `seed` makes the bytes reproducible."""
+
+    def __init__(self, kind: str, nservos: int, seed: int = 0, delay: float | None = None):
+        if kind not in WIRE_FAULTS:
+            raise ValueError(f"unknown wire fault {kind!r} (one of {', '.join(WIRE_FAULTS)})")
+        self.kind, self.nservos = kind, nservos
+        self.rng = random.Random(seed)
+        self.delay = delay if delay is not None else STALL if kind == "stall" else DELAY
+        self.stalled = False
+
+    def apply(self, reply: bytes) -> bytes:
+        """The bytes the host receives instead of `reply` (the caller holds the bus meanwhile)."""
+        if self.kind == "stall":
+            if not self.stalled:
+                self.stalled = True
+                time.sleep(self.delay)
+            return reply
+        if self.kind == "delayed_reply":
+            if reply[4:5] == bytes([BROADCAST_ID]):
+                time.sleep(self.delay)
+            return reply
+        if not reply:
+            return reply
+        if self.kind == "flipped_byte":
+            at = self.rng.randrange(len(reply))
+            return reply[:at] + bytes([reply[at] ^ (1 << self.rng.randrange(8))]) + reply[at + 1:]
+        if self.kind == "garbage":
+            return bytes(self.rng.randrange(256) for _ in range(len(reply) + self.rng.randrange(64)))
+        return b"".join(self._other_id(frame) for frame in _frames(reply))
+
+    def _other_id(self, frame: bytes) -> bytes:
+        try:
+            packet = decode_frame(frame)
+        except PacketError:
+            return frame
+        if not isinstance(packet, StatusPacket):
+            return frame
+        if packet.id != BROADCAST_ID:
+            return StatusPacket((packet.id + 1) % BROADCAST_ID, packet.error, packet.params).encode()
+        # a fast read reply: one block (the first) answers under its neighbour's ID
+        body = len(frame) - FRAME_OVERHEAD - 1          # LEN counts INST, the blocks and CRC
+        size = body // self.nservos - 4 if body % self.nservos == 0 else -1
+        if size < 0:
+            return frame
+        blocks, at = [], FAST_BLOCKS_START
+        for _ in range(self.nservos):
+            blocks.append(FastReadBlock(frame[at + 1], frame[at], frame[at + 2:at + 2 + size]))
+            at += size + 4
+        first = blocks[0]
+        blocks[0] = FastReadBlock((first.id + 1) % BROADCAST_ID, first.error, first.data)
+        return encode_fast_reply(blocks)
+
+
+def _frames(data: bytes) -> list[bytes]:
+    """The simulated bus's reply cut into its frames (it writes whole frames, one after another)."""
+    out, at = [], 0
+    while at < len(data):
+        try:
+            n = frame_length(data[at:at + FRAME_OVERHEAD])
+        except (PacketError, IndexError):
+            n = None
+        if not n or at + n > len(data):
+            out.append(data[at:])
+            break
+        out.append(data[at:at + n])
+        at += n
+    return out

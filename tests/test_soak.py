@@ -1,0 +1,92 @@
+"""The fault-injection soak's parts (the soak itself is `make soak`, minutes long): the wire
+faults of the simulated bus, the swing's exit statuses (the firmware's fault codes), the
+controller's refusal of a non-finite state, and one short run of four fault classes through the
+soak's own checks (safe stop, torque off, exit status, complete log)."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servodyn.control import ControlConfig, ControlFault, Controller
+from servodyn.hal.dynamixel import BROADCAST_ID, FastReadBlock, StatusPacket, decode_frame, encode_fast_reply
+from servodyn.hal.errors import ServoHardwareError, ServoLimitError, ServoOperationError, ServoTimeoutError
+from servodyn.model import load_model
+from servodyn.sim.faults import WireFault, _frames
+from servodyn.tools import soak
+from servodyn.tools.swing import EXIT_CODES, exit_code
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_swing_exit_codes_are_the_firmware_fault_codes():
+    header = (ROOT / "firmware" / "app" / "fw_app.h").read_text()
+    codes = {name: int(v) for name, v in re.findall(r"FW_FAULT_(\w+) = (\d+)", header)}
+    expected = {TimeoutError: codes["TIMEOUT"], ServoHardwareError: codes["STATUS"],
+                ServoOperationError: codes["CORRUPT"], ControlFault: codes["NONFINITE"],
+                FloatingPointError: codes["NONFINITE"], ServoLimitError: codes["RANGE"]}
+    assert EXIT_CODES == expected, "the swing's exit statuses are fw_app.h's FW_FAULT_* values"
+    assert exit_code(ServoTimeoutError("j", 3)) == codes["TIMEOUT"], "a servo timeout is a TimeoutError"
+    assert exit_code(None) == 0 and exit_code(RuntimeError("x")) == 2, "completed 0, anything else 2"
+
+
+def test_controller_refuses_a_non_finite_state_as_a_control_fault():
+    model = load_model("human_arm")
+    controller = Controller(model, ControlConfig(), q_start=np.zeros(model.nq))
+    z = np.zeros(model.nq)
+    nan = z.copy()
+    nan[2] = np.nan
+    with pytest.raises(ControlFault, match="non-finite"):
+        controller.step(nan, z, z, z, z)
+    with pytest.raises(ValueError) as err:
+        controller.step(np.zeros(3), z, z, z, z)        # a wrong shape is not a control fault
+    assert not isinstance(err.value, ControlFault), "only a non-finite state is a ControlFault"
+
+
+def _fast_reply(n=7, size=10):
+    blocks = [FastReadBlock(i + 1, 0, bytes(range(i, i + size))) for i in range(n)]
+    return encode_fast_reply(blocks), blocks
+
+
+def test_flipped_byte_changes_one_bit_of_each_reply():
+    reply, _ = _fast_reply()
+    fault = WireFault("flipped_byte", 7, seed=3)
+    for _ in range(20):
+        out = fault.apply(reply)
+        diff = [a ^ b for a, b in zip(reply, out)]
+        assert len(out) == len(reply) and sum(bin(d).count("1") for d in diff) == 1, "exactly one bit flipped"
+
+
+def test_wrong_id_gives_valid_frames_from_another_id():
+    reply, blocks = _fast_reply()
+    single = StatusPacket(4, 0, b"\x01\x02").encode()
+    out = WireFault("wrong_id", 7).apply(reply + single)
+    frames = _frames(out)
+    assert len(frames) == 2, "the two frames stay two frames"
+    fast, status = decode_frame(frames[0]), decode_frame(frames[1])
+    assert status.id == 5 and status.params == b"\x01\x02", "a single servo's reply from the next ID, CRC valid"
+    assert fast.id == BROADCAST_ID, "a fast reply stays a fast reply, its CRCs valid"
+    assert fast.params[0] == 2 and fast.params[1:11] == blocks[0].data, "its first block from ID 2 instead of 1"
+
+
+def test_garbage_replaces_the_reply_and_delay_and_stall_keep_it():
+    reply, _ = _fast_reply()
+    garbage = WireFault("garbage", 7, seed=1).apply(reply)
+    assert garbage != reply and len(garbage) >= len(reply), "a burst at least as long as the reply"
+    stall = WireFault("stall", 7, delay=0.0)
+    assert stall.apply(reply) == reply and stall.stalled, "a stall delays, once, and changes no byte"
+    assert WireFault("delayed_reply", 7, delay=0.0).apply(reply) == reply, "a delay changes no byte"
+    with pytest.raises(ValueError, match="unknown wire fault"):
+        WireFault("noise", 7)
+
+
+@pytest.mark.parametrize("name", ["nan in motion", "beyond limit", "hardware error", "flipped byte"])
+def test_a_soak_run_of_each_kind_ends_in_a_safe_stop(name):
+    spec = next(s for s in soak.plan(len(soak.CLASSES), 7, 0) if s["class"] == name)
+    result = soak._one(spec)
+    assert not result.get("traceback"), f"{name}: the run raised: {result['problems']}"
+    assert result["problems"] == [], f"{name}: {result['problems']}"
+    assert result["stopped"] and result["code"] in soak.CLASSES[name][1], \
+        f"{name}: a safe stop with the class's exit status, got {result['code']} ({result['error']})"
+    assert result["late_ticks"] <= soak.STOP_TICKS, f"{name}: torque off {result['late_ticks']} ticks after the fault"

@@ -1,0 +1,244 @@
+"""`make soak` (python -m servodyn.tools.soak): the fault-injection soak.
+
+Many short swings on the simulated Dynamixel bus, each with one fault drawn at random at a random
+tick of the motion: a silent servo, a hardware error bit, a flipped byte, a burst of garbage, a
+reply delayed past the timeout, a reply from the wrong id, a NaN in the motion, a joint pushed
+beyond its limit, the simulator paused for 300 ms. Every run must end in a safe stop: torque off
+on every servo within two plant ticks of the fault (in lock-step the plant moves one tick per
+command, so this counts the commands sent after it), one line of error, the exit status of the
+fault's class (swing.EXIT_CODES, the firmware's fault codes), and a log with every tick up to the
+stop and a complete last line. No run may hang or raise. A subset runs through the firmware
+under QEMU (the same faults, injected on the same simulated bus). It prints the table
+fault class x runs x safe stops, and exits 1 when any run fails a check.
+
+The motions are short (0.3 s from the simulated arm's rest pose, the homing 20 ms) and the faults
+early, so that hundreds of runs take minutes; the runs are spread over worker processes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import multiprocessing
+import random
+import sys
+import tempfile
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+from ..hal.dynamixel.control_table import HARDWARE_FAULTS
+
+SMALL = 1e-3                 # s, the swing's small_time_step (checked against timing below)
+MOTION_TIME = 0.3            # s of each run's motion
+HOME_TIME = 0.02             # s of homing (the motion starts where the arm rests)
+RUN_TIMEOUT = 120.0          # s before a run counts as hung
+STOP_TICKS = 2               # plant ticks from the fault to torque off
+
+# fault class: (the faults it draws from, the exit statuses its safe stop may have on the host,
+# the fault names the firmware may report, None: not run there). A flipped bit that lands in an
+# ID reads as another servo's reply (no answer from the one asked: 10), elsewhere as a bad CRC
+# (12); garbage without a header is, to the firmware, no reply at all. Under QEMU's -icount the
+# firmware's clock is the instruction count, which a wall-clock delay or pause does not move:
+# those two classes run on the host only.
+CLASSES = {
+    "silent servo": (("silent",), {10}, {"timeout"}),
+    "hardware error": (tuple(HARDWARE_FAULTS), {11}, {"status"}),
+    "flipped byte": (("flipped_byte",), {12, 10}, {"corrupt", "timeout"}),
+    "garbage burst": (("garbage",), {12}, {"corrupt", "timeout"}),
+    "delayed reply": (("delayed_reply",), {10}, None),
+    "wrong id": (("wrong_id",), {10}, {"timeout", "corrupt"}),
+    "nan in motion": (("nan_motion",), {13}, {"nonfinite"}),
+    "beyond limit": (("pushed",), {15}, {"range"}),
+    "stall 300 ms": (("stall",), {10}, None),
+}
+
+
+def _motion(path: Path, rng: random.Random, model, config) -> None:
+    """A keyframe file: from rest (the simulated arm's start pose) to a random nearby pose."""
+    rest = model.neutral_q()
+    lines = [f'name = "soak"\nmodel = "{model.name}"\n']
+    for t, q in ((0.0, rest), (MOTION_TIME, rest)):
+        if t:
+            q = [min(max(r + rng.uniform(-0.15, 0.15), j.position_limits[0] + 0.05), j.position_limits[1] - 0.05)
+                 for r, j in zip(rest, (next(c for c in config.joints if c.dof == d) for d in model.dof_names))]
+        angles = ", ".join(f"{d} = {float(v)!r}" for d, v in zip(model.dof_names, q))
+        lines.append(f"[[keyframe]]\nt = {t}\nq = {{ {angles} }}\n")
+    path.write_text("\n".join(lines))
+
+
+def plan(runs: int, seed: int, firmware: int) -> list[dict]:
+    """Each run's fault class, fault, servo, tick and motion seed; classes in turn, the rest random."""
+    rng = random.Random(seed)
+    names = list(CLASSES)
+    specs = []
+    for k in range(runs):
+        name = names[k % len(names)]
+        specs.append({"run": k, "class": name, "fault": rng.choice(CLASSES[name][0]), "servo": rng.randint(1, 7),
+                      "tick": rng.randint(5, int(MOTION_TIME / SMALL) - 60), "seed": rng.randrange(2**31),
+                      "firmware": False})
+    on_firmware = [name for name in names if CLASSES[name][2] is not None]
+    for k in range(firmware):
+        name = on_firmware[k % len(on_firmware)]
+        specs.append({"run": runs + k, "class": name, "fault": rng.choice(CLASSES[name][0]),
+                      "servo": rng.randint(1, 7), "tick": rng.randint(20, 200), "seed": rng.randrange(2**31),
+                      "firmware": True})
+    return specs
+
+
+def run_host(spec: dict, folder: Path) -> dict:
+    """One swing with its fault, checked; the checks that failed in 'problems'."""
+    from ..hal.config import load_config
+    from .swing import exit_code, run_swing
+    config = load_config("replica")
+    motion = folder / f"motion_{spec['run']}.toml"
+    _motion(motion, random.Random(spec["seed"]), config.model, config)
+    out = folder / f"run_{spec['run']}"
+    lines = []
+    fault_t = spec["tick"] * SMALL
+    summary = run_swing(config, out=out, motion=str(motion), time_scale=1.0, say=lines.append,
+                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False)
+    problems = []
+    error = summary.get("error")
+    expected = CLASSES[spec["class"]][1]
+    stopped = error is not None
+    if not stopped:
+        problems.append("no safe stop: the run completed")
+    elif stopped and "\n" in error:
+        problems.append("error in more than one line")
+    if not all(summary.get("torque_off", [False])):
+        problems.append("a servo left with torque on")
+    late = round((summary.get("sim_time_at_stop_s", 0.0) - fault_t) / SMALL)
+    if stopped and late > STOP_TICKS:
+        problems.append(f"torque off {late} plant ticks after the fault")
+    code = summary.get("exit_code", exit_code(None))
+    if stopped and code not in expected:
+        problems.append(f"exit status {code}, expected {' or '.join(map(str, sorted(expected)))} "
+                        f"({summary.get('error_class')}: {error})")
+    problems += _check_log(out / "swing_log.csv", summary["ticks"], len(config.model.dof_names))
+    return {**spec, "stopped": stopped, "code": code, "late_ticks": late, "error": error, "problems": problems}
+
+
+def _check_log(path: Path, ticks: int, ndof: int) -> list[str]:
+    """The log has every tick from the first to the stop, one row each, the last one complete."""
+    if not path.is_file():
+        return ["no log"]
+    text = path.read_text()
+    if not text.endswith("\n"):
+        return ["the log's last line is cut"]
+    rows = list(csv.reader(text.splitlines()))
+    width = 1 + 5 * ndof
+    if any(len(r) != width for r in rows):
+        return ["a log row with a wrong number of fields"]
+    if len(rows) - 1 != ticks:
+        return [f"the log has {len(rows) - 1} rows for {ticks} ticks"]
+    times = [float(r[0]) for r in rows[1:]]
+    if any(abs(b - a - SMALL) > 1e-9 for a, b in zip(times, times[1:])):
+        return ["a tick missing from the log"]
+    return []
+
+
+def run_firmware(spec: dict) -> dict:
+    """The same fault through the firmware under QEMU: a fault report of the class, torque off."""
+    from .hil import run_qemu
+    fault = spec["fault"]
+    args = f"ticks={spec['tick'] + 60}"
+
+    def inject(k, arm):
+        if k == spec["tick"]:
+            arm.inject_fault(spec["servo"], fault)
+    if fault == "nan_motion":
+        args += f" nan_at={spec['tick']}"
+    report, record, arm = run_qemu(args=args, on_tick=None if fault == "nan_motion" else inject)
+    problems = []
+    expected = CLASSES[spec["class"]][2]
+    stopped = report.get("result") == "fault"
+    if not stopped:
+        problems.append(f"no safe stop: {report.get('result')}")
+    elif report.get("fault") not in expected:
+        problems.append(f"fault {report.get('fault')}, expected {' or '.join(sorted(expected))}")
+    if not record.torque_off or any(s.torque_enabled for s in arm.servos):
+        problems.append("a servo left with torque on")
+    return {**spec, "stopped": stopped, "code": report.get("exit_code"), "late_ticks": None,
+            "error": f"{report.get('result')} {report.get('fault')}", "problems": problems}
+
+
+def _one(spec: dict) -> dict:
+    began = time.perf_counter()
+    try:
+        with tempfile.TemporaryDirectory(prefix="servodyn-soak-") as folder:
+            result = run_firmware(spec) if spec["firmware"] else run_host(spec, Path(folder))
+    except BaseException as err:            # a traceback is a failure of the soak, reported in one line
+        import traceback
+        where = traceback.extract_tb(err.__traceback__)[-1]
+        result = {**spec, "stopped": False, "code": None, "late_ticks": None, "error": None,
+                  "problems": [f"raised {type(err).__name__}: {err} ({Path(where.filename).name}:{where.lineno})"],
+                  "traceback": True}
+    result["seconds"] = time.perf_counter() - began
+    return result
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="soak", description=__doc__.split("\n\n")[1])
+    parser.add_argument("--runs", type=int, default=207, help="swings on the host (default 207: 23 per class)")
+    parser.add_argument("--firmware", type=int, default=14, help="runs through the firmware under QEMU "
+                        "(default 14: 2 per class that can run there; 0 for none)")
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    args = parser.parse_args(argv)
+    from ..control.timing import SMALL_TIME_STEP
+    assert SMALL_TIME_STEP == SMALL, "the soak's tick is the swing's small_time_step"
+    specs = plan(args.runs, args.seed, args.firmware)
+    print(f"soak: {args.runs} swings on the simulated bus + {args.firmware} through the firmware under QEMU, "
+          f"one random fault each, {args.jobs} workers (seed {args.seed})", flush=True)
+    began = time.perf_counter()
+    results, hung = [], []
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(args.jobs, maxtasksperchild=40) as pool:
+        pending = {spec["run"]: pool.apply_async(_one, (spec,)) for spec in specs}
+        for run, handle in pending.items():
+            try:
+                results.append(handle.get(timeout=RUN_TIMEOUT + 10 * len(specs) / args.jobs))
+            except multiprocessing.TimeoutError:
+                hung.append(run)
+                break
+            done = len(results)
+            if done % 25 == 0:
+                print(f"  {done}/{len(specs)} runs, {time.perf_counter() - began:.0f} s", flush=True)
+        if hung:
+            pool.terminate()
+    wall = time.perf_counter() - began
+    table = defaultdict(Counter)
+    for r in results:
+        row = table[(r["class"], "firmware" if r["firmware"] else "host")]
+        row["runs"] += 1
+        row["safe stops"] += r["stopped"] and not r["problems"]
+        row["failed"] += bool(r["problems"])
+        row["tracebacks"] += bool(r.get("traceback"))
+        if r["late_ticks"] is not None and r["stopped"]:
+            row["worst late"] = max(row["worst late"], r["late_ticks"])
+    print(f"\n  {'fault class':<16} {'where':<9} {'runs':>5} {'safe stops':>11} {'failed':>7}"
+          f" {'tracebacks':>11} {'exit':>16} {'ticks to off':>13}")
+    for name in CLASSES:
+        for where in ("host", "firmware"):
+            row = table.get((name, where))
+            if row:
+                code = "/".join(map(str, sorted(CLASSES[name][1 if where == "host" else 2])))
+                print(f"  {name:<16} {where:<9} {row['runs']:>5} {row['safe stops']:>11} "
+                      f"{row['failed']:>7} {row['tracebacks']:>11} {code:>16} "
+                      f"{row['worst late'] if where == 'host' else '-':>13}")
+    failed = [r for r in results if r["problems"]]
+    total = Counter(runs=len(results), stops=sum(r["stopped"] and not r["problems"] for r in results))
+    print(f"\n  {total['runs']} runs, {total['stops']} safe stops, {len(failed)} failed, {len(hung)} hung, "
+          f"{sum(bool(r.get('traceback')) for r in results)} tracebacks in {wall:.0f} s "
+          f"(2 busy cores: the wall time is this machine's)")
+    for r in failed[:20]:
+        print(f"  FAILED run {r['run']} ({r['class']}, {r['fault']} on servo {r['servo']} at tick {r['tick']}"
+              f"{', firmware' if r['firmware'] else ''}): {'; '.join(r['problems'])}")
+    if hung:
+        print(f"  HUNG: run {hung[0]} did not finish within its time")
+    return 1 if failed or hung or len(results) < len(specs) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
