@@ -17,7 +17,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
-HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
+HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean
@@ -64,6 +64,7 @@ toolchain:
 include tests/c/rules.mk
 include firmware/mcu/rules.mk
 include firmware/app/rules.mk
+include firmware/posix/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain

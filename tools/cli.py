@@ -79,12 +79,14 @@ def cmd_experiment(args) -> None:
 
 def cmd_swing(args) -> None:
     from ..hal.errors import ConfigError, ServoError
+    from ..sim.transport.pty import SimProcessError
+    from .hil import FirmwareError
     from .swing import run_swing
     try:
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
-                            realtime=args.realtime, motion=args.motion, force=args.force)
-    except (ConfigError, ServoError, ValueError) as err:
+                            realtime=args.realtime, motion=args.motion, force=args.force, native=args.native)
+    except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         raise CliError(str(err)) from None
     if summary.get("error"):
         raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
@@ -214,6 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
     p.add_argument("--force", action="store_true",
                    help="play a motion the validator refuses (on the simulated bus only)")
+    p.add_argument("--native", action="store_true",
+                   help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.set_defaults(func=cmd_swing)
 
     p = sub.add_parser("sim", help="serve the simulated Dynamixel bus on a pseudo-terminal")
