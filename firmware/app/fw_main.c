@@ -15,7 +15,8 @@
 // status. The last line of the report (semihosting) gives the figures of the run.
 //
 // Command line (semihosting; for tests and measurements): period_us=N (the control period, default
-// the plan's), nan_at=K (poison the measured state at tick K), ticks=N (stop after N ticks).
+// the plan's), nan_at=K (poison the measured state at tick K), ticks=N (stop after N ticks),
+// tolerance_us=N (a host OS: how far the plan may fall behind, default the plan's overrun tolerance).
 #include <string.h>
 
 #include "board.h"
@@ -442,6 +443,7 @@ int main(void) {
   long period_us = arg_value(line, "period_us=", 0);
   g.nan_at = arg_value(line, "nan_at=", -1);
   g.stop_after = arg_value(line, "ticks=", -1);
+  long tolerance_us = arg_value(line, "tolerance_us=", -1);
   g.fault_servo = -1;
 
   g.control.mode = SD_MODE_FEEDFORWARD_PD;
@@ -454,7 +456,8 @@ int main(void) {
 
   // a microcontroller's tick is deterministic: any overrun is a fault; a host OS may preempt the
   // loop now and then, so there the plan may fall behind by up to the overrun tolerance
-  g.lost_limit = FW_TOLERATE_OVERRUN ? (long)(fw_plan_.overrun_tolerance * (sd_real)BOARD_CPU_HZ / (sd_real)g.period) : 0;
+  sd_real tolerance = tolerance_us >= 0 ? (sd_real)tolerance_us * SD_R(1e-6) : fw_plan_.overrun_tolerance;
+  g.lost_limit = FW_TOLERATE_OVERRUN ? (long)(tolerance * (sd_real)BOARD_CPU_HZ / (sd_real)g.period) : 0;
   board_uart_init(fw_plan_.baud);
   int err = setup();
   if (err == FW_OK) err = read_state();
