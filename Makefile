@@ -33,9 +33,9 @@ bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench
+	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench_loop
 	@$(VENV)/bin/python -m servodyn.tools.bench_validate
-	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 
 #---------------------------------- set-up -------------------------------------------------------

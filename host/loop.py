@@ -153,6 +153,7 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
         "tracking_max_by_dof_rad": dict(zip(names, map(float, np.abs(e).max(axis=0)))),
         "loop_hz": loop_hz,
         "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
+        "jitter_max_ms": float(jitter.max() * 1e3),
         **clock,
         "period_median_ms": float(np.median(periods) * 1e3),
         "tick_median_ms": float(np.median(seconds) * 1e3),

@@ -140,10 +140,14 @@ static int bus_status(uint8_t id) {
   return FW_OK;
 }
 
-static int bus_write(uint8_t id, uint16_t address, uint8_t value) {
-  size_t n = dxl_write(g.tx, sizeof g.tx, id, address, &value, 1);
+static int bus_write_bytes(uint8_t id, uint16_t address, const uint8_t* data, uint16_t size) {
+  size_t n = dxl_write(g.tx, sizeof g.tx, id, address, data, size);
   bus_send(g.tx, n);
   return bus_status(id);
+}
+
+static int bus_write(uint8_t id, uint16_t address, uint8_t value) {
+  return bus_write_bytes(id, address, &value, 1);
 }
 
 static void torque_off_all(void) {
@@ -225,8 +229,12 @@ static int setup(void) {
       return err;
     }
   }
+  // Goal Current 0 before torque on: a servo powers up with Goal Current at its Current Limit,
+  // which torque on would apply at once, for as long as the set-up of the other servos lasts
+  const uint8_t zero_current[2] = {0, 0};
   for (int i = 0; i < FW_NJOINT; i++) {
-    int err = bus_write(fw_servos[i].id, ADDR_TORQUE_ENABLE, 1);
+    int err = bus_write_bytes(fw_servos[i].id, fw_plan_.goal_address, zero_current, 2);
+    if (err == FW_OK) err = bus_write(fw_servos[i].id, ADDR_TORQUE_ENABLE, 1);
     if (err == FW_OK) err = bus_write(fw_servos[i].id, ADDR_BUS_WATCHDOG, fw_plan_.watchdog_units);
     if (err) {
       g.fault_servo = fw_servos[i].id;

@@ -119,7 +119,12 @@ class PtyServer:
                 return
             if realtime:
                 with self._lock:
-                    self._catch_up()
+                    try:
+                        self._catch_up()
+                    except Exception as err:     # a plant that cannot go on: one line, and the bus goes quiet
+                        self.errors += 1
+                        self.on_error(f"simulated bus: the plant stopped: {type(err).__name__}: {err}")
+                        return
             # the host's bytes first: a request on the control socket comes after what the host
             # wrote before it (a process that wrote its last packet and exited, then a status)
             if self.master in ready and not self._answer():
