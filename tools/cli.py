@@ -93,7 +93,6 @@ def cmd_swing(args) -> None:
 
 
 def cmd_sim(args) -> None:
-    import time as _time
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
     from ..sim.arm import SimulatedArm
@@ -103,16 +102,17 @@ def cmd_sim(args) -> None:
         arm = SimulatedArm(config)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
-    with PtyServer(arm, "lockstep" if args.lockstep else "realtime") as server:
-        print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
-              f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
-        print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
-              flush=True)
-        try:
-            while True:
-                _time.sleep(0.5)
-        except KeyboardInterrupt:
-            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+    server = PtyServer(arm, "lockstep" if args.lockstep else "realtime")
+    print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
+          f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
+    print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
+          flush=True)
+    try:
+        server.serve_forever()          # in this thread, blocked on the pseudo-terminal
+    except KeyboardInterrupt:
+        print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+    finally:
+        server.stop()
 
 
 def cmd_codegen(args) -> None:
