@@ -7,8 +7,9 @@ backends that speak each bus's wire protocol (Dynamixel; loopback for tests with
 from .bus import BACKENDS, BusStats, JointCommand, JointState, ServoBus, make_bus
 from .config import RobotConfig, load_config
 from .errors import (ConfigError, HalError, ProtocolError, ServoError, ServoHardwareError,
-                     ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError)
+                     ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError,
+                     BusStallError)
 
 __all__ = ["BACKENDS", "BusStats", "ConfigError", "HalError", "JointCommand", "JointState", "ProtocolError",
            "RobotConfig", "ServoBus", "ServoError", "ServoHardwareError", "ServoInitializationError",
-           "ServoLimitError", "ServoOperationError", "ServoTimeoutError", "load_config", "make_bus"]
+           "ServoLimitError", "ServoOperationError", "ServoTimeoutError", "BusStallError", "load_config", "make_bus"]

@@ -7,6 +7,7 @@
         ├── ServoInitializationError   no backend, port, servo, or the wrong model
         ├── ServoOperationError        bus not open, corrupt reply, rejected instruction
         ├── ServoTimeoutError          a servo stopped answering
+        ├── BusStallError              no servo answered: the bus (or the port) stalled
         ├── ServoHardwareError         a servo reports a fault of its own
         └── ServoLimitError            a joint measured outside its limits
 """
@@ -44,6 +45,14 @@ class ServoTimeoutError(ServoError, TimeoutError):
     def __init__(self, joint: str, servo_id: int, detail: str = ""):
         self.joint, self.servo_id = joint, servo_id
         super().__init__(f"joint '{joint}' (id {servo_id}) did not answer{': ' + detail if detail else ''}")
+
+
+class BusStallError(ServoError, TimeoutError):
+    """The whole bus went quiet: no servo answered for a while, so none of them is to blame."""
+
+    def __init__(self, bus: str, detail: str = ""):
+        self.bus = bus
+        super().__init__(f"bus '{bus}' stalled: no servo answered{': ' + detail if detail else ''}")
 
 
 class ServoHardwareError(ServoError):

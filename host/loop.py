@@ -20,6 +20,8 @@ from .control.schedule import Segment
 from .control.timing import OVERRUN_TOLERANCE
 from .hal.bus import JointCommand
 
+FLUSH_EVERY = 0.1      # s of wall-clock time between two writes of a streamed log to disk
+
 
 def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
     """The controller's torque for sample k of the segment at the measured (q, qd)."""
@@ -62,16 +64,51 @@ class RunLog:
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
         self.process_cpu_seconds.append(process_cpu)
+        if getattr(self, "_file", None) is not None and time.monotonic() - self._flushed_at >= self._flush_every:
+            self.flush()
 
     def write_csv(self, path: Path) -> None:
-        names = self.dof_names
-        header = ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in names]
         with open(path, "w", newline="") as f:
             writer = csv.writer(f)
-            writer.writerow(header)
-            for k in range(len(self.t)):
-                row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
-                writer.writerow([f"{v:.9g}" for v in row])
+            writer.writerow(self._header())
+            self._write_rows(writer, 0)
+
+    def stream(self, path: Path, flush_every: float = FLUSH_EVERY) -> None:
+        """Write the log to `path` while it grows: the rows logged so far go to the file (and
+        to the operating system, which keeps them if the process is killed) whenever
+        `flush_every` s of wall-clock time have passed since the last time, and at close(). A
+        process killed outright (SIGKILL) loses at most the ticks of its last `flush_every` s,
+        and every line on disk is whole."""
+        self._file = open(path, "w", newline="")
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(self._header())
+        self._flush_every, self._written = flush_every, self._write_rows(self._writer, 0)
+        self._flushed_at = time.monotonic()
+        self._file.flush()
+
+    def flush(self) -> None:
+        """The rows not yet on disk, to the file and the operating system (when streaming)."""
+        if getattr(self, "_file", None) is not None:
+            self._written = self._write_rows(None, self._written)
+            self._file.flush()
+            self._flushed_at = time.monotonic()
+
+    def close(self) -> None:
+        if getattr(self, "_file", None) is not None:
+            self.flush()
+            self._file.close()
+            self._file = None
+
+    def _header(self) -> list[str]:
+        return ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in self.dof_names]
+
+    def _write_rows(self, writer, start: int) -> int:
+        """The rows from `start` on; returns the number of rows then written in all."""
+        writer = writer or self._writer
+        for k in range(start, len(self.t)):
+            row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
+            writer.writerow([f"{v:.9g}" for v in row])
+        return len(self.t)
 
 
 def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,

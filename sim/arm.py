@@ -8,14 +8,20 @@ configuration the devices that speak its wire protocol.
 
 Two clocks, chosen by whoever serves the arm (sim/transport): `lockstep()` advances the plant by
 one control period whenever the host ends a command transaction (a sync write), so a run is
-deterministic and as fast as the host can go; otherwise the server advances it by the wall clock.
+deterministic and as fast as the host can go; otherwise the server advances it by the wall clock,
+and `wall_clock()` puts the servos' own clocks (Bus Watchdog, Realtime Tick) on it too, so a host
+that dies is noticed in real time even when the plant falls behind. `wire_clock()` times the
+bytes as a servo's receiver does (a frame with a gap over 1.5 ms between bytes is dropped).
 """
 
 from __future__ import annotations
 
+import time as _time
+
 from servodyn.control.timing import SMALL_TIME_STEP
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
+from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .dynamixel import Servo, VirtualBus
 from .plant import Plant
@@ -37,8 +43,9 @@ class SimulatedArm:
         self.servos = [Servo(j.servo, j.id, position=0.0, zero_ticks=0) for j in self.joints]
         self.plant = Plant(self.model, self.joints, self.servos, small_time_step=small_time_step, q0=q0,
                            integrator=integrator)
-        # packets arrive whole through the pty; the plant clock may jump between two reads
-        self.bus = VirtualBus(self.servos, clock=lambda: self.plant.time, byte_timeout=None)
+        # the servos' clock is the plant's until wall_clock(); no byte timeout until wire_clock()
+        self._servo_clock = lambda: self.plant.time
+        self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None)
         self.small_time_step = small_time_step
 
     # the plant's state, for tests and reports
@@ -57,11 +64,24 @@ class SimulatedArm:
     def advance(self, duration: float) -> None:
         """Run the plant; the servos' clocks (bus watchdog, Realtime Tick) follow."""
         self.plant.advance(duration)
-        self.bus.tick(self.plant.time)
+        self.bus.tick()
 
     def handle(self, data: bytes) -> bytes:
         """Bytes from the host in, the servos' replies out."""
-        return self.bus.handle(data, self.plant.time)
+        return self.bus.handle(data)
+
+    def wall_clock(self) -> None:
+        """The servos' clocks (Bus Watchdog, Realtime Tick) follow the wall clock from now on (its
+        seconds since this call plus the plant's time now), not the plant's."""
+        offset = _time.monotonic() - self.plant.time
+        self._servo_clock = lambda: _time.monotonic() - offset
+
+    def wire_clock(self, clock=_time.monotonic) -> None:
+        """The host's bytes come over a real-time wire: a frame whose bytes arrive more than
+        BYTE_TIMEOUT apart on `clock` is dropped, as a servo does, so a truncated frame cannot
+        swallow the next packet."""
+        self.bus.reader.byte_timeout = BYTE_TIMEOUT
+        self.bus.wire_clock = clock
 
     def lockstep(self, period: float | None = None) -> None:
         """Advance the plant by `period` (default small_time_step) at the end of each command

@@ -66,6 +66,25 @@ def test_nonfinite_input_is_refused_before_the_core():
         c.step(SWING.q[10], SWING.qd[10], SWING.qdd[10], q, SWING.qd[10])
 
 
+@pytest.mark.parametrize("mode,spoil", [
+    ("computed_torque", lambda q_d, q, qd: qd.__setitem__(6, 1e160)),       # RNEA(measured): v x v overflows
+    ("feedforward_pd", lambda q_d, q, qd: (q_d.__setitem__(6, 1.7e308),     # e = q_d - q overflows
+                                           q.__setitem__(6, -1.7e308))),
+])
+def test_overflow_raises_not_a_zero_or_a_clamp(mode, spoil):
+    """Finite inputs whose torque is not finite: the core zeroes every torque and flags the step
+    (SD_STATUS_OVERFLOW, 4); the binding raises instead of handing back that zero (or, before,
+    an inf clamped to tau_max as if it were a torque)."""
+    c = Controller(ARM, ControlConfig(mode=mode, tau_max=5.0), q_start=SWING.q[0])
+    q_d, q, qd = SWING.q[10].copy(), SWING.q[10].copy(), SWING.qd[10].copy()
+    spoil(q_d, q, qd)
+    with pytest.raises(FloatingPointError, match="non-finite torque at tick 0"):
+        c.step(q_d, SWING.qd[10], SWING.qdd[10], q, qd)
+    assert c.status == 4 and c._c.nfault == 1, f"status {c.status} (4 = SD_STATUS_OVERFLOW), {c._c.nfault} faults"
+    tau = c.step(SWING.q[11], SWING.qd[11], SWING.qdd[11], SWING.q[11], SWING.qd[11])
+    assert c.status in (0, 1) and np.abs(tau).max() > 0.1, "the next good step commands torque again"
+
+
 def test_float_and_double_controllers_agree():
     """The same steps in the MCU's single precision: torques within 1e-4 of the largest torque."""
     run = Controller(ARM, q_start=SWING.q[0]).run(ARM, SWING)

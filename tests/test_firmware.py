@@ -153,6 +153,14 @@ def test_nan_stops_with_torque_off(images):
     assert report["fault_tick"] == 120 and len(record.goals) == 120, "the NaN at tick 120: no command from it"
 
 
+def test_overflow_stops_with_torque_off(images):
+    """Finite measurements whose torque overflows (q = qd = -3e38 in float): the core's step
+    flags SD_STATUS_OVERFLOW instead of clamping an inf to the current limit; the firmware stops."""
+    report, record, arm = _fault_run(images, args="ticks=300 huge_at=120")
+    _assert_safe_stop(report, record, arm, "overflow", 17)
+    assert report["fault_tick"] == 120 and len(record.goals) == 120, "the overflow at tick 120: no command from it"
+
+
 def test_overrun_stops_with_torque_off(images):
     """A period shorter than a tick's work (an inverse-dynamics tick takes ~100 us at 125 MIPS)."""
     report, record, arm = _fault_run(images, args="ticks=300 period_us=40")

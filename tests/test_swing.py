@@ -98,12 +98,16 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     began = time.monotonic()
     summary = run_swing(out=tmp_path, realtime=True, time_scale=3.0, **QUIET)
     took = time.monotonic() - began
-    assert summary["clock"] == "realtime"
-    ran = summary["ticks"]
     assert summary["completed"] or summary["error"], "either the whole swing or a safe stop with its reason"
-    assert 0 <= ran <= 5401, f"{ran} ticks of the 5.4 s swing"
-    assert ran > 0 or summary["error"].startswith("overrun"), "only an overrun stops before the swing"
-    planned = HOME_DURATION + (ran - 1) * SMALL_TIME_STEP if ran else 0.0
+    ran = summary["ticks"]
+    assert all(summary["torque_off"]), "torque off on every servo at the end"
+    assert summary["clock"] == "realtime"
+    if ran == 0:       # stopped while homing: the loop fell behind its tolerance (overrun), or a host
+        # starved past the servos' Bus Watchdog and they stopped it
+        assert summary["error"].startswith("overrun") or "Bus Watchdog" in summary["error"], summary["error"]
+        return
+    assert 0 < ran <= 5401, f"{ran} ticks of the 5.4 s swing"
+    planned = HOME_DURATION + (ran - 1) * SMALL_TIME_STEP
     assert took >= planned, f"the paced run took {took:.2f} s, less than the {planned:.2f} s its ticks play"
     assert summary["sim_time_at_stop_s"] <= took, "the plant never runs ahead of the wall clock"
     assert all(summary["torque_off"]), "torque off on every servo at the end"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import signal
 import sys
 import time
 from pathlib import Path
@@ -77,7 +78,7 @@ def cmd_experiment(args) -> None:
     EXPERIMENTS[args.name](Path(args.out))
 
 
-def cmd_swing(args) -> None:
+def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
     from ..sim.transport.pty import SimProcessError
     from .hil import FirmwareError
@@ -88,6 +89,10 @@ def cmd_swing(args) -> None:
                             realtime=args.realtime, motion=args.motion, force=args.force, native=args.native)
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         raise CliError(str(err)) from None
+    if summary.get("signal"):       # a safe stop asked for: the shell's status for that signal
+        print(f"servodyn: the swing stopped: {summary['error']}, torque off (log up to then in {args.out})",
+              file=sys.stderr)
+        return 128 + signal.Signals[summary["signal"]].value
     if summary.get("error"):
         raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
 
@@ -202,7 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("swing", help="the tennis swing, or any motion, on servos (the simulated bus by default)",
                        description="Validate the motion against the servos' limits, home the arm, play it "
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
-                       "is started and used.")
+                       "is started and used. The log streams to OUT/swing_log.csv (on disk at least every "
+                       "100 ms); OUT/summary.json is written at the end. Exit status: 0 the whole swing, "
+                       "2 a bad input or a safe stop on a fault (one line says which), 130 SIGINT and "
+                       "143 SIGTERM (a safe stop too: torque off, log and summary written).")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
                                                        "'auto' there means the simulated bus)")

@@ -4,13 +4,17 @@ speaks the same protocol to the same driver; or, for a loopback configuration, t
 
 plan → run → summarize → write: the swing is sampled at small_time_step and planned with its
 homing move and gain schedules; the loop (servodyn.loop) homes the arm and plays it, one read and
-one write a tick; a servo error stops the run safely (torque off on every servo, the log kept up
-to the failing tick); then the summary and the log are written once.
+one write a tick; a servo error, a non-finite torque, SIGINT or SIGTERM stops the run safely
+(torque off on every servo, the log kept up to the last tick), then the summary is written. The
+log streams to OUT/swing_log.csv as the run goes (on disk at least every 100 ms: a SIGKILL loses
+at most that); a previous run's summary and figure are removed first, so none looks current.
 """
 
 from __future__ import annotations
 
 import json
+import signal
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +36,29 @@ SIM_REPLY_TIMEOUT = 1.0    # s to wait for a read reply from the simulated bus (
 
 class MotionRefused(ValueError):
     """The validator says the motion would leave a servo's limits: nothing moved."""
+
+
+class Interrupted(Exception):
+    """SIGINT or SIGTERM arrived during the run: it stops safely, as after a servo error."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+
+def _signals_stop_the_run(stopping: dict):
+    """From now on SIGINT and SIGTERM raise Interrupted in the loop, once: a second one, or one
+    that comes while the bus is being stopped (stopping["now"]), is ignored so the stop
+    completes. Returns the function that puts the previous handlers back."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def handler(signum, frame):
+        if not stopping["now"]:
+            stopping["now"] = True
+            raise Interrupted(signum)
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    return lambda: [signal.signal(sig, old) for sig, old in previous.items()]
 
 
 def run_swing(config_name: str | RobotConfig = "replica", port: str | None = None, out: Path = Path("out/swing"),
@@ -71,6 +98,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     if native:
         _check_native(config, motion, scale, mode, fault_at)
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
+    for stale in ("summary.json", "swing_tracking.png"):
+        (out / stale).unlink(missing_ok=True)
     server = None
     options = {}
     if port is None and bus_config.kind == "dynamixel":
@@ -89,12 +118,15 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     bus = make_bus(config, **options)
     controller = Controller(model, ControlConfig(mode=mode), q_start=swing.q[0])
     log = RunLog(model.dof_names)
+    log.stream(out / "swing_log.csv")
     error = None
     swing_start = 0.0
+    stopping = {"now": False}
+    restore_signals = _signals_stop_the_run(stopping)
     try:
         bus.open()
-        bus.enable_torque(True)
         home, played = plan_run(model, swing, bus.read_state().q)
+        bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
         follow(bus, controller, home, realtime=realtime)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
@@ -108,25 +140,37 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at),
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                               f"largest error {np.degrees(err):6.3f} deg"))
-    except ServoError as err:
+    except (ServoError, FloatingPointError, Interrupted) as err:
+        stopping["now"] = True
         error = err
-        say(f"servo error: {err} — torque off on every servo")
+        say(f"{'servo error' if isinstance(err, ServoError) else 'stopped'}: {err} — torque off on every servo")
     except Overrun as err:
+        stopping["now"] = True
         error = err
         say(f"{err} — torque off on every servo")
+    except BaseException:
+        restore_signals()
+        raise
     finally:
+        stopping["now"] = True
         bus.stop()
         sim = server.status() if server is not None else None
         if server is not None:
             server.stop()
+        log.close()
     summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    loop="python", bus=bus.stats.as_dict(bus.dof_names))
+    if isinstance(error, Interrupted):
+        summary["signal"] = signal.Signals(error.signum).name
     if sim is not None:
         # what the simulated servos saw: plant time at the stop and every torque switched off
         summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
         summary["torque_off"] = sim["torque_off"]
-    _write(out, log, summary, say)
+    try:
+        _write(out, log, summary, say)
+    finally:
+        restore_signals()          # until the summary is written a signal is ignored, not fatal
     return summary
 
 
@@ -164,6 +208,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
         summary["torque_off"] = sim["torque_off"]
     if error:
         say(f"{error} — torque off on every servo")
+    log.write_csv(out / "swing_log.csv")
     _write(out, log, summary, say)
     return summary
 
@@ -194,8 +239,6 @@ def _fault_injector(server, fault_at):
 
 
 def _write(out: Path, log: RunLog, summary: dict, say) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    log.write_csv(out / "swing_log.csv")
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not log.t:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")

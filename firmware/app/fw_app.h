@@ -62,6 +62,7 @@ enum fw_fault_ {
   FW_FAULT_OVERRUN = 14,      // a tick's work took longer than its period
   FW_FAULT_RANGE = 15,        // a joint measured outside its range (sensor or mechanics)
   FW_FAULT_SETUP = 16,        // a servo refused the set-up (wrong model, a write error)
+  FW_FAULT_OVERFLOW = 17,     // finite measurements, a non-finite torque (overflow in the step)
 };
 
 const char* fw_fault_name(int code);

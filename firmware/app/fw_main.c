@@ -15,8 +15,9 @@
 // status. The last line of the report (semihosting) gives the figures of the run.
 //
 // Command line (semihosting; for tests and measurements): period_us=N (the control period, default
-// the plan's), nan_at=K (poison the measured state at tick K), ticks=N (stop after N ticks),
-// tolerance_us=N (a host OS: how far the plan may fall behind, default the plan's overrun tolerance).
+// the plan's), nan_at=K (poison the measured state at tick K), huge_at=K (a finite measured state
+// whose torque overflows, at tick K), ticks=N (stop after N ticks), tolerance_us=N (a host OS: how
+// far the plan may fall behind, default the plan's overrun tolerance).
 #include <string.h>
 
 #include "board.h"
@@ -73,7 +74,7 @@ typedef struct fw_state_ {
   int fault, fault_servo;
   long fault_tick;
   uint32_t period;             // clock counts per tick
-  long nan_at, stop_after;
+  long nan_at, huge_at, stop_after;
   fw_stats stats;
 } fw_state;
 
@@ -89,6 +90,7 @@ const char* fw_fault_name(int code) {
     case FW_FAULT_OVERRUN: return "overrun";
     case FW_FAULT_RANGE: return "range";
     case FW_FAULT_SETUP: return "setup";
+    case FW_FAULT_OVERFLOW: return "overflow";
     default: return "unknown";
   }
 }
@@ -335,6 +337,7 @@ static void tick(int swing, long phase_tick) {
     return;
   }
   if (g.tick == g.nan_at) g.q[0] = g.q[0] * (sd_real)__builtin_nanf("");
+  if (g.tick == g.huge_at) g.q[0] = g.qd[0] = -SD_R(3e38);
   uint32_t c1 = board_clock_now();
 
   sd_real t = (sd_real)phase_tick * fw_plan_.small_time_step;
@@ -351,8 +354,8 @@ static void tick(int swing, long phase_tick) {
   sd_control_step(&fw_model, &g.data, &g.control, &g.cstate, g.q_d, g.qd_d, g.qdd_d, g.q, g.qd,
                   g.tau);
   uint32_t c3 = board_clock_now();
-  if (g.cstate.status & SD_STATUS_NONFINITE) {
-    fault(FW_FAULT_NONFINITE, -1);
+  if (g.cstate.status & (SD_STATUS_NONFINITE | SD_STATUS_OVERFLOW)) {
+    fault(g.cstate.status & SD_STATUS_NONFINITE ? FW_FAULT_NONFINITE : FW_FAULT_OVERFLOW, -1);
     return;
   }
   err = check_range();
@@ -450,6 +453,7 @@ int main(void) {
   board_cmdline(line, sizeof line - 1);
   long period_us = arg_value(line, "period_us=", 0);
   g.nan_at = arg_value(line, "nan_at=", -1);
+  g.huge_at = arg_value(line, "huge_at=", -1);
   g.stop_after = arg_value(line, "ticks=", -1);
   long tolerance_us = arg_value(line, "tolerance_us=", -1);
   g.fault_servo = -1;

@@ -64,6 +64,17 @@ static inline void errors(const sd_model* m, int i, int k, const sd_real* q_d, c
   *de = qd_d[vi] - qd[vi];
 }
 
+// a faulty step: no torque at all, the fault flagged and counted
+static void refuse(sd_control_state* s, int nv, sd_real* tau, int status) {
+  for (int j = 0; j < nv; j++) {
+    tau[j] = 0;
+  }
+  s->status = status;
+  s->nfault++;
+  s->tick++;
+  s->refresh = 1;  // a skipped update must not leave an old torque held for a whole period
+}
+
 void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
                      sd_control_state* s, const sd_real* q_d, const sd_real* qd_d,
                      const sd_real* qdd_d, const sd_real* q, const sd_real* qd, sd_real* tau) {
@@ -73,15 +84,10 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
   // a non-finite input is a fault: no torque at all, never a NaN
   if (!sd_allfinite(q_d, m->nq) || !sd_allfinite(qd_d, nv) || !sd_allfinite(qdd_d, nv) ||
       !sd_allfinite(q, m->nq) || !sd_allfinite(qd, nv)) {
-    for (int j = 0; j < nv; j++) {
-      tau[j] = 0;
-    }
-    s->status = SD_STATUS_NONFINITE;
-    s->nfault++;
-    s->tick++;
-    s->refresh = 1;  // a skipped update must not leave an old torque held for a whole period
+    refuse(s, nv, tau, SD_STATUS_NONFINITE);
     return;
   }
+  int warned = d->warning[SD_WARN_NONFINITE];
 
   // every time_step, and after a fault: the inverse dynamics, held until the next update
   if (s->tick % c->update_ticks == 0 || s->refresh) {
@@ -122,6 +128,13 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
         tau[vi] += c->kp[vi] * e + c->kd[vi] * de;
       }
     }
+  }
+
+  // finite inputs whose torque is not (the inverse dynamics zeroed an overflow and counted it,
+  // or the PD overflowed) are a fault too: a zero or clamped torque would be silently wrong
+  if (d->warning[SD_WARN_NONFINITE] != warned || !sd_allfinite(tau, nv)) {
+    refuse(s, nv, tau, SD_STATUS_OVERFLOW);
+    return;
   }
 
   // a free root is not actuated; the limits clamp and are counted as limiting, not as faults

@@ -18,7 +18,8 @@ no alert). So the SDK is used for the port and to send: every packet goes out th
 so data that contains FF FF FD arrives intact. The fast reply is read from the port and parsed
 by the codec: packet CRC, each block's running CRC, ID and error byte.
 A missing or short reply is retried; then each servo is pinged to name the one that is silent
-(ServoTimeoutError). An error byte with the alert bit set makes the backend read that servo's
+(ServoTimeoutError) — the silent ones twice, so a bus that went quiet as a whole and came back
+while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. An error byte with the alert bit set makes the backend read that servo's
 Hardware Error Status and raise ServoHardwareError with its bits.
 """
 
@@ -33,7 +34,8 @@ import numpy as np
 
 from ...control.timing import BUS_WATCHDOG
 from ..bus import JointCommand, JointState, ServoBus
-from ..errors import ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
+from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
+                      ServoTimeoutError)
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
                             PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
@@ -46,6 +48,9 @@ from .units import ServoMap, current_unit
 # a fast sync read reply's data block: Present Current (2), Velocity (4), Position (4)
 PRESENT = np.dtype([("current", "<i2"), ("velocity", "<i4"), ("position", "<i4")])
 GOAL = np.dtype([("id", "u1"), ("current", "<i2")])      # one servo's part of the Goal Current sync write
+
+
+NO_REPLY = "no fast sync read reply"
 
 
 def _stuffing_packet_handler():
@@ -124,6 +129,8 @@ class DynamixelBus(ServoBus):
         self.reply_timeout = reply_timeout
         self.ids = [j.id for j in self.joints]
         self._last: JointState | None = None
+        self._armed = False              # the servos' Bus Watchdog is set (torque on)
+        self._last_packet = None         # time.monotonic() of the tick's last instruction packet
 
     # ---------------------------------------------------------------- set-up
     def _open(self) -> None:
@@ -167,18 +174,25 @@ class DynamixelBus(ServoBus):
         self.port.closePort()
 
     def _enable_torque(self, on: bool) -> None:
-        units = watchdog_units(self.watchdog)
         for joint in self.joints:
             if on:
                 self._write_item(joint, ADDR_GOAL_CURRENT, 2, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 1)
-                self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
             else:
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)
+        if on:
+            # the watchdogs armed last, back to back: a servo does not hear packets to the others,
+            # so one armed first would count a slow host's whole set-up as silence
+            units = watchdog_units(self.watchdog)
+            for joint in self.joints:
+                self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
+        self._armed, self._last_packet = on, time.monotonic()
 
     def _stop(self) -> bool:
-        """Torque off on every servo that answers, each with its retries; True if all did."""
+        """Torque off on every servo that answers, each with its retries; True if all did. A
+        transaction cut short (a signal in the middle of one) must not leave the port busy."""
+        self.port.is_using = False
         ok = True
         for joint in self.joints:
             for _ in range(self.retries + 1):
@@ -194,7 +208,12 @@ class DynamixelBus(ServoBus):
         """One fast sync read of Present Current, Velocity and Position of every servo. A missing,
         short or corrupt reply is retried; after the last retry each servo is pinged and the one
         that does not answer is named. A block whose error byte carries the alert bit makes the
-        backend read that servo's Hardware Error Status and raise ServoHardwareError."""
+        backend read that servo's Hardware Error Status and raise ServoHardwareError. After a
+        silence of over half the Bus Watchdog (the servos' clocks and this one's are not the same)
+        the servos may have stopped themselves: they are asked, and a tripped watchdog is a
+        BusStallError (their goals are refused until it is cleared)."""
+        if self._armed and self._last_packet is not None and time.monotonic() - self._last_packet > self.watchdog / 2:
+            self._check_watchdog(time.monotonic() - self._last_packet)
         for _ in range(self.retries + 1):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
@@ -217,6 +236,7 @@ class DynamixelBus(ServoBus):
         rows = np.frombuffer(data, dtype=PRESENT)
         current, velocity, position = rows["current"], rows["velocity"], rows["position"]
         u = self.units
+        self._last_packet = time.monotonic()
         state = JointState(t=time.monotonic(), q=u.from_ticks(position), qd=u.from_velocity_units(velocity),
                            current=u.current_from_units(current), tau=u.from_current_units(current))
         self._last = state
@@ -308,7 +328,7 @@ class DynamixelBus(ServoBus):
         complete: a chain answers in order, so the blocks that came are whole and checkable."""
         start = raw.find(HEADER)
         if start < 0:
-            return self.joints[0], "no fast sync read reply"
+            return None, NO_REPLY
         got = len(fast_reply_blocks(raw[start:], [PRESENT_LENGTH] * len(self.ids), self.ids))
         if got == len(self.ids):
             return None, "fast sync read reply incomplete"
@@ -327,7 +347,9 @@ class DynamixelBus(ServoBus):
         self.stats.limited += limited
         self._goal["current"] = units
         frame = encode_frame(BROADCAST_ID, self._goal_head + self._goal.tobytes(), stuffed=False)
-        if self.port.is_using or self._send(frame) != len(frame):
+        sent = 0 if self.port.is_using else self._send(frame)
+        self._last_packet = time.monotonic()
+        if sent != len(frame):
             raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port "
                                       f"{'is busy' if self.port.is_using else 'took part of it'})")
 
@@ -348,15 +370,39 @@ class DynamixelBus(ServoBus):
                                       f"({self.packets.getTxRxResult(result)})")
 
     # ---------------------------------------------------------------- helpers
-    def _diagnose(self, detail: str, suspect=None) -> ServoTimeoutError:
-        """After the retries, ping each servo (with as many tries) to name the one that stopped
-        answering; if all answer, name the one whose block the short reply lacked."""
-        for joint in self.joints:
-            if not any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS
-                       for _ in range(self.retries + 1)):
-                return ServoTimeoutError(joint.dof, joint.id, f"{detail}; no answer to {self.retries + 1} pings")
-        joint = suspect or self.joints[0]
+    def _diagnose(self, detail: str, suspect=None) -> ServoTimeoutError | BusStallError:
+        """After the retries, ping every servo (with as many tries) to find those that stopped
+        answering. None answers: the bus stalled. Some did not: once the others have answered
+        (the bus is alive), ping those again and name the first still silent. If every servo
+        answers, name the one whose block the short reply lacked — or, when no byte of the reply
+        came at all, the whole bus had stalled and came back."""
+        silent = [joint for joint in self.joints if not self._answers_ping(joint)]
+        pings = f"{self.retries + 1} pings"
+        if len(silent) == len(self.joints):
+            return BusStallError(self.bus.name, f"{detail}; no answer to {pings} of each servo")
+        still = [joint for joint in silent if not self._answers_ping(joint)]
+        if still:
+            joint = still[0]
+            return ServoTimeoutError(joint.dof, joint.id, f"{detail}; no answer to {pings}, twice, while the "
+                                                          "others answered")
+        if detail == NO_REPLY:
+            return BusStallError(self.bus.name, f"{detail} to {self.retries + 1} tries, then every servo answered "
+                                                "a ping")
+        joint = suspect or (silent or self.joints)[0]
         return ServoTimeoutError(joint.dof, joint.id, f"{detail} (every servo answers a ping)")
+
+    def _answers_ping(self, joint) -> bool:
+        return any(self.packets.ping(self.port, joint.id)[1] == self._sdk.COMM_SUCCESS
+                   for _ in range(self.retries + 1))
+
+    def _check_watchdog(self, silence: float) -> None:
+        """After `silence` s without a packet: raise BusStallError if a servo tripped its Bus
+        Watchdog (it reads -1, 255 unsigned)."""
+        tripped = [joint.id for joint in self.joints if self._read_item(joint, ADDR_BUS_WATCHDOG, 1) == 0xFF]
+        if tripped:
+            raise BusStallError(self.bus.name, f"{silence * 1e3:.0f} ms without a packet, over the servos' Bus "
+                                f"Watchdog of {self.watchdog * 1e3:.0f} ms: servos {', '.join(map(str, tripped))} "
+                                "tripped it and stopped")
 
     def _check_hardware(self, joint) -> None:
         status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)

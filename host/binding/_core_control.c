@@ -85,6 +85,13 @@ static PyObject* Controller_step(ControllerObject* self, PyObject* args) {
     return NULL;
   }
   sd_control_step(m, &self->core->data, &self->config, &self->state, q_d, qd_d, qdd_d, q, qd, tau);
+  if (self->state.status & SD_STATUS_OVERFLOW) {
+    // the core zeroed every torque and counted a fault: a zero is not an answer
+    PyErr_Format(PyExc_FloatingPointError,
+                 "controller: finite inputs gave a non-finite torque at tick %ld (an overflow)",
+                 self->state.tick - 1);
+    return NULL;
+  }
   npy_intp dims[1] = {m->ndof};
   PyArrayObject* out = (PyArrayObject*)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
   if (out) {
@@ -96,7 +103,8 @@ static PyObject* Controller_step(ControllerObject* self, PyObject* args) {
 // simulate(plant, q_d, qd_d, qdd_d, q0, qd0, dt, integrator) -> (q, qd, tau, ticks): the closed
 // loop in C, one controller step and one plant step per row of the desired (N x ...) arrays.
 // Row k of q, qd is the state the controller saw at tick k, row k of tau what it commanded. A
-// plant state that turns non-finite stops the run: ticks is then the number of rows filled.
+// plant state that turns non-finite, or a controller fault (its zero torque is the row's last),
+// stops the run: ticks is then the number of rows filled.
 static PyObject* Controller_simulate(ControllerObject* self, PyObject* args) {
   PyObject *oplant, *oq_d, *oqd_d, *oqdd_d, *oq0, *oqd0;
   double dt;
@@ -151,6 +159,7 @@ static PyObject* Controller_simulate(ControllerObject* self, PyObject* args) {
       sd_load_row(rqdd_d, qdd_d + k * nv, nv);
       sd_control_step(m, &self->core->data, &self->config, &self->state, rq_d, rqd_d, rqdd_d, q,
                       qd, tau);
+      finite &= !(self->state.status & (SD_STATUS_NONFINITE | SD_STATUS_OVERFLOW));  // a fault stops
       sd_store_row((double*)PyArray_DATA(hq) + k * nq, q, nq);
       sd_store_row((double*)PyArray_DATA(hqd) + k * nv, qd, nv);
       sd_store_row((double*)PyArray_DATA(htau) + k * nv, tau, nv);
@@ -213,10 +222,10 @@ static PyMethodDef Controller_methods[] = {
 
 static PyGetSetDef Controller_getset[] = {
     {"tick", (getter)Controller_get, NULL, "small steps since reset", (void*)0},
-    {"status", (getter)Controller_get, NULL, "status bits of the last step (1 limited, 2 fault)",
+    {"status", (getter)Controller_get, NULL, "status bits of the last step (1 limited, 2 non-finite input, 4 overflow)",
      (void*)1},
     {"nlimited", (getter)Controller_get, NULL, "steps with a clamped torque", (void*)2},
-    {"nfault", (getter)Controller_get, NULL, "steps refused for non-finite input", (void*)3},
+    {"nfault", (getter)Controller_get, NULL, "steps refused: non-finite input or result", (void*)3},
     {NULL, NULL, NULL, NULL, NULL},
 };
 

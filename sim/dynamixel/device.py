@@ -72,13 +72,15 @@ class VirtualBus:
     ``on_command()`` is called after every command transaction (a sync or bulk write, which ends a
     host's control tick), then ``on_instruction(exchange)`` after every instruction packet is
     answered. A frame whose bytes arrive more than ``byte_timeout`` apart is dropped, as a servo
-    does (None: never)."""
+    does (None: never), timed by ``wire_clock`` when the bytes come over a real-time wire while
+    the servos' clock is a simulated one (None: the servos' clock)."""
 
     def __init__(self, servos: Iterable[Servo] = (), *, clock: Callable[[], float] = _time.monotonic,
                  on_instruction: Callable[[Exchange], None] | None = None,
-                 byte_timeout: float | None = BYTE_TIMEOUT):
+                 byte_timeout: float | None = BYTE_TIMEOUT, wire_clock: Callable[[], float] | None = None):
         self.servos = list(servos)
         self.clock = clock
+        self.wire_clock = wire_clock
         self.on_instruction = on_instruction
         self.on_command: Callable[[], None] | None = None
         self.reader = PacketReader(byte_timeout)
@@ -111,7 +113,7 @@ class VirtualBus:
         now = self.clock() if time is None else time
         self.tick(now)
         out = []
-        for event in self.reader.feed(data, now):
+        for event in self.reader.feed(data, now if self.wire_clock is None else self.wire_clock()):
             if isinstance(event, BadFrame):
                 self.faults[event.fault] += 1
                 if event.fault is Fault.CRC:

@@ -4,7 +4,10 @@ a port.
 `PtyServer` serves the bytes in one loop that blocks on the pseudo-terminal (no polling): in
 lock-step the host's command transactions advance the plant; in real time the plant is brought
 up to the wall clock, whole periods only, before each packet is answered and at least every
-`REALTIME_WAKE` s while the host is quiet (the bus watchdog and gravity go on). The loop runs in
+`REALTIME_WAKE` s while the host is quiet (gravity goes on; the servos' watchdogs run on the wall
+clock, `SimulatedArm.wall_clock`). Either way the servos' receivers time the bytes on the wall
+clock (the 1.5 ms inter-byte timeout), and `pause(seconds)` freezes the whole simulator, as a
+stalled bus or process would. The loop runs in
 a background thread (`start()`, for tests and tools that share the process) or in the calling
 thread (`serve_forever()`).
 
@@ -49,10 +52,15 @@ class PtyServer:
         self._lock = threading.Lock()
         self._thread = None
         self._epoch = None                      # wall clock at plant time 0 (real time)
+        self._paused_until = 0.0
+        self._plant_failed = False
         self.errors = 0
         self.on_error = on_error or (lambda message: print(message, file=sys.stderr, flush=True))
         if mode == "lockstep":
             arm.lockstep(control_period)
+        else:
+            arm.wall_clock()
+        arm.wire_clock()
 
     def __enter__(self) -> "PtyServer":
         self.start()
@@ -90,6 +98,22 @@ class PtyServer:
         with self._lock:
             self.arm.clear_faults()
 
+    def pause(self, seconds: float) -> None:
+        """Freeze the simulator for `seconds` from now: nothing is read or answered and no clock
+        moves (the host's bytes wait in the pseudo-terminal); then it goes on."""
+        self._paused_until = time.monotonic() + seconds
+
+    def _frozen(self) -> bool:
+        """Wait out a pause; True if the server was stopped meanwhile."""
+        paused = False
+        while (left := self._paused_until - time.monotonic()) > 0:
+            paused = True
+            if self._stop.wait(min(left, 0.05)):
+                return True
+        if paused and self._epoch is not None:     # after a pause the plant goes on from where it stood
+            self._epoch = time.perf_counter() - self.arm.time
+        return self._stop.is_set()
+
     @property
     def servos(self) -> int:
         return len(self.arm.servos)
@@ -99,7 +123,11 @@ class PtyServer:
         return self._request({"op": "status"})
 
     def _catch_up(self) -> None:
-        """Real time: run the plant in whole periods up to the wall clock (never ahead of it)."""
+        """Real time: run the plant in whole periods up to the wall clock (never ahead of it).
+        A plant that failed is reported once; the servos' clocks go on without it."""
+        if self._plant_failed:
+            self.arm.bus.tick()
+            return
         period = self.arm.small_time_step
         behind = int((time.perf_counter() - self._epoch - self.arm.time) / period + 1e-9)
         if behind > 0:
@@ -112,19 +140,21 @@ class PtyServer:
         self._epoch = time.perf_counter() - self.arm.time
         watch = [self.master, self._wake_r] + ([control] if control is not None else [])
         pending = b""
-        while not self._stop.is_set():
+        while not self._frozen():
             try:
                 ready, _, _ = select.select(watch, [], [], REALTIME_WAKE if realtime else None)
             except (OSError, ValueError):
                 return
+            if self._paused_until > time.monotonic():
+                continue
             if realtime:
                 with self._lock:
                     try:
                         self._catch_up()
-                    except Exception as err:     # a plant that cannot go on: one line, and the bus goes quiet
+                    except Exception as err:     # a plant that cannot go on: one line, the servos go on
                         self.errors += 1
-                        self.on_error(f"simulated bus: the plant stopped: {type(err).__name__}: {err}")
-                        return
+                        self._plant_failed = True
+                        self.on_error(f"simulated bus: {type(err).__name__} in the plant, which stops: {err}")
             # the host's bytes first: a request on the control socket comes after what the host
             # wrote before it (a process that wrote its last packet and exited, then a status)
             if self.master in ready and not self._answer():

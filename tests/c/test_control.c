@@ -638,6 +638,56 @@ static void free_root_is_not_actuated(void) {
   }
 }
 
+// finite numbers whose torque overflows: half the largest sd_real (kp e overflows for kp > 2), and
+// a speed whose square does (the inverse dynamics' velocity products)
+#ifdef SD_SINGLE
+#define CTL_HALF_MAX SD_R(1.7e38)
+#define CTL_FAST SD_R(1e25)
+#else
+#define CTL_HALF_MAX SD_R(8.9e307)
+#define CTL_FAST SD_R(1e160)
+#endif
+
+static void overflow_is_a_fault(void) {
+  if (sdt_model_tree6(&g_model) != SD_OK) return;
+  int n = g_model.ndof;
+  unsigned seed = 47;
+  // which: 0 the inverse dynamics of the desired state (feed-forward), 1 that of the measured
+  // state (computed torque), 2 the PD, whose inf used to be clamped to the limit
+  const int modes[3] = {SD_MODE_FEEDFORWARD, SD_MODE_COMPUTED_TORQUE, SD_MODE_FEEDFORWARD_PD};
+  const char* what[3] = {"qd_d huge: RNEA(desired) overflows", "qd huge: RNEA(measured) overflows",
+                         "q at half the largest number: kp e overflows"};
+  for (int which = 0; which < 3; which++) {
+    configure(&g_cfg, &g_model, modes[which], 2, 48);
+    for (int j = 0; j < n; j++) g_cfg.tau_max[j] = SD_R(3.0);
+    memset(&g_data, 0, sizeof g_data);
+    sd_control_reset(&g_state);
+    ctl_states s;
+    sd_real tau[SDT_MAXN];
+    random_states(&seed, &g_model, &s);
+    step(&s, tau);   // ticks 0 and 1: good steps
+    step(&s, tau);
+    EXPECT_INT(g_state.status & ~SD_STATUS_LIMITED, 0, "good steps first");
+    int warned = g_data.warning[SD_WARN_NONFINITE];
+    long limited = g_state.nlimited;
+    if (which == 0) s.qd_d[n - 1] = CTL_FAST;
+    if (which == 1) s.qd[n - 1] = CTL_FAST;
+    if (which == 2) s.q[n - 1] = -CTL_HALF_MAX;
+    step(&s, tau);   // tick 2: an update
+    sdt_context("%s", what[which]);
+    EXPECT_INT(g_state.status, SD_STATUS_OVERFLOW, "flagged SD_STATUS_OVERFLOW");
+    EXPECT_LE(sdt_maxabs(tau, n), 0, "every torque zero: not the core's zeroed overflow, not a clamp");
+    EXPECT_INT(g_state.nfault, 1, "counted as a fault");
+    EXPECT_INT(g_state.nlimited, limited, "not as limiting");
+    EXPECT_INT(g_data.warning[SD_WARN_NONFINITE] > warned, which < 2,
+               "the inverse dynamics counted their warning (the PD's overflow has none)");
+    random_states(&seed, &g_model, &s);
+    step(&s, tau);   // tick 3: between updates, but after a fault the inverse dynamics are redone
+    EXPECT_INT(g_state.status & ~SD_STATUS_LIMITED, 0, "the next good step is not a fault");
+    EXPECT_GE(sdt_maxabs(tau, n), 1e-3, "and commands a torque again");
+  }
+}
+
 //---------------------------------- closed loop -------------------------------------------------
 
 // a pendulum on one hinge about the base z axis, gravity along -y, com at 0.35 m along -y
@@ -718,6 +768,7 @@ const sdt_test sdt_control_tests[] = {
   {"pd_mode_has_no_inverse_dynamics", pd_mode_has_no_inverse_dynamics},
   {"limits_clamp_and_count", limits_clamp_and_count},
   {"nonfinite_input_is_a_fault", nonfinite_input_is_a_fault},
+  {"overflow_is_a_fault", overflow_is_a_fault},
   {"reset_clears_everything", reset_clears_everything},
   {"free_root_is_not_actuated", free_root_is_not_actuated},
   {"closed_loop_holds_pendulum", closed_loop_holds_pendulum},

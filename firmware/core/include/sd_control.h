@@ -29,6 +29,8 @@ enum sd_control_mode_ {
 enum sd_control_status_ {
   SD_STATUS_LIMITED = 1,        // at least one torque was clamped to its limit
   SD_STATUS_NONFINITE = 2,      // a non-finite input: every torque set to zero (fault)
+  SD_STATUS_OVERFLOW = 4,       // finite inputs, a non-finite torque (the inverse dynamics or the
+                                // PD overflowed): every torque set to zero (fault)
 };
 
 typedef struct sd_control_config_ {
@@ -46,7 +48,7 @@ typedef struct sd_control_state_ {
   int status;                     // sd_control_status_ bits of the last step
   int refresh;                    // 1: recompute the inverse dynamics at the next good step
   long nlimited;                  // steps with a clamped torque
-  long nfault;                    // steps refused for non-finite input
+  long nfault;                    // steps refused: non-finite input or result
 } sd_control_state;
 
 // Error codes of sd_control_check.
@@ -71,7 +73,9 @@ void sd_control_reset(sd_control_state* s);
 
 // One small step: from the desired (q_d, qd_d, qdd_d) and measured (q, qd) state, the torques
 // tau (ndof). Inverse dynamics run on ticks that are multiples of update_ticks. A free root is
-// not actuated: its six torques are always zero, and its coordinates carry no error.
+// not actuated: its six torques are always zero, and its coordinates carry no error. A step
+// whose inputs or torques are not finite gives zero torque and a fault (SD_STATUS_NONFINITE,
+// SD_STATUS_OVERFLOW), never a NaN nor an overflow zeroed or clamped into a plausible number.
 void sd_control_step(const struct sd_model_* m, struct sd_data_* d, const sd_control_config* c,
                      sd_control_state* s, const sd_real* q_d, const sd_real* qd_d,
                      const sd_real* qdd_d, const sd_real* q, const sd_real* qd, sd_real* tau);
