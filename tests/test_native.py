@@ -36,15 +36,17 @@ def native():
     return NATIVE
 
 
-def _run(args="", on_tick=None, realtime=False):
-    """The native loop against a fresh simulated arm whose every exchange is recorded."""
+def _run(args="", on_tick=None, realtime=False, reply_timeout=1.0):
+    """The native loop against a fresh simulated arm whose every exchange is recorded (patient
+    with the simulator: a pseudo-terminal on a loaded machine can hold bytes back over 100 ms)."""
     config = load_config("replica")
     arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
     link = FirmwareLink(arm, on_tick)
     server = PtyServer(arm, "lockstep")
     server.start()
     try:
-        report, log = run_native(server.path, config.model.dof_names, realtime, args, **QUIET)
+        report, log = run_native(server.path, config.model.dof_names, realtime, args, reply_timeout=reply_timeout,
+                                 **QUIET)
         server._drain()                  # the last torque-off write, still in flight
     finally:
         server.stop()
@@ -93,7 +95,7 @@ def test_native_silent_servo_stops_safely(native):
     def silence(k, arm):
         if k == FAULT_TICK:
             arm.inject_fault(5, "silent")
-    report, log, record, arm = _run(args="reply_ms=100", on_tick=silence)
+    report, log, record, arm = _run(on_tick=silence)
     assert (report["fault"], report["code"], report["exit_code"]) == ("timeout", 10, 10), report
     assert report["servo"] == 5 and report["fault_tick"] == FAULT_TICK + 1, "servo 5, at the read after"
     assert record.torque_off and len(record.goals) == FAULT_TICK + 1, "no command after the fault, torque off sent"

@@ -27,8 +27,9 @@ HEAD = 4                       # tick, start, wall, cpu
 
 
 def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe: Path | None = None,
-               timeout: float = 600.0, say=print) -> tuple[dict, RunLog]:
-    """Run the native loop on `port`; (its report, the log of the swing's ticks). The report has
+               timeout: float = 600.0, reply_timeout: float | None = None, say=print) -> tuple[dict, RunLog]:
+    """Run the native loop on `port`; (its report, the log of the swing's ticks). reply_timeout:
+    s it waits for a reply before a servo is taken for silent (None: the board's 250 ms). The report has
     the fault and its code, `exit_code`, `home_ticks` and the lines it wrote to standard error
     (`notes`: e.g. that SCHED_FIFO was not allowed)."""
     exe = Path(exe) if exe else NATIVE
@@ -37,6 +38,8 @@ def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe
     with tempfile.TemporaryDirectory() as tmp:
         log_path = Path(tmp) / "ticks.bin"
         command = [str(exe), port, f"log={log_path}"] + (["realtime"] if realtime else []) + args.split()
+        if reply_timeout is not None:
+            command.append(f"reply_ms={round(reply_timeout * 1e3)}")
         try:
             proc = subprocess.run(command, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:

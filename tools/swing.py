@@ -189,7 +189,8 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     from .native import fault_message, run_native
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
-        report, log = run_native(port, config.model.dof_names, realtime, say=say)
+        report, log = run_native(port, config.model.dof_names, realtime, say=say,
+                                 reply_timeout=SIM_REPLY_TIMEOUT if server is not None else None)
     finally:
         sim = server.status() if server is not None else None
         if server is not None:

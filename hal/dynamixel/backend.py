@@ -116,8 +116,9 @@ class DynamixelBus(ServoBus):
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
         """retries: tries after the first before a read fails; watchdog: s of bus silence after
-        which the servos stop; reply_timeout: s to wait for the fast sync read reply (None: the
-        SDK's packet timeout, wire time + 2 x 16 ms USB latency + 2 ms)."""
+        which the servos stop; reply_timeout: s to wait for the fast sync read reply, and at least
+        that for any other reply (None: the SDK's packet timeout, wire time + 2 x 16 ms USB
+        latency + 2 ms)."""
         super().__init__(config, bus, **kwargs)
         self.port_name = port or self.bus.port
         if self.port_name in (None, "", "auto"):
@@ -144,6 +145,13 @@ class DynamixelBus(ServoBus):
         if not opened or not self.port.setBaudRate(int(self.bus.baud)):
             raise ServoInitializationError(f"{self.port_name}: cannot open at {self.bus.baud} baud")
         self.packets = _stuffing_packet_handler()
+        if self.reply_timeout is not None:      # the SDK's own transactions are as patient
+            sdk_timeout = self.port.setPacketTimeout
+
+            def patient(packet_length):
+                sdk_timeout(packet_length)
+                self.port.packet_timeout = max(self.port.packet_timeout, self.reply_timeout * 1e3)
+            self.port.setPacketTimeout = patient
         for joint in self.joints:
             number = self._read_item(joint, ADDR_MODEL_NUMBER, 2)
             if number != joint.servo.model_number:
