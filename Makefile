@@ -8,7 +8,7 @@
 #
 # On a fresh Debian machine the targets install what is missing: the virtual environment in
 # .venv with the project, and from Debian's packages a C compiler, the Python headers, the
-# arm-none-eabi toolchain and QEMU (scripts/install/).
+# arm-none-eabi toolchain, QEMU and chromium (scripts/install/).
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -20,9 +20,9 @@ CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
 
 .DEFAULT_GOAL := test
-.PHONY: test demo bench venv toolchain test-c test-mcu test-python clean distclean
+.PHONY: test demo bench venv toolchain browser test-c test-mcu test-python clean distclean
 
-test: venv toolchain
+test: venv toolchain browser
 	@$(MAKE) --no-print-directory test-c test-mcu test-python
 
 demo: venv
@@ -35,6 +35,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench_loop
+	@$(VENV)/bin/python -m servodyn.tools.bench_view
 	@$(VENV)/bin/python -m servodyn.tools.bench_validate
 	@$(VENV)/bin/python -m servodyn.tools.fw_budget
 
@@ -58,6 +59,10 @@ $(STAMP): pyproject.toml $(wildcard setup.py) $(CORE_C) $(CORE_H) $(HOST_C)
 
 toolchain:
 	@scripts/install/install-toolchain.sh
+
+# Debian's chromium for the browser tests of servodyn view
+browser:
+	@scripts/install/install-browser.sh
 
 #---------------------------------- tests --------------------------------------------------------
 

@@ -112,11 +112,12 @@ class RunLog:
 
 
 def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,
-           on_tick=None, progress=None, tolerance: float | None = None) -> int:
+           on_tick=None, progress=None, tolerance: float | None = None, observer=None) -> int:
     """Play a segment on the bus, one tick per sample: read, tick, write (and log). In real time
     the loop sleeps to the next period; otherwise it runs as fast as the bus answers.
     on_tick(k) runs before tick k (fault injection); progress(t, fraction, largest error) about
-    once a second of the segment's time.
+    once a second of the segment's time; observer(t, q_d, state, tau) after every tick (a viewer's
+    feed: it must only keep the sample, never block).
 
     In real time tick k's deadline is the end of its period, start + (k + 1) period: a tick whose
     write ends later missed it (counted in log.missed, and returned). A late tick is followed at
@@ -146,6 +147,8 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
         cpu, process_cpu = time.thread_time() - cpu, time.process_time() - process_cpu
         if log is not None:
             log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began, began, cpu, process_cpu)
+        if observer is not None:
+            observer(traj.t[k], traj.q[k], state, tau)
         if progress is not None and traj.t[k] >= next_report:
             progress(traj.t[k], k / (n - 1), float(np.abs(traj.q[k] - state.q).max()))
             next_report += 1.0

@@ -83,18 +83,30 @@ def cmd_swing(args) -> int | None:
     from ..sim.transport.pty import SimProcessError
     from .hil import FirmwareError
     from .swing import run_swing
+    viewer = feed = None
     try:
+        if args.view:
+            from .view import live_viewer
+            viewer, feed = live_viewer(args.config, args.view_host, args.view_port)
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
-                            realtime=args.realtime, motion=args.motion, force=args.force, native=args.native)
+                            realtime=args.realtime, motion=args.motion, force=args.force, native=args.native,
+                            observer=feed.observe if feed else None)
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
+        if viewer is not None:
+            viewer.close()
         raise CliError(str(err)) from None
+    if viewer is not None and (summary.get("signal") or summary.get("error")):
+        viewer.close()
     if summary.get("signal"):       # a safe stop asked for: the shell's status for that signal
         print(f"servodyn: the swing stopped: {summary['error']}, torque off (log up to then in {args.out})",
               file=sys.stderr)
         return 128 + signal.Signals[summary["signal"]].value
     if summary.get("error"):
         raise CliError(f"the swing stopped: {summary['error']} (log up to then in {args.out})")
+    if viewer is not None:
+        from .view import replay_after_live
+        replay_after_live(viewer, feed, Path(args.out))
 
 
 def cmd_sim(args) -> None:
@@ -157,6 +169,16 @@ def cmd_validate(args) -> int:
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
     return 0 if report["passed"] else 1
+
+
+def cmd_view(args) -> None:
+    from .view import ViewError, open_view, serve_forever
+    try:
+        viewer = open_view(args.subject, log=args.log, motion=args.motion, time_scale=args.time_scale,
+                           host=args.host, port=args.port, save_to=Path(args.save) if args.save else None)
+    except ViewError as err:
+        raise CliError(str(err)) from None
+    serve_forever(viewer)
 
 
 def cmd_demo(args) -> None:
@@ -226,7 +248,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play a motion the validator refuses (on the simulated bus only)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
+    p.add_argument("--view", action="store_true",
+                   help="show the arm live in a browser page (servodyn view), then the logged run")
+    p.add_argument("--view-port", type=int, default=8080, metavar="N", help="the page's port (default 8080)")
+    p.add_argument("--view-host", default="127.0.0.1", help="the page's address (default 127.0.0.1)")
     p.set_defaults(func=cmd_swing)
+
+    p = sub.add_parser("view", help="the arm in 3-D in a browser: play a motion or a logged run, shape keyframes",
+                       description="Serve a page with the arm drawn from its solids: play, pause and scrub a "
+                       "motion or a logged run (the planned arm as a ghost, the measured one solid, angle, "
+                       "tracking error and torque plots, each joint coloured by its torque's share of the "
+                       "servo's limit), or edit a keyframe motion and see its torques and the validator's "
+                       "verdict at once.")
+    p.add_argument("subject", nargs="?", default="replica", metavar="CONFIG|MODEL",
+                   help="robot configuration or model, by name or file (default replica)")
+    p.add_argument("--log", default=None, metavar="DIR", help="a run's folder (swing_log.csv) to replay")
+    p.add_argument("--motion", default=None, metavar="NAME|FILE",
+                   help="built-in motion, keyframe file (editable) or trajectory CSV (default tennis_forehand)")
+    p.add_argument("--time-scale", type=float, default=None,
+                   help="play the motion this many times slower (default: the configuration's for the forehand)")
+    p.add_argument("--save", default=None, metavar="FILE",
+                   help="where 'Save keyframes' writes (default out/view/<motion>.toml)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("sim", help="serve the simulated Dynamixel bus on a pseudo-terminal")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")

@@ -64,7 +64,7 @@ def _signals_stop_the_run(stopping: dict):
 def run_swing(config_name: str | RobotConfig = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
-              force: bool = False, native: bool = False) -> dict:
+              force: bool = False, native: bool = False, observer=None) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
     the forehand, else 1). Before anything moves the validator checks it against every servo
@@ -73,7 +73,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
     bits ("overload", "overheating", ... or the bits as an int), to show the safe stop.
     native: the firmware's loop plays it as a Linux process (tools/native.py) instead of the Python
-    loop, with the same summary."""
+    loop, with the same summary. observer: called by the loop with every tick's state
+    (servodyn.loop.follow), e.g. the browser view's."""
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
@@ -128,7 +129,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         home, played = plan_run(model, swing, bus.read_state().q)
         bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        follow(bus, controller, home, realtime=realtime)
+        follow(bus, controller, home, realtime=realtime, observer=observer)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
@@ -137,7 +138,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         # write gets no reply); in real time, the plant clock now
         swing_start = (server.status()["time"] if realtime else len(home.traj.t) * SMALL_TIME_STEP) \
             if server is not None else 0.0
-        follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at),
+        follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at), observer=observer,
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                               f"largest error {np.degrees(err):6.3f} deg"))
     except (ServoError, FloatingPointError, Interrupted) as err:

@@ -191,12 +191,8 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     ratios["speed"] = np.abs(qd) / L.speed
     values["speed"], bounds["speed"] = np.abs(qd), np.broadcast_to(L.speed, qd.shape)
 
-    # at the horn
-    omega = np.abs(qd) * L.gear
-    torque = np.abs(tau) / L.gear
-    driving = tau * qd >= 0
-    along = omega / L.no_load_speed
-    ratios["torque_speed"] = np.where(driving, torque / L.stall_torque + along, torque / (L.stall_torque * (1 + along)))
+    ratios["torque_speed"], driving, along = torque_speed_ratio(L, tau, qd)
+    torque = np.abs(tau) / L.gear                         # at the horn
     values["torque_speed"] = np.abs(tau)
     bounds["torque_speed"] = L.gear * L.stall_torque * np.where(driving, np.maximum(0.0, 1 - along), 1 + along)
 
@@ -233,6 +229,17 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     return Result(t=traj.t, q=q, qd=qd, tau=tau, current=current, temperature=temperature,
                   supply_current=supply, power=power, ratios=ratios, values=values, limits_at=bounds,
                   margin=margin)
+
+
+def torque_speed_ratio(L: Limits, tau: np.ndarray, qd: np.ndarray):
+    """Each joint torque's share of its servo's DC-motor envelope at its speed (1 on the limit),
+    and per sample whether it drives (τ·q̇ ≥ 0) and the speed's share of the no-load speed."""
+    omega = np.abs(qd) * L.gear                           # at the horn
+    torque = np.abs(tau) / L.gear
+    driving = tau * qd >= 0
+    along = omega / L.no_load_speed
+    ratio = np.where(driving, torque / L.stall_torque + along, torque / (L.stall_torque * (1 + along)))
+    return ratio, driving, along
 
 
 def winding_temperature(current: np.ndarray, dt: float, L: Limits, repeat: int, ambient: float) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import _core
 from .files import read_toml
-from .tree import Body, Dof, Model, ModelError
+from .tree import Body, Dof, Model, ModelError, Solid
 from .rotations import rpy_to_matrix
 
 SOLID_DIMS = {
@@ -70,7 +70,7 @@ def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, n
 
 
 def _solid(solid: dict, where: str, total_mass: float | None):
-    """(mass, com, inertia about com) of one solid, in the body frame."""
+    """((mass, com, inertia about com) in the body frame, the solid's shape) of one solid."""
     kind = solid.get("type")
     if kind not in SOLID_DIMS:
         raise ModelError(f"{where}: 'type' must be one of {', '.join(SOLID_DIMS)}, got {kind!r}")
@@ -98,7 +98,11 @@ def _solid(solid: dict, where: str, total_mass: float | None):
     I_local = np.array([[I6[0], I6[3], I6[4]], [I6[3], I6[1], I6[5]], [I6[4], I6[5], I6[2]]])
     R = rpy_to_matrix(_vector(solid, "rpy", where))
     pos = _vector(solid, "pos", where)
-    return mass, pos + R @ np.array([0.0, 0.0, com_z]), R @ I_local @ R.T
+    draw = solid.get("draw", "")
+    if draw not in ("", "box") or (draw and kind != "ellipsoid"):
+        raise ModelError(f"{where}: 'draw' can only be \"box\", on an ellipsoid (a box of the same inertia)")
+    shape = Solid(kind, tuple(dims), pos, R, mass, draw)
+    return (mass, pos + R @ np.array([0.0, 0.0, com_z]), R @ I_local @ R.T), shape
 
 
 def model_from_dict(data: dict, origin: str = "model") -> Model:
@@ -130,7 +134,8 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
                             _number(dof, "upper", dwhere, default=math.inf)))
         solids = entry.get("solid", [])
         solids = [solids] if isinstance(solids, dict) else list(solids)
-        parts = [_solid(s, f"{where} solid", total_mass) for s in solids]
+        shaped = [_solid(s, f"{where} solid", total_mass) for s in solids]
+        parts = [part for part, _ in shaped]
         if "inertial" in entry:
             inertial = entry["inertial"]
             iwhere = f"{where} inertial"
@@ -142,7 +147,8 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
         mass, com, inertia = combine(parts)
         bodies.append(Body(name=name, parent=index.get(parent_name, -1),
                            pos=_vector(entry, "pos", where), rot=rpy_to_matrix(_vector(entry, "rpy", where)),
-                           dofs=dofs, mass=mass, com=com, inertia=inertia))
+                           dofs=dofs, mass=mass, com=com, inertia=inertia,
+                           solids=[shape for _, shape in shaped]))
         index[name] = n
     return Model(bodies, name=str(data.get("name", origin)), gravity=gravity,
                  description=str(data.get("description", "")), source=str(data.get("source", "")))

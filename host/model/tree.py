@@ -38,6 +38,20 @@ class Dof:
     upper: float = math.inf
 
 
+@dataclass(frozen=True)
+class Solid:
+    """One of the paper's primitives as the body carries it, for drawing: `kind` and `dims` as in a
+    model file (cylinder (radius, length) and frustum (r0, r1, length) run from the solid's origin
+    along its +z; sphere (radius,) and ellipsoid (a, b, c) are centred on it), placed at `pos` with
+    rotation `rot` in the body's user frame."""
+    kind: str
+    dims: tuple[float, ...]
+    pos: np.ndarray
+    rot: np.ndarray
+    mass: float = 0.0
+    draw: str = ""            # "box": an ellipsoid that stands for a box of the same inertia (a servo)
+
+
 @dataclass
 class Body:
     name: str
@@ -51,6 +65,7 @@ class Body:
     post: np.ndarray = field(default_factory=lambda: np.eye(3))
     free: bool = False                            # floats free: 6 dofs (only body 0, on the base)
     ball: bool = False                            # a ball joint: 3 dofs, quaternion coordinates
+    solids: list[Solid] = field(default_factory=list)   # its shape, user frame (drawing only)
 
 
 FREE_DOFS = ("vx", "vy", "vz", "wx", "wy", "wz")   # velocity of the origin, then angular, body frame

@@ -175,6 +175,35 @@ def load_urdf(path: str | Path, free_root: bool = False) -> Model:
     return Model(bodies, name=robot.name or path.stem)
 
 
+def _visuals(body, path: Path, pose) -> list:
+    """The body's solids as URDF visual geometry: cylinders, spheres and boxes as URDF's own, a
+    frustum or an ellipsoid as a mesh (binary STL beside the URDF, named after it, the body and
+    the solid), all in the body's user frame."""
+    import trimesh
+    from yourdfpy.urdf import Box, Cylinder, Geometry, Material, Mesh, Sphere, Visual, Color
+    from .shapes import box_sides, local_mesh
+    material = Material(name="solid", color=Color(rgba=np.array([0.72, 0.74, 0.78, 1.0])))
+    visuals = []
+    for k, solid in enumerate(body.solids):
+        origin = pose(solid.rot, solid.pos)
+        if solid.kind == "cylinder":
+            # URDF's cylinder is centred on its origin; ours starts there
+            origin = pose(solid.rot, solid.pos + solid.rot @ np.array([0.0, 0.0, solid.dims[1] / 2]))
+            geometry = Geometry(cylinder=Cylinder(radius=solid.dims[0], length=solid.dims[1]))
+        elif solid.kind == "sphere":
+            geometry = Geometry(sphere=Sphere(radius=solid.dims[0]))
+        elif solid.draw == "box":
+            geometry = Geometry(box=Box(size=box_sides(solid)))
+        else:
+            name = f"{path.stem}__{body.name}__{k + 1}.stl"
+            vertices, faces = local_mesh(solid)
+            trimesh.Trimesh(vertices, faces, process=False).export(path.parent / name, file_type="stl")
+            geometry = Geometry(mesh=Mesh(filename=name))
+        visuals.append(Visual(name=f"{body.name}_{solid.kind}_{k + 1}", origin=origin, geometry=geometry,
+                              material=material))
+    return visuals
+
+
 def write_urdf(model: Model, path: str | Path) -> None:
     import yourdfpy
     from yourdfpy.urdf import Inertial, Joint, Limit, Link, Robot
@@ -189,9 +218,11 @@ def write_urdf(model: Model, path: str | Path) -> None:
 
     for body in model.bodies:
         parent = "base" if body.parent < 0 else model.bodies[body.parent].name
+        visuals = _visuals(body, Path(path), pose)
         if body.free:
             links.append(Link(name=body.name, inertial=Inertial(origin=pose(np.eye(3), body.com),
-                                                                mass=body.mass, inertia=body.inertia)))
+                                                                mass=body.mass, inertia=body.inertia),
+                              visuals=visuals))
             continue
         if not body.dofs:
             joints.append(Joint(name=f"{body.name}_weld", type="fixed", parent=parent, child=body.name,
@@ -215,9 +246,10 @@ def write_urdf(model: Model, path: str | Path) -> None:
             joints.append(Joint(name=f"{body.name}_post", type="fixed", parent=parent, child=body.name,
                                 origin=pose(body.post, np.zeros(3))))
         links.append(Link(name=body.name, inertial=Inertial(origin=pose(np.eye(3), body.com),
-                                                            mass=body.mass, inertia=body.inertia)))
+                                                            mass=body.mass, inertia=body.inertia),
+                          visuals=visuals))
     urdf = yourdfpy.URDF(robot=Robot(name=model.name, links=links, joints=joints),
-                         build_scene_graph=False, load_meshes=False)
+                         build_scene_graph=False, load_meshes=False, mesh_dir=str(Path(path).parent))
     urdf.write_xml_file(str(path))
     # MuJoCo refuses massless moving bodies: its URDF extension lets the connector links between
     # the dofs of one joint carry a negligible bound mass instead (others ignore the element)
