@@ -19,7 +19,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
-HOST_C := $(wildcard host/binding/*.c host/binding/*.h)
+HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo bench soak venv toolchain browser test-c test-mcu test-python clean distclean
@@ -35,6 +35,7 @@ bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench
+	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench_loop
 	@$(VENV)/bin/python -m servodyn.tools.bench_view
 	@$(VENV)/bin/python -m servodyn.tools.bench_validate
@@ -77,6 +78,7 @@ include tests/c/rules.mk
 include firmware/mcu/rules.mk
 include firmware/app/rules.mk
 include fuzz/rules.mk
+include firmware/posix/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain

@@ -1,4 +1,5 @@
-"""Builds the C core into two extension modules: double (servodyn._core) and float (servodyn._core32)."""
+"""Builds the C core into two extension modules, double (servodyn._core) and float (servodyn._core32),
+and the firmware's Dynamixel codec into servodyn._dxl."""
 import glob
 
 import numpy
@@ -18,4 +19,7 @@ def core_module(name, *defines):
     )
 
 
-setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE")])
+DXL = Extension("servodyn._dxl", sources=["host/binding/_dxl.c", "hal/dynamixel/c/dxl.c"],
+                include_dirs=["hal/dynamixel/c"], extra_compile_args=FLAGS)
+
+setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE"), DXL])

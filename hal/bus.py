@@ -88,15 +88,33 @@ class JointCommand:
     kd: np.ndarray            # N m s / rad, >= 0
 
     def __post_init__(self):
-        arrays = np.broadcast_arrays(*(np.asarray(getattr(self, f.name), dtype=float) for f in fields(self)))
-        if arrays[0].ndim != 1:
-            raise ValueError("JointCommand: fields must be scalars or 1-d arrays, one value per joint")
-        for f, a in zip(fields(self), arrays):
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"JointCommand: '{f.name}' is not finite")
-            object.__setattr__(self, f.name, a.copy())
-        if np.any(self.kp < 0) or np.any(self.kd < 0):
+        """Checked once, cheaply: the five fields become rows of one new array (a copy), one
+        finiteness test and one sign test of the gains."""
+        names = _COMMAND_FIELDS
+        values = [getattr(self, name) for name in names]
+        sizes = {len(shape) and shape[0] if len(shape) < 2 else -1 for shape in map(np.shape, values)}
+        joints = sizes - {0}
+        if -1 in sizes or len(joints) != 1:
+            raise ValueError("JointCommand: fields must be scalars or 1-d arrays of one length, one value per joint")
+        rows = np.empty((len(names), joints.pop()))
+        for row, value in zip(rows, values):
+            row[...] = value
+        if not np.isfinite(rows).all():
+            bad = names[int(np.argmin(np.isfinite(rows).all(axis=1)))]
+            raise ValueError(f"JointCommand: '{bad}' is not finite")
+        if (rows[3:] < 0).any():
             raise ValueError("JointCommand: gains kp and kd must be >= 0")
+        for name, row in zip(names, rows):
+            object.__setattr__(self, name, row)
+
+    @classmethod
+    def _checked(cls, q, qd, tau_ff, kp, kd) -> "JointCommand":
+        """A command from arrays that come from a checked one (the bus's clamped copy): not
+        checked again."""
+        command = object.__new__(cls)
+        for name, value in zip(_COMMAND_FIELDS, (q, qd, tau_ff, kp, kd)):
+            object.__setattr__(command, name, value)
+        return command
 
     @classmethod
     def position(cls, q, kp, kd, qd=0.0, tau_ff=0.0) -> "JointCommand":
@@ -104,11 +122,14 @@ class JointCommand:
 
     @classmethod
     def torque(cls, tau) -> "JointCommand":
-        return cls(q=0.0 * np.asarray(tau, dtype=float), qd=0.0, tau_ff=tau, kp=0.0, kd=0.0)
+        return cls(q=0.0, qd=0.0, tau_ff=tau, kp=0.0, kd=0.0)
 
     def torque_at(self, q, qd) -> np.ndarray:
         """The joint torque the command asks for at the measured q, qd."""
         return self.tau_ff + self.kp * (self.q - q) + self.kd * (self.qd - qd)
+
+
+_COMMAND_FIELDS = tuple(f.name for f in fields(JointCommand))
 
 
 @dataclass
@@ -249,7 +270,7 @@ class ServoBus(ABC):
         qd = np.clip(command.qd, -self.velocity_limit, self.velocity_limit)
         tau_ff = np.clip(command.tau_ff, -self.torque_limit, self.torque_limit)
         self.stats.limited += (q != command.q) | (qd != command.qd) | (tau_ff != command.tau_ff)
-        self._write(JointCommand(q=q, qd=qd, tau_ff=tau_ff, kp=command.kp, kd=command.kd))
+        self._write(JointCommand._checked(q, qd, tau_ff, command.kp, command.kd))
         self.stats.writes += 1
 
     def _check_open(self) -> None:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .control.schedule import Segment
+from .control.timing import OVERRUN_TOLERANCE
 from .hal.bus import JointCommand
 
 FLUSH_EVERY = 0.1      # s of wall-clock time between two writes of a streamed log to disk
@@ -28,6 +29,11 @@ def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
     if k % controller.config.update_ticks == 0:
         controller.set_gains(*segment.gains.at(traj.t[k] - traj.t[0]))
     return controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q, qd)
+
+
+class Overrun(RuntimeError):
+    """A real-time loop fell further behind its period schedule than its tolerance: it cannot
+    hold its period, so it stops (the firmware's fault 14, overrun)."""
 
 
 @dataclass
@@ -45,6 +51,7 @@ class RunLog:
     tick_start: list = field(default_factory=list)      # s (perf_counter) when each tick began
     cpu_seconds: list = field(default_factory=list)     # CPU time of the loop's thread in each tick
     process_cpu_seconds: list = field(default_factory=list)   # CPU time of the whole process in it
+    missed: int = 0             # ticks whose work ended after their period's end (real time)
 
     def add(self, t, q_d, state, tau, seconds, start, cpu, process_cpu) -> None:
         self.t.append(t)
@@ -105,22 +112,34 @@ class RunLog:
 
 
 def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,
-           on_tick=None, progress=None, observer=None) -> None:
+           on_tick=None, progress=None, tolerance: float | None = None, observer=None) -> int:
     """Play a segment on the bus, one tick per sample: read, tick, write (and log). In real time
     the loop sleeps to the next period; otherwise it runs as fast as the bus answers.
     on_tick(k) runs before tick k (fault injection); progress(t, fraction, largest error) about
     once a second of the segment's time; observer(t, q_d, state, tau) after every tick (a viewer's
-    feed: it must only keep the sample, never block)."""
+    feed: it must only keep the sample, never block).
+
+    In real time tick k's deadline is the end of its period, start + (k + 1) period: a tick whose
+    write ends later missed it (counted in log.missed, and returned). A late tick is followed at
+    once by the next (the loop catches up on its schedule); a tick that begins more than
+    `tolerance` (default OVERRUN_TOLERANCE) behind its schedule raises Overrun before it reads:
+    the caller stops the bus."""
+    tolerance = OVERRUN_TOLERANCE if tolerance is None else tolerance
     controller.reset()
     traj = segment.traj
     n = len(traj.t)
     period = traj.t[1] - traj.t[0]
     start = time.perf_counter()
     next_report = 0.0
+    missed = 0
     for k in range(n):
         if on_tick is not None:
             on_tick(k)
         began = time.perf_counter()
+        if realtime and began - (start + k * period) > tolerance:
+            raise Overrun(f"overrun: tick {k} began {(began - start - k * period) * 1e3:.1f} ms behind its "
+                          f"{period * 1e3:g} ms schedule (tolerance {tolerance * 1e3:g} ms; {missed} of {k} "
+                          "deadlines missed): the loop cannot hold its period")
         cpu, process_cpu = time.thread_time(), time.process_time()
         state = bus.read_state()
         tau = tick(controller, segment, k, state.q, state.qd)
@@ -137,6 +156,11 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
             delay = start + (k + 1) * period - time.perf_counter()
             if delay > 0:
                 time.sleep(delay)
+            else:
+                missed += 1
+                if log is not None:
+                    log.missed += 1
+    return missed
 
 
 def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, error=None) -> dict:
@@ -146,8 +170,9 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
     (time.thread_time) from the read to the end of the write; the process's (time.process_time)
     also counts a simulated bus running in this process. These depend on the machine: they are
     reported, and measured in `make bench`, never asserted by a test."""
+    clock = {"clock": "realtime" if realtime else "lockstep", "missed_deadlines": log.missed if realtime else None}
     if not log.t:
-        return {"completed": False, "ticks": 0, "error": str(error) if error else "no tick ran"}
+        return {"completed": False, "ticks": 0, **clock, "error": str(error) if error else "no tick ran"}
     names = log.dof_names
     e = np.array(log.q_d) - np.array(log.q)
     seconds = np.array(log.tick_seconds)
@@ -168,7 +193,8 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
         "tracking_max_by_dof_rad": dict(zip(names, map(float, np.abs(e).max(axis=0)))),
         "loop_hz": loop_hz,
         "jitter_p99_ms": float(np.percentile(jitter, 99) * 1e3),
-        "clock": "realtime" if realtime else "lockstep",
+        "jitter_max_ms": float(jitter.max() * 1e3),
+        **clock,
         "period_median_ms": float(np.median(periods) * 1e3),
         "tick_median_ms": float(np.median(seconds) * 1e3),
         "cpu_ms_per_tick": {"median": float(np.median(cpu) * 1e3), "p99": float(np.percentile(cpu, 99) * 1e3)},

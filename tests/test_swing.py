@@ -93,18 +93,19 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     Only bounds a slow or busy machine cannot break are asserted: the loop is never faster than
     its plan (the ticks that ran took at least their planned time), the plant never runs ahead of
     the wall clock, and the run ends with torque off on every servo. Whether the loop keeps up
-    with 1 kHz is the machine's (`make bench` measures it): a loop that falls far behind lets the
-    arm drift until a limit stops it, which is a safe stop, not a failure of this test."""
+    with 1 kHz is the machine's (`make bench` measures it): a loop that falls further behind its
+    schedule than the overrun tolerance stops (overrun), which is a safe stop, not a failure here."""
     began = time.monotonic()
     summary = run_swing(out=tmp_path, realtime=True, time_scale=3.0, **QUIET)
     took = time.monotonic() - began
     assert summary["completed"] or summary["error"], "either the whole swing or a safe stop with its reason"
     ran = summary["ticks"]
     assert all(summary["torque_off"]), "torque off on every servo at the end"
-    if ran == 0:       # a host starved past the servos' Bus Watchdog while homing: they stopped it
-        assert "Bus Watchdog" in summary["error"], summary["error"]
-        return
     assert summary["clock"] == "realtime"
+    if ran == 0:       # stopped while homing: the loop fell behind its tolerance (overrun), or a host
+        # starved past the servos' Bus Watchdog and they stopped it
+        assert summary["error"].startswith("overrun") or "Bus Watchdog" in summary["error"], summary["error"]
+        return
     assert 0 < ran <= 5401, f"{ran} ticks of the 5.4 s swing"
     planned = HOME_DURATION + (ran - 1) * SMALL_TIME_STEP
     assert took >= planned, f"the paced run took {took:.2f} s, less than the {planned:.2f} s its ticks play"

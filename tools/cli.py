@@ -84,6 +84,8 @@ def cmd_experiment(args) -> None:
 
 def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
+    from ..sim.transport.pty import SimProcessError
+    from .hil import FirmwareError
     from .swing import run_swing
     viewer = feed = None
     try:
@@ -92,9 +94,9 @@ def cmd_swing(args) -> int | None:
             viewer, feed = live_viewer(args.config, args.view_host, args.view_port)
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
-                            realtime=args.realtime, motion=args.motion, force=args.force,
+                            realtime=args.realtime, motion=args.motion, force=args.force, native=args.native,
                             observer=feed.observe if feed else None)
-    except (ConfigError, ServoError, ValueError) as err:
+    except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         if viewer is not None:
             viewer.close()
         raise CliError(str(err)) from None
@@ -113,7 +115,6 @@ def cmd_swing(args) -> int | None:
 
 
 def cmd_sim(args) -> None:
-    import time as _time
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
     from ..sim.arm import SimulatedArm
@@ -125,16 +126,17 @@ def cmd_sim(args) -> None:
         arm = SimulatedArm(config)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
-    with PtyServer(arm, "lockstep" if args.lockstep else "realtime") as server:
-        print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
-              f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
-        print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
-              flush=True)
-        try:
-            while True:
-                _time.sleep(0.5)
-        except KeyboardInterrupt:
-            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+    server = PtyServer(arm, "lockstep" if args.lockstep else "realtime")
+    print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
+          f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
+    print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
+          flush=True)
+    try:
+        server.serve_forever()          # in this thread, blocked on the pseudo-terminal
+    except KeyboardInterrupt:
+        print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+    finally:
+        server.stop()
 
 
 def _serve_can(config, args) -> None:
@@ -276,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
     p.add_argument("--force", action="store_true",
                    help="play a motion the validator refuses (on the simulated bus only)")
+    p.add_argument("--native", action="store_true",
+                   help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.add_argument("--view", action="store_true",
                    help="show the arm live in a browser page (servodyn view), then the logged run")
     p.add_argument("--view-port", type=int, default=8080, metavar="N", help="the page's port (default 8080)")

@@ -24,7 +24,7 @@ from .. import _core
 from ..control import ControlConfig
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
-from ..control.timing import BUS_WATCHDOG, HOME_DURATION, SMALL_TIME_STEP
+from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE, SMALL_TIME_STEP
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, watchdog_units
 from ..hal.dynamixel.units import ServoMap
@@ -182,6 +182,7 @@ const fw_plan fw_plan_ = {{
   .read_address = {ADDR_PRESENT},
   .read_size = {PRESENT_LENGTH},
   .goal_address = {ADDR_GOAL_CURRENT},
+  .overrun_tolerance = SD_R({_num(OVERRUN_TOLERANCE)}),
 }};
 """
     return {"servodyn_gen.h": header, "servodyn_gen.c": source}

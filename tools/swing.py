@@ -25,12 +25,13 @@ from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
 from ..hal.robot import Robot
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError, ServoHardwareError, ServoLimitError, ServoOperationError
-from ..loop import RunLog, follow, summarize
+from ..loop import Overrun, RunLog, follow, summarize
 from .validate import motion_path
 
 DEFAULT_MOTION = "tennis_forehand"
 
-SIM_REPLY_TIMEOUT = 0.25   # s to wait for a read reply from the embedded simulated bus
+SIM_REPLY_TIMEOUT = 1.0    # s to wait for a read reply from the simulated bus (its own process: on a
+                           # machine loaded 4x over its cores a reply was seen to wait over 250 ms)
 # s for a tick's replies from simulated CAN motors: their server is a thread of this process, and on a
 # loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured); a real bus gets 20 ms
 SIM_CAN_REPLY_TIMEOUT = 2.0
@@ -88,7 +89,7 @@ def _signals_stop_the_run(stopping: dict):
 def run_swing(config_name: str | RobotConfig = "replica", port: str | None = None, out: Path = Path("out/swing"),
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
-              force: bool = False, observer=None, home_duration: float = HOME_DURATION,
+              force: bool = False, native: bool = False, observer=None, home_duration: float = HOME_DURATION,
               figure: bool = True) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
@@ -98,9 +99,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
     bits ("overload", "overheating", ... or the bits as an int), or any other fault of
     SimulatedArm.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
-    from then on), to show the safe stop. observer: called by the loop with every tick's state
-    (servodyn.loop.follow), e.g. the browser view's. home_duration: s of the homing move (shorter
-    for the soak, whose motions start where the simulated arm does); figure: write the tracking plot."""
+    from then on), to show the safe stop. native: the firmware's loop plays it as a Linux process
+    (tools/native.py) instead of the Python loop, with the same summary. observer: called by the
+    loop with every tick's state (servodyn.loop.follow), e.g. the browser view's. home_duration: s
+    of the homing move (shorter for the soak, whose motions start where the simulated arm does);
+    figure: write the tracking plot."""
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
@@ -121,28 +124,28 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                 f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
         say(f"forced past the validator: {first}")
     swing = motion_path(motion, model).at_scale(scale)
+    mode = "feedforward_pd" if feedforward else "pd"
+    if native:
+        _check_native(config, motion, scale, mode, fault_at)
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
-    mode = "feedforward_pd" if feedforward else "pd"
-    server = arm = None
+    server = None
     options = {}
-    if port is None and bus_config.kind == "dynamixel":
-        from ..sim.arm import SimulatedArm
-        from ..sim.transport.pty import PtyServer
-        arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
-        server = PtyServer(arm, "realtime" if realtime else "lockstep")
-        server.start()
+    per_bus = {}
+    if port is None and any(b.kind == "can" for b in config.buses.values()):
+        server, per_bus = _simulated_robot(config, realtime, say)    # one plant behind every bus
+    elif port is None and bus_config.kind == "dynamixel":
+        server = _start_simulator(config, realtime)
         port = server.path
         # a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here),
         # far beyond a real bus's 34 ms packet timeout: the simulated bus gets a patient timeout
         options["reply_timeout"] = SIM_REPLY_TIMEOUT
-        say(f"simulated bus: {len(arm.servos)} virtual servos of '{config.name}' on {port} "
-            f"({'real time' if realtime else 'lock-step'}), the plant integrated by RK4 at "
+        say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {port} "
+            f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
             f"{SMALL_TIME_STEP * 1e3:g} ms")
-    per_bus = {}
-    if port is None and any(b.kind == "can" for b in config.buses.values()):
-        arm, server, per_bus = _simulated_robot(config, realtime, say)
+    if native:
+        return _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say)
     if port is not None:
         options["port"] = port
     bus = Robot(config, options=per_bus, **options)     # every bus of the configuration, one tick
@@ -162,10 +165,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
-        # the plant's time when the swing begins: in lock-step one period per homing tick (reading
-        # arm.time here would race the simulator's thread, which may not have taken the last
-        # homing write yet: a sync write gets no reply); in real time, the plant clock now
-        swing_start = (arm.time if realtime else len(home.traj.t) * SMALL_TIME_STEP) if arm is not None else 0.0
+        # the plant's time when the swing begins: in lock-step one period per homing tick (asking
+        # the simulator would race it: it may not have taken the last homing write yet, a sync
+        # write gets no reply); in real time, the plant clock now
+        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * SMALL_TIME_STEP) \
+            if server is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
                observer=observer,
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
@@ -174,12 +178,17 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         stopping["now"] = True
         error = err
         say(f"{'servo error' if isinstance(err, ServoError) else 'stopped'}: {err} — torque off on every servo")
+    except Overrun as err:
+        stopping["now"] = True
+        error = err
+        say(f"{err} — torque off on every servo")
     except BaseException:
         restore_signals()
         raise
     finally:
         stopping["now"] = True
         bus.stop()
+        sim = server.status() if server is not None else None
         if server is not None:
             server.stop()
         for extra in per_bus.values():
@@ -189,20 +198,74 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
     summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
-                   bus=bus.stats.as_dict(bus.dof_names))
+                   loop="python", bus=bus.stats.as_dict(bus.dof_names))
     if isinstance(error, Interrupted):
         summary["signal"] = signal.Signals(error.signum).name
-    if arm is not None:
+    if sim is not None:
         # what the simulated servos saw: plant time at the stop and every torque switched off
-        summary["sim_time_at_stop_s"] = arm.time - swing_start     # on the swing's clock
-        drives = getattr(arm, "drives", None) or arm.servos
-        summary["torque_off"] = [not (d.torque_enabled if hasattr(d, "torque_enabled") else d.enabled)
-                                 for d in drives]
+        summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
+        summary["torque_off"] = sim["torque_off"]
     try:
         _write(out, log, summary, say, figure)
     finally:
         restore_signals()          # until the summary is written a signal is ignored, not fatal
     return summary
+
+
+def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fault_at) -> None:
+    """ValueError unless the native loop's generated tables are this run's."""
+    from .native import BUILT_FOR
+    if config.name != BUILT_FOR or motion != DEFAULT_MOTION or scale != config.swing_time_scale:
+        raise ValueError(f"--native plays what the firmware was generated for ('{BUILT_FOR}', {DEFAULT_MOTION}, "
+                         f"its configuration's time scale): not '{config.name}', {motion} at {scale:g}")
+    if mode != "feedforward_pd" or fault_at is not None:
+        raise ValueError("--native runs feed-forward + PD and injects no fault")
+
+
+def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say) -> dict:
+    """The firmware's loop as a Linux process plays the swing on the port; the same summary."""
+    from .native import fault_message, run_native
+    say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
+    try:
+        report, log = run_native(port, config.model.dof_names, realtime, say=say,
+                                 reply_timeout=SIM_REPLY_TIMEOUT if server is not None else None)
+    finally:
+        sim = server.status() if server is not None else None
+        if server is not None:
+            server.stop()
+    error = fault_message(report)
+    summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
+                   loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
+                                       "reads_retried": 0, "limited_ticks": report.get("limited")},
+                   native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
+                                                      "missed", "lost", "exit_code", "notes")})
+    if sim is not None:
+        # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
+        # the native process's to know, not this one's
+        summary["sim_time_at_stop_s"] = None if realtime else sim["time"] - report["home_ticks"] * SMALL_TIME_STEP
+        summary["torque_off"] = sim["torque_off"]
+    if error:
+        say(f"{error} — torque off on every servo")
+    log.write_csv(out / "swing_log.csv")
+    _write(out, log, summary, say)
+    return summary
+
+
+def _start_simulator(config: RobotConfig, realtime: bool):
+    """The simulated bus of the configuration in its own process (SimProcess), so the loop's
+    figures are its own; a configuration built in memory (no file to hand the child) is served
+    by a thread of this process instead."""
+    mode = "realtime" if realtime else "lockstep"
+    if config.path is not None:
+        from ..sim.transport.pty import SimProcess
+        return SimProcess(config.path, mode)
+    from ..sim.arm import SimulatedArm
+    from ..sim.transport.pty import PtyServer
+    arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+    server = PtyServer(arm, mode)
+    server.start()
+    return server
 
 
 class _Servers:
@@ -214,6 +277,14 @@ class _Servers:
     def inject_fault(self, device_id, fault="silent") -> None:
         with self.robot.lock:
             self.robot.inject_fault(device_id, fault)
+
+    def status(self) -> dict:
+        """The plant's time and whether each device's torque is off, as the simulators report them."""
+        with self.robot.lock:
+            drives = getattr(self.robot, "drives", None) or self.robot.servos
+            return {"time": self.robot.time,
+                    "torque_off": [not (d.torque_enabled if hasattr(d, "torque_enabled") else d.enabled)
+                                   for d in drives]}
 
     def stop(self) -> None:
         for server in self.servers:
@@ -251,7 +322,7 @@ def _simulated_robot(config, realtime: bool, say):
         robot.free_running()         # the first server's clock alone moves the plant
     for server in servers:
         server.start()
-    return robot, _Servers(robot, servers), per_bus
+    return _Servers(robot, servers), per_bus
 
 
 def _fault_injector(server, fault_at, played, config):

@@ -43,6 +43,7 @@ typedef struct fw_plan_ {
   uint8_t watchdog_units;     // Bus Watchdog (98), 20 ms units
   uint16_t read_address, read_size;   // the fast sync read: Present Current .. Position
   uint16_t goal_address;      // Goal Current
+  sd_real overrun_tolerance;  // s the plan may fall behind the clock on a host OS (native loop)
 } fw_plan;
 
 extern const sd_model fw_model;
@@ -65,5 +66,9 @@ enum fw_fault_ {
 };
 
 const char* fw_fault_name(int code);
+
+// Each tick's figures, after its write: the native loop's board logs them (weak: none by default).
+void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd, const sd_real* tau,
+                    const sd_real* current);
 
 #endif  // FW_APP_H

@@ -23,7 +23,9 @@ int board_cmdline(char* text, unsigned size);
 #include <stddef.h>
 #include <stdint.h>
 
+#ifndef BOARD_CPU_HZ
 #define BOARD_CPU_HZ 25000000u      // MPS2: SysTick counts the 25 MHz processor clock
+#endif                              // (the native build counts nanoseconds: 1e9)
 
 // The control clock: a SysTick interrupt every `period` processor clock counts.
 void board_clock_start(uint32_t period);
@@ -48,6 +50,9 @@ int board_uart_read(uint8_t* byte);
 size_t board_uart_take(uint8_t* out, size_t cap);
 // Bytes received and not yet taken.
 size_t board_uart_available(void);
+// Wait until at least `want` bytes are there to take: 1, or 0 when the servos are taken for silent
+// (MPS2: after a fixed number of polls; Linux: a reply timeout, waiting in poll()).
+int board_uart_wait(size_t want);
 // Drop whatever has been received and not taken.
 void board_uart_flush(void);
 // Bytes lost because the receive buffer was full.

@@ -133,6 +133,14 @@ size_t board_uart_available(void) {
   return (g_rx_head - g_rx_tail) & (RX_SIZE - 1u);
 }
 
+#define REPLY_POLLS 30000000u       // polls of the receive buffer before a servo is silent
+
+int board_uart_wait(size_t want) {
+  for (uint32_t polls = 0; polls < REPLY_POLLS; polls++)
+    if (board_uart_available() >= want) return 1;
+  return 0;
+}
+
 void board_uart_flush(void) {
   g_rx_tail = g_rx_head;
 }

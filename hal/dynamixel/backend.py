@@ -25,6 +25,7 @@ Hardware Error Status and raise ServoHardwareError with its bits.
 
 from __future__ import annotations
 
+import os
 import select
 import time
 from collections.abc import Mapping
@@ -38,12 +39,15 @@ from ..errors import (BusStallError, ServoHardwareError, ServoInitializationErro
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
                             PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
+from ... import _dxl
 from . import instructions
-from .instructions import fast_reply_blocks, split_fast_reply
-from .protocol import (ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, PacketError, StatusPacket,
-                       encode_frame)
-from .reader import BadFrame, Fault, PacketReader
+from .instructions import fast_reply_blocks
+from .protocol import ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, Instruction, encode_frame
 from .units import ServoMap, current_unit
+
+# a fast sync read reply's data block: Present Current (2), Velocity (4), Position (4)
+PRESENT = np.dtype([("current", "<i2"), ("velocity", "<i4"), ("position", "<i4")])
+GOAL = np.dtype([("id", "u1"), ("current", "<i2")])      # one servo's part of the Goal Current sync write
 
 
 def _patient(port, reply_timeout: float | None):
@@ -128,8 +132,8 @@ class DynamixelBus(ServoBus):
                  watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
         """retries: tries after the first before a read fails; watchdog: s of bus silence after
         which the servos stop; reply_timeout: s to wait for the fast sync read reply, and at least
-        as long for any other (None: the SDK's packet timeout, wire time + 2 x 16 ms USB latency
-        + 2 ms)."""
+        that for any other reply (None: the SDK's packet timeout, wire time + 2 x 16 ms USB
+        latency + 2 ms)."""
         super().__init__(config, bus, **kwargs)
         self.port_name = port or self.bus.port
         if self.port_name in (None, "", "auto"):
@@ -156,6 +160,13 @@ class DynamixelBus(ServoBus):
         if not opened or not self.port.setBaudRate(int(self.bus.baud)):
             raise ServoInitializationError(f"{self.port_name}: cannot open at {self.bus.baud} baud")
         self.packets = _stuffing_packet_handler()
+        if self.reply_timeout is not None:      # the SDK's own transactions are as patient
+            sdk_timeout = self.port.setPacketTimeout
+
+            def patient(packet_length):
+                sdk_timeout(packet_length)
+                self.port.packet_timeout = max(self.port.packet_timeout, self.reply_timeout * 1e3)
+            self.port.setPacketTimeout = patient
         for joint in self.joints:
             number = self._read_item(joint, ADDR_MODEL_NUMBER, 2)
             if number != joint.servo.model_number:
@@ -166,7 +177,16 @@ class DynamixelBus(ServoBus):
             self._write_item(joint, ADDR_RETURN_DELAY, 1, 0)
             self._write_item(joint, ADDR_OPERATING_MODE, 1, OperatingMode.CURRENT)
             self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)       # clear a tripped watchdog
-        self._writer = sdk.GroupSyncWrite(self.port, self.packets, ADDR_GOAL_CURRENT, 2)
+        # the tick's two packets, built once: the fast sync read is constant; the sync write's
+        # parameters are a record array the goals are written into (its frame needs no stuffing:
+        # FF FF FD would have to be a current's two bytes followed by ID 0xFD, and IDs end at 252)
+        self._read_frame = instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, self.ids).encode()
+        self._goal = np.zeros(len(self.ids), dtype=GOAL)
+        self._goal["id"] = self.ids
+        self._goal_head = bytes([Instruction.SYNC_WRITE]) + ADDR_GOAL_CURRENT.to_bytes(2, "little") + \
+            (GOAL.itemsize - 1).to_bytes(2, "little")
+        self._id_bytes = bytes(self.ids)
+        self._reader = _dxl.Reader()
         self._fault = None
         try:
             self._fileno = self.port.ser.fileno()      # to wait for the reply without spinning
@@ -230,20 +250,20 @@ class DynamixelBus(ServoBus):
                                                    "time-out and were dropped")
         else:
             raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
-        for joint, block in zip(self.joints, blocks):
-            if block.error & ALERT_BIT:
-                status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
-                if status:
-                    self._fault = (joint, status)          # write() refuses while it stands
-                    raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
-            if block.error & ~ALERT_BIT:
-                raise ServoOperationError(f"joint '{joint.dof}': servo {joint.id} refused the read "
-                                          f"({self.packets.getRxPacketError(block.error & ~ALERT_BIT)})")
+        errors, data = blocks
+        if any(errors):
+            for joint, error in zip(self.joints, errors):
+                if error & ALERT_BIT:
+                    status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
+                    if status:
+                        self._fault = (joint, status)          # write() refuses while it stands
+                        raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
+                if error & ~ALERT_BIT:
+                    raise ServoOperationError(f"joint '{joint.dof}': servo {joint.id} refused the read "
+                                              f"({self.packets.getRxPacketError(error & ~ALERT_BIT)})")
         self._fault = None
-        rows = [block.data for block in blocks]
-        current = np.array([int.from_bytes(r[0:2], "little", signed=True) for r in rows])
-        velocity = np.array([int.from_bytes(r[2:6], "little", signed=True) for r in rows])
-        position = np.array([int.from_bytes(r[6:10], "little", signed=True) for r in rows])
+        rows = np.frombuffer(data, dtype=PRESENT)
+        current, velocity, position = rows["current"], rows["velocity"], rows["position"]
         u = self.units
         self._last_packet = time.monotonic()
         state = JointState(t=time.monotonic(), q=u.from_ticks(position), qd=u.from_velocity_units(velocity),
@@ -258,53 +278,77 @@ class DynamixelBus(ServoBus):
         return instructions.fast_reply_size([PRESENT_LENGTH] * len(self.ids))
 
     def _fast_sync_read(self):
-        """Send one fast sync read through the SDK's port and packet handler (so it is framed and
-        stuffed by StuffingPacketHandler) and parse its one reply with servodyn's codec. Returns
-        (blocks in joint order, "", None) or (None, what went wrong, the joint first missing)."""
-        sdk = self._sdk
-        result = self.packets.syncReadTx(self.port, ADDR_PRESENT, PRESENT_LENGTH, self.ids, len(self.ids), True)
-        if result != sdk.COMM_SUCCESS:
-            return None, self.packets.getTxRxResult(result), None
+        """Send the fast sync read (built once, framed by servodyn's codec) on the SDK's port and
+        parse its one reply with the firmware's codec in C (servodyn._dxl): the packet CRC, each
+        block's running CRC, its ID. Returns ((error bytes, data bytes) in joint order, "", None)
+        or (None, what went wrong, the joint first missing)."""
+        if self.port.is_using:
+            return None, self.packets.getTxRxResult(self._sdk.COMM_PORT_BUSY), None
+        self.port.is_using = True
         try:
-            raw, packet, failure = self._receive()
+            self.port.clearPort()
+            if self._send(self._read_frame) != len(self._read_frame):
+                return None, self.packets.getTxRxResult(self._sdk.COMM_TX_FAIL), None
+            self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
+            raw, failure = self._receive()
         finally:
             self.port.is_using = False
-        if packet is None:
-            suspect, detail = self._short_reply(raw)
-            return None, failure or detail, suspect
-        try:
-            blocks = split_fast_reply(packet, [PRESENT_LENGTH] * len(self.ids))
-        except PacketError as err:
-            return None, f"corrupt fast sync read reply ({err})", None
-        ids = [block.id for block in blocks]
-        if ids != self.ids:
-            return None, f"fast sync read reply from IDs {ids}, asked {self.ids}", None
-        return blocks, "", None
+        if raw is not None and failure is None:
+            good, errors, data = self._reader.fast_split(PRESENT_LENGTH, self._id_bytes)
+            if good == len(self.ids):
+                return (errors, data), "", None
+            failure = "corrupt fast sync read reply (block %d of %d: cut short, another ID or a bad CRC)" % (
+                good + 1, len(self.ids))
+            return None, failure, None
+        suspect, detail = self._short_reply(raw)
+        return None, failure or detail, suspect
 
-    def _receive(self) -> tuple[bytes, StatusPacket | None, str]:
-        """Bytes from the port until a status packet from 0xFE (the fast reply) is whole, or the
-        reply timeout passes (by default the packet timeout syncReadTx set). Waits in select()
-        rather than spinning, so the tick's CPU time is its work."""
-        reader = PacketReader(byte_timeout=None)
+    def _send(self, frame: bytes) -> int:
+        """Write a frame to the port: straight to its file descriptor when it has one (pyserial's
+        write adds a select() and timeout bookkeeping per call), else through the SDK."""
+        if self._fileno is None:
+            return self.port.writePort(frame)
+        sent = 0
+        try:
+            while sent < len(frame):
+                sent += os.write(self._fileno, frame[sent:])
+        except BlockingIOError:
+            select.select([], [self._fileno], [], 0.1)
+            return sent + self._send(frame[sent:]) if sent < len(frame) else sent
+        except OSError:
+            return sent
+        return sent
+
+    def _receive(self) -> tuple[bytes, str | None]:
+        """Bytes from the port into the C reader until a status packet from 0xFE (the fast reply)
+        is whole, or the reply timeout passes (by default the packet timeout set at the send).
+        (the bytes, None) when it came; (the bytes, a failure or "" on a timeout) otherwise.
+        Waits in select() rather than spinning, so the tick's CPU time is its work."""
+        reader = self._reader
+        reader.reset()
         raw = bytearray()
         if self.reply_timeout is None:
             timeout = (self.port.packet_timeout - self.port.getTimeSinceStart()) * 1e-3
         else:
             timeout = self.reply_timeout
         deadline = time.monotonic() + timeout
+        read = self.port.ser.read if hasattr(self.port, "ser") else self.port.readPort
         while True:
-            chunk = self.port.readPort(4096)
+            chunk = read(4096)
             if chunk:
                 raw += chunk
-                for event in reader.feed(bytes(chunk)):
-                    if isinstance(event, StatusPacket) and event.id == BROADCAST_ID:
-                        return bytes(raw), event, ""
-                    if isinstance(event, BadFrame) and event.fault is Fault.CRC and event.id == BROADCAST_ID:
-                        return bytes(raw), None, "fast sync read reply with a bad CRC"
+                chunk = bytes(chunk)
+                while chunk:
+                    status, used = reader.feed(chunk)
+                    chunk = chunk[used:]
+                    if status == _dxl.PACKET and reader.id == BROADCAST_ID:
+                        return bytes(raw), None
+                    if status == _dxl.BAD_CRC and reader.id == BROADCAST_ID:
+                        return bytes(raw), "fast sync read reply with a bad CRC"
                 continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                return bytes(raw), None, ""
+                return bytes(raw), ""
             if self._fileno is not None:
                 select.select([self._fileno], [], [], remaining)
 
@@ -349,14 +393,13 @@ class DynamixelBus(ServoBus):
         tau = command.torque_at(self._last.q, self._last.qd)
         units, limited = self.units.goal_current_units(tau, self.current_limit)
         self.stats.limited += limited
-        self._writer.clearParam()
-        for servo_id, value in zip(self.ids, units):
-            self._writer.addParam(servo_id, list(int(value).to_bytes(2, "little", signed=True)))
-        result = self._writer.txPacket()
+        self._goal["current"] = units
+        frame = encode_frame(BROADCAST_ID, self._goal_head + self._goal.tobytes(), stuffed=False)
+        sent = 0 if self.port.is_using else self._send(frame)
         self._last_packet = time.monotonic()
-        if result != self._sdk.COMM_SUCCESS:
-            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed "
-                                      f"({self.packets.getTxRxResult(result)})")
+        if sent != len(frame):
+            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port "
+                                      f"{'is busy' if self.port.is_using else 'took part of it'})")
 
     def sync_write(self, address: int, data_by_id: Mapping[int, bytes]) -> None:
         """One sync write of equal-length table bytes at ``address``, by servo ID, framed and stuffed

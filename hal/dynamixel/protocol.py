@@ -11,13 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ... import _dxl
 from ..errors import ProtocolError
 
 HEADER = b"\xFF\xFF\xFD\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC
 ALERT_BIT = 0x80
-CRC_POLYNOMIAL = 0x8005
 MIN_LENGTH = 3                 # INST + CRC: the smallest LEN field
 FRAME_OVERHEAD = 7             # header(4) + ID + LEN(2): bytes not counted by LEN
 
@@ -103,25 +103,11 @@ def unpack_field(data: bytes, signed: bool = False) -> int:
 
 
 # --- CRC-16 (poly 0x8005, init 0, MSB first, no reflection) ------------------------------------
-
-def _crc_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = (crc << 1) ^ CRC_POLYNOMIAL if crc & 0x8000 else crc << 1
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-_CRC_TABLE = _crc_table()
-
+# One implementation: the firmware's (hal/dynamixel/c/dxl.c), through servodyn._dxl.
 
 def crc16(data: bytes, crc: int = 0) -> int:
     """CRC-16 of ``data``, continuing from ``crc``."""
-    for byte in data:
-        crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ byte) & 0xFF]
-    return crc
+    return _dxl.crc16(data if isinstance(data, (bytes, bytearray, memoryview)) else bytes(data), crc)
 
 
 # --- byte stuffing ---------------------------------------------------------------------------------

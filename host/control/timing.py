@@ -9,6 +9,9 @@ MIN_STIFFNESS = 2.0      # N m/rad: a servo's friction (~0.02 N m) then leaves ~
 HOME_DURATION = 2.0      # s to move from wherever the arm is to a motion's start pose
 GAIN_PERIOD = 0.1        # s between two knots of a gain schedule (on the played, scaled clock)
 BUS_WATCHDOG = 0.1       # s of bus silence after which the servos drop torque by themselves
+OVERRUN_TOLERANCE = 10e-3   # s a real-time loop may fall behind its period schedule before it stops
+                            # (overrun): a one-off delay is caught up within it, a loop slower than
+                            # its period falls further behind each tick and stops within a few
 
 MIN_PLAYED_PERIODS = 10      # a motion played faster than written spans at least this many control
                              # periods: sampled any coarser, its interior falls between two samples

@@ -301,8 +301,9 @@ class VirtualBus:
 
     def _writes(self, writes: list[tuple[int, int, bytes]]) -> None:
         """Broadcast writes: a refused block is dropped silently, the others still apply."""
+        answering = [(s, (s.id, s.get("secondary_id"))) for s in self.servos]   # IDs as they were
         for servo_id, address, data in writes:
-            for servo in [s for s in self.servos if servo_id in (s.id, s.get("secondary_id"))]:
+            for servo in [s for s, ids in answering if servo_id in ids]:
                 try:
                     servo.write(address, data)
                 except StatusError:

@@ -20,6 +20,7 @@ from servodyn.hal.dynamixel.control_table import (GOAL_POSITION_SPAN, PWM_FULL, 
 from .drive import Mechanics, PositionPid
 
 WATCHDOG_TRIPPED = -1
+_FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "moving"})   # set_present
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
               "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain")
@@ -51,11 +52,14 @@ class Servo:
         self.mechanics = mechanics or Mechanics.of(model)
         self.zero_ticks = zero_ticks
         self.items = {item.name: item for item in model.items()}
+        # name -> (first byte, end, signed): get() and _set() are the simulator's hottest path
+        self._span = {item.name: (item.address, item.address + item.size, item.signed) for item in self.items.values()}
         self._owner: list[Item | None] = [None] * TABLE_SIZE      # the item holding each byte
         for item in self.items.values():
             self._owner[item.address:item.address + item.size] = [item] * item.size
         self._table = bytearray(TABLE_SIZE)
         self._shaft = _Shaft(position)
+        self._stale = False            # the shaft moved since the Present registers were written
         self._pid = PositionPid()
         self._turns = 0                # whole turns hidden from Present Position
         self._registered: tuple[int, bytes] | None = None
@@ -70,8 +74,10 @@ class Servo:
     # --- table access --------------------------------------------------------------------------
 
     def get(self, name: str) -> int:
-        item = self.items[name]
-        return unpack_field(self._table[item.address:item.address + item.size], item.signed)
+        if self._stale and name in _FROM_SHAFT:
+            self._refresh_present()
+        start, end, signed = self._span[name]
+        return int.from_bytes(self._table[start:end], "little", signed=signed)
 
     def _set(self, name: str, value: int) -> None:
         item = self.items[name]
@@ -107,6 +113,8 @@ class Servo:
         """Undefined bytes inside the table read as 0; beyond it is an access error."""
         if address + length > TABLE_SIZE:
             raise _fail(ErrorNumber.ACCESS)
+        if self._stale:
+            self._refresh_present()
         return bytes(self._table[address:address + length])
 
     def write(self, address: int, data: bytes) -> None:
@@ -289,9 +297,10 @@ class Servo:
     def set_present(self, position: float, velocity: float, current: float) -> None:
         """The plant's shaft state: rad, rad/s, A (reverse mode flips all three in the table)."""
         self._shaft = _Shaft(position, velocity, current)
-        self._refresh_present()
+        self._stale = True         # written when next read: the plant steps more often than the host reads
 
     def _refresh_present(self) -> None:
+        self._stale = False
         shaft, sign = self._shaft, self._sign
         self._set_clamped("present_position", self._position_ticks(shaft.position))
         self._set_clamped("present_velocity", sign * shaft.velocity / VELOCITY_UNIT)

@@ -1,0 +1,314 @@
+// board_posix.c: the firmware's board layer for Linux (the native loop), as Zephyr's native_sim
+// runs Zephyr firmware as a process. The same application (firmware/app) runs on it unchanged.
+//
+//   UART     a termios serial port in raw mode: a USB adapter (/dev/ttyUSB0, its latency timer
+//            asked down to 1 ms through ASYNC_LOW_LATENCY) or the simulated bus's pseudo-terminal
+//   SysTick  clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME) to each period's start (real time),
+//            or, in lock-step, a virtual clock that jumps to the next period at once and is held
+//            while the simulated bus answers (as the QEMU run's -icount clock): no deadline
+//   console  standard output; the exit status is the fault code
+//   priority SCHED_FIFO and mlockall in real time when the process may, one line when it may not
+//
+// Command line: servodyn-fw PORT [realtime] [log=FILE] [reply_ms=N] [period_us=N] [nan_at=K]
+// [ticks=N]; the last three are the application's (fw_main.c). log=FILE: one binary record per
+// tick (fw_record_tick) for the host tools.
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <linux/serial.h>
+#include <poll.h>
+#include <sched.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <sys/mman.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "board.h"
+#include "fw_app.h"
+
+int fw_app_main(void);           // firmware/app/fw_main.c's main, renamed in this build
+
+static char g_cmdline[256];
+static int g_fd = -1;
+static int g_realtime;
+static long g_reply_ms = 250;    // a pseudo-terminal on a loaded machine can hold bytes ~140 ms
+static FILE* g_log;
+
+// the clock, in ns (BOARD_CPU_HZ is 1e9 in this build)
+static struct timespec g_start;
+static uint64_t g_period_ns, g_virtual, g_skipped, g_held, g_hold_at;
+static uint32_t g_ticks;
+static uint64_t g_cpu_at_tick, g_tick_began;
+
+#define RX_SIZE 1024u
+static uint8_t g_rx[RX_SIZE];
+static size_t g_rx_n;
+
+static uint64_t mono_ns(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
+}
+
+static uint64_t cpu_ns(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
+}
+
+static uint64_t start_ns(void) {
+  return (uint64_t)g_start.tv_sec * 1000000000u + (uint64_t)g_start.tv_nsec;
+}
+
+//---------------------------------- console -----------------------------------------------------
+
+void board_write(const char* text) {
+  fputs(text, stdout);
+  fflush(stdout);
+}
+
+void board_write_int(long value) {
+  printf("%ld", value);
+  fflush(stdout);
+}
+
+void board_stop(int code) {
+  if (g_log) fclose(g_log);
+  exit(code);
+}
+
+void board_stack_paint(void) {}
+
+unsigned board_stack_used(void) {
+  return 0;                      // the host's stack is not the board's: nothing to measure
+}
+
+int board_cmdline(char* text, unsigned size) {
+  if (size == 0) return -1;
+  strncpy(text, g_cmdline, size - 1);
+  text[size - 1] = 0;
+  return (int)strlen(text);
+}
+
+//---------------------------------- clock -------------------------------------------------------
+// now = time since the start, less the time held (lock-step) plus the time skipped to each next
+// period (lock-step: the wait costs nothing); in real time nothing is held or skipped.
+
+static uint64_t elapsed(void) {
+  return mono_ns() - start_ns() - g_held + g_skipped;
+}
+
+void board_clock_start(uint32_t period) {
+  g_period_ns = period;
+  clock_gettime(CLOCK_MONOTONIC, &g_start);
+  g_virtual = g_skipped = g_held = 0;
+  g_ticks = 0;
+}
+
+uint32_t board_clock_now(void) {
+  return (uint32_t)elapsed();
+}
+
+uint32_t board_clock_ticks(void) {
+  if (g_realtime) return (uint32_t)(elapsed() / g_period_ns);
+  return g_ticks;                // lock-step: a period begins only when the loop waits for it
+}
+
+void board_clock_wait(void) {
+  if (g_realtime) {
+    uint64_t next = ((uint64_t)board_clock_ticks() + 1u) * g_period_ns + start_ns();
+    struct timespec at = {(time_t)(next / 1000000000u), (long)(next % 1000000000u)};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &at, NULL) == EINTR) {
+    }
+  } else {
+    uint64_t now = elapsed();
+    uint64_t next = (now / g_period_ns + 1u) * g_period_ns;
+    g_skipped += next - now;
+    g_ticks++;
+  }
+  g_tick_began = mono_ns();
+  g_cpu_at_tick = cpu_ns();
+}
+
+void board_clock_hold(void) {
+  if (!g_realtime) g_hold_at = mono_ns();
+}
+
+void board_clock_release(void) {
+  if (!g_realtime) g_held += mono_ns() - g_hold_at;
+}
+
+//---------------------------------- UART --------------------------------------------------------
+
+static speed_t speed_of(uint32_t baud) {
+  switch (baud) {
+    case 9600: return B9600;
+    case 57600: return B57600;
+    case 115200: return B115200;
+    case 1000000: return B1000000;
+    case 2000000: return B2000000;
+    case 3000000: return B3000000;
+    case 4000000: return B4000000;
+    default: return 0;
+  }
+}
+
+void board_uart_init(uint32_t baud) {
+  struct termios tio;
+  if (tcgetattr(g_fd, &tio) != 0) {
+    fprintf(stderr, "servodyn-fw: the port is not a serial port (%s)\n", strerror(errno));
+    board_stop(FW_FAULT_SETUP);
+  }
+  cfmakeraw(&tio);
+  tio.c_cflag |= CLOCAL | CREAD;
+  tio.c_cc[VMIN] = 0;
+  tio.c_cc[VTIME] = 0;
+  speed_t speed = speed_of(baud);
+  if (speed == 0) {
+    fprintf(stderr, "servodyn-fw: %u baud has no termios speed here (9600 .. 4000000)\n", (unsigned)baud);
+    board_stop(FW_FAULT_SETUP);
+  }
+  cfsetispeed(&tio, speed);
+  cfsetospeed(&tio, speed);
+  if (tcsetattr(g_fd, TCSANOW, &tio) != 0) {
+    fprintf(stderr, "servodyn-fw: cannot set the port raw (%s)\n", strerror(errno));
+    board_stop(FW_FAULT_SETUP);
+  }
+  struct serial_struct serial;    // a USB adapter: 1 ms latency timer (a pseudo-terminal has none)
+  if (ioctl(g_fd, TIOCGSERIAL, &serial) == 0) {
+    serial.flags |= ASYNC_LOW_LATENCY;
+    ioctl(g_fd, TIOCSSERIAL, &serial);
+  }
+  tcflush(g_fd, TCIOFLUSH);
+  g_rx_n = 0;
+}
+
+void board_uart_write(const uint8_t* data, size_t n) {
+  while (n > 0) {
+    ssize_t w = write(g_fd, data, n);
+    if (w < 0) {
+      if (errno == EINTR || errno == EAGAIN) continue;
+      fprintf(stderr, "servodyn-fw: the port stopped taking bytes (%s)\n", strerror(errno));
+      board_stop(FW_FAULT_TIMEOUT);
+    }
+    data += w;
+    n -= (size_t)w;
+  }
+}
+
+static void pump(void) {          // what the port holds now, without waiting
+  if (g_rx_n >= RX_SIZE) return;
+  ssize_t r = read(g_fd, g_rx + g_rx_n, RX_SIZE - g_rx_n);
+  if (r > 0) g_rx_n += (size_t)r;
+}
+
+int board_uart_read(uint8_t* byte) {
+  return board_uart_take(byte, 1) == 1;
+}
+
+size_t board_uart_take(uint8_t* out, size_t cap) {
+  pump();
+  size_t n = g_rx_n < cap ? g_rx_n : cap;
+  memcpy(out, g_rx, n);
+  memmove(g_rx, g_rx + n, g_rx_n - n);
+  g_rx_n -= n;
+  return n;
+}
+
+size_t board_uart_available(void) {
+  pump();
+  return g_rx_n;
+}
+
+int board_uart_wait(size_t want) {
+  uint64_t deadline = mono_ns() + (uint64_t)g_reply_ms * 1000000u;
+  for (;;) {
+    pump();
+    if (g_rx_n >= want) return 1;
+    uint64_t now = mono_ns();
+    if (now >= deadline) return 0;
+    struct pollfd p = {g_fd, POLLIN, 0};
+    int ms = (int)((deadline - now + 999999u) / 1000000u);
+    if (poll(&p, 1, ms) < 0 && errno != EINTR) return 0;
+  }
+}
+
+void board_uart_flush(void) {
+  pump();
+  g_rx_n = 0;
+}
+
+uint32_t board_uart_overruns(void) {
+  return 0;                      // the kernel buffers what the loop has not taken
+}
+
+//---------------------------------- the per-tick log --------------------------------------------
+// One record a tick, native doubles: tick, start (s on the monotonic clock from the start), wall
+// and CPU time of its work (s), then q_d, q, qd, tau, current (FW_NJOINT each).
+// servodyn.tools.native reads it.
+
+void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd, const sd_real* tau,
+                    const sd_real* current) {
+  if (!g_log) return;
+  enum { HEAD = 4 };
+  double row[HEAD + 5 * FW_NJOINT];
+  row[0] = (double)tick;
+  row[1] = (double)(g_tick_began - start_ns()) * 1e-9;
+  row[2] = (double)(mono_ns() - g_tick_began) * 1e-9;
+  row[3] = (double)(cpu_ns() - g_cpu_at_tick) * 1e-9;
+  const sd_real* parts[5] = {q_d, q, qd, tau, current};
+  for (int p = 0; p < 5; p++)
+    for (int i = 0; i < FW_NJOINT; i++) row[HEAD + p * FW_NJOINT + i] = (double)parts[p][i];
+  fwrite(row, sizeof row, 1, g_log);
+}
+
+//---------------------------------- main --------------------------------------------------------
+
+static void realtime_setup(void) {
+  struct sched_param param = {.sched_priority = 80};
+  if (sched_setscheduler(0, SCHED_FIFO, &param) != 0)
+    fprintf(stderr, "servodyn-fw: SCHED_FIFO not allowed (%s): the loop runs at normal priority\n",
+            strerror(errno));
+  if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
+    fprintf(stderr, "servodyn-fw: mlockall not allowed (%s): pages may fault in the loop\n", strerror(errno));
+}
+
+int main(int argc, char** argv) {
+  if (argc < 2 || argv[1][0] == '-') {
+    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [period_us=N] [nan_at=K] [ticks=N]\n",
+            argv[0]);
+    return 2;
+  }
+  size_t used = 0;
+  for (int k = 2; k < argc; k++) {
+    if (strcmp(argv[k], "realtime") == 0) {
+      g_realtime = 1;
+    } else if (strncmp(argv[k], "log=", 4) == 0) {
+      g_log = fopen(argv[k] + 4, "wb");
+      if (!g_log) {
+        fprintf(stderr, "servodyn-fw: cannot write %s (%s)\n", argv[k] + 4, strerror(errno));
+        return 2;
+      }
+    } else if (strncmp(argv[k], "reply_ms=", 9) == 0) {
+      g_reply_ms = atol(argv[k] + 9);
+    } else {
+      int w = snprintf(g_cmdline + used, sizeof g_cmdline - used, "%s ", argv[k]);
+      if (w < 0 || (size_t)w >= sizeof g_cmdline - used) {
+        fprintf(stderr, "servodyn-fw: command line too long\n");
+        return 2;
+      }
+      used += (size_t)w;
+    }
+  }
+  g_fd = open(argv[1], O_RDWR | O_NOCTTY | O_NONBLOCK);
+  if (g_fd < 0) {
+    fprintf(stderr, "servodyn-fw: %s: cannot open (%s)\n", argv[1], strerror(errno));
+    return 2;
+  }
+  if (g_realtime) realtime_setup();
+  board_stop(fw_app_main());
+}

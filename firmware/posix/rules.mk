@@ -1,0 +1,21 @@
+# firmware/posix/rules.mk: the firmware as a Linux process, the native loop (included by the top
+# Makefile after firmware/app/rules.mk). The same application, core, codec and generated tables as
+# the Cortex-M builds, single precision, on firmware/posix/board_posix.c: a termios serial port
+# for the UART, clock_nanosleep for SysTick, nanosecond clock counts.
+#   build/fw/native/servodyn-fw PORT [realtime] [log=FILE] ...
+
+FW_NATIVE := $(FW_DIR)/native/servodyn-fw
+FW_NATIVE_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
+  -ffp-contract=fast -fno-math-errno -DSD_SINGLE -DBOARD_CPU_HZ=1000000000u -DFW_TOLERATE_OVERRUN=1 \
+  -include $(FW_GEN)/servodyn_gen.h -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app \
+  -Ihal/dynamixel/c -I$(FW_GEN)
+FW_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
+
+# fw_main.c's main() becomes fw_app_main(): the board's main() opens the port first
+$(FW_NATIVE): $(FW_NATIVE_SRC) firmware/app/fw_main.c $(FW_DEPS) firmware/posix/rules.mk
+	@echo "   cc $@ (Linux, float, -O2)"
+	@mkdir -p $(@D)
+	@$(CC) $(FW_NATIVE_CFLAGS) -Dmain=fw_app_main -c -o $(@D)/fw_main.o firmware/app/fw_main.c
+	@$(CC) $(FW_NATIVE_CFLAGS) -o $@ $(FW_NATIVE_SRC) $(@D)/fw_main.o -lm
+
+fw: $(FW_NATIVE)

@@ -1,0 +1,132 @@
+"""The native loop: the firmware's application built for Linux (firmware/posix) against the
+simulated Dynamixel bus on a pseudo-terminal, lock-stepped as the QEMU run is (the plant advances
+one period per Goal Current write), so everything asserted is deterministic: the goals equal the
+host's double-precision controller's on the same measurements within one unit, its log is what
+crossed the bus, its safe stops and their codes are the firmware's. No rate is asserted."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.hal.config import load_config
+from servodyn.hal.dynamixel.units import ServoMap
+from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.transport.pty import PtyServer
+from servodyn.tools.hil import FirmwareLink, replay
+from servodyn.tools.native import NATIVE, run_native
+from servodyn.tools.swing import run_swing
+
+ROOT = Path(__file__).resolve().parent.parent
+QUIET = dict(say=lambda *a, **k: None)
+HOME_TICKS = round(HOME_DURATION / SMALL_TIME_STEP) + 1
+SWING_TICKS = 7201
+FAULT_TICK = 100
+
+
+@pytest.fixture(scope="module")
+def native():
+    build = subprocess.run(["make", "--no-print-directory", "-s", str(NATIVE.relative_to(ROOT))], cwd=ROOT,
+                           capture_output=True, text=True)
+    assert build.returncode == 0, f"the native build failed:\n{build.stdout}\n{build.stderr}"
+    return NATIVE
+
+
+def _run(args="", on_tick=None, realtime=False, reply_timeout=1.0):
+    """The native loop against a fresh simulated arm whose every exchange is recorded (patient
+    with the simulator: a pseudo-terminal on a loaded machine can hold bytes back over 100 ms)."""
+    config = load_config("replica")
+    arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+    link = FirmwareLink(arm, on_tick)
+    server = PtyServer(arm, "lockstep")
+    server.start()
+    try:
+        report, log = run_native(server.path, config.model.dof_names, realtime, args, reply_timeout=reply_timeout,
+                                 **QUIET)
+        server._drain()                  # the last torque-off write, still in flight
+    finally:
+        server.stop()
+    return report, log, link.record, arm
+
+
+@pytest.fixture(scope="module")
+def swing(native):
+    return _run()
+
+
+def test_native_goals_are_the_host_controllers(swing):
+    """Every Goal Current the native loop wrote equals the host's double controller's on the same
+    measured state within one servo unit (float against double, as under QEMU)."""
+    report, log, record, arm = swing
+    assert report["result"] == "done" and report["exit_code"] == 0, report
+    assert report["ticks"] == HOME_TICKS + SWING_TICKS and len(record.goals) == HOME_TICKS + SWING_TICKS, \
+        "one write per tick of homing and swing"
+    twin = replay("replica", record)
+    n = len(twin["goals"])
+    assert n >= HOME_TICKS + SWING_TICKS - 1, f"the replay covers the run ({n} ticks)"
+    diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
+    assert diff.max() <= 1, f"goals differ by up to {diff.max()} units from the host's controller"
+    assert record.torque_off and all(not s.torque_enabled for s in arm.servos), "torque off on every servo at the end"
+    assert report["missed"] == 0 and report["lost"] == 0, "lock-step has no deadline to miss"
+
+
+def test_native_log_is_what_crossed_the_bus(swing):
+    """The log's swing ticks hold the measured state the bus carried (to float precision) and the
+    plan's desired positions (the host's own plan, to 1e-5 rad)."""
+    report, log, record, arm = swing
+    assert len(log.t) == SWING_TICKS and log.t[0] == 0.0, "the swing's ticks, on the swing's clock"
+    assert log.t[-1] == pytest.approx((SWING_TICKS - 1) * SMALL_TIME_STEP, abs=1e-9)
+    units = ServoMap.from_joints(load_config("replica").joints)
+    measured = np.array([units.from_ticks(r[:, 2]) for r in record.reads[1 + HOME_TICKS:1 + HOME_TICKS + SWING_TICKS]])
+    assert np.abs(np.array(log.q) - measured).max() < 1e-5, "q logged is q read"
+    twin = replay("replica", record)
+    assert np.abs(np.array(log.q_d) - twin["q_d"][HOME_TICKS:HOME_TICKS + SWING_TICKS]).max() < 1e-5, \
+        "q_d logged is the host's plan"
+    assert np.isfinite(np.array(log.tau)).all() and np.isfinite(log.cpu_seconds).all()
+
+
+def test_native_silent_servo_stops_safely(native):
+    """Servo 5 stops answering after tick 100's write: the next read names it (fault 10, timeout),
+    and the torque-off write goes out."""
+    def silence(k, arm):
+        if k == FAULT_TICK:
+            arm.inject_fault(5, "silent")
+    report, log, record, arm = _run(on_tick=silence)
+    assert (report["fault"], report["code"], report["exit_code"]) == ("timeout", 10, 10), report
+    assert report["servo"] == 5 and report["fault_tick"] == FAULT_TICK + 1, "servo 5, at the read after"
+    assert record.torque_off and len(record.goals) == FAULT_TICK + 1, "no command after the fault, torque off sent"
+
+
+def test_native_nonfinite_stops_safely(native):
+    report, log, record, arm = _run(args="nan_at=120")
+    assert (report["fault"], report["code"]) == ("nonfinite", 13) and report["fault_tick"] == 120, report
+    assert record.torque_off and len(record.goals) == 120, "the NaN at tick 120: no command from it"
+
+
+def test_native_overrun_stops_safely(native):
+    """Real time with a 1 us period and no tolerance: the first tick (a round trip through the
+    pseudo-terminal) cannot end inside its period, so it is fault 14 at tick 0."""
+    report, log, record, arm = _run(args="period_us=1 tolerance_us=0", realtime=True)
+    assert (report["fault"], report["code"]) == ("overrun", 14) and report["fault_tick"] == 0, report
+    assert report["missed"] >= 1 and record.torque_off, "the missed deadline is counted, torque off sent"
+
+
+def test_swing_native_has_the_python_loops_summary(native, tmp_path):
+    """`servodyn swing --native`: the simulator in its process, the native loop on its
+    pseudo-terminal, the summary with the Python loop's keys (and the same tracking bound)."""
+    from servodyn.loop import RunLog, summarize
+    summary = run_swing(out=tmp_path, native=True, **QUIET)
+    assert summary["completed"] and summary["loop"] == "native", summary.get("error")
+    assert summary["ticks"] == SWING_TICKS and summary["tracking_max_rad"] <= np.radians(5)
+    one = RunLog(("a",))
+    one.add(0.0, [0.0], type("S", (), {"q": np.zeros(1), "qd": np.zeros(1), "current": np.zeros(1)})(),
+            [0.0], 1e-4, 0.0, 1e-4, 1e-4)
+    keys = set(summarize(one, 1, SMALL_TIME_STEP, False)) | {"motion", "mode", "time_scale", "validated", "bus",
+                                                              "loop", "sim_time_at_stop_s", "torque_off"}
+    assert keys <= set(summary), f"missing: {keys - set(summary)}"
+    assert all(summary["torque_off"]), "torque off on every servo"
+    assert (tmp_path / "swing_log.csv").read_text().count("\n") == 1 + SWING_TICKS, "the log, as the Python loop's"
