@@ -103,8 +103,9 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     assert all(summary["torque_off"]), "torque off on every servo at the end"
     assert summary["clock"] == "realtime"
     if ran == 0:       # stopped while homing: the loop fell behind its tolerance (overrun), or a host
-        # starved past the servos' Bus Watchdog and they stopped it
-        assert summary["error"].startswith("overrun") or "Bus Watchdog" in summary["error"], summary["error"]
+        # starved past the servos' Bus Watchdog (they stopped it) or long enough that the bus went quiet
+        assert summary["error"].startswith("overrun") or any(
+            word in summary["error"] for word in ("Bus Watchdog", "stalled")), summary["error"]
         return
     assert 0 < ran <= 5401, f"{ran} ticks of the 5.4 s swing"
     planned = HOME_DURATION + (ran - 1) * SMALL_TIME_STEP
