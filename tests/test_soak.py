@@ -15,6 +15,7 @@ from servodyn.hal.errors import ServoHardwareError, ServoLimitError, ServoOperat
 from servodyn.model import load_model
 from servodyn.sim.faults import WireFault, _frames
 from servodyn.tools import soak
+from servodyn.loop import Overrun
 from servodyn.tools.swing import EXIT_CODES, exit_code
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -25,7 +26,8 @@ def test_swing_exit_codes_are_the_firmware_fault_codes():
     codes = {name: int(v) for name, v in re.findall(r"FW_FAULT_(\w+) = (\d+)", header)}
     expected = {TimeoutError: codes["TIMEOUT"], ServoHardwareError: codes["STATUS"],
                 ServoOperationError: codes["CORRUPT"], ControlFault: codes["NONFINITE"],
-                FloatingPointError: codes["NONFINITE"], ServoLimitError: codes["RANGE"]}
+                FloatingPointError: codes["NONFINITE"], Overrun: codes["OVERRUN"],
+                ServoLimitError: codes["RANGE"]}
     assert EXIT_CODES == expected, "the swing's exit statuses are fw_app.h's FW_FAULT_* values"
     assert exit_code(ServoTimeoutError("j", 3)) == codes["TIMEOUT"], "a servo timeout is a TimeoutError"
     assert exit_code(None) == 0 and exit_code(RuntimeError("x")) == 2, "completed 0, anything else 2"

@@ -104,13 +104,19 @@ def test_a_killed_swing_leaves_the_servos_to_their_watchdog(tmp_path):
     SIGKILL of the swing mid-run: the log on disk is whole lines, and every servo has tripped
     the Bus Watchdog the HAL armed and dropped its Goal Current, read back over the wire."""
     sdk = pytest.importorskip("dynamixel_sdk")
-    sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim"], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    swing = None
-    try:
+    def start_sim():
+        sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
         assert select.select([sim.stdout], [], [], 60)[0], "the sim prints its path"
-        port = re.search(r"on (/dev/\S+)", sim.stdout.readline()).group(1)
+        return sim, re.search(r"on (/dev/\S+)", sim.stdout.readline()).group(1)
+
+    sim, swing = None, None
+    try:
         for attempt in range(3):    # a starved host can trip the watchdog by itself: then try again
+            if sim is not None:     # on a fresh arm: the last attempt's, limp, has sagged off its limits
+                sim.terminate()
+                sim.wait(timeout=30)
+            sim, port = start_sim()
             out = tmp_path / f"out{attempt}"
             swing = subprocess.Popen([*SWING, "--port", port, "--realtime", "--time-scale", "3", "--out", str(out)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

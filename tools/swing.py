@@ -45,6 +45,7 @@ EXIT_CODES = {
     ServoOperationError: 12,   # FW_FAULT_CORRUPT: a corrupt or refused reply, a failed write
     ControlFault: 13,          # FW_FAULT_NONFINITE: a non-finite desired or measured state,
     FloatingPointError: 13,    # or a torque the controller could not compute finite
+    Overrun: 14,               # FW_FAULT_OVERRUN: the loop fell behind its period past its tolerance
     ServoLimitError: 15,       # FW_FAULT_RANGE: a joint measured beyond its limits
 }
 MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
