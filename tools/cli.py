@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import signal
 import sys
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control.motion import check_limits
+from ..control.timing import OVERRUN_TOLERANCE
 from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
 from ..model import ModelError, builtin_models, load_model
 
@@ -82,6 +84,15 @@ def cmd_experiment(args) -> None:
     EXPERIMENTS[args.name](Path(args.out))
 
 
+def _overrun_tolerance(ms: float | None) -> float | None:
+    """--overrun-tolerance in s; CliError unless a finite number of ms >= 0."""
+    if ms is None:
+        return None
+    if not math.isfinite(ms) or ms < 0:
+        raise CliError(f"--overrun-tolerance must be a finite number of ms >= 0, got {ms:g}")
+    return ms * 1e-3
+
+
 def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
     from ..sim.transport.pty import SimProcessError
@@ -95,7 +106,8 @@ def cmd_swing(args) -> int | None:
         summary = run_swing(args.config, port=args.port, out=Path(args.out),
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
                             realtime=args.realtime, motion=args.motion, force=args.force, native=args.native,
-                            observer=feed.observe if feed else None)
+                            observer=feed.observe if feed else None,
+                            overrun_tolerance=_overrun_tolerance(args.overrun_tolerance))
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         if viewer is not None:
             viewer.close()
@@ -274,6 +286,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the swing this many times slower (default: the configuration's)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the loop and the simulated plant by the wall clock (default lock-step)")
+    p.add_argument("--overrun-tolerance", type=float, default=None, metavar="MS",
+                   help="in real time, how far (ms) the loop may fall behind its 1 ms schedule before it stops "
+                        f"safely (overrun, exit 14; default {OVERRUN_TOLERANCE * 1e3:g})")
     p.add_argument("--motion", default="tennis_forehand", metavar="NAME|FILE",
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
     p.add_argument("--force", action="store_true",

@@ -91,7 +91,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
               force: bool = False, native: bool = False, observer=None, home_duration: float = HOME_DURATION,
-              figure: bool = True) -> dict:
+              figure: bool = True, overrun_tolerance: float | None = None) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
     the forehand, else 1). Before anything moves the validator checks it against every servo
@@ -104,7 +104,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     (tools/native.py) instead of the Python loop, with the same summary. observer: called by the
     loop with every tick's state (servodyn.loop.follow), e.g. the browser view's. home_duration: s
     of the homing move (shorter for the soak, whose motions start where the simulated arm does);
-    figure: write the tracking plot."""
+    figure: write the tracking plot. overrun_tolerance: s the real-time loop may fall behind its
+    schedule before it stops (default OVERRUN_TOLERANCE)."""
     from .validate import validate
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
@@ -162,7 +163,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         home, played = plan_run(model, swing, bus.read_state().q, home_duration)
         bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        follow(bus, controller, home, realtime=realtime, observer=observer)
+        follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
@@ -172,7 +173,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         swing_start = (server.status()["time"] if realtime else len(home.traj.t) * SMALL_TIME_STEP) \
             if server is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
-               observer=observer,
+               observer=observer, tolerance=overrun_tolerance,
                progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                               f"largest error {np.degrees(err):6.3f} deg"))
     except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
