@@ -25,14 +25,14 @@ from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .dynamixel import Servo, VirtualBus
 from .faults import WIRE_FAULTS, WireFault
-from .plant import Plant
+from .plant import Plant, PlantView
 
 PUSHED = 0.5     # rad beyond its upper limit an external push moves a joint ("pushed"): past
                  # the host's and the firmware's range margins (0.05, 0.35 rad)
 FAULTS = ("silent", "pushed", *HARDWARE_FAULTS, *WIRE_FAULTS)
 
 
-class SimulatedArm:
+class SimulatedArm(PlantView):
     """Servos and plant of a robot configuration (one Dynamixel bus); q in the model's dof order."""
 
     def __init__(self, config: RobotConfig, *, small_time_step: float = SMALL_TIME_STEP, q0=None,
@@ -53,18 +53,6 @@ class SimulatedArm:
         self.wire: WireFault | None = None      # a fault of the wire, on every reply from then on
 
     # the plant's state, for tests and reports
-    @property
-    def time(self) -> float:
-        return self.plant.time
-
-    @property
-    def q(self):
-        return self.plant.q
-
-    @property
-    def qd(self):
-        return self.plant.qd
-
     def advance(self, duration: float) -> None:
         """Run the plant; the servos' clocks (bus watchdog, Realtime Tick) follow."""
         self.plant.advance(duration)

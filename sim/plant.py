@@ -74,3 +74,21 @@ class Plant:
                                               self.integrator)
             self.time += self.small_time_step
             self.publish()
+
+
+class PlantView:
+    """The plant's clock and state, read through whatever holds a `plant` (a simulated arm or robot)."""
+
+    plant: Plant
+
+    @property
+    def time(self) -> float:
+        return self.plant.time
+
+    @property
+    def q(self):
+        return self.plant.q
+
+    @property
+    def qd(self):
+        return self.plant.qd

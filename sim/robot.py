@@ -24,12 +24,12 @@ from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
 from .can import CanMotor, CanNetwork
 from .dynamixel import Servo, VirtualBus
-from .plant import Plant
+from .plant import Plant, PlantView
 
 FAULTS = ("silent", "overheat", *HARDWARE_FAULTS)
 
 
-class SimulatedRobot:
+class SimulatedRobot(PlantView):
     def __init__(self, config: RobotConfig, *, small_time_step: float = SMALL_TIME_STEP, q0=None,
                  integrator: str = "rk4"):
         kinds = {bus.kind for bus in config.buses.values()}
@@ -60,18 +60,6 @@ class SimulatedRobot:
         self.small_time_step = small_time_step
         self.lock = threading.RLock()
         self._round: set[str] = set()
-
-    @property
-    def time(self) -> float:
-        return self.plant.time
-
-    @property
-    def q(self):
-        return self.plant.q
-
-    @property
-    def qd(self):
-        return self.plant.qd
 
     def advance(self, duration: float) -> None:
         self.plant.advance(duration)
