@@ -3,7 +3,8 @@
 #
 #   1. the linked image has no heap (malloc, sbrk) and, being a float build, no double-precision
 #      helper (__aeabi_d*, __aeabi_f2d, ...) and no double libm call (sin, cos, sqrt, fabs, ...);
-#   2. reports code and data size, and the worst stack frame from the -fstack-usage files;
+#   2. reports code and data size, the core's and the CAN codec's code (the codec within its
+#      budget), and the worst stack frame from the -fstack-usage files;
 #   3. runs the image under QEMU (mps2-an386): it must exit 0 within 10 s.
 # Any failure prints one line starting with "check-mcu: FAIL" and exits non-zero.
 set -euo pipefail
@@ -48,15 +49,25 @@ echo "  symbols: no malloc/sbrk, no double-precision helpers or libm calls"
 
 # --- 2. size and stack -------------------------------------------------------------------------
 read -r text data bss _ < <(arm-none-eabi-size "$elf" | tail -n 1)
-core_syms=$(find "$objdir" -path '*firmware/core/*.o' -exec arm-none-eabi-nm --defined-only {} + |
-            awk 'NF == 3 && $2 ~ /[tTrRdDbB]/ {print $3}' | sort -u)
-core_text=$(arm-none-eabi-nm -S --radix=d "$elf" | awk -v names="$core_syms" '
-  BEGIN { n = split(names, list, "\n"); for (i = 1; i <= n; i++) core[list[i]] = 1 }
-  NF == 4 && $3 ~ /[tT]/ && ($4 in core) { total += $2 }
-  END { print total + 0 }')
+# code in the image of the functions and constants our objects under a path define
+code_of() {
+  local syms
+  syms=$(find "$objdir" -path "*$1/*.o" -exec arm-none-eabi-nm --defined-only {} + |
+         awk 'NF == 3 && $2 ~ /[tTrRdDbB]/ {print $3}' | sort -u)
+  arm-none-eabi-nm -S --radix=d "$elf" | awk -v names="$syms" '
+    BEGIN { n = split(names, list, "\n"); for (i = 1; i <= n; i++) mine[list[i]] = 1 }
+    NF == 4 && $3 ~ /[tT]/ && ($4 in mine) { total += $2 }
+    END { print total + 0 }'
+}
+core_text=$(code_of firmware/core)
+# the CAN codec in float is ~2 KB; past its budget something heavy came in (a table, a library call)
+can_budget=4096
+can_text=$(code_of hal/can/c)
 stack=$(arm-none-eabi-nm --radix=d "$elf" | awk '$3 == "__stack_bottom" {b = $1} $3 == "__stack_top" {t = $1}
                                              END {print t - b}')
-echo "  size: text $text B (core code $core_text B), data $data B, bss $bss B (stack $stack B of it)"
+echo "  size: text $text B (core code $core_text B, CAN codec $can_text B), data $data B, bss $bss B (stack $stack B of it)"
+[ "$can_text" -gt 0 ] || fail "the CAN codec (hal/can/c) is not linked into $elf"
+[ "$can_text" -le $can_budget ] || fail "the CAN codec's code is $can_text B, over its $can_budget B budget"
 
 su_files=$(find "$objdir" -name '*.su')
 [ -n "$su_files" ] || fail "no .su files in $objdir (built without -fstack-usage?)"
@@ -81,6 +92,7 @@ case $rc in
   2) why="a non-finite result" ;;
   3) why="forward(rnea(qdd)) differs from qdd by more than 1e-3" ;;
   4) why="the core counted a warning" ;;
+  5) why="the CAN codec's check failed (firmware/mcu/canmotor_check.c)" ;;
   99) why="a CPU fault" ;;
   124) why="no exit within 10 s" ;;
   *) why="unexpected exit code" ;;

@@ -5,8 +5,10 @@ does in float32 and as host drivers do in double), every range boundary, clampin
 wrap), quantization, the special frames, Damiao's feedback layout and register frames."""
 
 import ctypes
+import functools
 import math
 import random
+import re
 import shutil
 import struct
 import subprocess
@@ -18,22 +20,28 @@ import pytest
 from servodyn.hal.can import dialects, frames
 from servodyn.hal.can.motors import DM_J4310, DM_J4340, MOTORS
 
-CODEC = Path(__file__).resolve().parent.parent / "hal" / "can" / "c"
+ROOT = Path(__file__).resolve().parent.parent
+CODEC = ROOT / "hal" / "can" / "c"
 RANGES = [m.ranges for m in MOTORS.values()] + [frames.Ranges(12.5, 65.0, 200.0)]
 
 
-class CRanges(ctypes.Structure):
-    _fields_ = [(n, ctypes.c_double) for n in ("p_max", "v_max", "t_max", "kp_max", "kd_max")]
+@functools.cache
+def _structs(real):
+    """The codec's structures with cm_real = real (ctypes.c_double, or c_float for -DSD_SINGLE)."""
+    class Ranges(ctypes.Structure):
+        _fields_ = [(n, real) for n in ("p_max", "v_max", "t_max", "kp_max", "kd_max")]
+
+    class Command(ctypes.Structure):
+        _fields_ = [(n, real) for n in ("p", "v", "kp", "kd", "t")]
+
+    class Reply(ctypes.Structure):
+        _fields_ = [("id", ctypes.c_uint8), ("status", ctypes.c_uint8), ("p", real), ("v", real), ("t", real),
+                    ("temperature", ctypes.c_int8), ("temperature2", ctypes.c_int8), ("voltage", ctypes.c_uint8)]
+    return Ranges, Command, Reply
 
 
-class CCommand(ctypes.Structure):
-    _fields_ = [(n, ctypes.c_double) for n in ("p", "v", "kp", "kd", "t")]
-
-
-class CReply(ctypes.Structure):
-    _fields_ = [("id", ctypes.c_uint8), ("status", ctypes.c_uint8), ("p", ctypes.c_double),
-                ("v", ctypes.c_double), ("t", ctypes.c_double), ("temperature", ctypes.c_int8),
-                ("temperature2", ctypes.c_int8), ("voltage", ctypes.c_uint8)]
+CRanges, CCommand, CReply = _structs(ctypes.c_double)
+FRanges, FCommand, FReply = _structs(ctypes.c_float)
 
 
 class CRegister(ctypes.Structure):
@@ -41,31 +49,47 @@ class CRegister(ctypes.Structure):
                 ("value", ctypes.c_uint32)]
 
 
-@pytest.fixture(scope="module")
-def cm(tmp_path_factory):
+def build_codec(directory, single=False):
+    """canmotor.c as a shared library, cm_real = double, or float with -DSD_SINGLE (the firmware's
+    build, with its warnings: no silent promotion to double)."""
     cc = shutil.which("cc")
     if cc is None:
         pytest.fail("no C compiler: `cc` is not on PATH (make test installs one)", pytrace=False)
-    lib = tmp_path_factory.mktemp("canmotor") / "libcanmotor.so"
+    lib = directory / ("libcanmotor32.so" if single else "libcanmotor.so")
     command = [cc, "-shared", "-fPIC", "-O2", "-std=c11", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
+               *(["-DSD_SINGLE", "-Wdouble-promotion", "-Wfloat-conversion"] if single else []),
                f"-I{CODEC}", "-o", str(lib), str(CODEC / "canmotor.c")]
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode:
         pytest.fail(f"building the C codec failed: {' '.join(command)}\n{done.stderr}", pytrace=False)
     so = ctypes.CDLL(str(lib))
+    real = ctypes.c_float if single else ctypes.c_double
+    ranges, command_t, reply = _structs(real)
     u8p, P = ctypes.POINTER(ctypes.c_uint8), ctypes.POINTER
-    so.cm_pack_command.argtypes = [P(CRanges), P(CCommand), u8p, P(ctypes.c_uint)]
-    so.cm_unpack_command.argtypes = [P(CRanges), u8p, ctypes.c_size_t, P(CCommand)]
+    so.cm_pack_command.argtypes = [P(ranges), P(command_t), u8p, P(ctypes.c_uint)]
+    so.cm_unpack_command.argtypes = [P(ranges), u8p, ctypes.c_size_t, P(command_t)]
     for kind in ("mit_reply", "damiao_feedback", "cubemars_reply"):
-        getattr(so, f"cm_pack_{kind}").argtypes = [P(CRanges), P(CReply), u8p]
-        getattr(so, f"cm_unpack_{kind}").argtypes = [P(CRanges), u8p, ctypes.c_size_t, P(CReply)]
+        getattr(so, f"cm_pack_{kind}").argtypes = [P(ranges), P(reply), u8p]
+        getattr(so, f"cm_unpack_{kind}").argtypes = [P(ranges), u8p, ctypes.c_size_t, P(reply)]
     so.cm_special.argtypes = [u8p, ctypes.c_size_t]
     so.cm_pack_special.argtypes = [u8p, ctypes.c_uint8]
     so.cm_pack_register.argtypes = [P(CRegister), u8p]
     so.cm_unpack_register.argtypes = [u8p, ctypes.c_size_t, P(CRegister)]
     so.cm_to_uint.restype = ctypes.c_uint32
-    so.cm_to_uint.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_uint]
+    so.cm_to_uint.argtypes = [real, real, real, ctypes.c_uint]
+    so.cm_to_float.restype = real
+    so.cm_to_float.argtypes = [ctypes.c_uint32, real, real, ctypes.c_uint]
     return so
+
+
+@pytest.fixture(scope="module")
+def cm(tmp_path_factory):
+    return build_codec(tmp_path_factory.mktemp("canmotor"))
+
+
+@pytest.fixture(scope="module")
+def cm32(tmp_path_factory):
+    return build_codec(tmp_path_factory.mktemp("canmotor32"), single=True)
 
 
 def _cr(r):
@@ -121,13 +145,7 @@ def random_commands(r, n, seed):
 def test_c_and_python_pack_the_same_bytes_over_boundaries_and_random_values(cm):
     count = 0
     for r in RANGES:
-        cases = list(random_commands(r, 3000, seed=int(r.t_max)))
-        for k, (lo, hi, bits) in enumerate(((-r.p_max, r.p_max, 16), (-r.v_max, r.v_max, 12), (0, r.kp_max, 12),
-                                            (0, r.kd_max, 12), (-r.t_max, r.t_max, 12))):
-            for x in boundary_values(lo, hi, bits):
-                base = [0.0, 0.0, 1.0, 0.1, 0.0]
-                base[k] = x
-                cases.append(tuple(base))
+        cases = all_cases(r)
         for case in cases:
             code, c_bytes, c_clamped = c_pack(cm, r, *case)
             py_bytes, py_clamped = frames.pack_command(r, *case)
@@ -159,6 +177,117 @@ def test_packing_matches_the_firmware_reference_inside_the_ranges(cm):
                     assert abs(getattr(ours, name) - getattr(theirs, name)) <= step * 1.0001, \
                         f"{inside}: float32 firmware packing more than one code away in {name}"
     assert float32_off < 0.05 * total, f"float32 and double packing differ on {float32_off} of {total} commands"
+
+
+def all_cases(r, n=3000, seed=None):
+    """n random commands around the ranges, then each field over its boundary values."""
+    cases = list(random_commands(r, n, seed=int(r.t_max) if seed is None else seed))
+    for k, (lo, hi, bits) in enumerate(fields_of(r)):
+        for x in boundary_values(lo, hi, bits):
+            base = [0.0, 0.0, 1.0, 0.1, 0.0]
+            base[k] = x
+            cases.append(tuple(base))
+    return cases
+
+
+def fields_of(r):
+    """(lo, hi, bits) of p, v, kp, kd, t."""
+    return ((-r.p_max, r.p_max, 16), (-r.v_max, r.v_max, 12), (0.0, r.kp_max, 12), (0.0, r.kd_max, 12),
+            (-r.t_max, r.t_max, 12))
+
+
+def clamp_in(case, r, dtype):
+    """The case clamped into the ranges in dtype (float: Python's double; np.float32: as the float build
+    clamps, after its caller's conversion to float), and the CLAMP_* bits."""
+    inside, bits = [], 0
+    for k, (x, (lo, hi, _)) in enumerate(zip(case, fields_of(r))):
+        x, lo, hi = dtype(x), dtype(lo), dtype(hi)
+        bits |= (x < lo or x > hi) << k
+        inside.append(min(max(x, lo), hi))
+    return tuple(inside), bits
+
+
+def uint_to_float_f32(u, lo, hi, bits):
+    """The firmware's uint_to_float in float32."""
+    f = np.float32
+    return f(u) * (f(hi) - f(lo)) / f((1 << bits) - 1) + f(lo)
+
+
+def test_each_build_packs_as_the_firmware_reference_in_its_precision(cm, cm32):
+    """The double build is bgkatz's float_to_uint computed in double, the float build (-DSD_SINGLE,
+    the firmware's) the same computed in float32, both exactly, over random values and every range
+    boundary. The two precisions are both the reference; they differ by one code on a few values
+    (on many of the boundary cases, which sit on code edges by design)."""
+    random_total = random_differ = boundary_total = boundary_differ = 0
+    for r in RANGES:
+        cr32 = FRanges(r.p_max, r.v_max, r.t_max, r.kp_max, r.kd_max)
+        for k, case in enumerate(all_cases(r, n=3000)):
+            code, c_bytes, c_clamped = c_pack(cm, r, *case)
+            inside, bits = clamp_in(case, r, float)
+            assert code == 0 and c_bytes == reference_pack(r, *inside) and c_clamped == bits, \
+                f"double build: {case} at {r} packed {c_bytes.hex()}, reference {reference_pack(r, *inside).hex()}"
+            out, clamped = _buf(), ctypes.c_uint()
+            assert cm32.cm_pack_command(cr32, FCommand(*case), out, ctypes.byref(clamped)) == 0, case
+            inside32, bits32 = clamp_in(case, r, np.float32)
+            f32 = reference_pack(r, *inside32, dtype=np.float32)
+            assert bytes(out) == f32 and clamped.value == bits32, \
+                f"float build: {case} at {r} packed {bytes(out).hex()}, float32 reference {f32.hex()}"
+            if f32 != c_bytes:
+                ours, theirs = frames.unpack_command(r, c_bytes), frames.unpack_command(r, f32)
+                for name, (lo, hi, nbits) in zip(("p", "v", "kp", "kd", "t"), fields_of(r)):
+                    assert abs(getattr(ours, name) - getattr(theirs, name)) <= (hi - lo) / ((1 << nbits) - 1) * 1.0001, \
+                        f"{case}: float and double builds more than one code apart in {name}"
+            if k < 3000:
+                random_total, random_differ = random_total + 1, random_differ + (f32 != c_bytes)
+            else:
+                boundary_total, boundary_differ = boundary_total + 1, boundary_differ + (f32 != c_bytes)
+    assert random_total == 12000 and boundary_total > 500, "the random and boundary cases"
+    # measured: 18 of 12,000 random commands, 116 of 560 boundary cases
+    assert 0 < random_differ < 0.005 * random_total, \
+        f"float32 and double differ on {random_differ} of {random_total} random commands (expected a few)"
+    assert boundary_differ > 0, "the boundary cases on code edges tell float32 from double"
+
+
+def test_float_build_decodes_every_code_as_the_firmware_in_float32(cm32):
+    """uint_to_float in float32 for every p code and every 12-bit code, each range; in range and finite."""
+    for r in RANGES:
+        cr32 = FRanges(r.p_max, r.v_max, r.t_max, r.kp_max, r.kd_max)
+        got = FCommand()
+        p, small = np.arange(65536), np.arange(65536) & 0xFFF
+        want = [uint_to_float_f32(codes, lo, hi, bits) for codes, (lo, hi, bits) in
+                zip((p, small, small, small, small), fields_of(r))]
+        # every code on the first range; on the others every 13th p code, which still meets all 4096 12-bit codes
+        for k in range(0, 65536, 1 if r is RANGES[0] else 13):
+            u = int(small[k])
+            data = bytes((k >> 8, k & 0xFF, u >> 4, ((u & 0xF) << 4) | (u >> 8), u & 0xFF, u >> 4,
+                          ((u & 0xF) << 4) | (u >> 8), u & 0xFF))
+            if frames.special(data):
+                continue
+            assert cm32.cm_unpack_command(cr32, _buf(data), 8, ctypes.byref(got)) == 0, data.hex()
+            for name, values in zip(("p", "v", "kp", "kd", "t"), want):
+                assert np.float32(getattr(got, name)) == values[k], \
+                    f"float build decodes {name} code {k if name == 'p' else u} as {getattr(got, name)}, " \
+                    f"float32 uint_to_float gives {values[k]} ({r})"
+        top = FCommand()
+        assert cm32.cm_unpack_command(cr32, _buf(b"\xff" * 7 + b"\xf0"), 8, ctypes.byref(top)) == 0
+        assert np.float32(top.p) == np.float32(r.p_max), "the top code decodes to the range's end"
+
+
+@pytest.mark.parametrize("kind", ["mit_reply", "damiao_feedback", "cubemars_reply"])
+def test_float_build_packs_replies_as_the_firmware_in_float32(cm32, kind):
+    """A simulated motor in float: the state fields of each reply from float_to_uint in float32."""
+    r = DM_J4340.ranges
+    cr32 = FRanges(r.p_max, r.v_max, r.t_max, r.kp_max, r.kd_max)
+    rng = random.Random(kind)
+    for _ in range(1000):
+        p, v, t = rng.uniform(-13, 13), rng.uniform(-9, 9), rng.uniform(-30, 30)
+        out = _buf()
+        assert getattr(cm32, f"cm_pack_{kind}")(cr32, FReply(3, 1, p, v, t, 40, 41, 0), out) == 0
+        (p32, v32, _, _, t32), _ = clamp_in((p, v, 0, 0, t), r, np.float32)
+        pu, vu = float_to_uint_f32(p32, -r.p_max, r.p_max, 16), float_to_uint_f32(v32, -r.v_max, r.v_max, 12)
+        tu = float_to_uint_f32(t32, -r.t_max, r.t_max, 12)
+        assert bytes(out[1:6]) == bytes((pu >> 8, pu & 0xFF, vu >> 4, ((vu & 0xF) << 4) | (tu >> 8), tu & 0xFF)), \
+            f"{kind}: ({p}, {v}, {t}) packed {bytes(out[1:6]).hex()}"
 
 
 def test_every_out_of_range_value_clamps_and_never_wraps(cm):
@@ -292,3 +421,27 @@ def test_register_frames(cm):
     with pytest.raises(frames.FrameError):
         frames.unpack_register(bytes([1, 0, 0x44, 9, 0, 0, 0, 0]))
     assert cm.cm_unpack_register(_buf(bytes([1, 0, 0x44, 9, 0, 0, 0, 0])), 8, ctypes.byref(back)) == -3
+
+
+def test_the_firmware_check_vectors_are_the_float32_reference():
+    """firmware/mcu/canmotor_check.c runs the float codec under QEMU against a table of commands and
+    bytes: the bytes are the float32 reference's, and in the first vector every field differs from
+    the double packing, so the Cortex-M4F build is shown to compute in float32."""
+    source = (ROOT / "firmware" / "mcu" / "canmotor_check.c").read_text()
+    ranges = re.search(r"cm_j4340 = \{([^}]*)\}", source).group(1)
+    r = frames.Ranges(*(float(x) for x in re.findall(r"CM_R\(([^)]*)\)", ranges)))
+    assert r == DM_J4340.ranges, f"the check's ranges {r} are a DM-J4340's"
+    table = source[source.index("BEGIN canmotor vectors"):source.index("END canmotor vectors")]
+    vectors = re.findall(r"\{\{([^}]*)\},\s*\{([^}]*)\},\s*(\d+)\}", table)
+    assert len(vectors) >= 2, "the table has its vectors"
+    for k, (values, data, clamped) in enumerate(vectors):
+        case = [float(x) for x in re.findall(r"CM_R\(([^)]*)\)", values)]
+        data = bytes(int(x, 16) for x in data.split(","))
+        inside32, bits32 = clamp_in(case, r, np.float32)
+        assert data == reference_pack(r, *inside32, dtype=np.float32) and int(clamped) == bits32, \
+            f"vector {k} {case}: {data.hex()} is not the float32 reference"
+        if k == 0:
+            double = reference_pack(r, *clamp_in(case, r, float)[0])
+            ours, theirs = frames.unpack_command(r, data), frames.unpack_command(r, double)
+            assert all(getattr(ours, n) != getattr(theirs, n) for n in ("p", "v", "kp", "kd", "t")), \
+                f"vector 0 should tell float32 from double in every field: {data.hex()} vs {double.hex()}"

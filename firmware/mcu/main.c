@@ -2,12 +2,14 @@
 //
 // Builds a 7-body arm-like chain (clavicle 2 dofs, shoulder 3, elbow 1, pronation 1, wrist 2,
 // finger 1, a welded tool: 10 dofs) from solid primitives, then runs every entry point of the
-// core once: sd_model_setup, sd_rnea, sd_forward and sd_step (RK4 and Euler). The exit code
-// tells the host what happened:
+// core once: sd_model_setup, sd_rnea, sd_forward and sd_step (RK4 and Euler), then the CAN motor
+// frame codec in float (canmotor_check.c). The exit code tells the host what happened:
 //   0 ok, 1 model rejected, 2 a non-finite result, 3 forward(rnea(qdd)) != qdd,
-//   4 a warning was counted, 99 a CPU fault (startup.c)
+//   4 a warning was counted, 5 the CAN codec's check failed, 99 a CPU fault (startup.c)
 #include "board.h"
 #include "servodyn.h"
+
+int canmotor_check(void);   // canmotor_check.c: 0, or the number of the check that failed
 
 enum { BODY_CLAVICLE, BODY_UPPER_ARM, BODY_FOREARM, BODY_RADIUS, BODY_HAND, BODY_FINGER,
        BODY_TOOL, NBODY };
@@ -181,12 +183,19 @@ int main(void) {
   }
   if (!all_finite(q, n) || !all_finite(qd, n)) return 2;
   if (g_data.warning[SD_WARN_NONFINITE] || g_data.warning[SD_WARN_SINGULAR]) return 4;
+  int can = canmotor_check();
+  if (can) {
+    board_write("servodyn-mcu: CAN codec check ");
+    board_write_int(can);
+    board_write(" failed\n");
+    return 5;
+  }
 
   board_write("servodyn-mcu: ok, ");
   board_write_int(n);
   board_write(" dofs, max |forward(rnea(qdd)) - qdd| = ");
   board_write_int((long)(worst * SD_R(1e6)));
-  board_write("e-6 rad/s^2, stack used ");
+  board_write("e-6 rad/s^2, CAN codec in float ok, stack used ");
   board_write_int((long)board_stack_used());
   board_write(" bytes\n");
   return 0;

@@ -1,5 +1,5 @@
 """The frame codec of MIT-style CAN motors, byte for byte the C codec's (c/canmotor.c, which the
-firmware uses; tests/test_can_c.py compares the two over every range boundary and random values).
+firmware uses; tests/test_can_frames.py compares the two over every range boundary and random values).
 
 A command is one 8-byte frame of big-endian bit fields, p 16 bits, v, kp, kd and t 12 bits each:
 

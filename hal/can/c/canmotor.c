@@ -1,10 +1,18 @@
 // canmotor.c: see canmotor.h.
 #include "canmotor.h"
 
-// a finite double without <math.h>: NaN fails x == x, +-inf fails the bound
-static int finite(double x) { return x == x && x <= 1.7976931348623157e308 && x >= -1.7976931348623157e308; }
+#include <float.h>
 
-static double clamp(double x, double lo, double hi, int* hit) {
+#ifdef SD_SINGLE
+#define CM_REAL_MAX FLT_MAX
+#else
+#define CM_REAL_MAX DBL_MAX
+#endif
+
+// a finite cm_real without <math.h>: NaN fails x == x, +-inf fails the bound
+static int finite(cm_real x) { return x == x && x <= CM_REAL_MAX && x >= -CM_REAL_MAX; }
+
+static cm_real clamp(cm_real x, cm_real lo, cm_real hi, int* hit) {
   if (x < lo) { *hit = 1; return lo; }
   if (x > hi) { *hit = 1; return hi; }
   return x;
@@ -16,17 +24,21 @@ static int ranges_ok(const cm_ranges* r) {
          r->kd_max > 0;
 }
 
-uint32_t cm_to_uint(double x, double lo, double hi, unsigned bits) {
-  uint32_t top = (1u << bits) - 1u;
-  double scaled;
+// the largest code of a field of `bits` bits (1..16; 0 outside)
+static uint32_t top_code(unsigned bits) { return bits >= 1 && bits <= 16 ? (1u << bits) - 1u : 0u; }
+
+uint32_t cm_to_uint(cm_real x, cm_real lo, cm_real hi, unsigned bits) {
+  uint32_t top = top_code(bits);
+  cm_real scaled;
   if (!(x > lo)) return 0;              // below the range, and NaN
   if (x >= hi) return top;
-  scaled = (x - lo) * (double)top / (hi - lo);
-  return scaled >= (double)top ? top : (uint32_t)scaled;
+  scaled = (x - lo) * (cm_real)top / (hi - lo);
+  return scaled >= (cm_real)top ? top : (uint32_t)scaled;
 }
 
-double cm_to_float(uint32_t u, double lo, double hi, unsigned bits) {
-  return (double)u * (hi - lo) / (double)((1u << bits) - 1u) + lo;
+cm_real cm_to_float(uint32_t u, cm_real lo, cm_real hi, unsigned bits) {
+  uint32_t top = top_code(bits);
+  return top ? (cm_real)u * (hi - lo) / (cm_real)top + lo : lo;
 }
 
 int cm_pack_command(const cm_ranges* r, const cm_command* c, uint8_t out[8], unsigned* clamped) {
@@ -39,8 +51,8 @@ int cm_pack_command(const cm_ranges* r, const cm_command* c, uint8_t out[8], uns
   // clamp first: float_to_uint itself would wrap a value outside its range
   p = cm_to_uint(clamp(c->p, -r->p_max, r->p_max, &hit[0]), -r->p_max, r->p_max, 16);
   v = cm_to_uint(clamp(c->v, -r->v_max, r->v_max, &hit[1]), -r->v_max, r->v_max, 12);
-  kp = cm_to_uint(clamp(c->kp, 0.0, r->kp_max, &hit[2]), 0.0, r->kp_max, 12);
-  kd = cm_to_uint(clamp(c->kd, 0.0, r->kd_max, &hit[3]), 0.0, r->kd_max, 12);
+  kp = cm_to_uint(clamp(c->kp, CM_R(0), r->kp_max, &hit[2]), CM_R(0), r->kp_max, 12);
+  kd = cm_to_uint(clamp(c->kd, CM_R(0), r->kd_max, &hit[3]), CM_R(0), r->kd_max, 12);
   t = cm_to_uint(clamp(c->t, -r->t_max, r->t_max, &hit[4]), -r->t_max, r->t_max, 12);
   out[0] = (uint8_t)(p >> 8);
   out[1] = (uint8_t)(p & 0xFF);
@@ -61,8 +73,8 @@ int cm_unpack_command(const cm_ranges* r, const uint8_t* data, size_t len, cm_co
   if (cm_special(data, len)) return CM_EKIND;
   c->p = cm_to_float(((uint32_t)data[0] << 8) | data[1], -r->p_max, r->p_max, 16);
   c->v = cm_to_float(((uint32_t)data[2] << 4) | (data[3] >> 4), -r->v_max, r->v_max, 12);
-  c->kp = cm_to_float(((uint32_t)(data[3] & 0xF) << 8) | data[4], 0.0, r->kp_max, 12);
-  c->kd = cm_to_float(((uint32_t)data[5] << 4) | (data[6] >> 4), 0.0, r->kd_max, 12);
+  c->kp = cm_to_float(((uint32_t)(data[3] & 0xF) << 8) | data[4], CM_R(0), r->kp_max, 12);
+  c->kd = cm_to_float(((uint32_t)data[5] << 4) | (data[6] >> 4), CM_R(0), r->kd_max, 12);
   c->t = cm_to_float(((uint32_t)(data[6] & 0xF) << 8) | data[7], -r->t_max, r->t_max, 12);
   return CM_OK;
 }

@@ -10,14 +10,27 @@
 // Each field is x -> (unsigned)((x - min) * (2^bits - 1) / (max - min)), truncating, as the
 // firmware's float_to_uint; x is clamped into [min, max] first so it never wraps. Decoding is
 // u * (max - min) / (2^bits - 1) + min, so a symmetric range never decodes to exactly 0.
-// The arithmetic is in double with contraction off, so the Python codec (hal/can/frames.py)
-// gives the same bytes; tests/test_can_c.py checks it. No heap, no stdio; every decoder takes
-// (data, len) of one frame kind and returns 0 or a negative error, so a fuzzer calls it as is.
+//
+// One source, two precisions, chosen as the core's (firmware/core/include/sd_config.h) by the
+// same switch: cm_real is double by default (the host: with contraction off the Python codec
+// hal/can/frames.py gives the same bytes) and float with -DSD_SINGLE (the firmware on a
+// single-precision FPU: float_to_uint/uint_to_float computed in float32, as the motors' own
+// firmware computes them). tests/test_can_frames.py checks each build against its reference.
+// No heap, no stdio, no libm; every decoder takes (data, len) of one frame kind and returns 0 or
+// a negative error, so a fuzzer calls it as is.
 #ifndef CANMOTOR_H
 #define CANMOTOR_H
 
 #include <stddef.h>
 #include <stdint.h>
+
+#ifdef SD_SINGLE
+typedef float cm_real;
+#define CM_R(x) ((float)(x))
+#else
+typedef double cm_real;
+#define CM_R(x) ((double)(x))
+#endif
 
 enum {
   CM_OK = 0,
@@ -47,21 +60,21 @@ enum {
 enum { CM_CLAMP_P = 1, CM_CLAMP_V = 2, CM_CLAMP_KP = 4, CM_CLAMP_KD = 8, CM_CLAMP_T = 16 };
 
 typedef struct {
-  double p_max;        // rad: p in [-p_max, p_max]
-  double v_max;        // rad/s
-  double t_max;        // N m
-  double kp_max;       // N m / rad: kp in [0, kp_max]
-  double kd_max;       // N m s / rad
+  cm_real p_max;       // rad: p in [-p_max, p_max]
+  cm_real v_max;       // rad/s
+  cm_real t_max;       // N m
+  cm_real kp_max;      // N m / rad: kp in [0, kp_max]
+  cm_real kd_max;      // N m s / rad
 } cm_ranges;
 
 typedef struct {
-  double p, v, kp, kd, t;
+  cm_real p, v, kp, kd, t;
 } cm_command;
 
 typedef struct {
   uint8_t id;          // the motor's id as it reports it (Damiao: the low nibble of CAN_ID)
   uint8_t status;      // Damiao: the status nibble; CubeMars: the error code; mit: 0
-  double p, v, t;      // rad, rad/s, N m (CubeMars: the current field over +-t_max)
+  cm_real p, v, t;     // rad, rad/s, N m (CubeMars: the current field over +-t_max)
   int8_t temperature;  // degC: Damiao MOS, CubeMars motor; mit: 0
   int8_t temperature2; // degC: Damiao coil; else 0
   uint8_t voltage;     // mit 7-byte reply: the bus voltage byte; else 0
@@ -74,9 +87,9 @@ typedef struct {
   uint32_t value;      // little-endian bytes 4..7 (a float register's IEEE bits)
 } cm_register;
 
-// Field conversions of the firmware (float_to_uint after clamping, uint_to_float).
-uint32_t cm_to_uint(double x, double lo, double hi, unsigned bits);
-double cm_to_float(uint32_t u, double lo, double hi, unsigned bits);
+// Field conversions of the firmware (float_to_uint after clamping, uint_to_float), bits 1..16.
+uint32_t cm_to_uint(cm_real x, cm_real lo, cm_real hi, unsigned bits);
+cm_real cm_to_float(uint32_t u, cm_real lo, cm_real hi, unsigned bits);
 
 // A command frame. *clamped (may be NULL) gets the CM_CLAMP_* bits of the fields clamped.
 int cm_pack_command(const cm_ranges* r, const cm_command* c, uint8_t out[8], unsigned* clamped);
