@@ -15,7 +15,10 @@ FUZZ_CFLAGS := -g -O1 -std=c11 -Wall -Wextra -Werror -fsanitize=fuzzer,address,u
 
 # one target per file in fuzz/dynamixel: build/fuzz/dxl_NAME
 FUZZ_DXL := $(patsubst fuzz/dynamixel/%.c,build/fuzz/dxl_%,$(wildcard fuzz/dynamixel/*.c))
-FUZZ_TARGETS := $(FUZZ_DXL)
+# the CAN codec, once per precision: build/fuzz/can_codec (double), build/fuzz/can32_codec (float,
+# -DSD_SINGLE as the firmware builds it); both start from fuzz/can/corpus/codec
+FUZZ_CAN := build/fuzz/can_codec build/fuzz/can32_codec
+FUZZ_TARGETS := $(FUZZ_DXL) $(FUZZ_CAN)
 
 build/fuzz/.cc:
 	@mkdir -p $(@D)
@@ -25,6 +28,17 @@ build/fuzz/dxl_%: fuzz/dynamixel/%.c fuzz/dynamixel/fuzz.h hal/dynamixel/c/dxl.c
                   hal/dynamixel/c/dxl.h | build/fuzz/.cc
 	@echo "   clang -fsanitize=fuzzer,address,undefined $@"
 	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -Ihal/dynamixel/c -o $@ $< hal/dynamixel/c/dxl.c
+
+FUZZ_CAN_DEPS := fuzz/can/codec.c hal/can/c/canmotor.c hal/can/c/canmotor.h | build/fuzz/.cc
+
+build/fuzz/can_codec: $(FUZZ_CAN_DEPS)
+	@echo "   clang -fsanitize=fuzzer,address,undefined $@"
+	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -Ihal/can/c -o $@ fuzz/can/codec.c hal/can/c/canmotor.c
+
+build/fuzz/can32_codec: $(FUZZ_CAN_DEPS)
+	@echo "   clang -fsanitize=fuzzer,address,undefined -DSD_SINGLE $@"
+	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion -Ihal/can/c -o $@ \
+	  fuzz/can/codec.c hal/can/c/canmotor.c
 
 .PHONY: fuzz test-fuzz
 fuzz: $(FUZZ_TARGETS)

@@ -23,6 +23,9 @@ from servodyn.hal.can.motors import DM_J4310, DM_J4340, MOTORS
 ROOT = Path(__file__).resolve().parent.parent
 CODEC = ROOT / "hal" / "can" / "c"
 RANGES = [m.ranges for m in MOTORS.values()] + [frames.Ranges(12.5, 65.0, 200.0)]
+# Damiao's feedback layout (DM_CAN.py), built by hand: motor 3 enabled, p code 0x8000, v code 0x800,
+# t code 0x7FF, 35 and 41 degC
+DAMIAO_VENDOR_FEEDBACK = bytes([0x13, 0x80, 0x00, 0x80, 0x07, 0xFF, 35, 41])
 
 
 @functools.cache
@@ -366,11 +369,9 @@ def test_replies_round_trip_in_c_and_python(cm, kind):
 
 
 def test_damiao_feedback_layout_from_the_vendor_library():
-    """Damiao's layout (DM_CAN.py): D0 = status<<4 | id, p 16 bits, v 12 | t 12, T_mos, T_coil.
-    A frame built by hand from those fields: motor 3 enabled, p code 0x8000, v code 0x800, t code
-    0x7FF, 35 and 41 degC."""
+    """Damiao's layout (DM_CAN.py): D0 = status<<4 | id, p 16 bits, v 12 | t 12, T_mos, T_coil."""
     r = DM_J4310.ranges
-    data = bytes([0x13, 0x80, 0x00, 0x80, 0x07, 0xFF, 35, 41])
+    data = DAMIAO_VENDOR_FEEDBACK
     y = frames.unpack_damiao_feedback(r, data)
     assert (y.id, y.status, y.temperature, y.temperature2) == (3, 1, 35, 41), "byte 0 nibbles and temperatures"
     assert y.p == pytest.approx(0x8000 * 25 / 65535 - 12.5), "p from bytes 1-2"
@@ -445,3 +446,52 @@ def test_the_firmware_check_vectors_are_the_float32_reference():
             ours, theirs = frames.unpack_command(r, data), frames.unpack_command(r, double)
             assert all(getattr(ours, n) != getattr(theirs, n) for n in ("p", "v", "kp", "kd", "t")), \
                 f"vector 0 should tell float32 from double in every field: {data.hex()} vs {double.hex()}"
+
+
+def test_ranges_outside_the_codec_bounds_are_refused_in_both_builds_and_in_python(cm, cm32):
+    """Regression (found by the fuzz target): a range near the float maximum made the span inf, so
+    float_to_uint was inf / inf and NaN was cast to unsigned; a denormal range lost the codes. Each
+    range end must lie in [CM_RANGE_MIN, CM_RANGE_MAX] (canmotor.h, the same in frames.py)."""
+    header = (CODEC / "canmotor.h").read_text()
+    bounds = [float(re.search(rf"#define CM_RANGE_{k} CM_R\(([^)]*)\)", header).group(1)) for k in ("MIN", "MAX")]
+    assert bounds == [frames.RANGE_MIN, frames.RANGE_MAX], f"C bounds {bounds}, Python's differ"
+    for bad in (3.39e38, 1.7e308, 2 * frames.RANGE_MAX, frames.RANGE_MIN / 2, 2.4e-322, 0.0, -1.0, math.nan, math.inf):
+        for field in range(5):
+            values = [12.5, 8.0, 28.0, 500.0, 5.0]
+            values[field] = bad
+            assert c_pack(cm, frames.Ranges(12.5, 8.0, 28.0), 0, 0, 0, 0, 0)[0] == 0
+            out = _buf()
+            assert cm.cm_pack_command(CRanges(*values), CCommand(0, 0, 0, 0, 0), out, None) == -2, \
+                f"double build accepts range {bad} in field {field}"
+            assert cm32.cm_pack_command(FRanges(*values), FCommand(0, 0, 0, 0, 0), out, None) == -2, \
+                f"float build accepts range {bad} in field {field}"
+            assert cm.cm_unpack_damiao_feedback(CRanges(*values), _buf(DAMIAO_VENDOR_FEEDBACK), 8,
+                                                ctypes.byref(CReply())) == -2, f"decoding with range {bad}"
+            with pytest.raises(frames.FrameError, match="must be a number from 1e-06 to 1e"):
+                frames.Ranges(*values)
+    for edge in (frames.RANGE_MIN, frames.RANGE_MAX):
+        r = frames.Ranges(edge, edge, edge, edge, edge)
+        for value in (edge, -edge, edge / 3, 0.0):
+            code, c_bytes, _ = c_pack(cm, r, value, value, abs(value), abs(value), value)
+            assert code == 0 and c_bytes == frames.pack_command(r, value, value, abs(value), abs(value), value)[0]
+            back = frames.unpack_command(r, c_bytes)
+            assert abs(back.p - value) <= 2 * edge / 65535 * 1.0001, f"range {edge}: p {value} came back {back.p}"
+
+
+def test_a_configuration_with_a_range_outside_the_codec_bounds_is_one_line(tmp_path):
+    """`p_max = 1e300` in a configuration reached the codec and raised a ValueError mid-swing."""
+    import tomllib
+    from servodyn.hal.config import builtin_configs
+    text = builtin_configs()["replica_can"].read_text()
+    data = tomllib.loads(text)
+    first = next(k for k, line in enumerate(text.splitlines()) if line.strip() == "[[joint]]")
+    lines = text.splitlines()
+    lines.insert(first + 1, "p_max = 1e300")
+    bad = tmp_path / "huge_range.toml"
+    bad.write_text("\n".join(lines) + "\n")
+    assert data["joint"], "the configuration has joints"
+    run = subprocess.run([str(ROOT / ".venv" / "bin" / "servodyn"), "validate", str(bad), "forehand"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, f"exit {run.returncode}: {run.stderr}"
+    assert "Traceback" not in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert "'p_max' 1e+300 is outside the MIT frame codec's ranges" in run.stderr, run.stderr

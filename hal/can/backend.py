@@ -66,7 +66,12 @@ class CanBus(ServoBus):
             checker.fail("feedback_id", f"0x{feedback_id:X} cannot be a {dialect} motor's reply id "
                                         f"(0..0x{MAX_ID:X}; Damiao: not 0, not the command id)")
         default = servo.ranges
-        ranges = {k: checker.positive(k, getattr(default, k)) for k in ("p_max", "v_max", "t_max", "kp_max", "kd_max")}
+        ranges = {}
+        for key in ("p_max", "v_max", "t_max", "kp_max", "kd_max"):
+            ranges[key] = checker.positive(key, getattr(default, key))
+            if not frames.RANGE_MIN <= ranges[key] <= frames.RANGE_MAX:
+                checker.fail(key, f"{ranges[key]:g} is outside the MIT frame codec's ranges "
+                                  f"({frames.RANGE_MIN:g} to {frames.RANGE_MAX:g})")
         return {"dialect": dialect, "feedback_id": feedback_id, "ranges": frames.Ranges(**ranges)}
 
     @classmethod

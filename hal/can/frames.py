@@ -28,6 +28,11 @@ SPECIALS = {ENTER: "enter motor mode", EXIT: "exit motor mode", SET_ZERO: "set z
 REGISTER_ID = 0x7FF
 REG_READ, REG_WRITE, REG_STORE, REG_REFRESH = 0x33, 0x55, 0xAA, 0xCC
 
+# every range end within these (canmotor.h's CM_RANGE_MIN, CM_RANGE_MAX): wide enough for any motor,
+# narrow enough that no step of the conversions overflows (a span near the float maximum made
+# (x - min) * 65535 / span inf / inf, NaN) or sinks into denormals
+RANGE_MIN, RANGE_MAX = 1e-6, 1e6
+
 # bits of Command.clamped: which field was clamped into its range
 CLAMP_P, CLAMP_V, CLAMP_KP, CLAMP_KD, CLAMP_T = 1, 2, 4, 8, 16
 
@@ -48,8 +53,8 @@ class Ranges:
     def __post_init__(self):
         for name in ("p_max", "v_max", "t_max", "kp_max", "kd_max"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise FrameError(f"range {name} must be a positive finite number, got {value!r}")
+            if not (isinstance(value, (int, float)) and RANGE_MIN <= value <= RANGE_MAX):
+                raise FrameError(f"range {name} must be a number from {RANGE_MIN:g} to {RANGE_MAX:g}, got {value!r}")
 
     @property
     def torque_step(self) -> float:

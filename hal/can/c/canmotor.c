@@ -18,10 +18,11 @@ static cm_real clamp(cm_real x, cm_real lo, cm_real hi, int* hit) {
   return x;
 }
 
+static int range_ok(cm_real m) { return m >= CM_RANGE_MIN && m <= CM_RANGE_MAX; }   // NaN fails
+
 static int ranges_ok(const cm_ranges* r) {
-  return finite(r->p_max) && finite(r->v_max) && finite(r->t_max) && finite(r->kp_max) &&
-         finite(r->kd_max) && r->p_max > 0 && r->v_max > 0 && r->t_max > 0 && r->kp_max > 0 &&
-         r->kd_max > 0;
+  return range_ok(r->p_max) && range_ok(r->v_max) && range_ok(r->t_max) && range_ok(r->kp_max) &&
+         range_ok(r->kd_max);
 }
 
 // the largest code of a field of `bits` bits (1..16; 0 outside)

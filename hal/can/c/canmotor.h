@@ -32,10 +32,18 @@ typedef double cm_real;
 #define CM_R(x) ((double)(x))
 #endif
 
+// The ranges the codec accepts: every range end (p_max, v_max, t_max, kp_max, kd_max) within
+// [CM_RANGE_MIN, CM_RANGE_MAX]. Wide enough for any motor (vendors' p_max 12.5 to 95.5 rad, kp_max
+// 500), narrow enough that no step of the conversions overflows or sinks into denormals in either
+// precision: past 1e6 a range's span times 65535 leaves float's range near 1e38 / 65535 far
+// behind, but a span near DBL_MAX (or FLT_MAX) turns (x - min) / span into inf / inf.
+#define CM_RANGE_MIN CM_R(1e-6)
+#define CM_RANGE_MAX CM_R(1e6)
+
 enum {
   CM_OK = 0,
   CM_ELEN = -1,     // the frame has the wrong length for its kind
-  CM_EVALUE = -2,   // a non-finite value, or a range with max <= min
+  CM_EVALUE = -2,   // a non-finite value, or a range outside [CM_RANGE_MIN, CM_RANGE_MAX]
   CM_EKIND = -3     // the bytes are not a frame of this kind
 };
 
