@@ -95,3 +95,50 @@ def _frames(data: bytes) -> list[bytes]:
         out.append(data[at:at + n])
         at += n
     return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Faults of a simulated CAN bus (sim/can/network.py applies them to one motor's frames). CAN's own CRC
+# drops a frame corrupted on the wire and every node sees an error frame; what reaches a host with a
+# valid CRC but wrong content comes from a node that misbehaves.
+#
+#   garbage       each reply of the motor replaced by a frame on its reply id of random length (0-8)
+#                 and random bytes (a babbling node: its CRC is valid, its content is not a reply)
+#   wrong_id      each reply names another motor (the motor id in byte 0 / Damiao's low nibble, + 1)
+#   error_frame   each reply lost to a bit error: the host's controller reports an error frame
+#   bus_off       the host's controller goes bus-off once: an error frame (bus-off), and every send
+#                 fails for BUS_OFF s until it rejoins the bus (Linux can's restart-ms)
+
+CAN_WIRE_FAULTS = ("garbage", "wrong_id", "error_frame", "bus_off")
+# an error frame among a network's answers: a negative arbitration id, minus its error class
+# (linux/can/error.h, which socketcan puts in an error frame's id)
+CAN_ERR_PROT, CAN_ERR_BUSOFF = 0x08, 0x40
+BUS_OFF = 0.05                 # s the host's controller stays off the bus
+
+
+class CanWireFault:
+    """One CAN fault on one motor's reply frames, from now on (`bus_off`: once, on the bus)."""
+
+    def __init__(self, kind: str, seed: int = 0):
+        if kind not in CAN_WIRE_FAULTS:
+            raise ValueError(f"unknown CAN fault {kind!r} (one of {', '.join(CAN_WIRE_FAULTS)})")
+        self.kind = kind
+        self.rng = random.Random(seed)
+
+    def apply(self, frames: list[tuple[int, bytes]], dialect: str) -> list[tuple[int, bytes]]:
+        """The frames the host receives instead of the motor's `frames` [(arbitration id, data)]."""
+        out = []
+        for arbitration_id, data in frames:
+            if self.kind == "garbage":
+                out.append((arbitration_id, bytes(self.rng.randrange(256) for _ in range(self.rng.randrange(9)))))
+            elif self.kind == "wrong_id":
+                if dialect == "damiao":
+                    data = bytes([(data[0] & 0xF0) | ((data[0] + 1) & 0x0F)]) + data[1:]
+                else:
+                    data = bytes([(data[0] + 1) & 0xFF]) + data[1:]
+                out.append((arbitration_id, data))
+            elif self.kind == "error_frame":
+                out.append((-CAN_ERR_PROT, bytes(8)))
+            else:
+                out.append((arbitration_id, data))
+        return out

@@ -22,11 +22,13 @@ from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
+from .arm import PUSHED
 from .can import CanMotor, CanNetwork
 from .dynamixel import Servo, VirtualBus
+from .faults import CAN_WIRE_FAULTS
 from .plant import Plant, PlantView
 
-FAULTS = ("silent", "overheat", *HARDWARE_FAULTS)
+FAULTS = ("silent", "overheat", "pushed", *HARDWARE_FAULTS, *CAN_WIRE_FAULTS)
 
 
 class SimulatedRobot(PlantView):
@@ -111,7 +113,21 @@ class SimulatedRobot(PlantView):
         """From now on, on the CAN motor or Dynamixel servo with this id (the first found):
         "silent" (no answer); a CAN motor: "overheat" (the winding over its limit: the motor's own
         over-temperature fault on its next step) or a status / error code latched; a servo:
-        Hardware Error Status bits by name ("overload", ...) or as an int."""
+        Hardware Error Status bits by name ("overload", ...) or as an int; either: "pushed" (an
+        external push moves its joint PUSHED rad beyond its upper limit); a CAN motor's bus: a fault
+        of the wire (sim/faults.py: "garbage", "wrong_id", "error_frame", "bus_off")."""
+        if fault == "pushed":
+            k = next((k for k, j in enumerate(self.joints) if j.id == device_id), None)
+            if k is None:
+                raise KeyError(f"no device with id {device_id}")
+            self.plant.q[k] = self.joints[k].position_limits[1] + PUSHED
+            return
+        if fault in CAN_WIRE_FAULTS:
+            network = next((n for n in self.networks.values() if any(m.can_id == device_id for m in n.motors)), None)
+            if network is None:
+                raise KeyError(f"no CAN motor with id {device_id}")
+            network.inject(device_id, fault, seed=device_id * 1_000_003 + round(self.time / self.small_time_step))
+            return
         for chain in self.chains.values():
             try:
                 servo = chain.servo(device_id)
@@ -139,6 +155,8 @@ class SimulatedRobot(PlantView):
     def clear_faults(self) -> None:
         for drive in self.drives:
             drive.silent = False
+        for network in self.networks.values():
+            network.wire.clear()
 
 
 class DynamixelPort:

@@ -1,7 +1,7 @@
 """The fault-injection soak's parts (the soak itself is `make soak`, minutes long): the wire
-faults of the simulated bus, the swing's exit statuses (the firmware's fault codes), the
-controller's refusal of a non-finite state, and one short run of four fault classes through the
-soak's own checks (safe stop, torque off, exit status, complete log)."""
+faults of the simulated Dynamixel and CAN buses, the swing's exit statuses (the firmware's fault
+codes), the controller's refusal of a non-finite state, and one short run of several fault classes,
+Dynamixel and CAN, through the soak's own checks (safe stop, torque off, exit status, complete log)."""
 
 import re
 from pathlib import Path
@@ -13,7 +13,7 @@ from servodyn.control import ControlConfig, ControlFault, Controller
 from servodyn.hal.dynamixel import BROADCAST_ID, FastReadBlock, StatusPacket, decode_frame, encode_fast_reply
 from servodyn.hal.errors import ServoHardwareError, ServoLimitError, ServoOperationError, ServoTimeoutError
 from servodyn.model import load_model
-from servodyn.sim.faults import WireFault, _frames
+from servodyn.sim.faults import CAN_ERR_PROT, CanWireFault, WireFault, _frames
 from servodyn.tools import soak
 from servodyn.loop import Overrun
 from servodyn.tools.swing import EXIT_CODES, exit_code
@@ -92,3 +92,56 @@ def test_a_soak_run_of_each_kind_ends_in_a_safe_stop(name):
     assert result["stopped"] and result["code"] in soak.CLASSES[name][1], \
         f"{name}: a safe stop with the class's exit status, got {result['code']} ({result['error']})"
     assert result["late_ticks"] <= soak.STOP_TICKS, f"{name}: torque off {result['late_ticks']} ticks after the fault"
+
+
+def test_can_wire_faults_act_on_a_motors_frames():
+    damiao = [(0x14, bytes([0x14, 0x80, 0x00, 0x80, 0x07, 0xFF, 35, 41]))]
+    garbage = CanWireFault("garbage", seed=2)
+    lengths = set()
+    for _ in range(60):
+        (arbitration_id, data), = garbage.apply(damiao, "damiao")
+        assert arbitration_id == 0x14, "garbage stays on the motor's reply id"
+        lengths.add(len(data))
+    assert lengths == set(range(9)), f"random lengths 0-8: {sorted(lengths)}"
+    (_, wrong), = CanWireFault("wrong_id").apply(damiao, "damiao")
+    assert wrong[0] == 0x15 and wrong[1:] == damiao[0][1][1:], "Damiao: the low nibble names motor 5, status kept"
+    (_, wrong), = CanWireFault("wrong_id").apply([(0, bytes([3, 1, 2, 3, 4, 5]))], "mit")
+    assert wrong[0] == 4, "mit: byte 0 names motor 4"
+    (arbitration_id, _), = CanWireFault("error_frame").apply(damiao, "damiao")
+    assert arbitration_id == -CAN_ERR_PROT, "an error frame, its class (protocol error) as a negative id"
+    with pytest.raises(ValueError, match="unknown CAN fault"):
+        CanWireFault("noise")
+
+
+@pytest.mark.parametrize("name, fault, servo, config", [
+    ("fault status", 0xA, 3, "replica_can"),
+    ("fault status", "overload", 6, "replica_mixed"),
+    ("garbage frame", "garbage", 5, "replica_can"),
+    ("wrong id", "wrong_id", 2, "replica_mixed"),
+    ("error frame", "error_frame", 7, "replica_can"),
+    ("bus-off", "bus_off", 1, "replica_can"),
+    ("beyond limit", "pushed", 4, "replica_can"),
+])
+def test_a_soak_run_on_can_motors_ends_in_a_safe_stop(name, fault, servo, config):
+    """A CAN fault mid-swing: every motor (and servo) off within two plant ticks, the class's exit
+    status, the log complete. A bus-off also makes the stop's exit frames fail until the controller
+    rejoins the bus: without the stop's retries the motors stayed in motor mode."""
+    spec = {"run": 0, "class": name, "fault": fault, "servo": servo, "tick": 60, "seed": 11, "firmware": False,
+            "config": config}
+    result = soak._one(spec)
+    assert not result.get("traceback"), f"{name}: the run raised: {result['problems']}"
+    assert result["problems"] == [], f"{name} on {config}: {result['problems']}"
+    assert result["stopped"] and result["code"] in soak.CAN_CLASSES[name][2], \
+        f"{name}: a safe stop with the class's exit status, got {result['code']} ({result['error']})"
+
+
+def test_the_soak_plans_can_runs_of_every_class_on_both_configurations():
+    specs = soak.plan(0, 2026, 0, can=48)
+    where = {(s["class"], s["config"]) for s in specs}
+    assert {c for c, _ in where} == set(soak.CAN_CLASSES), "every CAN fault class is drawn"
+    assert sum(s["config"] == "replica_mixed" for s in specs) == 12, "every 4th run on the mixed robot"
+    assert len({c for c, config in where if config == "replica_mixed"}) >= 6, "the mixed runs cover most classes"
+    for s in specs:
+        on_can, on_dynamixel, _ = soak.CAN_CLASSES[s["class"]]
+        dynamixel = s["config"] == "replica_mixed" and s["servo"] > 4
+        assert s["fault"] in (on_dynamixel if dynamixel else on_can), f"{s}: a fault its device can have"

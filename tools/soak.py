@@ -8,8 +8,14 @@ on every servo within two plant ticks of the fault (in lock-step the plant moves
 command, so this counts the commands sent after it), one line of error, the exit status of the
 fault's class (swing.EXIT_CODES, the firmware's fault codes), and a log with every tick up to the
 stop and a complete last line. No run may hang or raise. A subset runs through the firmware
-under QEMU (the same faults, injected on the same simulated bus). It prints the table
-fault class x runs x safe stops, and exits 1 when any run fails a check.
+under QEMU (the same faults, injected on the same simulated bus). Some runs play on the simulated
+CAN motors of `replica_can`, a few on `replica_mixed` (CAN and Dynamixel buses, one robot), with
+the faults of a CAN bus: a silent motor, a fault status (Damiao's nibble: overvoltage,
+undervoltage, overcurrent, over-temperature, communication lost, overload; a Dynamixel servo's
+Hardware Error Status on the mixed robot's serial bus), a garbage frame, a reply naming another
+motor, an error frame, the host's controller going bus-off, a NaN in the motion, a joint pushed
+beyond its limit. It prints the table fault class x runs x safe stops, and exits 1 when any run
+fails a check.
 
 The motions are short (0.3 s from the simulated arm's rest pose, the homing 20 ms) and the faults
 early, so that hundreds of runs take minutes; the runs are spread over worker processes.
@@ -53,6 +59,24 @@ CLASSES = {
     "stall 300 ms": (("stall",), {10}, None),
 }
 
+# the CAN runs: fault class: (the faults it draws for a CAN motor, for a Dynamixel servo (None: the
+# class draws CAN motors only), the exit statuses its safe stop may have). A garbage frame on a
+# motor's reply id is refused as corrupt when it is no reply (12), but a random frame can read as
+# a valid one with a fault status (11) or a position beyond the limits (15); a reply naming another
+# motor is corrupt on the reply id (12). Damiao's status nibbles 8-E, and the winding overheated.
+CAN_STATUSES = (0x8, 0x9, 0xA, 0xB, 0xC, 0xD, 0xE, "overheat")
+CAN_CLASSES = {
+    "silent motor": (("silent",), ("silent",), {10}),
+    "fault status": (CAN_STATUSES, tuple(HARDWARE_FAULTS), {11}),
+    "garbage frame": (("garbage",), None, {12, 11, 15}),
+    "wrong id": (("wrong_id",), None, {12}),
+    "error frame": (("error_frame",), None, {12}),
+    "bus-off": (("bus_off",), None, {12}),
+    "nan in motion": (("nan_motion",), ("nan_motion",), {13}),
+    "beyond limit": (("pushed",), ("pushed",), {15}),
+}
+MIXED_EVERY = 4               # every 4th CAN run plays on replica_mixed
+
 
 def _motion(path: Path, rng: random.Random, model, config) -> None:
     """A keyframe file: from rest (the simulated arm's start pose) to a random nearby pose."""
@@ -67,7 +91,7 @@ def _motion(path: Path, rng: random.Random, model, config) -> None:
     path.write_text("\n".join(lines))
 
 
-def plan(runs: int, seed: int, firmware: int) -> list[dict]:
+def plan(runs: int, seed: int, firmware: int, can: int = 0) -> list[dict]:
     """Each run's fault class, fault, servo, tick and motion seed; classes in turn, the rest random."""
     rng = random.Random(seed)
     names = list(CLASSES)
@@ -76,13 +100,26 @@ def plan(runs: int, seed: int, firmware: int) -> list[dict]:
         name = names[k % len(names)]
         specs.append({"run": k, "class": name, "fault": rng.choice(CLASSES[name][0]), "servo": rng.randint(1, 7),
                       "tick": rng.randint(5, int(MOTION_TIME / SMALL) - 60), "seed": rng.randrange(2**31),
-                      "firmware": False})
+                      "firmware": False, "config": "replica"})
+    can_names = list(CAN_CLASSES)
+    for k in range(can):
+        name = can_names[k % len(can_names)]
+        on_can, on_dynamixel, _ = CAN_CLASSES[name]
+        # the mixed runs move by one class each round, so every class gets some
+        config = "replica_mixed" if (k + k // len(can_names)) % MIXED_EVERY == MIXED_EVERY - 1 else "replica_can"
+        # replica_mixed: CAN motors 1-4 on one bus, Dynamixel servos 5-7 on the other
+        servo = rng.randint(1, 7 if config == "replica_can" or on_dynamixel else 4)
+        faults = on_can if config == "replica_can" or servo <= 4 else on_dynamixel
+        specs.append({"run": len(specs), "class": name, "fault": rng.choice(faults), "servo": servo,
+                      "tick": rng.randint(5, int(MOTION_TIME / SMALL) - 60), "seed": rng.randrange(2**31),
+                      "firmware": False, "config": config})
+    runs = len(specs)
     on_firmware = [name for name in names if CLASSES[name][2] is not None]
     for k in range(firmware):
         name = on_firmware[k % len(on_firmware)]
         specs.append({"run": runs + k, "class": name, "fault": rng.choice(CLASSES[name][0]),
                       "servo": rng.randint(1, 7), "tick": rng.randint(20, 200), "seed": rng.randrange(2**31),
-                      "firmware": True})
+                      "firmware": True, "config": "replica"})
     return specs
 
 
@@ -90,17 +127,21 @@ def run_host(spec: dict, folder: Path) -> dict:
     """One swing with its fault, checked; the checks that failed in 'problems'."""
     from ..hal.config import load_config
     from .swing import exit_code, run_swing
-    config = load_config("replica")
+    config = load_config(spec["config"])
+    can = spec["config"] != "replica"
     motion = folder / f"motion_{spec['run']}.toml"
     _motion(motion, random.Random(spec["seed"]), config.model, config)
     out = folder / f"run_{spec['run']}"
     lines = []
     fault_t = spec["tick"] * SMALL
+    # force: the validator refuses a CAN configuration whose frames need more wire time than the
+    # control period; the simulated bus carries none
     summary = run_swing(config, out=out, motion=str(motion), time_scale=1.0, say=lines.append,
-                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False)
+                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False,
+                        force=can)
     problems = []
     error = summary.get("error")
-    expected = CLASSES[spec["class"]][1]
+    expected = CAN_CLASSES[spec["class"]][2] if can else CLASSES[spec["class"]][1]
     stopped = error is not None
     if not stopped:
         problems.append("no safe stop: the run completed")
@@ -178,18 +219,28 @@ def _one(spec: dict) -> dict:
     return result
 
 
+def _where(result: dict) -> str:
+    """The table's column: host (replica, Dynamixel), firmware (under QEMU), can, mixed."""
+    if result["firmware"]:
+        return "firmware"
+    return {"replica": "host", "replica_can": "can", "replica_mixed": "mixed"}[result["config"]]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="soak", description=__doc__.split("\n\n")[1])
     parser.add_argument("--runs", type=int, default=207, help="swings on the host (default 207: 23 per class)")
     parser.add_argument("--firmware", type=int, default=14, help="runs through the firmware under QEMU "
                         "(default 14: 2 per class that can run there; 0 for none)")
+    parser.add_argument("--can", type=int, default=48, help="swings on the simulated CAN motors (default 48: 6 "
+                        f"per class, every {MIXED_EVERY}th on replica_mixed; 0 for none)")
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     args = parser.parse_args(argv)
     from ..control.timing import SMALL_TIME_STEP
     assert SMALL_TIME_STEP == SMALL, "the soak's tick is the swing's small_time_step"
-    specs = plan(args.runs, args.seed, args.firmware)
-    print(f"soak: {args.runs} swings on the simulated bus + {args.firmware} through the firmware under QEMU, "
+    specs = plan(args.runs, args.seed, args.firmware, args.can)
+    print(f"soak: {args.runs} swings on the simulated Dynamixel bus + {args.can} on simulated CAN motors + "
+          f"{args.firmware} through the firmware under QEMU, "
           f"one random fault each, {args.jobs} workers (seed {args.seed})", flush=True)
     began = time.perf_counter()
     results, hung = [], []
@@ -210,7 +261,7 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - began
     table = defaultdict(Counter)
     for r in results:
-        row = table[(r["class"], "firmware" if r["firmware"] else "host")]
+        row = table[(r["class"], _where(r))]
         row["runs"] += 1
         row["safe stops"] += r["stopped"] and not r["problems"]
         row["failed"] += bool(r["problems"])
@@ -219,22 +270,24 @@ def main(argv=None) -> int:
             row["worst late"] = max(row["worst late"], r["late_ticks"])
     print(f"\n  {'fault class':<16} {'where':<9} {'runs':>5} {'safe stops':>11} {'failed':>7}"
           f" {'tracebacks':>11} {'exit':>16} {'ticks to off':>13}")
-    for name in CLASSES:
-        for where in ("host", "firmware"):
-            row = table.get((name, where))
-            if row:
-                code = "/".join(map(str, sorted(CLASSES[name][1 if where == "host" else 2])))
-                print(f"  {name:<16} {where:<9} {row['runs']:>5} {row['safe stops']:>11} "
-                      f"{row['failed']:>7} {row['tracebacks']:>11} {code:>16} "
-                      f"{row['worst late'] if where == 'host' else '-':>13}")
+    for name, where in [(n, w) for n in CLASSES for w in ("host", "firmware")] + \
+            [(n, w) for n in CAN_CLASSES for w in ("can", "mixed")]:
+        row = table.get((name, where))
+        if row:
+            codes = CLASSES[name][1 if where == "host" else 2] if where in ("host", "firmware") else \
+                CAN_CLASSES[name][2]
+            code = "/".join(map(str, sorted(codes)))
+            print(f"  {name:<16} {where:<9} {row['runs']:>5} {row['safe stops']:>11} "
+                  f"{row['failed']:>7} {row['tracebacks']:>11} {code:>16} "
+                  f"{row['worst late'] if where != 'firmware' else '-':>13}")
     failed = [r for r in results if r["problems"]]
     total = Counter(runs=len(results), stops=sum(r["stopped"] and not r["problems"] for r in results))
     print(f"\n  {total['runs']} runs, {total['stops']} safe stops, {len(failed)} failed, {len(hung)} hung, "
           f"{sum(bool(r.get('traceback')) for r in results)} tracebacks in {wall:.0f} s "
           f"(2 busy cores: the wall time is this machine's)")
     for r in failed[:20]:
-        print(f"  FAILED run {r['run']} ({r['class']}, {r['fault']} on servo {r['servo']} at tick {r['tick']}"
-              f"{', firmware' if r['firmware'] else ''}): {'; '.join(r['problems'])}")
+        print(f"  FAILED run {r['run']} ({r['class']}, {r['fault']} on servo {r['servo']} at tick {r['tick']}, "
+              f"{_where(r)}): {'; '.join(r['problems'])}")
     if hung:
         print(f"  HUNG: run {hung[0]} did not finish within its time")
     return 1 if failed or hung or len(results) < len(specs) else 0

@@ -38,6 +38,9 @@ BITRATES = (125_000, 250_000, 500_000, 1_000_000)
 MAX_ID = 0x7FE                  # 11-bit ids; 0x7FF carries Damiao's register frames
 REPLY_TIMEOUT = 0.02            # s to collect a tick's replies (14 frames are ~2 ms at 1 Mbit/s)
 MOTOR_CAN_TIMEOUT = 0.1         # s without a command after which a motor goes limp by itself
+# s the stop keeps trying a motor's exit frame while sends fail: a controller that went bus-off
+# rejoins by itself after its restart time (Linux can: restart-ms, often 100 ms)
+STOP_PATIENCE = 0.25
 FRAME_BITS = (111, 135)         # an 8-byte standard data frame, without and with the worst stuffing
 
 
@@ -111,6 +114,7 @@ class CanBus(ServoBus):
                 raise ServoInitializationError(f"joints '{other}' and '{joint.dof}' would answer on the same "
                                                f"id 0x{key[0]:X} with the same motor id {key[1]}")
             self._route[key] = k
+        self._reply_ids = {key[0] for key in self._route}     # no other node may send on these
         scale = np.array([j.direction * j.gear_ratio for j in self.joints], dtype=float)
         self._scale, self._gear = scale, np.array([j.gear_ratio for j in self.joints], dtype=float)
         self._offset = np.array([j.zero_offset for j in self.joints], dtype=float)
@@ -272,15 +276,17 @@ class CanBus(ServoBus):
                 self._pending.clear()
                 raise ServoTimeoutError(joint.dof, joint.id, f"no reply within {self.reply_timeout * 1e3:g} ms "
                                                              f"on id 0x{joint.options['feedback_id']:X}")
-            if msg.is_remote_frame or len(msg.data) == 0:
-                continue
             data = bytes(msg.data)
-            for dialect_name in {d.name for d in self.dialects}:
+            known = False
+            for dialect_name in {d.name for d in self.dialects} if data and not msg.is_remote_frame else ():
                 dialect = DIALECTS[dialect_name]
                 if len(data) not in dialect.reply_length:
                     continue
                 k = self._route.get((msg.arbitration_id, dialect.reply_key(data)))
-                if k is None or self.dialects[k] is not dialect or k not in self._pending:
+                if k is None or self.dialects[k] is not dialect:
+                    continue
+                known = True
+                if k not in self._pending:
                     continue
                 if dialect.registers and data[2] in (frames.REG_READ, frames.REG_WRITE) and \
                         data[0] | (data[1] << 8) == self.joints[k].id:
@@ -296,6 +302,13 @@ class CanBus(ServoBus):
                     joint = self.joints[k]
                     raise ServoHardwareError(joint.dof, joint.id, reply.status, faults)
                 break
+            if not known and msg.arbitration_id in self._reply_ids and not msg.is_extended_id:
+                # on a reply id only the motors here speak: this is none of their frames
+                self._pending.clear()
+                raise ServoOperationError(
+                    f"bus '{self.bus.name}': a frame on reply id 0x{msg.arbitration_id:X} that no motor here "
+                    f"sends ({'remote, ' if msg.is_remote_frame else ''}{len(data)} bytes {data.hex() or '-'}): "
+                    f"a corrupt reply, or another node on the id")
 
     # ---------------------------------------------------------------- the tick
     def _enable_torque(self, on: bool) -> None:
@@ -311,12 +324,18 @@ class CanBus(ServoBus):
         self._torque_on = False
         self._flush()
         sent = True
+        deadline = time.monotonic() + STOP_PATIENCE
         for k, joint in enumerate(self.joints):
-            try:
-                self._send(joint.id, frames.pack_special(frames.EXIT))
-                self._pending.add(k)
-            except ServoError:
-                sent = False
+            while True:
+                try:
+                    self._send(joint.id, frames.pack_special(frames.EXIT))
+                    self._pending.add(k)
+                    break
+                except ServoError:
+                    if time.monotonic() >= deadline:
+                        sent = False
+                        break
+                    time.sleep(0.002)
         try:
             self._collect(check_faults=False)
         except ServoError:

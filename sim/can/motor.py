@@ -120,9 +120,13 @@ class CanMotor:
         return self.feedback_id, self.dialect.pack(self.ranges, y)
 
     def receive(self, arbitration_id: int, data: bytes) -> tuple[list[tuple[int, bytes]], bool]:
-        """A frame off the bus: (the frames this motor answers, whether it was a command)."""
-        if self.silent:
-            return [], False
+        """A frame off the bus: (the frames this motor answers, whether it was a command). A silent
+        motor (a fault) acts on every frame but its answers never reach the host, as one whose
+        transmitter failed or whose Master ID was set to another id."""
+        answers, command = self._receive(arbitration_id, data)
+        return ([] if self.silent else answers), command
+
+    def _receive(self, arbitration_id: int, data: bytes) -> tuple[list[tuple[int, bytes]], bool]:
         if arbitration_id == frames.REGISTER_ID and self.dialect.registers:
             return self._register(data), False
         if arbitration_id != self.can_id or len(data) != 8:

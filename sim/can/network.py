@@ -1,9 +1,13 @@
 """The simulated CAN bus: every motor sees every frame (CAN is a broadcast medium) and answers
 the ones for it. In lock-step the plant advances one control period once every motor has had its
-command frame for the tick."""
+command frame for the tick. A fault of the wire (sim/faults.py, CanWireFault) acts on one motor's
+answers, or on the host's controller (bus-off)."""
 
 from __future__ import annotations
 
+import time
+
+from ..faults import BUS_OFF, CAN_ERR_BUSOFF, CanWireFault
 from .motor import CanMotor
 
 
@@ -13,6 +17,24 @@ class CanNetwork:
         self.on_tick = None              # called when every motor has its command for the tick
         self._commanded: set[int] = set()
         self.frames_in = self.frames_out = 0
+        self.wire: dict[int, CanWireFault] = {}    # CAN id -> the fault on that motor's answers
+        self.bus_off_until = 0.0         # time.monotonic() until which the host's sends fail
+        self._bus_off_pending = False    # the bus-off error frame, with the next answers
+
+    def inject(self, can_id: int, kind: str, seed: int = 0) -> None:
+        """A fault of the wire from now on (sim/faults.py: garbage, wrong_id, error_frame, bus_off);
+        seed: its random bytes."""
+        fault = CanWireFault(kind, seed=seed)
+        self.motor(can_id)               # KeyError for a motor not on this bus
+        if kind == "bus_off":
+            self.bus_off_until = time.monotonic() + BUS_OFF
+            self._bus_off_pending = True
+        else:
+            self.wire[can_id] = fault
+
+    def bus_off(self) -> bool:
+        """Whether the host's controller is off the bus now (its sends fail)."""
+        return time.monotonic() < self.bus_off_until
 
     def motor(self, can_id: int) -> CanMotor:
         for m in self.motors:
@@ -24,8 +46,13 @@ class CanNetwork:
         """One frame from the host; the frames the motors put on the bus in answer."""
         self.frames_in += 1
         out = []
+        if self._bus_off_pending:
+            self._bus_off_pending = False
+            out.append((-CAN_ERR_BUSOFF, bytes(8)))   # an error frame (sim/faults.py)
         for k, motor in enumerate(self.motors):
             answers, command = motor.receive(arbitration_id, bytes(data))
+            if motor.can_id in self.wire and answers:
+                answers = self.wire[motor.can_id].apply(answers, motor.dialect.name)
             out += answers
             if command:
                 self._commanded.add(k)

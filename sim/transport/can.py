@@ -110,7 +110,10 @@ class VirtualCanServer(_Server):
         if msg is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
         for reply_id, data in self._answer(msg.arbitration_id, bytes(msg.data)):
-            self.can.send(self._message(arbitration_id=reply_id, data=data, is_extended_id=False))
+            if reply_id < 0:               # an error frame, its class in the id (sim/faults.py)
+                self.can.send(self._message(arbitration_id=-reply_id, data=data, is_error_frame=True))
+            else:
+                self.can.send(self._message(arbitration_id=reply_id, data=data, is_extended_id=False))
 
     def pump(self) -> None:
         """Answer every frame waiting on the channel, in this thread."""
@@ -126,6 +129,12 @@ class VirtualCanServer(_Server):
             def _recv_internal(self, timeout):
                 server.pump()
                 return super()._recv_internal(timeout)
+
+            def send(self, msg, timeout=None):
+                network = server.arm.networks[server.bus]
+                if network.bus_off():      # a bus-off fault: as python-can reports a failed send
+                    raise can.CanOperationError("bus-off: the controller is off the bus after too many errors")
+                super().send(msg, timeout)
 
         return PumpedBus(channel=self.channel)
 
@@ -249,7 +258,8 @@ class SlcanServer(_Server):
         if extended:
             return ack                               # the motors speak 11-bit ids only
         replies = self._answer(arbitration_id, bytes.fromhex(data_hex))
-        return ack + b"".join(f"t{i:03X}{len(d)}{d.hex().upper()}\r".encode() for i, d in replies)
+        # Lawicel's lines carry no error frame: one among the answers is lost here
+        return ack + b"".join(f"t{i:03X}{len(d)}{d.hex().upper()}\r".encode() for i, d in replies if i >= 0)
 
 
 def _is_hex(text: str) -> bool:
