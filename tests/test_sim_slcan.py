@@ -95,7 +95,8 @@ def test_the_can_backend_through_the_slcan_adapter():
                 bus.read_state()
                 bus.write(JointCommand.position(np.full(7, 0.2), kp=3.0, kd=0.03))
             bus.read_state()
-            assert arm.time == pytest.approx(0.030, abs=1e-9), "one plant period per round of 7 command frames"
+            assert arm.time == pytest.approx(30 * arm.period, abs=1e-9), \
+                f"one control period ({arm.period * 1e3:g} ms) per round of 7 command frames: {arm.time} s"
             assert bus.stop() is True, "every motor confirmed the exit"
         finally:
             bus.stop()

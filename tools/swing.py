@@ -21,7 +21,7 @@ import numpy as np
 
 from ..control import ControlConfig, ControlFault, Controller
 from ..control.schedule import plan_run
-from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
+from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..hal.robot import Robot
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError, ServoHardwareError, ServoLimitError, ServoOperationError
@@ -125,7 +125,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                 f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
                                 f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
         say(f"forced past the validator: {first}")
-    swing = motion_path(motion, model).at_scale(scale)
+    period = config.control_period
+    swing = motion_path(motion, model).at_scale(scale, period)
     mode = "feedforward_pd" if feedforward else "pd"
     if native:
         _check_native(config, motion, scale, mode, fault_at)
@@ -145,13 +146,13 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         options["reply_timeout"] = SIM_REPLY_TIMEOUT
         say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {port} "
             f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
-            f"{SMALL_TIME_STEP * 1e3:g} ms")
+            f"{plant_step(period) * 1e3:g} ms")
     if native:
         return _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say)
     if port is not None:
         options["port"] = port
     bus = Robot(config, options=per_bus, **options)     # every bus of the configuration, one tick
-    controller = Controller(model, ControlConfig(mode=mode), q_start=swing.q[0])
+    controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
     log.stream(out / "swing_log.csv")
     error = None
@@ -166,11 +167,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
-            f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
+            f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
         # the plant's time when the swing begins: in lock-step one period per homing tick (asking
         # the simulator would race it: it may not have taken the last homing write yet, a sync
         # write gets no reply); in real time, the plant clock now
-        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * SMALL_TIME_STEP) \
+        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * period) \
             if server is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
                observer=observer, tolerance=overrun_tolerance,
@@ -197,7 +198,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if "can_bus" in extra:
                 extra["can_bus"].shutdown()
         log.close()
-    summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary = summarize(log, len(swing.t), period, realtime, error)
     summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    loop="python", bus=bus.stats.as_dict(bus.dof_names))
@@ -236,7 +237,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
         if server is not None:
             server.stop()
     error = fault_message(report)
-    summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary = summarize(log, len(swing.t), config.control_period, realtime, error)
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
@@ -245,7 +246,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's
-        summary["sim_time_at_stop_s"] = None if realtime else sim["time"] - report["home_ticks"] * SMALL_TIME_STEP
+        summary["sim_time_at_stop_s"] = None if realtime else sim["time"] - report["home_ticks"] * config.control_period
         summary["torque_off"] = sim["torque_off"]
     if error:
         say(f"{error} — torque off on every servo")
@@ -264,7 +265,7 @@ def _start_simulator(config: RobotConfig, realtime: bool):
         return SimProcess(config.path, mode)
     from ..sim.arm import SimulatedArm
     from ..sim.transport.pty import PtyServer
-    arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+    arm = SimulatedArm(config)
     server = PtyServer(arm, mode)
     server.start()
     return server
@@ -301,7 +302,7 @@ def _simulated_robot(config, realtime: bool, say):
     from ..sim.transport.can import VirtualCanServer
     from ..sim.transport.pty import PtyServer
     mode = "realtime" if realtime else "lockstep"
-    robot = SimulatedRobot(config, small_time_step=SMALL_TIME_STEP)
+    robot = SimulatedRobot(config)
     servers, per_bus = [], {}
     for name, bus in config.buses.items():
         if bus.kind == "can":
@@ -332,7 +333,7 @@ def _fault_injector(server, fault_at, played, config):
     motion fault, in the played motion."""
     if fault_at is None or server is None:
         return None
-    fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
+    fault_tick = int(round(fault_at[0] / config.control_period))
     fault = fault_at[2] if len(fault_at) > 2 else "silent"
 
     def inject(k):
