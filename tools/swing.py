@@ -114,10 +114,10 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     else:
         scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
+    ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
-    if port is None and bus_config.port != "auto":
-        port = bus_config.port       # the configuration's real bus; "auto" is the simulated one
-    simulated = port is None and bus_config.kind in ("dynamixel", "can") or bus_config.kind == "loopback"
+    port = ports.get(bus_config.name) if len(config.buses) == 1 else None
+    simulated = not ports or bus_config.kind == "loopback"
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
         if not (force and simulated):
@@ -136,9 +136,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     server = None
     options = {}
     per_bus = {}
-    if port is None and any(b.kind == "can" for b in config.buses.values()):
+    if not ports and any(b.kind == "can" for b in config.buses.values()):
         server, per_bus = _simulated_robot(config, realtime, say)    # one plant behind every bus
-    elif port is None and bus_config.kind == "dynamixel":
+    elif not ports and bus_config.kind == "dynamixel":
         server = _start_simulator(config, realtime)
         port = server.path
         # a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here),
@@ -151,6 +151,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         return _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say)
     if port is not None:
         options["port"] = port
+    elif ports:
+        per_bus = {name: {"port": path} for name, path in ports.items()}
     bus = Robot(config, options=per_bus, **options)     # every bus of the configuration, one tick
     controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
@@ -213,6 +215,39 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     finally:
         restore_signals()          # until the summary is written a signal is ignored, not fatal
     return summary
+
+
+def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
+    """The port of each bus the swing drives on real hardware, {} for the simulated buses. `port`:
+    None (each bus's configured port; "auto" means simulated), a path (a one-bus configuration), or
+    "BUS=PATH" items (a list, or a dict bus -> path) naming each bus of a configuration with several.
+    Either every bus has a real port or none has: ValueError naming what is missing or unknown."""
+    given = {}
+    items = [] if port is None else list(port.items()) if isinstance(port, dict) else \
+        [port] if isinstance(port, str) else list(port)
+    for item in items:
+        if isinstance(item, tuple):
+            name, path = item
+        elif "=" in item and item.split("=", 1)[0] in config.buses:
+            name, path = item.split("=", 1)
+        elif len(config.buses) == 1:
+            name, path = next(iter(config.buses)), item
+        else:
+            raise ValueError(f"'{config.name}' has {len(config.buses)} buses ({', '.join(config.buses)}): give "
+                             f"each its port as --port BUS=PATH, not {item!r}")
+        if not path or name in given:
+            raise ValueError(f"--port {name}=...: {'an empty path' if not path else 'given twice'}")
+        given[name] = path
+    ports = {name: given.get(name) or (bus.port if bus.port != "auto" else None)
+             for name, bus in config.buses.items()}
+    missing = [name for name, path in ports.items() if path is None]
+    if len(missing) == len(ports):
+        return {}
+    if missing:
+        raise ValueError(f"bus '{missing[0]}' of '{config.name}' has no port while "
+                         f"{', '.join(repr(n) for n in ports if n not in missing)} has one: give it as --port "
+                         f"{missing[0]}=PATH (all buses real, or all simulated)")
+    return ports
 
 
 def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fault_at) -> None:
