@@ -30,6 +30,8 @@ from .validate import motion_path
 
 DEFAULT_MOTION = "tennis_forehand"
 
+# a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here), far beyond a
+# real bus's 34 ms packet timeout: the simulated bus gets a patient timeout
 SIM_REPLY_TIMEOUT = 1.0    # s to wait for a read reply from the simulated bus (its own process: on a
                            # machine loaded 4x over its cores a reply was seen to wait over 250 ms)
 # s for a tick's replies from simulated CAN motors: their server is a thread of this process, and on a
@@ -116,7 +118,6 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
     ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
-    port = ports.get(bus_config.name) if len(config.buses) == 1 else None
     simulated = not ports or bus_config.kind == "loopback"
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
@@ -133,27 +134,13 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
-    server = None
-    options = {}
-    per_bus = {}
-    if not ports and any(b.kind == "can" for b in config.buses.values()):
-        server, per_bus = _simulated_robot(config, realtime, say)    # one plant behind every bus
-    elif not ports and bus_config.kind == "dynamixel":
-        server = _start_simulator(config, realtime)
-        port = server.path
-        # a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here),
-        # far beyond a real bus's 34 ms packet timeout: the simulated bus gets a patient timeout
-        options["reply_timeout"] = SIM_REPLY_TIMEOUT
-        say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {port} "
-            f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
-            f"{plant_step(period) * 1e3:g} ms")
+    server, per_bus = None, {name: {"port": path} for name, path in ports.items()}
+    if simulated and bus_config.kind != "loopback":
+        server, per_bus = _simulated_buses(config, realtime, say)
     if native:
-        return _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say)
-    if port is not None:
-        options["port"] = port
-    elif ports:
-        per_bus = {name: {"port": path} for name, path in ports.items()}
-    bus = Robot(config, options=per_bus, **options)     # every bus of the configuration, one tick
+        return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
+                             realtime, out, say)
+    bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
     controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
     log.stream(out / "swing_log.csv")
@@ -327,6 +314,20 @@ class _Servers:
     def stop(self) -> None:
         for server in self.servers:
             server.stop()
+
+
+def _simulated_buses(config, realtime: bool, say):
+    """The configuration's buses simulated, and the options that point each bus's backend at its
+    simulated bus: one Dynamixel bus in a process of its own (`_start_simulator`); buses with CAN
+    in this process, one plant behind all of them (`_simulated_robot`)."""
+    if any(b.kind == "can" for b in config.buses.values()):
+        return _simulated_robot(config, realtime, say)
+    server = _start_simulator(config, realtime)
+    name = next(iter(config.buses))
+    say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {server.path} "
+        f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
+        f"{plant_step(config.control_period) * 1e3:g} ms")
+    return server, {name: {"port": server.path, "reply_timeout": SIM_REPLY_TIMEOUT}}
 
 
 def _simulated_robot(config, realtime: bool, say):
