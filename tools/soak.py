@@ -35,7 +35,8 @@ from pathlib import Path
 
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
 
-SMALL = 1e-3                 # s, the swing's small_time_step (checked against timing below)
+SMALL = 1e-3                 # s, the swing's small_time_step (checked against timing below); a
+                             # configuration's [control] period replaces it (replica_can: 2.5 ms)
 MOTION_TIME = 0.3            # s of each run's motion
 HOME_TIME = 0.02             # s of homing (the motion starts where the arm rests)
 RUN_TIMEOUT = 120.0          # s before a run counts as hung
@@ -102,6 +103,7 @@ def plan(runs: int, seed: int, firmware: int, can: int = 0) -> list[dict]:
                       "tick": rng.randint(5, int(MOTION_TIME / SMALL) - 60), "seed": rng.randrange(2**31),
                       "firmware": False, "config": "replica"})
     can_names = list(CAN_CLASSES)
+    periods = {}
     for k in range(can):
         name = can_names[k % len(can_names)]
         on_can, on_dynamixel, _ = CAN_CLASSES[name]
@@ -110,8 +112,12 @@ def plan(runs: int, seed: int, firmware: int, can: int = 0) -> list[dict]:
         # replica_mixed: CAN motors 1-4 on one bus, Dynamixel servos 5-7 on the other
         servo = rng.randint(1, 7 if config == "replica_can" or on_dynamixel else 4)
         faults = on_can if config == "replica_can" or servo <= 4 else on_dynamixel
+        if config not in periods:
+            from ..hal.config import load_config
+            periods[config] = load_config(config).control_period
+        ticks = int(round(MOTION_TIME / periods[config]))
         specs.append({"run": len(specs), "class": name, "fault": rng.choice(faults), "servo": servo,
-                      "tick": rng.randint(5, int(MOTION_TIME / SMALL) - 60), "seed": rng.randrange(2**31),
+                      "tick": rng.randint(5, ticks - ticks // 5), "seed": rng.randrange(2**31),
                       "firmware": False, "config": config})
     runs = len(specs)
     on_firmware = [name for name in names if CLASSES[name][2] is not None]
@@ -133,12 +139,10 @@ def run_host(spec: dict, folder: Path) -> dict:
     _motion(motion, random.Random(spec["seed"]), config.model, config)
     out = folder / f"run_{spec['run']}"
     lines = []
-    fault_t = spec["tick"] * SMALL
-    # force: the validator refuses a CAN configuration whose frames need more wire time than the
-    # control period; the simulated bus carries none
+    period = config.control_period
+    fault_t = spec["tick"] * period
     summary = run_swing(config, out=out, motion=str(motion), time_scale=1.0, say=lines.append,
-                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False,
-                        force=can)
+                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False)
     problems = []
     error = summary.get("error")
     expected = CAN_CLASSES[spec["class"]][2] if can else CLASSES[spec["class"]][1]
@@ -149,18 +153,18 @@ def run_host(spec: dict, folder: Path) -> dict:
         problems.append("error in more than one line")
     if not all(summary.get("torque_off", [False])):
         problems.append("a servo left with torque on")
-    late = round((summary.get("sim_time_at_stop_s", 0.0) - fault_t) / SMALL)
+    late = round((summary.get("sim_time_at_stop_s", 0.0) - fault_t) / period)
     if stopped and late > STOP_TICKS:
         problems.append(f"torque off {late} plant ticks after the fault")
     code = summary.get("exit_code", exit_code(None))
     if stopped and code not in expected:
         problems.append(f"exit status {code}, expected {' or '.join(map(str, sorted(expected)))} "
                         f"({summary.get('error_class')}: {error})")
-    problems += _check_log(out / "swing_log.csv", summary["ticks"], len(config.model.dof_names))
+    problems += _check_log(out / "swing_log.csv", summary["ticks"], len(config.model.dof_names), period)
     return {**spec, "stopped": stopped, "code": code, "late_ticks": late, "error": error, "problems": problems}
 
 
-def _check_log(path: Path, ticks: int, ndof: int) -> list[str]:
+def _check_log(path: Path, ticks: int, ndof: int, period: float = SMALL) -> list[str]:
     """The log has every tick from the first to the stop, one row each, the last one complete."""
     if not path.is_file():
         return ["no log"]
@@ -174,7 +178,7 @@ def _check_log(path: Path, ticks: int, ndof: int) -> list[str]:
     if len(rows) - 1 != ticks:
         return [f"the log has {len(rows) - 1} rows for {ticks} ticks"]
     times = [float(r[0]) for r in rows[1:]]
-    if any(abs(b - a - SMALL) > 1e-9 for a, b in zip(times, times[1:])):
+    if any(abs(b - a - period) > 1e-9 for a, b in zip(times, times[1:])):
         return ["a tick missing from the log"]
     return []
 
