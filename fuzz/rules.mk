@@ -24,12 +24,12 @@ build/fuzz/.cc:
 	@mkdir -p $(@D)
 	@scripts/install/install-fuzz.sh >$@.tmp && mv $@.tmp $@
 
-build/fuzz/dxl_%: fuzz/dynamixel/%.c fuzz/dynamixel/fuzz.h hal/dynamixel/c/dxl.c \
+build/fuzz/dxl_%: fuzz/dynamixel/%.c fuzz/dynamixel/fuzz.h fuzz/check.h hal/dynamixel/c/dxl.c \
                   hal/dynamixel/c/dxl.h | build/fuzz/.cc
 	@echo "   clang -fsanitize=fuzzer,address,undefined $@"
 	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -Ihal/dynamixel/c -o $@ $< hal/dynamixel/c/dxl.c
 
-FUZZ_CAN_DEPS := fuzz/can/codec.c hal/can/c/canmotor.c hal/can/c/canmotor.h | build/fuzz/.cc
+FUZZ_CAN_DEPS := fuzz/can/codec.c fuzz/check.h hal/can/c/canmotor.c hal/can/c/canmotor.h | build/fuzz/.cc
 
 build/fuzz/can_codec: $(FUZZ_CAN_DEPS)
 	@echo "   clang -fsanitize=fuzzer,address,undefined $@"

@@ -12,36 +12,14 @@
 //           every encoder: non-finite values and bad ranges are refused; otherwise every field
 //           decodes back inside its range, within one quantization step of the value clamped
 //           into the range, and the clamp bits name exactly the fields that were outside.
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-
+#include "../check.h"
 #include "canmotor.h"
-
-#define CHECK(cond)                                                                   \
-  do {                                                                                \
-    if (!(cond)) {                                                                    \
-      fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);       \
-      abort();                                                                        \
-    }                                                                                 \
-  } while (0)
 
 #ifdef SD_SINGLE
 #define EPS CM_R(1.1920929e-07)
 #else
 #define EPS CM_R(2.220446049250313e-16)
 #endif
-
-typedef struct {
-  const uint8_t* p;
-  size_t n;
-} input;
-
-static uint8_t take(input* in) {
-  if (in->n == 0) return 0;
-  in->n--;
-  return *in->p++;
-}
 
 // one value: a mode byte; with its top bit a raw IEEE cm_real from the next bytes, else a signed
 // 16-bit number over 64 (so the seeds write 12.5 or 28 exactly, in either precision)

@@ -1,38 +1,15 @@
-// fuzz.h: what the Dynamixel codec's libFuzzer targets share: a check that aborts with the
-// failed condition (libFuzzer saves the input as a crash), and a packet's fields for comparison.
+// fuzz.h: what the Dynamixel codec's libFuzzer targets share beyond fuzz/check.h (CHECK, the
+// input read a byte at a time): a packet's fields for comparison, the reader's invariants.
 #ifndef FUZZ_H
 #define FUZZ_H
 
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-
+#include "../check.h"
 #include "dxl.h"
-
-#define CHECK(cond)                                                                   \
-  do {                                                                                \
-    if (!(cond)) {                                                                    \
-      fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);       \
-      abort();                                                                        \
-    }                                                                                 \
-  } while (0)
 
 // the packet a reader holds after DXL_PACKET: equal fields, equal params
 static inline int same_packet(const dxl_reader* a, const dxl_reader* b) {
   return a->id == b->id && a->instruction == b->instruction && a->error == b->error &&
          a->nparam == b->nparam && memcmp(a->param, b->param, a->nparam) == 0;
-}
-
-// the input read as arguments, a byte at a time (zeros once it runs out)
-typedef struct input_ {
-  const uint8_t* p;
-  size_t n;
-} input;
-
-static inline uint8_t take(input* in) {
-  if (in->n == 0) return 0;
-  in->n--;
-  return *in->p++;
 }
 
 // the reader's invariants after any byte

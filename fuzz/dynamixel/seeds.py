@@ -60,13 +60,7 @@ def corpus() -> dict[str, dict[str, bytes]]:
     return seeds
 
 
-def main() -> None:
-    for target, files in corpus().items():
-        folder = HERE / "corpus" / target
-        folder.mkdir(parents=True, exist_ok=True)
-        for name, data in files.items():
-            (folder / name).write_bytes(data)
-
-
 if __name__ == "__main__":
-    main()
+    sys.path.insert(0, str(HERE.parent))
+    from write_corpus import write_corpus
+    write_corpus(HERE, corpus())
