@@ -10,11 +10,13 @@ tick and the instruction counts do not depend on the period.
 Goals for the 7-dof replica on the M4F: <= 15,000 instructions per tick, flash <= 64 KB,
 RAM <= 16 KB, stack <= 2 KB.
 
-Wall time. The counts are exact whatever the load, but the run's wall time is not: each tick is
-a round trip to the simulated servos in this Python process (the plant's RK4 step, the packets),
-and QEMU's own emulation is the small part of it. On an idle machine the 9,202 ticks take about a
-minute; on a machine shared several times over they took more than the 300 s the run was given,
-and the budget ended in a time-out with nothing measured. So each board is first timed on a few
+Wall time. The counts are exact whatever the load, but the run's wall time is not. Each tick
+waits for the simulated servos in this Python process, and while it waits the firmware polls its
+UART (board_uart_wait, the clock held), so QEMU emulates that loop at full speed and competes with
+the servos for the cores: measured at load 4 on 2 cores, 18.6 ms of wall clock a tick, of which
+11.3 ms of QEMU's CPU and 1.55 ms in the simulated servos. On an idle machine the 9,202 ticks take
+about a minute; on a machine shared several times over they took more than the 300 s the run was
+given, and the budget ended in a time-out with nothing measured. So each board is first timed on a few
 hundred ticks; when the whole swing would not fit the wall-clock budget (--budget, default 300 s a
 board) the firmware is told to stop after the ticks that fit (its `ticks=N` argument) and the
 report says so: the worst tick then is the worst of those ticks, a lower bound on the whole
