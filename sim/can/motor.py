@@ -175,7 +175,7 @@ class CanMotor:
             value = g.value if g.rid in dialects.UINT_REGISTERS else g.as_float
             self.registers[g.rid] = value
             ranges = {dialects.REG_PMAX: "p_max", dialects.REG_VMAX: "v_max", dialects.REG_TMAX: "t_max"}
-            if g.rid in ranges and value > 0:
+            if g.rid in ranges and frames.RANGE_MIN <= value <= frames.RANGE_MAX:   # else kept, as a motor would
                 self.ranges = frames.Ranges(**{**self.ranges.__dict__, ranges[g.rid]: value})
         if g.cmd in (frames.REG_READ, frames.REG_WRITE):
             value = self._register_value(g.rid)
