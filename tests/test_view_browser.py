@@ -53,9 +53,10 @@ def _arm_pixels(browser, viewer) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_a_can_arm_is_drawn_from_its_own_solids():
-    """(First in the file, so its browser is closed before the shared page's opens.) replica_can's page: its model replica_dm (round Damiao housings), 2.51 kg, the validator's
+    """replica_can's page: its model replica_dm (round Damiao housings), 2.51 kg, the validator's
     verdict at the configuration's own 2.5 ms period (a 1 ms sample fails its bus check), and the
-    arm drawn in the middle of the canvas."""
+    arm drawn in the middle of the canvas. First in the file, so that its browser is closed before
+    the shared page's opens."""
     viewer = open_view("replica_can", port=0, say=lambda *a, **k: None)
     try:
         with Browser() as browser:
