@@ -11,7 +11,7 @@ from servodyn.model.samples import random_model
 RNEA_TOL = 1e-9
 
 
-@pytest.mark.parametrize("name", ["human_arm", "human15"])
+@pytest.mark.parametrize("name", ["human_arm", "human15", "replica", "replica_dm", "replica_mixed"])
 def test_builtin_matches_pinocchio(name, twin):
     model = servodyn.load_model(name)
     pin = twin(model)
@@ -66,6 +66,9 @@ def test_end_effector_load_is_static_torque():
     lever = np.hypot(p[hand][0], p[hand][1])
     k = arm.dof_names.index("r_shoulder_flexion")
     assert abs(abs(extra[k]) - 10.0 * lever) <= 1e-9 * 10.0 * lever, (extra[k], 10.0 * lever)
+    gravity = arm.inverse_dynamics(q, zero, zero)[k]
+    assert extra[k] * gravity > 0, \
+        f"a downward load adds to the torque holding the arm's own weight: {extra[k]:.3f} vs {gravity:.3f} N m"
 
 
 def test_batch_equals_single_calls():

@@ -203,3 +203,17 @@ def test_each_bus_gets_its_port():
                         (["elbow=/dev/ttyUSB0"], "give each its port as --port BUS=PATH, not 'elbow=/dev/ttyUSB0'")]:
         with pytest.raises(ValueError, match=words):
             bus_ports(mixed, port)
+
+
+def test_a_pseudo_terminal_port_is_a_simulated_bus():
+    """`servodyn sim` serves pseudo-terminals; a swing given one waits as patiently as for the bus it
+    starts itself, since no adapter is a pty."""
+    import os
+    from servodyn.tools.swing import is_pseudo_terminal
+    master, slave = os.openpty()
+    try:
+        assert is_pseudo_terminal(os.ttyname(slave)), os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert not is_pseudo_terminal("/dev/ttyUSB0") and not is_pseudo_terminal("can0"), "adapters and channels"

@@ -13,6 +13,7 @@ at most that); a previous run's summary and figure are removed first, so none lo
 from __future__ import annotations
 
 import json
+import os
 import signal
 import threading
 from pathlib import Path
@@ -30,13 +31,12 @@ from .validate import motion_path
 
 DEFAULT_MOTION = "tennis_forehand"
 
-# a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here), far beyond a
-# real bus's 34 ms packet timeout: the simulated bus gets a patient timeout
-SIM_REPLY_TIMEOUT = 1.0    # s to wait for a read reply from the simulated bus (its own process: on a
-                           # machine loaded 4x over its cores a reply was seen to wait over 250 ms)
-# s for a tick's replies from simulated CAN motors: their server is a thread of this process, and on a
-# loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured); a real bus gets 20 ms
-SIM_CAN_REPLY_TIMEOUT = 2.0
+# s to wait for replies from a simulated bus, per bus kind: a pseudo-terminal under CPU load can hold
+# bytes back for over 100 ms (measured here), far beyond a real bus's deadline (Dynamixel 34 ms
+# packet timeout, CAN 20 ms). Dynamixel: the simulator's own process; on a machine loaded 4x over
+# its cores a reply was seen to wait over 250 ms. CAN: the motors' server is a thread of this
+# process, and on a loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured).
+SIM_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
 
 # The exit status of `servodyn swing` after a safe stop names what stopped it, with the
 # firmware's fault codes (firmware/app/fw_app.h, FW_FAULT_*; tests/test_soak.py checks they
@@ -135,6 +135,12 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
     server, per_bus = None, {name: {"port": path} for name, path in ports.items()}
+    for name, path in ports.items():
+        if is_pseudo_terminal(path):      # `servodyn sim` in another process: no adapter is a pty
+            kind = config.buses[name].kind
+            per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[kind]
+            say(f"bus '{name}': {path} is a pseudo-terminal, a simulated bus: replies may take up to "
+                f"{SIM_REPLY_TIMEOUT[kind]:g} s (a loaded machine holds them back)")
     if simulated and bus_config.kind != "loopback":
         server, per_bus = _simulated_buses(config, realtime, say)
     if native:
@@ -204,6 +210,12 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     return summary
 
 
+def is_pseudo_terminal(path: str) -> bool:
+    """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
+    tty of its own (/dev/ttyUSB*, /dev/ttyACM*), a SocketCAN channel no device file at all."""
+    return os.path.realpath(path).startswith("/dev/pts/")
+
+
 def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
     """The port of each bus the swing drives on real hardware, {} for the simulated buses. `port`:
     None (each bus's configured port; "auto" means simulated), a path (a one-bus configuration), or
@@ -253,7 +265,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
         report, log = run_native(port, config.model.dof_names, realtime, say=say,
-                                 reply_timeout=SIM_REPLY_TIMEOUT if server is not None else None)
+                                 reply_timeout=SIM_REPLY_TIMEOUT["dynamixel"] if server is not None else None)
     finally:
         sim = server.status() if server is not None else None
         if server is not None:
@@ -327,7 +339,7 @@ def _simulated_buses(config, realtime: bool, say):
     say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {server.path} "
         f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
         f"{plant_step(config.control_period) * 1e3:g} ms")
-    return server, {name: {"port": server.path, "reply_timeout": SIM_REPLY_TIMEOUT}}
+    return server, {name: {"port": server.path, "reply_timeout": SIM_REPLY_TIMEOUT["dynamixel"]}}
 
 
 def _simulated_robot(config, realtime: bool, say):
@@ -354,7 +366,7 @@ def _simulated_robot(config, realtime: bool, say):
             servers.append(PtyServer(robot.dynamixel_port(name), mode if not servers else "lockstep"))
             per_bus[name] = {"port": servers[-1].path}
             where = servers[-1].path
-        per_bus[name]["reply_timeout"] = SIM_CAN_REPLY_TIMEOUT if bus.kind == "can" else SIM_REPLY_TIMEOUT
+        per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[bus.kind]
         say(f"simulated {bus.kind} bus '{name}': {len(robot.config.joints_on(name))} devices of "
             f"'{config.name}' on {where} ({'real time' if realtime else 'lock-step'})")
     if realtime:
