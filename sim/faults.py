@@ -22,8 +22,11 @@ from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START, encode_fast_r
 from servodyn.hal.dynamixel.protocol import FRAME_OVERHEAD, frame_length
 
 WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
-STALL = 0.3                     # s the simulator pauses for a stall
-DELAY = 0.3                     # s a delayed reply waits (the simulated bus's timeout is 0.25 s)
+# s the simulator pauses for a stall, and a delayed reply waits: past the patience a swing gives the
+# simulated bus (tools/swing.py's SIM_REPLY_TIMEOUT, 1 s for Dynamixel; tests/test_soak.py checks),
+# or the host rightly rides through them (a 0.3 s pause did, once that patience grew from 0.25 s)
+STALL = 1.5
+DELAY = 1.5
 
 
 class WireFault:

@@ -145,3 +145,12 @@ def test_the_soak_plans_can_runs_of_every_class_on_both_configurations():
         on_can, on_dynamixel, _ = soak.CAN_CLASSES[s["class"]]
         dynamixel = s["config"] == "replica_mixed" and s["servo"] > 4
         assert s["fault"] in (on_dynamixel if dynamixel else on_can), f"{s}: a fault its device can have"
+
+
+def test_a_delayed_reply_and_a_stall_last_past_the_simulated_bus_patience():
+    """Otherwise the swing rides through them and the soak's two classes cannot stop (a 0.3 s delay
+    did, once the simulated bus's patience grew from 0.25 s to 1 s)."""
+    from servodyn.sim import faults
+    from servodyn.tools.swing import SIM_REPLY_TIMEOUT
+    assert faults.DELAY > SIM_REPLY_TIMEOUT["dynamixel"] and faults.STALL > SIM_REPLY_TIMEOUT["dynamixel"], \
+        (faults.DELAY, faults.STALL, SIM_REPLY_TIMEOUT)

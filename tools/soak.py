@@ -3,8 +3,8 @@
 Many short swings on the simulated Dynamixel bus, each with one fault drawn at random at a random
 tick of the motion: a silent servo, a hardware error bit, a flipped byte, a burst of garbage, a
 reply delayed past the timeout, a reply from the wrong id, a NaN in the motion, a joint pushed
-beyond its limit, the simulator paused for 300 ms. Every run must end in a safe stop: torque off
-on every servo within two plant ticks of the fault (in lock-step the plant moves one tick per
+beyond its limit, the simulator paused past the host's patience (sim/faults.py STALL). Every run
+must end in a safe stop: torque off on every servo within two plant ticks of the fault (in lock-step the plant moves one tick per
 command, so this counts the commands sent after it), one line of error, the exit status of the
 fault's class (swing.EXIT_CODES, the firmware's fault codes), and a log with every tick up to the
 stop and a complete last line. No run may hang or raise. A subset runs through the firmware
@@ -57,7 +57,7 @@ CLASSES = {
     "wrong id": (("wrong_id",), {10}, {"timeout", "corrupt"}),
     "nan in motion": (("nan_motion",), {13}, {"nonfinite"}),
     "beyond limit": (("pushed",), {15}, {"range"}),
-    "stall 300 ms": (("stall",), {10}, None),
+    "bus stall": (("stall",), {10}, None),
 }
 
 # the CAN runs: fault class: (the faults it draws for a CAN motor, for a Dynamixel servo (None: the
