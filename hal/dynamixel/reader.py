@@ -45,6 +45,7 @@ class PacketReader:
         self.max_frame = max_frame
         self._buffer = bytearray()
         self._last_time: float | None = None
+        self._whole: tuple[bytes, Packet] | None = None     # the last chunk that was one whole packet
 
     @property
     def pending(self) -> int:
@@ -60,7 +61,22 @@ class PacketReader:
             events += self.expire()
         if now is not None:
             self._last_time = now
-        self._buffer += data
+        if self._buffer:
+            self._buffer += data
+        else:
+            # a chunk that is one whole packet, as the last such chunk was (a request repeated
+            # every tick): the same packet, without parsing it again (packets are immutable)
+            whole = self._whole
+            if whole is not None and data == whole[0]:
+                events.append(whole[1])
+                return events
+            self._buffer += data
+            if not events:
+                while self._step(events):
+                    pass
+                if not self._buffer and len(events) == 1 and not isinstance(events[0], BadFrame):
+                    self._whole = (bytes(data), events[0])
+                return events
         while self._step(events):
             pass
         return events
