@@ -10,12 +10,15 @@ for each sample of a planned segment, and logs it. `summarize` turns a log into 
 from __future__ import annotations
 
 import csv
+import io
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .control.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from .control.schedule import Segment
 from .control.timing import OVERRUN_TOLERANCE
 from .hal.bus import JointCommand
@@ -64,8 +67,12 @@ class RunLog:
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
         self.process_cpu_seconds.append(process_cpu)
-        if getattr(self, "_file", None) is not None and time.monotonic() - self._flushed_at >= self._flush_every:
-            self.flush()
+        if getattr(self, "_file", None) is not None:
+            # the row is formatted now, a few µs each tick, so that a flush only writes: formatting
+            # 100 ms of rows at once took a real-time loop several periods
+            self._written = self._write_rows(self._writer, self._written)
+            if time.monotonic() - self._flushed_at >= self._flush_every:
+                self.flush()
 
     def write_csv(self, path: Path) -> None:
         with open(path, "w", newline="") as f:
@@ -80,16 +87,19 @@ class RunLog:
         process killed outright (SIGKILL) loses at most the ticks of its last `flush_every` s,
         and every line on disk is whole."""
         self._file = open(path, "w", newline="")
-        self._writer = csv.writer(self._file)
+        self._pending = io.StringIO(newline="")       # whole rows formatted, not yet in the file
+        self._writer = csv.writer(self._pending)
         self._writer.writerow(self._header())
         self._flush_every, self._written = flush_every, self._write_rows(self._writer, 0)
-        self._flushed_at = time.monotonic()
-        self._file.flush()
+        self.flush()
 
     def flush(self) -> None:
         """The rows not yet on disk, to the file and the operating system (when streaming)."""
         if getattr(self, "_file", None) is not None:
             self._written = self._write_rows(None, self._written)
+            self._file.write(self._pending.getvalue())
+            self._pending.seek(0)
+            self._pending.truncate()
             self._file.flush()
             self._flushed_at = time.monotonic()
 
@@ -106,7 +116,9 @@ class RunLog:
         """The rows from `start` on; returns the number of rows then written in all."""
         writer = writer or self._writer
         for k in range(start, len(self.t)):
-            row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
+            # as Python floats (exactly the values; numpy's scalars format the same, slower)
+            row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k],
+                                  self.current[k])).tolist()
             writer.writerow([f"{v:.9g}" for v in row])
         return len(self.t)
 
@@ -123,7 +135,13 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
     write ends later missed it (counted in log.missed, and returned). A late tick is followed at
     once by the next (the loop catches up on its schedule); a tick that begins more than
     `tolerance` (default OVERRUN_TOLERANCE) behind its schedule raises Overrun before it reads:
-    the caller stops the bus."""
+    the caller stops the bus. The garbage collector waits for the end of the segment; in real
+    time the loop runs under SCHED_FIFO where it may (control.realtime)."""
+    with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
+        return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer)
+
+
+def _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer) -> int:
     tolerance = OVERRUN_TOLERANCE if tolerance is None else tolerance
     controller.reset()
     traj = segment.traj
