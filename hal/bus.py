@@ -166,6 +166,7 @@ class ServoBus(ABC):
     max_id: int = 255
     joint_keys: frozenset[str] = frozenset()   # configuration keys of this backend's own
     port_key, baud_key = "port", "baud"        # what its [bus] table calls the port and the rate
+    device_key = "servo"                       # what a [[joint]] calls its device's model
     bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
 
     @classmethod

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml
 from .bus import BACKENDS, backend_class, servo_catalogue
@@ -21,7 +22,7 @@ from .errors import ConfigError
 from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
-TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply"}
+TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control"}
 SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
@@ -89,6 +90,7 @@ class RobotConfig:
     joints: tuple[JointConfig, ...]       # model dof order
     swing_time_scale: float | None = None
     supply: SupplyConfig | None = None    # None: the servos' nominal voltage, no current rating
+    control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
 
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
@@ -181,7 +183,9 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         own_keys = backend.joint_keys
     else:
         own_keys = {k for kind in BACKENDS for k in backend_class(kind).joint_keys}
-    c = _Checker(table, where, JOINT_KEYS | own_keys)
+    device_keys = {"servo"} | ({backend.device_key} if backend is not None else
+                               {backend_class(kind).device_key for kind in BACKENDS})
+    c = _Checker(table, where, JOINT_KEYS | own_keys | device_keys)
     dof = c.get("dof", "str")
     if dof not in model.dof_names:
         c.fail("dof", f"{dof!r} is not a dof of model '{model.name}' ({', '.join(model.dof_names)})")
@@ -192,13 +196,19 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
     servo_id = c.get("id", "int")
     if not 0 <= servo_id <= backend.max_id:
         c.fail("id", f"{servo_id} is out of range 0..{backend.max_id} for a {bus.kind} bus")
-    servo_name = c.get("servo", "str")
+    # the device's model: `servo`, or the bus's own word for it (a CAN bus's `motor`), once
+    given = [k for k in sorted(device_keys) if k in table]
+    if len(given) > 1:
+        c.fail(given[1], f"and '{given[0]}' both name the device: give one")
+    device_key = given[0] if given else (backend.device_key if backend is not None else "servo")
+    servo_name = c.get(device_key, "str")
     catalogue = servo_catalogue(bus.kind)
     if servo_name not in catalogue:
         others = {k: s for k, s in servo_catalogue(None).items() if k not in catalogue}
         if servo_name in others:
-            c.fail("servo", f"{servo_name} is a {others[servo_name].kind} servo but bus '{bus_name}' is {bus.kind}")
-        c.fail("servo", f"{servo_name!r} is not a known {bus.kind} servo ({', '.join(catalogue)})")
+            c.fail(device_key, f"{servo_name} is a {others[servo_name].kind} device but bus '{bus_name}' is "
+                               f"{bus.kind}")
+        c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {backend.device_key} ({', '.join(catalogue)})")
     servo = catalogue[servo_name]
     direction = c.get("direction", "int", 1)
     if direction not in (1, -1):
@@ -271,9 +281,16 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     time_scale = None
     if "swing" in data:
         time_scale = _Checker(data["swing"], f"{origin}: swing", {"time_scale"}).positive("time_scale")
+    period = SMALL_TIME_STEP
+    if "control" in data:
+        c = _Checker(data["control"], f"{origin}: control", {"period"})
+        period = c.get("period", "float")
+        why = check_control_period(period)
+        if why:
+            c.fail("period", why)
     return RobotConfig(name=name, path=None, model_ref=model_ref, model=model, buses=buses,
                        joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale,
-                       supply=supply)
+                       supply=supply, control_period=period)
 
 
 def builtin_configs() -> dict[str, Path]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time as _time
 
-from servodyn.control.timing import SMALL_TIME_STEP
+from servodyn.control.timing import plant_step
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
@@ -35,7 +35,7 @@ FAULTS = ("silent", "pushed", *HARDWARE_FAULTS, *WIRE_FAULTS)
 class SimulatedArm(PlantView):
     """Servos and plant of a robot configuration (one Dynamixel bus); q in the model's dof order."""
 
-    def __init__(self, config: RobotConfig, *, small_time_step: float = SMALL_TIME_STEP, q0=None,
+    def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
                  integrator: str = "rk4"):
         kinds = {bus.kind for bus in config.buses.values()}
         if kinds != {"dynamixel"} or len(config.buses) != 1:
@@ -44,12 +44,14 @@ class SimulatedArm(PlantView):
         self.config, self.model = config, config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         self.servos = [Servo(j.servo, j.id, position=0.0, zero_ticks=0) for j in self.joints]
+        small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
         self.plant = Plant(self.model, self.joints, self.servos, small_time_step=small_time_step, q0=q0,
                            integrator=integrator)
         # the servos' clock is the plant's until wall_clock(); no byte timeout until wire_clock()
         self._servo_clock = lambda: self.plant.time
         self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None)
         self.small_time_step = small_time_step
+        self.period = config.control_period      # s: one tick of the host (lock-step)
         self.wire: WireFault | None = None      # a fault of the wire, on every reply from then on
 
     # the plant's state, for tests and reports
@@ -77,9 +79,9 @@ class SimulatedArm(PlantView):
         self.bus.wire_clock = clock
 
     def lockstep(self, period: float | None = None) -> None:
-        """Advance the plant by `period` (default small_time_step) at the end of each command
+        """Advance the plant by `period` (default the control period) at the end of each command
         transaction the host sends."""
-        period = period or self.small_time_step
+        period = period or self.period
         self.bus.on_command = lambda: self.advance(period)
 
     def servo(self, servo_id: int) -> Servo:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import threading
 import time as _time
 
-from servodyn.control.timing import SMALL_TIME_STEP
+from servodyn.control.timing import plant_step
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
@@ -30,7 +30,7 @@ FAULTS = ("silent", "overheat", *HARDWARE_FAULTS)
 
 
 class SimulatedRobot(PlantView):
-    def __init__(self, config: RobotConfig, *, small_time_step: float = SMALL_TIME_STEP, q0=None,
+    def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
                  integrator: str = "rk4"):
         kinds = {bus.kind for bus in config.buses.values()}
         if not kinds <= {"can", "dynamixel"} or "can" not in kinds:
@@ -49,6 +49,7 @@ class SimulatedRobot(PlantView):
                 self.drives.append(Servo(j.servo, j.id, position=0.0, zero_ticks=0))
         self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
+        small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
         self.plant = Plant(self.model, self.joints, self.drives, small_time_step=small_time_step, q0=q0,
                            integrator=integrator)
         on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name]
@@ -58,6 +59,7 @@ class SimulatedRobot(PlantView):
         self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
         self.small_time_step = small_time_step
+        self.period = config.control_period      # s: one tick of the host (lock-step)
         self.lock = threading.RLock()
         self._round: set[str] = set()
 
@@ -75,7 +77,7 @@ class SimulatedRobot(PlantView):
         return self.networks[bus].handle(arbitration_id, data)
 
     def lockstep(self, period: float | None = None) -> None:
-        period = period or self.small_time_step
+        period = period or self.period
 
         def tick(name):
             self._round.add(name)
@@ -146,7 +148,7 @@ class DynamixelPort:
 
     def __init__(self, robot: SimulatedRobot, bus: str):
         self.robot, self.chain = robot, robot.chains[bus]
-        self.small_time_step, self.lock = robot.small_time_step, robot.lock
+        self.small_time_step, self.period, self.lock = robot.small_time_step, robot.period, robot.lock
 
     @property
     def time(self) -> float:

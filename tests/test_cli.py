@@ -277,3 +277,9 @@ def test_torques_refuses_a_limit_that_is_not_positive(tmp_path, flag, value):
     res = run("torques", "human_arm", tmp_path / "ok.csv", "-o", tmp_path / "tau.csv", flag, value)
     assert_one_line_error(res, "limit must be a positive number", f"got {value}")
     assert not (tmp_path / "tau.csv").exists()
+
+
+def test_a_mixed_robot_needs_a_port_per_bus(tmp_path):
+    done = run("swing", "--config", "replica_mixed", "--port", "/dev/ttyUSB0", "--out", tmp_path)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "2 buses (shoulder, wrist): give each its port as --port BUS=PATH" in done.stderr, done.stderr

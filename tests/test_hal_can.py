@@ -79,10 +79,10 @@ def test_enable_tick_and_stop(rig):
     bus.enable_torque(True)
     assert all(m.enabled for m in arm.motors), "torque on: every motor in motor mode"
     q = np.array([0.1, 0.2, 0.0, 0.5, 0.0, 0.1, 0.0])
-    hold(bus, q, 300)
+    hold(bus, q, round(0.3 / arm.period))       # 0.3 s of plant time at the configuration's period
     state = bus.read_state()
     assert np.abs(state.q - q).max() < 0.1, f"held near the target: {state.q}"
-    assert arm.time == pytest.approx(0.3, abs=1e-9), "lock-step: one plant period per command round"
+    assert arm.time == pytest.approx(0.3, abs=1e-9), "lock-step: one control period per command round"
     tau = np.array([1.0, -2.0, 0.0, 3.0, 0.0, 0.5, -0.5])
     bus.write(JointCommand.torque(tau))
     bus.read_state()          # every motor has answered, so every motor has taken its frame

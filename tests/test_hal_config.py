@@ -148,7 +148,48 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("absurd current unit", set_joint(6, "current_unit", 1e300), ["joint 7", "'current_unit'", "beyond 1", "A per"]),
     ("absurd velocity limit", set_joint(3, "velocity_limit", 1e300), ["'velocity_limit'", "beyond 1000"]),
     ("absurd supply voltage", lambda d: d.update(supply={"voltage": 1e300}), ["supply", "'voltage'", "beyond 100"]),
+    ("control period zero", lambda d: d.update(control={"period": 0.0}), ["control", "'period'", "from 0.1 to 10 ms"]),
+    ("control period beyond the inverse dynamics'", lambda d: d.update(control={"period": 0.02}),
+     ["control", "'period'", "10 ms"]),
+    ("control period not dividing 10 ms", lambda d: d.update(control={"period": 0.003}),
+     ["control", "'period'", "whole periods", "3 ms"]),
+    ("control period as a string", lambda d: d.update(control={"period": "2 ms"}), ["'period'", "finite number"]),
+    ("control period not finite", lambda d: d.update(control={"period": math.inf}), ["'period'", "finite number"]),
+    ("control table without a period", lambda d: d.update(control={}), ["control", "'period'", "missing"]),
+    ("unknown control key", lambda d: d.update(control={"rate": 500}), ["control", "unknown key 'rate'"]),
+    ("a motor on a Dynamixel bus", lambda d: d["joint"][0].update(motor=d["joint"][0].pop("servo")),
+     ["joint 1", "unknown key 'motor'"]),
 ]
+
+
+def test_the_control_period_is_the_configurations():
+    """1 ms unless `[control] period` says otherwise: the CAN builds run slower, as their buses need."""
+    assert load_config("replica").control_period == 1e-3, "the default period"
+    assert build(lambda d: d.update(control={"period": 0.0025})).control_period == 0.0025, "as written"
+    assert load_config("replica_can").control_period == 0.0025, "seven Damiao motors on one CAN bus"
+    assert load_config("replica_mixed").control_period == 0.002, "four on CAN, three on Dynamixel"
+
+
+def test_a_can_joint_names_its_motor_in_either_word():
+    """A CAN joint's device is its `motor` (the CAN backend's word) or, as on a serial bus, its `servo`;
+    naming it twice is a mistake."""
+    with open(CONFIGS_DIR / "replica_can.toml", "rb") as f:
+        data = tomllib.load(f)
+    assert all("motor" in j for j in data["joint"]), "replica_can names its motors `motor`"
+    as_servo = copy.deepcopy(data)
+    for joint in as_servo["joint"]:
+        joint["servo"] = joint.pop("motor")
+    a, b = config_from_dict(data, "a.toml"), config_from_dict(as_servo, "b.toml")
+    assert [j.servo.name for j in a.joints] == [j.servo.name for j in b.joints] == \
+        ["DM-J4340"] * 4 + ["DM-J4310"] * 3, "either word names the same motors"
+    both = copy.deepcopy(data)
+    both["joint"][2]["servo"] = "DM-J4340"
+    with pytest.raises(ConfigError, match=r"joint 3 .*'servo' and 'motor' both name the device"):
+        config_from_dict(both, "c.toml")
+    unknown = copy.deepcopy(data)
+    unknown["joint"][0]["motor"] = "DM-J9999"
+    with pytest.raises(ConfigError, match=r"joint 1 .*'motor' 'DM-J9999' is not a known can motor"):
+        config_from_dict(unknown, "d.toml")
 
 
 @pytest.mark.parametrize("mutate, words", [b[1:] for b in BAD], ids=[b[0] for b in BAD])

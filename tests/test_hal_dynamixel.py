@@ -191,11 +191,16 @@ def test_silent_servo_is_named_after_the_retries(sim):
     err = caught.value
     assert (err.servo_id, err.joint) == (4, CONFIG.joints[3].dof), "servo 4 and its joint, the elbow flexion"
     assert "stopped after 3 of 7 blocks" in str(err) and "no answer to 3 pings" in str(err), str(err)
-    kinds = [p.instruction for p in sim.instructions()]
+    packets = sim.instructions()
+    kinds = [p.instruction for p in packets]
     assert kinds.count(Instruction.FAST_SYNC_READ) == 3 and bus.stats.reads_retried == 3, "one try and two retries"
-    assert kinds.count(Instruction.PING) == 7 + 6 + 3 + 3, \
-        ("one ping of each servo for a corrupt line; then servos 1..3 and 5..7 answer the first ping, "
-         "servo 4 none of 3, nor of 3 more once the others answered")
+    pings = {k: sum(p.instruction == Instruction.PING and p.id == k for p in packets) for k in range(1, 8)}
+    # servo 4 is silent, so its count is exact; an answering servo whose reply a loaded machine
+    # holds back past the 0.25 s timeout is pinged again (its retries: at most 3 in the second round)
+    assert pings[4] == 1 + 3 + 3, \
+        f"servo 4: one ping for a corrupt line, 3 unanswered, 3 more once the others answered: {pings}"
+    assert all(2 <= pings[k] <= 1 + 3 for k in (1, 2, 3, 5, 6, 7)), \
+        f"the others: one ping for a corrupt line, then answered within their 3 tries: {pings}"
     sim.server.clear_faults()
     assert bus.read_state().q.shape == (7,), "answers again: the next read succeeds"
 

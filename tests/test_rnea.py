@@ -66,6 +66,9 @@ def test_end_effector_load_is_static_torque():
     lever = np.hypot(p[hand][0], p[hand][1])
     k = arm.dof_names.index("r_shoulder_flexion")
     assert abs(abs(extra[k]) - 10.0 * lever) <= 1e-9 * 10.0 * lever, (extra[k], 10.0 * lever)
+    gravity = arm.inverse_dynamics(q, zero, zero)[k]
+    assert extra[k] * gravity > 0, \
+        f"a downward load adds to the torque holding the arm's own weight: {extra[k]:.3f} vs {gravity:.3f} N m"
 
 
 def test_batch_equals_single_calls():

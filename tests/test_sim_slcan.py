@@ -5,6 +5,8 @@ version, garbage lines refused with BEL while the adapter keeps working; and the
 through the same adapter."""
 
 import json
+import re
+import signal
 import subprocess
 import sys
 import textwrap
@@ -15,6 +17,7 @@ import pytest
 from servodyn.hal.bus import JointCommand, make_bus
 from servodyn.hal.can import frames
 from servodyn.hal.config import load_config
+from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
 
@@ -95,7 +98,8 @@ def test_the_can_backend_through_the_slcan_adapter():
                 bus.read_state()
                 bus.write(JointCommand.position(np.full(7, 0.2), kp=3.0, kd=0.03))
             bus.read_state()
-            assert arm.time == pytest.approx(0.030, abs=1e-9), "one plant period per round of 7 command frames"
+            assert arm.time == pytest.approx(30 * arm.period, abs=1e-9), \
+                f"one control period ({arm.period * 1e3:g} ms) per round of 7 command frames: {arm.time} s"
             assert bus.stop() is True, "every motor confirmed the exit"
         finally:
             bus.stop()
@@ -125,3 +129,38 @@ def test_servodyn_sim_serves_replica_can_to_another_process():
     finally:
         sim.terminate()
         sim.wait(timeout=10)
+
+
+def test_servodyn_sim_serves_a_mixed_robot_to_another_process():
+    """`servodyn sim --config replica_mixed`: the CAN shoulder behind an SLCAN adapter and the
+    Dynamixel wrist on a second pseudo-terminal, one plant; the swing's own Robot drives both from
+    this process, and in lock-step the plant moves one control period (2 ms) per tick of both."""
+    sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica_mixed",
+                            "--lockstep"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ticks = 50
+    try:
+        lines = [sim.stdout.readline() for _ in range(3)]
+        assert "SLCAN adapter" in lines[0] and "4->0x14 DM-J4340" in lines[0], lines
+        assert "Dynamixel bus 'wrist'" in lines[1] and "servos 5, 6, 7" in lines[1], lines
+        assert "--port shoulder=/dev/" in lines[2] and "--port wrist=/dev/" in lines[2], lines
+        ports = dict(re.findall(r"--port (\w+)=(\S+)", lines[2]))
+        config = load_config("replica_mixed")
+        robot = Robot(config, options={name: {"port": path, "reply_timeout": 2.0} for name, path in ports.items()})
+        try:
+            robot.open()
+            start = robot.read_state().q
+            robot.enable_torque(True)
+            for _ in range(ticks):
+                state = robot.read_state()
+                robot.write(JointCommand.position(start, kp=np.full(7, 3.0), kd=np.full(7, 0.03)))
+            assert np.all(np.isfinite(state.q)) and np.abs(state.q - start).max() < 0.05, \
+                f"all seven joints read and held: {state.q - start}"
+        finally:
+            assert robot.stop() is True, "both buses confirmed the safe stop"
+            robot.close()
+    finally:
+        sim.send_signal(signal.SIGINT)
+        out, err = sim.communicate(timeout=30)
+    said = out.strip().splitlines()[-1]
+    assert said == f"stopped after {ticks * config.control_period:.2f} s of simulated time", \
+        f"one 2 ms period per tick of both buses: {said!r} {err[-500:]}"

@@ -184,3 +184,36 @@ def test_a_configurations_real_port_is_used(tmp_path):
     summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
     assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
     assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"
+
+
+def test_each_bus_gets_its_port():
+    """--port PATH for a one-bus configuration, --port BUS=PATH for each bus of a configuration with
+    several; all real or all simulated, every mistake one line naming it."""
+    from servodyn.hal.config import load_config
+    from servodyn.tools.swing import bus_ports
+    replica, mixed = load_config("replica"), load_config("replica_mixed")
+    assert bus_ports(replica) == {} and bus_ports(mixed) == {}, "port = 'auto': the simulated buses"
+    assert bus_ports(replica, "/dev/ttyUSB0") == {"arm": "/dev/ttyUSB0"}
+    assert bus_ports(replica, ["arm=/dev/ttyUSB1"]) == {"arm": "/dev/ttyUSB1"}
+    assert bus_ports(mixed, ["wrist=/dev/ttyUSB0", "shoulder=can0"]) == {"shoulder": "can0", "wrist": "/dev/ttyUSB0"}
+    for port, words in [("/dev/ttyUSB0", "give each its port as --port BUS=PATH"),
+                        (["shoulder=can0"], "bus 'wrist' of 'replica_mixed' has no port"),
+                        (["shoulder=can0", "shoulder=can1"], "given twice"),
+                        (["wrist="], "an empty path"),
+                        (["elbow=/dev/ttyUSB0"], "give each its port as --port BUS=PATH, not 'elbow=/dev/ttyUSB0'")]:
+        with pytest.raises(ValueError, match=words):
+            bus_ports(mixed, port)
+
+
+def test_a_pseudo_terminal_port_is_a_simulated_bus():
+    """`servodyn sim` serves pseudo-terminals; a swing given one waits as patiently as for the bus it
+    starts itself, since no adapter is a pty."""
+    import os
+    from servodyn.tools.swing import is_pseudo_terminal
+    master, slave = os.openpty()
+    try:
+        assert is_pseudo_terminal(os.ttyname(slave)), os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert not is_pseudo_terminal("/dev/ttyUSB0") and not is_pseudo_terminal("can0"), "adapters and channels"

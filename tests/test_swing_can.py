@@ -2,23 +2,24 @@
 python-can's virtual interface) and replica_mixed (Damiao shoulder and elbow on CAN, Dynamixel
 forearm and wrist on a simulated serial bus: one robot, two buses, one tick), in lock-step.
 
-Both configurations put more frames on a 1 Mbit/s bus than one 1 ms tick can carry (seven motors:
-14 frames x 111-135 bits = 1.6-1.9 ms), so the validator refuses the 1 kHz swing for real hardware;
-the simulated buses carry no wire time, and the swing is played there with force=True. What is
-asserted is deterministic in lock-step: tick counts, tracking errors, which motor faulted and that
-every motor was switched off."""
+Both configurations put more frames on a 1 Mbit/s bus than a 1 ms tick can carry (seven motors:
+14 frames x 111-135 bits = 1.6-1.9 ms), so each sets its own control period (replica_can 2.5 ms,
+replica_mixed 2 ms) and the validator passes the swing at it. What is asserted is deterministic in
+lock-step: tick counts, tracking errors, which motor faulted and that every motor was switched off."""
 
 import json
 
 import pytest
 
-from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.control.timing import HOME_DURATION
+from servodyn.hal.config import load_config
 from servodyn.tools.swing import run_swing
 
-QUIET = dict(say=lambda *a, **k: None, force=True)
-SWING_TICKS = 7201            # the 1.8 s forehand at time scale 4, every 1 ms
+QUIET = dict(say=lambda *a, **k: None)
+CAN_PERIOD = load_config("replica_can").control_period
+MIXED_PERIOD = load_config("replica_mixed").control_period
+SWING_TICKS = round(1.8 * 4 / CAN_PERIOD) + 1    # the 1.8 s forehand at time scale 4, every period
 FAULT_TIME = 0.2              # s into the swing
-FAULT_TICKS = 200
 
 
 # one swing per fixture, so no single test pays for two under the per-test timeout
@@ -33,7 +34,11 @@ def pd(tmp_path_factory):
 
 
 def test_the_forehand_completes_on_can_motors(ff):
+    assert CAN_PERIOD == 2.5e-3 and MIXED_PERIOD == 2e-3, "the configurations' control periods"
+    assert ff["validated"], "the validator passes the swing at replica_can's own control period"
     assert ff["completed"] and ff["ticks"] == SWING_TICKS, f"every tick of the swing ran: {ff['ticks']}"
+    assert abs(ff["sim_time_at_stop_s"] - SWING_TICKS * CAN_PERIOD) < 1e-9, \
+        f"the plant moved one control period a tick: {ff['sim_time_at_stop_s']} s"
     assert ff["tracking_max_rad"] < 0.2, f"largest error {ff['tracking_max_rad']:.3f} rad: the arm followed"
     assert ff["bus"]["reads"] == ff["bus"]["writes"] + 1, "one read and one write a tick, and the start pose read"
     assert all(ff["torque_off"]), "every motor out of motor mode at the end"
@@ -45,9 +50,10 @@ def test_feedforward_cuts_the_largest_error_threefold_on_can(ff, pd):
                           f"rad: only {ratio:.2f}x")
 
 
-def _stopped_at_the_fault(summary, out):
+def _stopped_at_the_fault(summary, out, period=CAN_PERIOD):
+    fault_ticks = round(FAULT_TIME / period)
     assert not summary["completed"], "the fault stopped the swing"
-    assert summary["ticks"] in (FAULT_TICKS, FAULT_TICKS + 1), \
+    assert summary["ticks"] in (fault_ticks, fault_ticks + 1), \
         f"stopped within a tick of the fault: {summary['ticks']} ticks"
     lines = (out / "swing_log.csv").read_text().splitlines()
     assert len(lines) == 1 + summary["ticks"], "the log holds the header and every tick that ran"
@@ -75,8 +81,8 @@ def test_a_fault_on_one_bus_of_a_mixed_robot_stops_both(tmp_path):
     """An overload on Dynamixel servo 6 (the wrist bus) ends the run; the safe stop switches off the
     Damiao motors on the CAN bus as well."""
     summary = run_swing("replica_mixed", out=tmp_path, fault_at=(FAULT_TIME, 6, "overload"), **QUIET)
-    _stopped_at_the_fault(summary, tmp_path)
+    _stopped_at_the_fault(summary, tmp_path, MIXED_PERIOD)
     assert "r_wrist_flexion" in summary["error"] and "overload" in summary["error"], summary["error"]
     assert summary["torque_off"] == [True] * 7, "CAN motors and Dynamixel servos all off"
-    homing = int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1
-    assert summary["bus"]["writes"] == homing + FAULT_TICKS, "one robot write a tick over both buses, until the fault"
+    homing = int(round(HOME_DURATION / MIXED_PERIOD)) + 1
+    assert summary["bus"]["writes"] == homing + round(FAULT_TIME / MIXED_PERIOD), "one robot write a tick over both buses, until the fault"

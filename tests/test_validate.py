@@ -3,6 +3,7 @@ built to break exactly that check, the margin, the fit, and one line with exit 2
 
 import copy
 import csv
+import dataclasses
 import json
 import subprocess
 import sys
@@ -193,6 +194,33 @@ def test_bus(tmp_path):
     report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7)), **QUIET)
     assert failing(report) == {"bus"}, report["violations"]
     assert report["violations"][0]["value"] == pytest.approx(162 * 10 / 57600)
+
+
+def test_the_bus_is_checked_against_the_configurations_period(tmp_path):
+    """replica_can's seven motors put 14 frames of up to 135 bits on the 1 Mbit/s bus each tick,
+    1.89 ms: over a 1 ms period, 76 % of the configuration's own 2.5 ms, where the motion is
+    sampled too."""
+    cfg = load_config("replica_can")
+    pose = hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7))
+    report = validate(cfg, pose, **QUIET)
+    assert report["passed"] and report["sample_period_s"] == pytest.approx(2.5e-3), \
+        f"passes, sampled every 2.5 ms: {report['sample_period_s']}"
+    at_1khz = validate(dataclasses.replace(cfg, control_period=1e-3), pose, **QUIET)
+    assert failing(at_1khz) == {"bus"}, at_1khz["violations"]
+    assert at_1khz["violations"][0]["value"] == pytest.approx(14 * 135 / 1e6), "the wire's worst case a tick"
+
+
+def test_a_csv_is_played_from_its_own_first_row(tmp_path):
+    """A CSV sampled every 0.5 ms from t = 5 s: played at 1 ms, tick k takes its sample 2k (the
+    nearest on the CSV's clock), not sample k, nor the last because t = 5 s lies beyond k = 0."""
+    names = load_config("replica").model.dof_names
+    t = 5.0 + np.arange(401) * 0.5e-3
+    q = np.zeros((len(t), 7))
+    q[:, 3] = 0.5 + 0.2 * np.sin(10 * (t - 5.0))
+    played = motion_path(write_csv(tmp_path / "fine.csv", names, t, q, 0 * q, 0 * q),
+                         load_config("replica").model).at_scale(1.0, 1e-3)
+    assert len(played.t) == 201, f"0.2 s at 1 ms: {len(played.t)} samples"
+    assert np.array_equal(played.q[:, 3], q[::2, 3]), "every other row of the CSV, from its first"
 
 
 def test_command_range_and_its_quantization():

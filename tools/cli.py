@@ -133,8 +133,8 @@ def cmd_sim(args) -> None:
     from ..sim.transport.pty import PtyServer
     try:
         config = load_config(args.config)
-        if {bus.kind for bus in config.buses.values()} == {"can"}:
-            return _serve_can(config, args)
+        if any(bus.kind == "can" for bus in config.buses.values()):
+            return _serve_robot(config, args)
         arm = SimulatedArm(config)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
@@ -151,21 +151,46 @@ def cmd_sim(args) -> None:
         server.stop()
 
 
-def _serve_can(config, args) -> None:
-    """The configuration's CAN motors behind an SLCAN adapter on a pseudo-terminal."""
+def _serve_robot(config, args) -> None:
+    """A configuration with CAN buses, alone or beside Dynamixel buses: one simulated plant, each CAN
+    bus behind an SLCAN adapter on a pseudo-terminal, each Dynamixel bus on a pseudo-terminal of its
+    own; lock-step advances the plant when every bus has had its tick's commands."""
+    import contextlib
     import time as _time
     from ..sim.robot import SimulatedRobot
     from ..sim.transport.can import SlcanServer
-    if len(config.buses) != 1:
-        raise CliError(f"'{config.name}' has {len(config.buses)} CAN buses; the SLCAN adapter serves one")
+    from ..sim.transport.pty import PtyServer
     arm = SimulatedRobot(config)
-    bus = next(iter(config.buses.values()))
-    with SlcanServer(arm, mode="lockstep" if args.lockstep else "realtime") as server:
-        motors = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors)
-        print(f"simulated CAN bus of '{config.name}' (SLCAN adapter): {len(arm.motors)} motors ({motors}) "
-              f"on {server.path}", flush=True)
-        print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{server.path}\", bitrate={bus.baud})  or  "
-              f"servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)", flush=True)
+    first = True
+    with contextlib.ExitStack() as stack:
+        paths = {}
+        for name, bus in config.buses.items():
+            # real time: the first bus's server runs the plant's clock, the others only answer
+            mode = "lockstep" if args.lockstep or not first else "realtime"
+            if bus.kind == "can":
+                server = stack.enter_context(SlcanServer(arm, bus=name, mode=mode))
+                devices = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors
+                                    if m in arm.networks[name].motors)
+                print(f"simulated CAN bus '{name}' of '{config.name}' (SLCAN adapter, {bus.baud} bit/s): "
+                      f"{devices} on {server.path}", flush=True)
+            else:
+                server = PtyServer(arm.dynamixel_port(name), mode)
+                server.start()
+                stack.callback(server.stop)
+                ids = ", ".join(str(j.id) for j in config.joints_on(name))
+                print(f"simulated Dynamixel bus '{name}' of '{config.name}': servos {ids} on {server.path}",
+                      flush=True)
+            paths[name], first = server.path, False
+        if not args.lockstep and len(config.buses) > 1:
+            arm.free_running()           # the first server's clock alone moves the plant
+        if len(paths) == 1:
+            path = next(iter(paths.values()))
+            bus = next(iter(config.buses.values()))
+            print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})  or  "
+                  f"servodyn swing --config {args.config} --port {path}   (Ctrl-C stops)", flush=True)
+        else:
+            ports = " ".join(f"--port {name}={path}" for name, path in paths.items())
+            print(f"connect with: servodyn swing --config {args.config} {ports}   (Ctrl-C stops)", flush=True)
         try:
             while True:
                 _time.sleep(0.5)
@@ -278,8 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "hardware error, 12 a corrupt or refused reply, 13 a non-finite desired or "
                        "measured state, 15 a joint beyond its limits.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
-    p.add_argument("--port", default=None, help="serial port of a real bus (default: the configuration's port; "
-                                                       "'auto' there means the simulated bus)")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH",
+                   help="the real bus's serial port or CAN channel (default: the configuration's; 'auto' there "
+                        "means the simulated bus); a configuration with several buses names each: --port "
+                        "shoulder=/dev/ttyACM0 --port wrist=/dev/ttyUSB0")
     p.add_argument("--out", default="out/swing", help="output folder (default out/swing)")
     p.add_argument("--no-feedforward", action="store_true", help="PD only, no inverse dynamics")
     p.add_argument("--time-scale", type=float, default=None,
@@ -287,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true",
                    help="pace the loop and the simulated plant by the wall clock (default lock-step)")
     p.add_argument("--overrun-tolerance", type=float, default=None, metavar="MS",
-                   help="in real time, how far (ms) the loop may fall behind its 1 ms schedule before it stops "
+                   help="in real time, how far (ms) the loop may fall behind its period schedule before it stops "
                         f"safely (overrun, exit 14; default {OVERRUN_TOLERANCE * 1e3:g})")
     p.add_argument("--motion", default="tennis_forehand", metavar="NAME|FILE",
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")

@@ -24,7 +24,7 @@ from .. import _core
 from ..control import ControlConfig
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
-from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE, SMALL_TIME_STEP
+from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, watchdog_units
 from ..hal.dynamixel.units import ServoMap
@@ -98,7 +98,8 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
     bus = next(iter(config.buses.values()))
     scale = config.swing_time_scale or 1.0
     motion = load_motion(motion_name, model)
-    swing = motion.sample(SMALL_TIME_STEP, time_scale=scale)
+    period = config.control_period
+    swing = motion.sample(period, time_scale=scale)
     home_gains, swing_gains = plan_gains(model, swing)
     fields = model_fields(model)
     nb, nd = int(fields["nbody"]), int(fields["ndof"])
@@ -124,7 +125,7 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
             f".current_limit = SD_R({_num(j.current_limit)}), "
             f".q_min = SD_R({_num(j.position_limits[0])}), .q_max = SD_R({_num(j.position_limits[1])}), "
             f".qd_max = SD_R({_num(j.velocity_limit)})}},  // {j.dof}")
-    update_ticks = ControlConfig().update_ticks
+    update_ticks = ControlConfig(small_time_step=period).update_ticks
 
     header = _HEADER.format(config=config.name) + f"""// Robot '{config.name}': model '{config.model_ref}', {nb} bodies, {nd} dofs, {len(joints)} servos on one
 // Dynamixel bus; motion '{motion_name}' played {scale:g}x slower than keyframed.
@@ -173,9 +174,9 @@ const fw_gains fw_swing_gains = {{
 }};
 
 const fw_plan fw_plan_ = {{
-  .small_time_step = SD_R({_num(SMALL_TIME_STEP)}),
+  .small_time_step = SD_R({_num(period)}),
   .update_ticks = {update_ticks},
-  .home_ticks = {int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1},
+  .home_ticks = {int(round(HOME_DURATION / period)) + 1},
   .swing_ticks = {len(swing.t)},
   .baud = {bus.baud},
   .watchdog_units = {watchdog_units(BUS_WATCHDOG)},

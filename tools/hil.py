@@ -28,7 +28,6 @@ import numpy as np
 from ..control import ControlConfig, Controller
 from ..control.motion import load_motion
 from ..control.schedule import plan_run
-from ..control.timing import SMALL_TIME_STEP
 from ..hal.config import load_config
 from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
@@ -168,7 +167,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     check_arm_elf(elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
-    arm = SimulatedArm(load_config(config), small_time_step=SMALL_TIME_STEP, q0=q0)
+    arm = SimulatedArm(load_config(config), q0=q0)
     link = FirmwareLink(arm, on_tick, tamper)
     port = _free_port()
     proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args), stdin=subprocess.DEVNULL,
@@ -209,8 +208,8 @@ def replay(config_name: str, record: Record) -> dict:
     model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
     scale = config.swing_time_scale or 1.0
-    swing = load_motion("tennis_forehand", model).sample(SMALL_TIME_STEP, time_scale=scale)
-    controller = Controller(model, ControlConfig(mode="feedforward_pd"))
+    swing = load_motion("tennis_forehand", model).sample(config.control_period, time_scale=scale)
+    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period))
     reads = record.reads
     q_meas = [units.from_ticks(r[:, 2]) for r in reads]
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]

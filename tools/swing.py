@@ -13,6 +13,7 @@ at most that); a previous run's summary and figure are removed first, so none lo
 from __future__ import annotations
 
 import json
+import os
 import signal
 import threading
 from pathlib import Path
@@ -21,7 +22,7 @@ import numpy as np
 
 from ..control import ControlConfig, ControlFault, Controller
 from ..control.schedule import plan_run
-from ..control.timing import HOME_DURATION, SMALL_TIME_STEP, TIME_STEP
+from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..hal.robot import Robot
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError, ServoHardwareError, ServoLimitError, ServoOperationError
@@ -30,11 +31,12 @@ from .validate import motion_path
 
 DEFAULT_MOTION = "tennis_forehand"
 
-SIM_REPLY_TIMEOUT = 1.0    # s to wait for a read reply from the simulated bus (its own process: on a
-                           # machine loaded 4x over its cores a reply was seen to wait over 250 ms)
-# s for a tick's replies from simulated CAN motors: their server is a thread of this process, and on a
-# loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured); a real bus gets 20 ms
-SIM_CAN_REPLY_TIMEOUT = 2.0
+# s to wait for replies from a simulated bus, per bus kind: a pseudo-terminal under CPU load can hold
+# bytes back for over 100 ms (measured here), far beyond a real bus's deadline (Dynamixel 34 ms
+# packet timeout, CAN 20 ms). Dynamixel: the simulator's own process; on a machine loaded 4x over
+# its cores a reply was seen to wait over 250 ms. CAN: the motors' server is a thread of this
+# process, and on a loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured).
+SIM_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
 
 # The exit status of `servodyn swing` after a safe stop names what stopped it, with the
 # firmware's fault codes (firmware/app/fw_app.h, FW_FAULT_*; tests/test_soak.py checks they
@@ -114,10 +116,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     else:
         scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
+    ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
-    if port is None and bus_config.port != "auto":
-        port = bus_config.port       # the configuration's real bus; "auto" is the simulated one
-    simulated = port is None and bus_config.kind in ("dynamixel", "can") or bus_config.kind == "loopback"
+    simulated = not ports or bus_config.kind == "loopback"
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
         if not (force and simulated):
@@ -125,33 +126,28 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                 f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
                                 f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
         say(f"forced past the validator: {first}")
-    swing = motion_path(motion, model).at_scale(scale)
+    period = config.control_period
+    swing = motion_path(motion, model).at_scale(scale, period)
     mode = "feedforward_pd" if feedforward else "pd"
     if native:
         _check_native(config, motion, scale, mode, fault_at)
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
-    server = None
-    options = {}
-    per_bus = {}
-    if port is None and any(b.kind == "can" for b in config.buses.values()):
-        server, per_bus = _simulated_robot(config, realtime, say)    # one plant behind every bus
-    elif port is None and bus_config.kind == "dynamixel":
-        server = _start_simulator(config, realtime)
-        port = server.path
-        # a pseudo-terminal under CPU load can hold bytes back for over 100 ms (measured here),
-        # far beyond a real bus's 34 ms packet timeout: the simulated bus gets a patient timeout
-        options["reply_timeout"] = SIM_REPLY_TIMEOUT
-        say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {port} "
-            f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
-            f"{SMALL_TIME_STEP * 1e3:g} ms")
+    server, per_bus = None, {name: {"port": path} for name, path in ports.items()}
+    for name, path in ports.items():
+        if is_pseudo_terminal(path):      # `servodyn sim` in another process: no adapter is a pty
+            kind = config.buses[name].kind
+            per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[kind]
+            say(f"bus '{name}': {path} is a pseudo-terminal, a simulated bus: replies may take up to "
+                f"{SIM_REPLY_TIMEOUT[kind]:g} s (a loaded machine holds them back)")
+    if simulated and bus_config.kind != "loopback":
+        server, per_bus = _simulated_buses(config, realtime, say)
     if native:
-        return _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say)
-    if port is not None:
-        options["port"] = port
-    bus = Robot(config, options=per_bus, **options)     # every bus of the configuration, one tick
-    controller = Controller(model, ControlConfig(mode=mode), q_start=swing.q[0])
+        return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
+                             realtime, out, say)
+    bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
+    controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
     log.stream(out / "swing_log.csv")
     error = None
@@ -166,11 +162,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
-            f"{TIME_STEP * 1e3:g} ms, {1 / SMALL_TIME_STEP:g} Hz target")
+            f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
         # the plant's time when the swing begins: in lock-step one period per homing tick (asking
         # the simulator would race it: it may not have taken the last homing write yet, a sync
         # write gets no reply); in real time, the plant clock now
-        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * SMALL_TIME_STEP) \
+        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * period) \
             if server is not None else 0.0
         follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
                observer=observer, tolerance=overrun_tolerance,
@@ -197,7 +193,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if "can_bus" in extra:
                 extra["can_bus"].shutdown()
         log.close()
-    summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary = summarize(log, len(swing.t), period, realtime, error)
     summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    loop="python", bus=bus.stats.as_dict(bus.dof_names))
@@ -212,6 +208,45 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     finally:
         restore_signals()          # until the summary is written a signal is ignored, not fatal
     return summary
+
+
+def is_pseudo_terminal(path: str) -> bool:
+    """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
+    tty of its own (/dev/ttyUSB*, /dev/ttyACM*), a SocketCAN channel no device file at all."""
+    return os.path.realpath(path).startswith("/dev/pts/")
+
+
+def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
+    """The port of each bus the swing drives on real hardware, {} for the simulated buses. `port`:
+    None (each bus's configured port; "auto" means simulated), a path (a one-bus configuration), or
+    "BUS=PATH" items (a list, or a dict bus -> path) naming each bus of a configuration with several.
+    Either every bus has a real port or none has: ValueError naming what is missing or unknown."""
+    given = {}
+    items = [] if port is None else list(port.items()) if isinstance(port, dict) else \
+        [port] if isinstance(port, str) else list(port)
+    for item in items:
+        if isinstance(item, tuple):
+            name, path = item
+        elif "=" in item and item.split("=", 1)[0] in config.buses:
+            name, path = item.split("=", 1)
+        elif len(config.buses) == 1:
+            name, path = next(iter(config.buses)), item
+        else:
+            raise ValueError(f"'{config.name}' has {len(config.buses)} buses ({', '.join(config.buses)}): give "
+                             f"each its port as --port BUS=PATH, not {item!r}")
+        if not path or name in given:
+            raise ValueError(f"--port {name}=...: {'an empty path' if not path else 'given twice'}")
+        given[name] = path
+    ports = {name: given.get(name) or (bus.port if bus.port != "auto" else None)
+             for name, bus in config.buses.items()}
+    missing = [name for name, path in ports.items() if path is None]
+    if len(missing) == len(ports):
+        return {}
+    if missing:
+        raise ValueError(f"bus '{missing[0]}' of '{config.name}' has no port while "
+                         f"{', '.join(repr(n) for n in ports if n not in missing)} has one: give it as --port "
+                         f"{missing[0]}=PATH (all buses real, or all simulated)")
+    return ports
 
 
 def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fault_at) -> None:
@@ -230,13 +265,13 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
         report, log = run_native(port, config.model.dof_names, realtime, say=say,
-                                 reply_timeout=SIM_REPLY_TIMEOUT if server is not None else None)
+                                 reply_timeout=SIM_REPLY_TIMEOUT["dynamixel"] if server is not None else None)
     finally:
         sim = server.status() if server is not None else None
         if server is not None:
             server.stop()
     error = fault_message(report)
-    summary = summarize(log, len(swing.t), SMALL_TIME_STEP, realtime, error)
+    summary = summarize(log, len(swing.t), config.control_period, realtime, error)
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
                    loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
@@ -245,7 +280,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's
-        summary["sim_time_at_stop_s"] = None if realtime else sim["time"] - report["home_ticks"] * SMALL_TIME_STEP
+        summary["sim_time_at_stop_s"] = None if realtime else sim["time"] - report["home_ticks"] * config.control_period
         summary["torque_off"] = sim["torque_off"]
     if error:
         say(f"{error} — torque off on every servo")
@@ -264,7 +299,7 @@ def _start_simulator(config: RobotConfig, realtime: bool):
         return SimProcess(config.path, mode)
     from ..sim.arm import SimulatedArm
     from ..sim.transport.pty import PtyServer
-    arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+    arm = SimulatedArm(config)
     server = PtyServer(arm, mode)
     server.start()
     return server
@@ -293,6 +328,20 @@ class _Servers:
             server.stop()
 
 
+def _simulated_buses(config, realtime: bool, say):
+    """The configuration's buses simulated, and the options that point each bus's backend at its
+    simulated bus: one Dynamixel bus in a process of its own (`_start_simulator`); buses with CAN
+    in this process, one plant behind all of them (`_simulated_robot`)."""
+    if any(b.kind == "can" for b in config.buses.values()):
+        return _simulated_robot(config, realtime, say)
+    server = _start_simulator(config, realtime)
+    name = next(iter(config.buses))
+    say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {server.path} "
+        f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
+        f"{plant_step(config.control_period) * 1e3:g} ms")
+    return server, {name: {"port": server.path, "reply_timeout": SIM_REPLY_TIMEOUT["dynamixel"]}}
+
+
 def _simulated_robot(config, realtime: bool, say):
     """A configuration with CAN buses simulated in this process: one plant, each CAN bus on
     python-can's virtual interface, each Dynamixel bus on a pseudo-terminal; the options that point
@@ -301,7 +350,7 @@ def _simulated_robot(config, realtime: bool, say):
     from ..sim.transport.can import VirtualCanServer
     from ..sim.transport.pty import PtyServer
     mode = "realtime" if realtime else "lockstep"
-    robot = SimulatedRobot(config, small_time_step=SMALL_TIME_STEP)
+    robot = SimulatedRobot(config)
     servers, per_bus = [], {}
     for name, bus in config.buses.items():
         if bus.kind == "can":
@@ -317,7 +366,7 @@ def _simulated_robot(config, realtime: bool, say):
             servers.append(PtyServer(robot.dynamixel_port(name), mode if not servers else "lockstep"))
             per_bus[name] = {"port": servers[-1].path}
             where = servers[-1].path
-        per_bus[name]["reply_timeout"] = SIM_CAN_REPLY_TIMEOUT if bus.kind == "can" else SIM_REPLY_TIMEOUT
+        per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[bus.kind]
         say(f"simulated {bus.kind} bus '{name}': {len(robot.config.joints_on(name))} devices of "
             f"'{config.name}' on {where} ({'real time' if realtime else 'lock-step'})")
     if realtime:
@@ -332,7 +381,7 @@ def _fault_injector(server, fault_at, played, config):
     motion fault, in the played motion."""
     if fault_at is None or server is None:
         return None
-    fault_tick = int(round(fault_at[0] / SMALL_TIME_STEP))
+    fault_tick = int(round(fault_at[0] / config.control_period))
     fault = fault_at[2] if len(fault_at) > 2 else "silent"
 
     def inject(k):

@@ -78,8 +78,10 @@ def csv_path(name: str, traj: Trajectory) -> MotionPath:
     spline of q (a CSV sampled coarser than the control period is refined, not held)."""
     t0 = traj.t[0]
     if len(traj.t) > 1 and np.max(np.diff(traj.t)) <= SMALL_TIME_STEP * (1 + 1e-9):
-        def evaluate(t):
-            k = np.clip(np.rint(t / SMALL_TIME_STEP).astype(int), 0, len(traj.t) - 1)
+        index = np.arange(len(traj.t), dtype=float)
+
+        def evaluate(t):     # the nearest sample, on the CSV's own clock from its first row
+            k = np.rint(np.interp(t, traj.t - t0, index)).astype(int)
             return traj.q[k], traj.qd[k], traj.qdd[k]
     else:
         from scipy.interpolate import CubicSpline
@@ -118,6 +120,7 @@ class Limits:
     voltage: float
     supply_current: float | None
     wire: list = field(default_factory=list)   # (bus name, seconds per tick, description)
+    period: float = SMALL_TIME_STEP            # s: the configuration's control period, the sampling
 
     @classmethod
     def of(cls, config, voltage: float) -> "Limits":
@@ -142,7 +145,7 @@ class Limits:
                    temperature=arr(s.temperature_limit for s in servos),
                    command=arr(c[0] for c in command), command_step=arr(c[1] for c in command),
                    voltage=voltage, supply_current=config.supply.current_limit if config.supply else None,
-                   wire=wire)
+                   wire=wire, period=config.control_period)
 
 
 @dataclass
@@ -201,7 +204,7 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     ratios["current"] = current / L.current
     values["current"], bounds["current"] = current, np.broadcast_to(L.current, current.shape)
 
-    temperature = winding_temperature(current, traj.t[1] - traj.t[0] if n_samples > 1 else SMALL_TIME_STEP,
+    temperature = winding_temperature(current, traj.t[1] - traj.t[0] if n_samples > 1 else L.period,
                                       L, repeat, ambient)
     modelled = L.thermal_resistance > 0
     rise = np.where(modelled, (temperature - ambient) / (L.temperature - ambient), 0.0)
@@ -219,7 +222,7 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     values["supply"] = supply[:, None]
     bounds["supply"] = np.full((n_samples, 1), L.supply_current or math.inf)
 
-    period = traj.t[1] - traj.t[0] if n_samples > 1 else SMALL_TIME_STEP
+    period = traj.t[1] - traj.t[0] if n_samples > 1 else L.period
     wire = max((seconds for _, seconds, _ in L.wire), default=0.0)
     ratios["bus"] = np.full((n_samples, 1), wire / period)
     values["bus"], bounds["bus"] = np.full((n_samples, 1), wire), np.full((n_samples, 1), period)
@@ -304,7 +307,7 @@ def fit_time_scale(model, limits: Limits, path: MotionPath, margin: float, repea
     A geometric scan (×1.25 from 0.25 to 64) finds the first passing scale, a bisection between it
     and the scale before narrows it to 0.1 %, each candidate checked densely like any run."""
     def passes(scale):
-        return check(model, limits, path.at_scale(scale), margin, repeat, ambient).passed
+        return check(model, limits, path.at_scale(scale, limits.period), margin, repeat, ambient).passed
     first, last, ratio = FIT_GRID
     below, scale = None, first
     while scale <= last * (1 + 1e-12):
@@ -353,7 +356,7 @@ def simulate(config, motion: str, scale: float, result: Result, limits: Limits, 
         predicted = float(result.t[np.argmax(over)]) if over.any() else None
         joints[dof] = {"predicted_s": predicted, "saturated_s": observed,
                        "ticks_apart": None if predicted is None or observed is None
-                       else int(round((observed - predicted) / SMALL_TIME_STEP))}
+                       else int(round((observed - predicted) / limits.period))}
     # after the first saturation the arm leaves the plan, so the later joints' times are the run's,
     # not the prediction's: the first of each is the comparison that holds
     predicted = [(row["predicted_s"], dof) for dof, row in joints.items() if row["predicted_s"] is not None]
@@ -361,7 +364,7 @@ def simulate(config, motion: str, scale: float, result: Result, limits: Limits, 
     first = {"predicted": dict(zip(("t_s", "dof"), min(predicted))) if predicted else None,
              "saturated": dict(zip(("t_s", "dof"), min(observed))) if observed else None}
     if first["predicted"] and first["saturated"]:
-        first["ticks_apart"] = int(round((first["saturated"]["t_s"] - first["predicted"]["t_s"]) / SMALL_TIME_STEP))
+        first["ticks_apart"] = int(round((first["saturated"]["t_s"] - first["predicted"]["t_s"]) / limits.period))
     return {"completed": summary["completed"], "tracking_max_rad": summary.get("tracking_max_rad"),
             "tracks": summary.get("tracking_max_rad", math.inf) <= TRACKING_TOLERANCE, "first": first,
             "joints": joints}
@@ -437,7 +440,7 @@ def make_report(config, path: MotionPath, scale: float, result: Result, limits: 
         "passed": result.passed, "motion": path.name, "config": config.name, "time_scale": scale,
         "duration_s": float(result.t[-1]), "supply_voltage": limits.voltage, "margin": margin,
         "repeat": repeat, "ambient_c": ambient, "payload": payload,
-        "sample_period_s": float(result.t[1] - result.t[0]) if len(result.t) > 1 else SMALL_TIME_STEP,
+        "sample_period_s": float(result.t[1] - result.t[0]) if len(result.t) > 1 else limits.period,
         "samples": len(result.t),
         "joints": joint_table(result, config.model.dof_names),
         "violations": found,
@@ -475,7 +478,7 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         raise ValueError(f"--supply-voltage must be a positive number of volts, got {voltage}")
     path = motion_path(motion, model)
     limits = Limits.of(config, voltage)
-    result = check(model, limits, path.at_scale(time_scale), margin, repeat, ambient)
+    result = check(model, limits, path.at_scale(time_scale, limits.period), margin, repeat, ambient)
     report = make_report(config, path, time_scale, result, limits, margin=margin, repeat=repeat,
                          ambient=ambient, payload=payload_info)
     say(f"validate '{path.name}' on '{config.name}': {report['duration_s']:.3f} s at time scale {time_scale:g}, "

@@ -48,6 +48,7 @@ class CanBus(ServoBus):
     default_baud = 1_000_000
     max_id = MAX_ID
     port_key, baud_key = "channel", "bitrate"
+    device_key = "motor"
     bus_keys = frozenset({"interface"})
     joint_keys = frozenset({"dialect", "feedback_id", "p_max", "v_max", "t_max", "kp_max", "kd_max"})
 

@@ -1,7 +1,11 @@
 """The loop's timing and stiffness, defined once: the host loop, the simulated plant, the firmware's
 generated tables (`servodyn codegen`), the experiments and the demo all read them from here."""
 
-SMALL_TIME_STEP = 1e-3   # s: the control period (one servo read and write) and the plant's RK4 step
+import math
+
+SMALL_TIME_STEP = 1e-3   # s: the default control period (one servo read and write; a configuration
+                         # may set its own, `[control] period`) and the longest RK4 step of the plant
+MIN_CONTROL_PERIOD = 1e-4   # s: 10 kHz, beyond any servo bus's round trip
 TIME_STEP = 1e-2         # s: the inverse dynamics period (paper: ~10 small steps), held in between
 BANDWIDTH = 20.0         # rad/s of each joint's PD on its own inertia, at least
 MAX_BANDWIDTH = 100.0    # rad/s: at 1 kHz the discrete loop keeps its damping up to about here
@@ -17,6 +21,26 @@ MIN_PLAYED_PERIODS = 10      # a motion played faster than written spans at leas
                              # periods: sampled any coarser, its interior falls between two samples
 MAX_PLAYED_DURATION = 600.0  # s: a played motion is sampled whole into memory (about 1 kB a period
                              # through the checks), so ten minutes is the most it may last
+
+
+def check_control_period(period: float) -> str | None:
+    """Why `period` (s) cannot be a control period, or None: it must be a positive number from
+    MIN_CONTROL_PERIOD to TIME_STEP that divides TIME_STEP, since the inverse dynamics, computed
+    every TIME_STEP, are held over a whole number of control periods."""
+    if not (isinstance(period, (int, float)) and MIN_CONTROL_PERIOD <= period <= TIME_STEP):
+        return (f"must be from {MIN_CONTROL_PERIOD * 1e3:g} to {TIME_STEP * 1e3:g} ms (the inverse dynamics "
+                f"period), got {period!r} s")
+    ratio = TIME_STEP / period
+    if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        return (f"must divide the inverse dynamics period, {TIME_STEP * 1e3:g} ms, into whole periods "
+                f"(e.g. 1, 2, 2.5 or 5 ms), got {period * 1e3:g} ms")
+    return None
+
+
+def plant_step(period: float) -> float:
+    """The simulated plant's RK4 step for a control period: the period cut into equal steps of at
+    most SMALL_TIME_STEP, so lock-step advances the plant a whole number of steps per tick."""
+    return period / math.ceil(period / SMALL_TIME_STEP - 1e-9)
 
 
 def played_periods(duration: float, time_scale: float, dt: float = SMALL_TIME_STEP) -> int:
