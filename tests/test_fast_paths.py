@@ -82,6 +82,9 @@ def test_the_reader_gives_a_repeated_packet_again_and_parses_anything_else():
     frame = inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1, 2]).encode()
     first, again = reader.feed(frame), reader.feed(frame)
     assert first == again and len(first) == 1, "the same chunk: the same one packet"
+    write = inst.sync_write(102, 2, {1: b"\x01\x00", 2: b"\x02\x00"}).encode()
+    assert [reader.feed(write), reader.feed(frame)] == [reader.feed(write), first], \
+        "a request and a command in turn, each as itself"
     assert reader.feed(frame[:5]) == [] and reader.feed(frame[5:]) == first, "a split frame is parsed"
     other = inst.ping(3).encode()
     assert reader.feed(frame[:3] + other) != first, "bytes that only begin like it are parsed"
