@@ -287,7 +287,8 @@ class DynamixelBus(ServoBus):
             self.port.clearPort()
             if self._send(self._read_frame) != len(self._read_frame):
                 return None, self.packets.getTxRxResult(self._sdk.COMM_TX_FAIL), None
-            self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
+            if self.reply_timeout is None:      # the SDK's timeout, else _receive's own
+                self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
             raw, failure = self._receive()
         finally:
             self.port.is_using = False
