@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber,
-                                    FastReadBlock, Fault, Instruction, InstructionPacket, PacketReader,
+                                    Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_reply

@@ -59,8 +59,7 @@ class Servo:
                     ("id", "drive_mode", "torque_enable", "status_return_level", "hardware_error_status",
                      "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm",
                      "pwm_limit", "goal_current", "current_limit", "present_input_voltage", "homing_offset",
-                     "moving_threshold", "moving", "present_pwm", "present_current", "present_velocity",
-                     "present_position")}
+                     "moving_threshold", "moving")}
         self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
                                                               "present_current"))
         self._no_load_speed = model.no_load_speed
