@@ -70,7 +70,7 @@ class RunLog:
         if getattr(self, "_file", None) is not None:
             # the row is formatted now, a few µs each tick, so that a flush only writes: formatting
             # 100 ms of rows at once took a real-time loop several periods
-            self._written = self._write_rows(self._writer, self._written)
+            self._format_pending()
             if time.monotonic() - self._flushed_at >= self._flush_every:
                 self.flush()
 
@@ -85,23 +85,55 @@ class RunLog:
         to the operating system, which keeps them if the process is killed) whenever
         `flush_every` s of wall-clock time have passed since the last time, and at close(). A
         process killed outright (SIGKILL) loses at most the ticks of its last `flush_every` s,
-        and every line on disk is whole."""
-        self._file = open(path, "w", newline="")
-        self._pending = io.StringIO(newline="")       # whole rows formatted, not yet in the file
-        self._writer = csv.writer(self._pending)
-        self._writer.writerow(self._header())
-        self._flush_every, self._written = flush_every, self._write_rows(self._writer, 0)
+        and every line on disk is whole.
+
+        A signal's exception (SIGINT, SIGTERM stop the swing) may come between any two steps:
+        each row is formatted into a pending line by one list append, so it is pending once or
+        not yet; a write to the file is first recorded whole — where it goes, what it writes,
+        the state after it — by one assignment, and redone from that place if it was cut
+        short, so close() puts every row in the file exactly once."""
+        self._file = open(path, "wb")
+        self._line_buffer = io.StringIO(newline="")
+        self._line_writer = csv.writer(self._line_buffer)
+        self._stream = (0, [self._line(self._header())])      # (rows in the file, pending lines)
+        self._commit = None
+        self._flush_every = flush_every
         self.flush()
+
+    def _line(self, fields) -> str:
+        """One CSV line, as csv.writer writes it."""
+        self._line_buffer.seek(0)
+        self._line_buffer.truncate()
+        self._line_writer.writerow(fields)
+        return self._line_buffer.getvalue()
+
+    def _format_pending(self) -> None:
+        """Every logged row not yet in the file nor pending, formatted into a pending line."""
+        self._redo()
+        in_file, lines = self._stream
+        header = 1        # the header's line comes first, counted as a row of the file
+        while in_file + len(lines) - header < len(self.t):
+            lines.append(self._line(self._row(in_file + len(lines) - header)))
 
     def flush(self) -> None:
         """The rows not yet on disk, to the file and the operating system (when streaming)."""
         if getattr(self, "_file", None) is not None:
-            self._written = self._write_rows(None, self._written)
-            self._file.write(self._pending.getvalue())
-            self._pending.seek(0)
-            self._pending.truncate()
-            self._file.flush()
+            self._format_pending()
+            in_file, lines = self._stream
+            self._commit = (self._file.tell(), "".join(lines).encode(), (in_file + len(lines), []))
+            self._redo()
             self._flushed_at = time.monotonic()
+
+    def _redo(self) -> None:
+        """The recorded write, from its place (again, if it was cut short), then its state."""
+        if self._commit is not None:
+            at, data, after = self._commit
+            self._file.seek(at)
+            self._file.truncate()
+            self._file.write(data)
+            self._file.flush()
+            self._stream = after
+            self._commit = None
 
     def close(self) -> None:
         if getattr(self, "_file", None) is not None:
@@ -112,14 +144,16 @@ class RunLog:
     def _header(self) -> list[str]:
         return ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in self.dof_names]
 
+    def _row(self, k: int) -> list[str]:
+        """Row k's fields, formatted (as Python floats: exactly the values, as numpy's scalars
+        format them, for less)."""
+        row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k], self.current[k]))
+        return [f"{v:.9g}" for v in row.tolist()]
+
     def _write_rows(self, writer, start: int) -> int:
         """The rows from `start` on; returns the number of rows then written in all."""
-        writer = writer or self._writer
         for k in range(start, len(self.t)):
-            # as Python floats (exactly the values; numpy's scalars format the same, slower)
-            row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k],
-                                  self.current[k])).tolist()
-            writer.writerow([f"{v:.9g}" for v in row])
+            writer.writerow(self._row(k))
         return len(self.t)
 
 

@@ -155,3 +155,46 @@ def test_the_collector_is_paused_and_given_back():
         assert not gc.isenabled(), "left off if it was off"
     finally:
         (gc.enable if enabled else gc.disable)()
+
+
+class _Signal(Exception):
+    """Stands for the exception a signal handler raises between two steps."""
+
+
+@pytest.mark.parametrize("where", ["format", "write", "flush"])
+def test_a_signal_anywhere_in_the_log_leaves_each_row_once(tmp_path, where):
+    """A row being formatted, a write done but not yet recorded, a flush cut short: close()
+    still puts every logged row in the file exactly once."""
+    from types import SimpleNamespace
+
+    from servodyn import loop
+    log = loop.RunLog(("a", "b"))
+    path = tmp_path / "log.csv"
+    log.stream(path, flush_every=0.0)            # a flush after every row
+    state = SimpleNamespace(q=np.zeros(2), qd=np.ones(2), current=np.zeros(2))
+    for k in range(5):
+        log.add(k * 1e-3, np.zeros(2), state, np.zeros(2), 0.0, 0.0, 0.0, 0.0)
+    calls = {"n": 0}
+
+    def once(real):
+        def cut(*args):
+            calls["n"] += 1
+            if calls["n"] == 1:
+                if where == "format":
+                    raise _Signal()
+                real(*args)
+                raise _Signal()       # after the call did its work
+            return real(*args)
+        return cut
+    if where == "format":
+        log._line = once(log._line)
+    elif where == "write":
+        log._file.write = once(log._file.write)
+    else:
+        log._file.flush = once(log._file.flush)
+    with pytest.raises(_Signal):
+        log.add(5e-3, np.zeros(2), state, np.zeros(2), 0.0, 0.0, 0.0, 0.0)
+    log.close()
+    lines = path.read_text().splitlines()
+    assert lines[0].startswith("t,") and [line.split(",")[0] for line in lines[1:]] == \
+        [f"{k * 1e-3:.9g}" for k in range(6)], f"every row once, in order ({where})"
