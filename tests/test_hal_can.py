@@ -24,7 +24,7 @@ from servodyn.sim.transport.can import VirtualCanServer
 
 PATIENT = 0.5          # s: a loaded machine can hold a thread back far beyond a real bus's deadline
 CHANNELS = (f"test-hal-can-{k}" for k in itertools.count())
-HOLD = dict(kp=3.0, kd=0.03)
+HOLD = dict(kp=10.0, kd=0.1)   # N m/rad, N m s/rad: replica_dm's 2.5 kg arm within 0.08 rad in 0.3 s
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ from servodyn.model.samples import random_model
 RNEA_TOL = 1e-9
 
 
-@pytest.mark.parametrize("name", ["human_arm", "human15"])
+@pytest.mark.parametrize("name", ["human_arm", "human15", "replica", "replica_dm", "replica_mixed"])
 def test_builtin_matches_pinocchio(name, twin):
     model = servodyn.load_model(name)
     pin = twin(model)

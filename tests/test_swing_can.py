@@ -18,7 +18,8 @@ from servodyn.tools.swing import run_swing
 QUIET = dict(say=lambda *a, **k: None)
 CAN_PERIOD = load_config("replica_can").control_period
 MIXED_PERIOD = load_config("replica_mixed").control_period
-SWING_TICKS = round(1.8 * 4 / CAN_PERIOD) + 1    # the 1.8 s forehand at time scale 4, every period
+CAN_SCALE = load_config("replica_can").swing_time_scale
+SWING_TICKS = round(1.8 * CAN_SCALE / CAN_PERIOD) + 1    # the 1.8 s forehand at its time scale, every period
 FAULT_TIME = 0.2              # s into the swing
 
 

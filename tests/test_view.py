@@ -32,7 +32,7 @@ def _volume(solid) -> float:
             "frustum": lambda: math.pi * d[2] * (d[0] ** 2 + d[0] * d[1] + d[1] ** 2) / 3}[solid.kind]()
 
 
-@pytest.mark.parametrize("name", ["human15", "replica"])
+@pytest.mark.parametrize("name", ["human15", "replica", "replica_dm", "replica_mixed"])
 def test_every_solid_is_a_closed_mesh_of_its_volume(name):
     """Each primitive's mesh is watertight and outward (positive volume), and holds the solid's
     volume to within the polygon's shortfall (96 segments: under 0.5 %)."""
@@ -74,7 +74,7 @@ def test_a_body_drawn_is_where_its_mass_is():
             f"{body.name}: mesh centroid {mesh.center_mass} against com {body.com}"
 
 
-@pytest.mark.parametrize("name", ["human15", "replica"])
+@pytest.mark.parametrize("name", ["human15", "replica", "replica_dm"])
 def test_urdf_export_carries_the_solids_as_visuals(tmp_path, name):
     """The export's links carry one visual per solid; yourdfpy loads it with its meshes, and the
     visuals' bounding box at q = 0 is the one of the servodyn meshes placed by forward kinematics."""

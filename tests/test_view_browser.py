@@ -52,6 +52,27 @@ def _arm_pixels(browser, viewer) -> tuple[np.ndarray, np.ndarray]:
     return wait_for(differs, "the arm to be drawn", every=1.0)
 
 
+def test_a_can_arm_is_drawn_from_its_own_solids():
+    """replica_can's page: its model replica_dm (round Damiao housings), 2.51 kg, the validator's
+    verdict at the configuration's own 2.5 ms period (a 1 ms sample fails its bus check), and the
+    arm drawn in the middle of the canvas. First in the file, so that its browser is closed before
+    the shared page's opens."""
+    viewer = open_view("replica_can", port=0, say=lambda *a, **k: None)
+    try:
+        with Browser() as browser:
+            browser.open(viewer.url)
+            text = wait_for(lambda: (lambda t: t if "loaded: 7 bodies, 7 dofs" in t else None)(browser.text()),
+                            "the page to report the model loaded")
+            assert "model 'replica_dm' loaded" in text and "2.51 kg" in text, text[:500]
+            assert "PASS: every joint within every servo limit" in text, f"the verdict at 2.5 ms: {text[:800]}"
+            _, mask = _arm_pixels(browser, viewer)
+            ys, xs = np.nonzero(mask)
+            assert len(xs) > 500 and 150 < xs.mean() < CANVAS_RIGHT - 50, \
+                f"{len(xs)} pixels of arm centred at x = {xs.mean() if len(xs) else 0:.0f}"
+    finally:
+        viewer.close()
+
+
 def test_page_reports_the_model_and_draws_the_arm(page, tmp_path):
     viewer, browser = page
     text = wait_for(lambda: (lambda t: t if "loaded: 7 bodies, 7 dofs" in t else None)(browser.text()),
@@ -84,3 +105,4 @@ def test_typing_a_keyframe_angle_updates_the_torque_readout(page):
     after = wait_for(lambda: (lambda t: t if readout in t else None)(browser.text()),
                      "the page to show the edited motion's torques")
     assert readout not in before and "edits: 1" in after, "the torque readout changed with the keyframe"
+

@@ -108,7 +108,9 @@ def motion_timeline(model, config, motion: Motion, time_scale: float):
     """The motion sampled every control period at the time scale, its torques (one batched RNEA)
     and, with a configuration, the validator's verdict: (timeline, result or None, limits)."""
     from .validate import MotionPath
-    return trajectory_timeline(model, config, MotionPath(motion.name, motion.duration, motion.at).at_scale(time_scale))
+    period = SMALL_TIME_STEP if config is None else config.control_period
+    path = MotionPath(motion.name, motion.duration, motion.at)
+    return trajectory_timeline(model, config, path.at_scale(time_scale, period))
 
 
 def trajectory_timeline(model, config, traj):

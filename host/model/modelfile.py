@@ -14,6 +14,10 @@ from .. import _core
 from .files import read_toml
 from .tree import Body, Dof, Model, ModelError, Solid
 from .rotations import rpy_to_matrix
+from .shapes import BOX_FROM_ELLIPSOID
+
+PARTS_FILE = Path(__file__).parent / "parts.toml"
+_parts: dict | None = None
 
 SOLID_DIMS = {
     "cylinder": ("radius", "length"),
@@ -83,8 +87,43 @@ def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, n
     return mass, com, inertia
 
 
+def parts() -> dict[str, dict]:
+    """The bought parts a model file may place (parts.toml): name -> its solid's keys and source."""
+    global _parts
+    if _parts is None:
+        table = read_toml(PARTS_FILE, ModelError).get("part", {})
+        _parts = {name: _part_solid(name, entry) for name, entry in table.items()}
+    return _parts
+
+
+def _part_solid(name: str, entry: dict) -> dict:
+    """A catalogue entry as the keys of a [[body.solid]]: a box is the ellipsoid of its inertia."""
+    solid = {"mass": entry["mass"], "source": entry["source"]}
+    if entry["type"] == "box":
+        sides = np.asarray(entry["sides"], dtype=float)
+        solid.update(type="ellipsoid", draw="box", semi_axes=list(sides / BOX_FROM_ELLIPSOID))
+    else:
+        solid.update({k: entry[k] for k in ("type",) + SOLID_DIMS[entry["type"]]})
+    return solid
+
+
+def _placed_part(solid: dict, where: str) -> dict:
+    """A solid that says `part = NAME`: the part's type, size and mass, at the solid's pos and rpy."""
+    name = solid["part"]
+    catalogue = parts()
+    if not isinstance(name, str) or name not in catalogue:
+        raise ModelError(f"{where}: unknown part {name!r} (parts: {', '.join(catalogue)})")
+    extra = sorted(set(solid) - {"part", "pos", "rpy"})
+    if extra:
+        raise ModelError(f"{where}: part '{name}' brings its own type, size and mass; "
+                         f"give it only pos and rpy, not {', '.join(extra)}")
+    return {k: v for k, v in catalogue[name].items() if k != "source"} | solid
+
+
 def _solid(solid: dict, where: str, total_mass: float | None):
     """((mass, com, inertia about com) in the body frame, the solid's shape) of one solid."""
+    if "part" in solid:
+        solid = _placed_part(solid, where)
     kind = solid.get("type")
     if not isinstance(kind, str) or kind not in SOLID_DIMS:
         raise ModelError(f"{where}: 'type' must be one of {', '.join(SOLID_DIMS)}, got {kind!r}")
@@ -119,8 +158,39 @@ def _solid(solid: dict, where: str, total_mass: float | None):
     return (mass, pos + R @ np.array([0.0, 0.0, com_z]), R @ I_local @ R.T), shape
 
 
-def model_from_dict(data: dict, origin: str = "model") -> Model:
-    """Build a Model from the parsed contents of a model file."""
+def _other_file(name, where: str, folder: Path | None) -> Path:
+    from . import builtin_models
+    if not isinstance(name, str) or not name:
+        raise ModelError(f"{where}: 'from' must name a model file, got {name!r}")
+    builtins = builtin_models()
+    if name in builtins:
+        return builtins[name]
+    path = (folder or Path.cwd()) / name
+    if not path.is_file():
+        raise ModelError(f"{where}: 'from' names {name!r}, neither a built-in model "
+                         f"({', '.join(builtins)}) nor a file beside this one")
+    return path
+
+
+def _body_from(entry: dict, where: str, folder: Path | None, chain: tuple[Path, ...] = ()) -> dict:
+    """A body that says `from = FILE`: the body of the same name in that model file (a built-in
+    name, or a path relative to this file), with this entry's own keys in place of its keys."""
+    path = _other_file(entry["from"], where, folder)
+    if path in chain:
+        raise ModelError(f"{where}: 'from' goes round in a circle through {path.name}")
+    bodies = read_toml(path, ModelError).get("body", [])
+    found = [b for b in bodies if isinstance(b, dict) and b.get("name") == entry.get("name")]
+    if not found:
+        raise ModelError(f"{where}: {path.stem} has no body '{entry.get('name')}'")
+    body = found[0]
+    if "from" in body:
+        body = _body_from(body, f"{path.stem}: body '{body['name']}'", path.parent, chain + (path,))
+    return body | {k: v for k, v in entry.items() if k != "from"}
+
+
+def model_from_dict(data: dict, origin: str = "model", folder: Path | None = None) -> Model:
+    """Build a Model from the parsed contents of a model file (folder: where it lies, for the
+    files its bodies name with `from`)."""
     total_mass = _number(data, "total_mass", origin, default=-1.0)
     total_mass = total_mass if total_mass > 0 else None
     gravity = _vector(data, "gravity", origin, default=(0.0, 0.0, -9.81))
@@ -134,6 +204,8 @@ def model_from_dict(data: dict, origin: str = "model") -> Model:
         if not isinstance(name, str) or not name:
             raise ModelError(f"{origin}: body #{n + 1} needs a 'name'")
         where = f"body '{name}'"
+        if "from" in entry:
+            entry = _body_from(entry, where, folder)
         parent_name = entry.get("parent", "base")
         if not isinstance(parent_name, str) or (parent_name != "base" and parent_name not in index):
             raise ModelError(f"{where}: parent '{parent_name}' is not an earlier body")
@@ -173,4 +245,4 @@ def load_model_file(path: str | Path) -> Model:
         data = read_toml(path, ModelError)
     except FileNotFoundError:
         raise ModelError(f"{path}: no such file") from None
-    return model_from_dict(data, origin=path.stem)
+    return model_from_dict(data, origin=path.stem, folder=path.parent)
