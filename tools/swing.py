@@ -276,7 +276,8 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
                    loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
                    native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
-                                                      "missed", "lost", "exit_code", "notes")})
+                                                      "missed", "lost", "exit_code", "notes")},
+                   exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's
