@@ -112,8 +112,7 @@ class JointCommand:
         """A command from arrays that come from a checked one (the bus's clamped copy): not
         checked again."""
         command = object.__new__(cls)
-        for name, value in zip(_COMMAND_FIELDS, (q, qd, tau_ff, kp, kd)):
-            object.__setattr__(command, name, value)
+        command.__dict__.update(q=q, qd=qd, tau_ff=tau_ff, kp=kp, kd=kd)    # frozen: past __setattr__
         return command
 
     @classmethod
@@ -122,7 +121,15 @@ class JointCommand:
 
     @classmethod
     def torque(cls, tau) -> "JointCommand":
-        return cls(q=0.0, qd=0.0, tau_ff=tau, kp=0.0, kd=0.0)
+        if type(tau) is not np.ndarray or tau.ndim != 1 or not tau.size:
+            return cls(q=0.0, qd=0.0, tau_ff=tau, kp=0.0, kd=0.0)
+        # the control loop's command every tick, checked as __post_init__ would, for less: the
+        # zero rows need no check, so only the torques' finiteness is tested
+        rows = np.zeros((len(_COMMAND_FIELDS), tau.shape[0]))
+        rows[2] = tau
+        if not np.isfinite(rows[2]).all():
+            raise ValueError("JointCommand: 'tau_ff' is not finite")
+        return cls._checked(*rows)
 
     def torque_at(self, q, qd) -> np.ndarray:
         """The joint torque the command asks for at the measured q, qd."""
@@ -257,7 +264,7 @@ class ServoBus(ABC):
         state = self._read()
         self.stats.reads += 1
         outside = (state.q < self.lower - self.position_margin) | (state.q > self.upper + self.position_margin)
-        if np.any(outside):
+        if outside.any():
             k = int(np.argmax(outside))
             raise ServoLimitError(self.dof_names[k], float(state.q[k]), (self.lower[k], self.upper[k]), state)
         return state
@@ -267,9 +274,10 @@ class ServoBus(ABC):
         self._check_open()
         if command.q.shape != (self.n,):
             raise ValueError(f"JointCommand for {command.q.shape[0]} joints, bus '{self.bus.name}' has {self.n}")
-        q = np.clip(command.q, self.lower, self.upper)
-        qd = np.clip(command.qd, -self.velocity_limit, self.velocity_limit)
-        tau_ff = np.clip(command.tau_ff, -self.torque_limit, self.torque_limit)
+        # np.clip, without its wrappers (a command's values are finite)
+        q = np.minimum(np.maximum(command.q, self.lower), self.upper)
+        qd = np.minimum(np.maximum(command.qd, -self.velocity_limit), self.velocity_limit)
+        tau_ff = np.minimum(np.maximum(command.tau_ff, -self.torque_limit), self.torque_limit)
         self.stats.limited += (q != command.q) | (qd != command.qd) | (tau_ff != command.tau_ff)
         self._write(JointCommand._checked(q, qd, tau_ff, command.kp, command.kd))
         self.stats.writes += 1

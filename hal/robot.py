@@ -28,6 +28,10 @@ class Robot:
         self.dof_names = tuple(config.model.dof_names)
         self.n = len(self.dof_names)
         self._reads = self._writes = 0
+        # one bus holding every dof in the model's order: its states and commands are the robot's
+        # as they are, without a copy into the robot's order
+        only = next(iter(self.buses.values())) if len(self.buses) == 1 else None
+        self._only = only if only is not None and list(only.dof_index) == list(range(self.n)) else None
 
     @property
     def stats(self) -> BusStats:
@@ -62,6 +66,10 @@ class Robot:
             bus.enable_torque(on)
 
     def read_state(self) -> JointState:
+        if self._only is not None:
+            state = self._only.read_state()
+            self._reads += 1
+            return state
         q, qd, current, tau = (np.zeros(self.n) for _ in range(4))
         t = 0.0
         for bus in self.buses.values():
@@ -75,6 +83,10 @@ class Robot:
     def write(self, command: JointCommand) -> None:
         if command.q.shape != (self.n,):
             raise ValueError(f"JointCommand for {command.q.shape[0]} joints, the robot has {self.n}")
+        if self._only is not None:
+            self._only.write(command)
+            self._writes += 1
+            return
         for bus in self.buses.values():
             k = bus.dof_index
             bus.write(JointCommand(q=command.q[k], qd=command.qd[k], tau_ff=command.tau_ff[k], kp=command.kp[k],

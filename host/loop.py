@@ -10,12 +10,15 @@ for each sample of a planned segment, and logs it. `summarize` turns a log into 
 from __future__ import annotations
 
 import csv
+import io
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .control.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from .control.schedule import Segment
 from .control.timing import OVERRUN_TOLERANCE
 from .hal.bus import JointCommand
@@ -64,8 +67,12 @@ class RunLog:
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
         self.process_cpu_seconds.append(process_cpu)
-        if getattr(self, "_file", None) is not None and time.monotonic() - self._flushed_at >= self._flush_every:
-            self.flush()
+        if getattr(self, "_file", None) is not None:
+            # the row is formatted now, a few µs each tick, so that a flush only writes: formatting
+            # 100 ms of rows at once took a real-time loop several periods
+            self._format_pending()
+            if time.monotonic() - self._flushed_at >= self._flush_every:
+                self.flush()
 
     def write_csv(self, path: Path) -> None:
         with open(path, "w", newline="") as f:
@@ -78,20 +85,55 @@ class RunLog:
         to the operating system, which keeps them if the process is killed) whenever
         `flush_every` s of wall-clock time have passed since the last time, and at close(). A
         process killed outright (SIGKILL) loses at most the ticks of its last `flush_every` s,
-        and every line on disk is whole."""
-        self._file = open(path, "w", newline="")
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(self._header())
-        self._flush_every, self._written = flush_every, self._write_rows(self._writer, 0)
-        self._flushed_at = time.monotonic()
-        self._file.flush()
+        and every line on disk is whole.
+
+        A signal's exception (SIGINT, SIGTERM stop the swing) may come between any two steps:
+        each row is formatted into a pending line by one list append, so it is pending once or
+        not yet; a write to the file is first recorded whole — where it goes, what it writes,
+        the state after it — by one assignment, and redone from that place if it was cut
+        short, so close() puts every row in the file exactly once."""
+        self._file = open(path, "wb")
+        self._line_buffer = io.StringIO(newline="")
+        self._line_writer = csv.writer(self._line_buffer)
+        self._stream = (0, [self._line(self._header())])      # (rows in the file, pending lines)
+        self._commit = None
+        self._flush_every = flush_every
+        self.flush()
+
+    def _line(self, fields) -> str:
+        """One CSV line, as csv.writer writes it."""
+        self._line_buffer.seek(0)
+        self._line_buffer.truncate()
+        self._line_writer.writerow(fields)
+        return self._line_buffer.getvalue()
+
+    def _format_pending(self) -> None:
+        """Every logged row not yet in the file nor pending, formatted into a pending line."""
+        self._redo()
+        in_file, lines = self._stream
+        header = 1        # the header's line comes first, counted as a row of the file
+        while in_file + len(lines) - header < len(self.t):
+            lines.append(self._line(self._row(in_file + len(lines) - header)))
 
     def flush(self) -> None:
         """The rows not yet on disk, to the file and the operating system (when streaming)."""
         if getattr(self, "_file", None) is not None:
-            self._written = self._write_rows(None, self._written)
-            self._file.flush()
+            self._format_pending()
+            in_file, lines = self._stream
+            self._commit = (self._file.tell(), "".join(lines).encode(), (in_file + len(lines), []))
+            self._redo()
             self._flushed_at = time.monotonic()
+
+    def _redo(self) -> None:
+        """The recorded write, from its place (again, if it was cut short), then its state."""
+        if self._commit is not None:
+            at, data, after = self._commit
+            self._file.seek(at)
+            self._file.truncate()
+            self._file.write(data)
+            self._file.flush()
+            self._stream = after
+            self._commit = None
 
     def close(self) -> None:
         if getattr(self, "_file", None) is not None:
@@ -102,12 +144,16 @@ class RunLog:
     def _header(self) -> list[str]:
         return ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in self.dof_names]
 
+    def _row(self, k: int) -> list[str]:
+        """Row k's fields, formatted (as Python floats: exactly the values, as numpy's scalars
+        format them, for less)."""
+        row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k], self.current[k]))
+        return [f"{v:.9g}" for v in row.tolist()]
+
     def _write_rows(self, writer, start: int) -> int:
         """The rows from `start` on; returns the number of rows then written in all."""
-        writer = writer or self._writer
         for k in range(start, len(self.t)):
-            row = [self.t[k], *self.q_d[k], *self.q[k], *self.qd[k], *self.tau[k], *self.current[k]]
-            writer.writerow([f"{v:.9g}" for v in row])
+            writer.writerow(self._row(k))
         return len(self.t)
 
 
@@ -123,7 +169,13 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
     write ends later missed it (counted in log.missed, and returned). A late tick is followed at
     once by the next (the loop catches up on its schedule); a tick that begins more than
     `tolerance` (default OVERRUN_TOLERANCE) behind its schedule raises Overrun before it reads:
-    the caller stops the bus."""
+    the caller stops the bus. The garbage collector waits for the end of the segment; in real
+    time the loop runs under SCHED_FIFO where it may (control.realtime)."""
+    with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
+        return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer)
+
+
+def _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer) -> int:
     tolerance = OVERRUN_TOLERANCE if tolerance is None else tolerance
     controller.reset()
     traj = segment.traj

@@ -41,6 +41,7 @@ class Plant:
         self.direction = np.array([j.direction for j in joints], dtype=float)
         self.gear_ratio = np.array([j.gear_ratio for j in joints], dtype=float)
         self.zero_offset = np.array([j.zero_offset for j in joints], dtype=float)
+        self._scale = self.direction * self.gear_ratio
         self.q = model.neutral_q() if q0 is None else np.array(q0, dtype=float)
         self.qd = np.zeros(model.nv)
         self.current = np.zeros(model.nv)          # A at each drive, over the last step
@@ -49,27 +50,26 @@ class Plant:
 
     def horn(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
         """Each drive's horn angle and speed for the joint state."""
-        scale = self.direction * self.gear_ratio
+        scale = self._scale
         return scale * q + self.zero_offset, scale * qd
 
     def publish(self) -> None:
         """Tell every drive where its horn is."""
         position, velocity = self.horn(self.q, self.qd)
-        for drive, p, v, i in zip(self.drives, position, velocity, self.current):
-            drive.set_present(float(p), float(v), float(i))
+        for drive, p, v, i in zip(self.drives, position.tolist(), velocity.tolist(), self.current.tolist()):
+            drive.set_present(p, v, i)
 
     def advance(self, duration: float) -> None:
         """Run for `duration` seconds in small_time_step steps; each drive is sampled once per
         step (its current held over it)."""
         steps = max(1, int(round(duration / self.small_time_step)))
-        scale = self.direction * self.gear_ratio
+        scale = self._scale
         horn_torque = np.empty(len(self.drives))
         for _ in range(steps):
             position, velocity = self.horn(self.q, self.qd)
-            for k, drive in enumerate(self.drives):
-                self.current[k] = drive.output_current(float(position[k]), float(velocity[k]),
-                                                       self.small_time_step)
-                horn_torque[k] = drive.output_torque(self.current[k], float(velocity[k]))
+            for k, (drive, p, v) in enumerate(zip(self.drives, position.tolist(), velocity.tolist())):
+                self.current[k] = current = float(drive.output_current(p, v, self.small_time_step))
+                horn_torque[k] = drive.output_torque(current, v)
             self.q, self.qd = self.model.step(self.q, self.qd, scale * horn_torque, self.small_time_step,
                                               self.integrator)
             self.time += self.small_time_step

@@ -129,4 +129,5 @@ def test_swing_native_has_the_python_loops_summary(native, tmp_path):
                                                               "loop", "sim_time_at_stop_s", "torque_off"}
     assert keys <= set(summary), f"missing: {keys - set(summary)}"
     assert all(summary["torque_off"]), "torque off on every servo"
+    assert summary["exit_code"] == 0, "the exit status `servodyn swing` takes from the summary, as the Python loop's"
     assert (tmp_path / "swing_log.csv").read_text().count("\n") == 1 + SWING_TICKS, "the log, as the Python loop's"

@@ -137,8 +137,10 @@ def test_servodyn_sim_serves_a_mixed_robot_to_another_process():
     """`servodyn sim --config replica_mixed`: the CAN shoulder behind an SLCAN adapter and the
     Dynamixel wrist on a second pseudo-terminal, one plant; the swing's own Robot drives both from
     this process, and in lock-step the plant moves one control period (2 ms) per tick of both."""
+    # SIGINT as at a terminal: a job started in the background inherits it ignored
     sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica_mixed",
-                            "--lockstep"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            "--lockstep"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     ticks = 50
     try:
         lines = [sim.stdout.readline() for _ in range(3)]

@@ -75,5 +75,5 @@ def fault_message(report: dict) -> str | None:
     servo = report.get("servo", -1)
     return (f"native loop: fault {report['fault']} (code {report.get('code')}) at tick {report.get('fault_tick')}"
             + (f", servo {servo}" if servo not in (None, -1) else "")
-            + (f"; {report.get('missed')} deadlines missed, {report.get('lost')} periods lost"
+            + (f"; {report.get('missed')} deadlines missed, {report.get('lost')} periods behind"
                if report["fault"] == "overrun" else ""))

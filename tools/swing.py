@@ -145,7 +145,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         server, per_bus = _simulated_buses(config, realtime, say)
     if native:
         return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
-                             realtime, out, say)
+                             realtime, out, say, overrun_tolerance)
     bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
     controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
@@ -259,12 +259,14 @@ def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fau
         raise ValueError("--native runs feed-forward + PD and injects no fault")
 
 
-def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say) -> dict:
+def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say,
+                  overrun_tolerance: float | None = None) -> dict:
     """The firmware's loop as a Linux process plays the swing on the port; the same summary."""
     from .native import fault_message, run_native
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
-        report, log = run_native(port, config.model.dof_names, realtime, say=say,
+        tolerance = "" if overrun_tolerance is None else f"tolerance_us={round(overrun_tolerance * 1e6)}"
+        report, log = run_native(port, config.model.dof_names, realtime, args=tolerance, say=say,
                                  reply_timeout=SIM_REPLY_TIMEOUT["dynamixel"] if server is not None else None)
     finally:
         sim = server.status() if server is not None else None
@@ -276,7 +278,8 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
                    loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
                    native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
-                                                      "missed", "lost", "exit_code", "notes")})
+                                                      "missed", "lost", "exit_code", "notes")},
+                   exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's

@@ -69,8 +69,9 @@ typedef struct fw_state_ {
   long tick;                   // ticks since the clock started
   long nlimited;               // ticks with a clamped command
   long missed;                 // ticks whose work ran past their period's end
-  long lost;                   // periods lost to them: how far the plan is behind the clock
+  long lost;                   // the most periods the plan fell behind the clock
   long lost_limit;             // more is the overrun fault
+  long scheduled;              // the clock period the current tick belongs to (-1: none yet)
   int fault, fault_servo;
   long fault_tick;
   uint32_t period;             // clock counts per tick
@@ -329,7 +330,6 @@ static void account(int section, uint32_t counts) {
 
 // one control period; phase_tick counts from the start of the phase (homing or swing)
 static void tick(int swing, long phase_tick) {
-  uint32_t start_tick = board_clock_ticks();
   uint32_t c0 = board_clock_now();
   int err = read_state();
   if (err) {
@@ -377,12 +377,26 @@ static void tick(int swing, long phase_tick) {
   account(SEC_OUTPUT, c4 - c3);
   account(SEC_TICK, c5 - c0);
   fw_record_tick(g.tick, g.q_d, g.q, g.qd, g.tau, g.current);
-  uint32_t crossed = board_clock_ticks() - start_tick;     // period starts the tick ran past
-  if (crossed) {
+  // periods begun since this tick's own: it ran past its deadline, and the plan is that far behind
+  long behind = (long)(int32_t)(board_clock_ticks() - (uint32_t)g.scheduled);
+  if (behind > 0) {
     g.missed++;
-    g.lost += (long)crossed;
-    if (g.lost > g.lost_limit) fault(FW_FAULT_OVERRUN, -1);
+    if (behind > g.lost) g.lost = behind;
+    if (behind > g.lost_limit) fault(FW_FAULT_OVERRUN, -1);
   }
+}
+
+// Wait for the next tick's period. A tick belongs to the period after its predecessor's: when
+// that period has already begun (a late tick before it), it runs at once, so a host OS's one-off
+// delay is caught up instead of shifting the rest of the plan (a microcontroller faults first).
+static void wait_for_period(void) {
+  if (g.scheduled < 0) {
+    board_clock_wait();
+    g.scheduled = (long)board_clock_ticks();
+    return;
+  }
+  g.scheduled++;
+  if ((int32_t)(board_clock_ticks() - (uint32_t)g.scheduled) < 0) board_clock_wait();
 }
 
 // where a board records each tick (the native loop's log); none on a microcontroller
@@ -395,7 +409,7 @@ static long run_phase(int swing, long nticks) {
   sd_control_reset(&g.cstate);
   for (long k = 0; k < nticks && !g.fault; k++) {
     if (g.stop_after >= 0 && g.tick >= g.stop_after) break;
-    board_clock_wait();
+    wait_for_period();
     tick(swing, k);
     g.tick++;
   }
@@ -457,6 +471,7 @@ int main(void) {
   g.stop_after = arg_value(line, "ticks=", -1);
   long tolerance_us = arg_value(line, "tolerance_us=", -1);
   g.fault_servo = -1;
+  g.scheduled = -1;
 
   g.control.mode = SD_MODE_FEEDFORWARD_PD;
   g.control.update_ticks = fw_plan_.update_ticks;

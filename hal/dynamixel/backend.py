@@ -263,11 +263,9 @@ class DynamixelBus(ServoBus):
                                               f"({self.packets.getRxPacketError(error & ~ALERT_BIT)})")
         self._fault = None
         rows = np.frombuffer(data, dtype=PRESENT)
-        current, velocity, position = rows["current"], rows["velocity"], rows["position"]
-        u = self.units
-        self._last_packet = time.monotonic()
-        state = JointState(t=time.monotonic(), q=u.from_ticks(position), qd=u.from_velocity_units(velocity),
-                           current=u.current_from_units(current), tau=u.from_current_units(current))
+        q, qd, current, tau = self.units.state_from_units(rows["position"], rows["velocity"], rows["current"])
+        self._last_packet = now = time.monotonic()
+        state = JointState(t=now, q=q, qd=qd, current=current, tau=tau)
         self._last = state
         return state
 
@@ -289,7 +287,8 @@ class DynamixelBus(ServoBus):
             self.port.clearPort()
             if self._send(self._read_frame) != len(self._read_frame):
                 return None, self.packets.getTxRxResult(self._sdk.COMM_TX_FAIL), None
-            self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
+            if self.reply_timeout is None:      # the SDK's timeout, else _receive's own
+                self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
             raw, failure = self._receive()
         finally:
             self.port.is_using = False
@@ -333,8 +332,20 @@ class DynamixelBus(ServoBus):
             timeout = self.reply_timeout
         deadline = time.monotonic() + timeout
         read = self.port.ser.read if hasattr(self.port, "ser") else self.port.readPort
+        fd = self._fileno
         while True:
-            chunk = read(4096)
+            chunk = None
+            if fd is not None:
+                # wait first (the reply is never there the moment the request left), then read
+                # the descriptor itself; pyserial's read (a select and its timeout bookkeeping
+                # per call) only when that finds nothing, to report a port that is gone its way
+                if select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0]:
+                    try:
+                        chunk = os.read(fd, 4096)
+                    except OSError:
+                        chunk = None
+            if not chunk:
+                chunk = read(4096)
             if chunk:
                 raw += chunk
                 chunk = bytes(chunk)

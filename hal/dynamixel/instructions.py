@@ -11,6 +11,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ... import _dxl
 from .protocol import (BROADCAST_ID, FRAME_OVERHEAD, HEADER, CrcMismatch, Instruction,
                        InstructionPacket, PacketError, StatusPacket, crc16, pack_field, unpack_field)
 
@@ -175,15 +176,35 @@ class FastReadBlock:
 
 
 def encode_fast_reply(blocks: Sequence[FastReadBlock]) -> bytes:
-    length = 1 + sum(len(b.data) + 4 for b in blocks)
-    out = bytearray(HEADER + bytes([BROADCAST_ID]) + pack_field(length, 2) + bytes([Instruction.STATUS]))
+    out = fast_reply_frame([b.id for b in blocks], [len(b.data) for b in blocks])
+    k = FAST_BLOCKS_START
     for block in blocks:
-        out += bytes([block.error, block.id]) + block.data
-        out += pack_field(crc16(out), 2)
+        out[k] = block.error
+        out[k + 2:k + 2 + len(block.data)] = block.data
+        k += len(block.data) + 4
+    seal_fast_reply(out, [len(b.data) for b in blocks])
     return bytes(out)
 
 
 FAST_BLOCKS_START = 8       # header(4) ID LEN(2) INST, then ERR ID DATA CRC(2) per servo
+
+
+def fast_reply_frame(ids: Sequence[int], lengths: Sequence[int]) -> bytearray:
+    """A fast read reply laid out, to be filled in place: header, LEN (every block counted), INST,
+    then per servo its ERR (0), ID, `lengths[i]` data bytes (0) and room for its CRC. A server
+    that answers the same request every tick builds it once; seal_fast_reply writes the CRCs."""
+    out = bytearray(HEADER + bytes([BROADCAST_ID]) + pack_field(1 + sum(n + 4 for n in lengths), 2)
+                    + bytes([Instruction.STATUS]))
+    for servo_id, n in zip(ids, lengths):
+        out += bytes([0, servo_id]) + bytes(n + 2)
+    return out
+
+
+def seal_fast_reply(frame: bytearray, lengths: Sequence[int]) -> None:
+    """Write the running CRC of each of the first len(lengths) blocks of a fast read reply laid
+    out in `frame`: the CRC of every byte before it, earlier blocks' CRCs included (the
+    firmware's codec in C, servodyn._dxl; ValueError if the blocks do not fit the frame)."""
+    _dxl.fast_reply_seal(frame, lengths)
 
 
 def fast_reply_size(lengths: Sequence[int]) -> int:

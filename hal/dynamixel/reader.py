@@ -45,6 +45,8 @@ class PacketReader:
         self.max_frame = max_frame
         self._buffer = bytearray()
         self._last_time: float | None = None
+        # by instruction byte, the last chunk that was one whole packet of that instruction
+        self._whole: dict[int, tuple[bytes, Packet]] = {}
 
     @property
     def pending(self) -> int:
@@ -60,7 +62,22 @@ class PacketReader:
             events += self.expire()
         if now is not None:
             self._last_time = now
-        self._buffer += data
+        if self._buffer:
+            self._buffer += data
+        else:
+            # a chunk that is one whole packet, as the last such chunk of its instruction was (a
+            # request repeated every tick): the same packet, not parsed again (packets are immutable)
+            whole = self._whole.get(data[7]) if len(data) > 7 else None
+            if whole is not None and data == whole[0]:
+                events.append(whole[1])
+                return events
+            self._buffer += data
+            if not events:
+                while self._step(events):
+                    pass
+                if not self._buffer and len(events) == 1 and not isinstance(events[0], BadFrame):
+                    self._whole[data[7]] = (bytes(data), events[0])
+                return events
         while self._step(events):
             pass
         return events

@@ -16,6 +16,7 @@ current reported at the API (`current`, `torque`) is signed in the joint's sense
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -64,6 +65,31 @@ class ServoMap:
     def n(self) -> int:
         return len(self.direction)
 
+    @cached_property
+    def _sense(self) -> np.ndarray:
+        """direction · gear ratio, per joint (the product every conversion divides by)."""
+        return self.direction * self.gear_ratio
+
+    @cached_property
+    def _joint_per_amp(self) -> np.ndarray:
+        """gear ratio · torque constant: N m of joint torque per A."""
+        return self.gear_ratio * self.torque_constant
+
+    def state_from_units(self, position, velocity, current) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q, qd, motor current, joint torque) of one reading of Present Position, Velocity and
+        Current: from_ticks, from_velocity_units, current_from_units and from_current_units in
+        one go, the same operations in the same order (so the same numbers), for the tick."""
+        q = np.multiply(position, TWO_PI, dtype=float)
+        q /= self.ticks_per_rev
+        q -= self.zero_offset
+        q /= self._sense
+        qd = np.multiply(velocity, RPM, dtype=float)
+        qd *= self.velocity_unit
+        qd /= self._sense
+        amps = np.multiply(self.direction, current)
+        amps *= self.current_unit
+        return q, qd, amps, amps * self.gear_ratio * self.torque_constant
+
     # position
     def to_ticks(self, q) -> np.ndarray:
         horn = self.direction * self.gear_ratio * np.asarray(q, dtype=float) + self.zero_offset
@@ -97,11 +123,12 @@ class ServoMap:
     def goal_current_units(self, tau, current_limit) -> tuple[np.ndarray, np.ndarray]:
         """Goal Current units for joint torques tau, the motor current clamped at current_limit
         (A, per joint); and which joints were clamped (limiting)."""
-        wanted = self.current(tau)
+        wanted = np.asarray(tau, dtype=float) / self._joint_per_amp          # self.current(tau)
         limit = np.asarray(current_limit, dtype=float)
-        current = np.clip(wanted, -limit, limit)
-        return (np.rint(self.direction * current / self.current_unit).astype(np.int64),
-                current != wanted)
+        current = np.minimum(np.maximum(wanted, -limit), limit)             # np.clip, finite values
+        units = np.multiply(self.direction, current)
+        units /= self.current_unit
+        return np.rint(units).astype(np.int64), current != wanted
 
     def from_current_units(self, units) -> np.ndarray:
         """Joint torque (N m) of a Present Current reading."""

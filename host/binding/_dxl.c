@@ -9,6 +9,8 @@
 //   r.fast_split(size, ids) -> (good, errors, data): blocks of a fast read reply of `size` bytes
 //     each from `ids` (bytes) in order; good = how many are whole and correct (len(ids): all),
 //     errors = each good block's ERR byte, data = their data bytes one after another.
+//   fast_reply_seal(frame, sizes) -> bytes sealed: the running CRCs of a fast read reply laid
+//     out in the writable buffer frame, block k holding sizes[k] data bytes (the servos' side)
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
@@ -125,8 +127,41 @@ static PyTypeObject ReaderType = {
     .tp_getset = Reader_getset,
 };
 
+static PyObject* py_fast_reply_seal(PyObject* self, PyObject* args) {
+  (void)self;
+  Py_buffer frame;
+  PyObject* sizes;
+  if (!PyArg_ParseTuple(args, "w*O", &frame, &sizes)) return NULL;
+  enum { MAX_BLOCKS = 256 };
+  uint16_t size[MAX_BLOCKS];
+  PyObject* seq = PySequence_Fast(sizes, "fast_reply_seal: sizes must be a sequence of ints");
+  Py_ssize_t count = seq ? PySequence_Fast_GET_SIZE(seq) : 0;
+  if (seq && count > MAX_BLOCKS) {
+    PyErr_SetString(PyExc_ValueError, "fast_reply_seal: at most 256 blocks");
+  }
+  for (Py_ssize_t k = 0; seq && !PyErr_Occurred() && k < count; k++) {
+    long value = PyLong_AsLong(PySequence_Fast_GET_ITEM(seq, k));
+    if (value < 0 || value > 0xFFFF) {
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "fast_reply_seal: a block size is 0..65535");
+    } else {
+      size[k] = (uint16_t)value;
+    }
+  }
+  size_t sealed = 0;
+  if (seq && !PyErr_Occurred()) {
+    sealed = dxl_fast_reply_seal((uint8_t*)frame.buf, (size_t)frame.len, size, (size_t)count);
+    if (!sealed) PyErr_SetString(PyExc_ValueError, "fast_reply_seal: the blocks do not fit the frame");
+  }
+  Py_XDECREF(seq);
+  PyBuffer_Release(&frame);
+  if (PyErr_Occurred()) return NULL;
+  return PyLong_FromSize_t(sealed);
+}
+
 static PyMethodDef module_methods[] = {
     {"crc16", py_crc16, METH_VARARGS, "crc16(data, crc=0) -> the Protocol 2.0 CRC-16, continuing from crc"},
+    {"fast_reply_seal", py_fast_reply_seal, METH_VARARGS,
+     "fast_reply_seal(frame, sizes) -> bytes sealed: each block's running CRC written in place"},
     {NULL, NULL, 0, NULL},
 };
 

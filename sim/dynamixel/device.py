@@ -14,10 +14,10 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber,
-                                    FastReadBlock, Fault, Instruction, InstructionPacket, PacketReader,
-                                    ResetOption, StatusError, StatusPacket, encode_fast_reply)
+                                    Fault, Instruction, InstructionPacket, PacketReader,
+                                    ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
-from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START
+from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_reply
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.errors import ProtocolError
 
@@ -26,6 +26,8 @@ from .servo import Servo
 READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
                    Instruction.BULK_READ, Instruction.FAST_BULK_READ})
 COMMANDS = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})   # end a host's control tick
+FAST_READS = frozenset({Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ})
+FAST_FRAMES_KEPT = 8     # fast read replies laid out in advance, one per request seen lately
 
 
 @dataclass(frozen=True)
@@ -47,17 +49,22 @@ class _Policy:
     """A servo's reply settings as the instruction arrived (a reboot or reset answers first)."""
 
     def __init__(self, servo: Servo):
-        self.level = servo.get("status_return_level")
+        self.level = servo.status_return_level
         self.alert = ALERT_BIT if servo.alert else 0
         self.delay = servo.return_delay
         self.silent = servo.silent
 
     def answers(self, instruction: int) -> bool:
-        if self.silent:
-            return False
-        if instruction == Instruction.PING:
-            return True
-        return self.level == 2 or (self.level == 1 and instruction in READS)
+        return _answers(self.silent, self.level, instruction)
+
+
+def _answers(silent: bool, level: int, instruction: int) -> bool:
+    """Whether a servo answers an instruction, by its Status Return Level."""
+    if silent:
+        return False
+    if instruction == Instruction.PING:
+        return True
+    return level == 2 or (level == 1 and instruction in READS)
 
 
 def _parsed(parser: Callable, params: bytes):
@@ -86,6 +93,7 @@ class VirtualBus:
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
         self.unanswerable = 0          # instructions whose answer cannot be encoded
+        self._fast_frames: dict[tuple, tuple[bytearray, list[int]]] = {}   # request -> reply laid out
         self._handlers = {
             Instruction.PING: self._ping, Instruction.READ: self._read, Instruction.WRITE: self._write,
             Instruction.REG_WRITE: self._reg_write, Instruction.ACTION: self._action,
@@ -106,7 +114,10 @@ class VirtualBus:
         """Advance every servo's clock (bus watchdog, Realtime Tick) without traffic."""
         now = self.clock() if time is None else time
         for servo in self.servos:
-            servo.clock(now)
+            # a servo clocked at `now` already has since heard a packet (silent 0) or nothing:
+            # clocking it again at the same time would change nothing
+            if servo.clocked_at != now:
+                servo.clock(now)
 
     def handle(self, data: bytes, time: float | None = None) -> bytes:
         """Bytes from the host in, the servos' status bytes out."""
@@ -136,7 +147,10 @@ class VirtualBus:
     # --- dispatch ------------------------------------------------------------------------------------
 
     def _primary(self, servo_id: int) -> Servo | None:
-        return next((s for s in self.servos if s.id == servo_id), None)
+        for servo in self.servos:
+            if servo.id == servo_id:
+                return servo
+        return None
 
     def _execute(self, packet: InstructionPacket, now: float) -> list[Reply]:
         broadcast = packet.id == BROADCAST_ID
@@ -244,41 +258,67 @@ class VirtualBus:
         return self._reads(packet.instruction, requests)
 
     def _reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
-        """Each listed servo answers in request order; a fast read answers in one packet, and not
-        at all when a listed servo is missing or does not answer reads. A silent servo (a fault)
-        cuts a fast reply where its block would begin, as on a chain: the servos before it
-        answered, the ones after wait for it and never do, and the header's LEN still counts
-        every block, so the host sees a short packet (nothing at all if the first is silent)."""
-        fast = instruction in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
-        replies, blocks = [], []
-        for k, (servo_id, address, length) in enumerate(requests):
+        """Each listed servo answers in request order; a fast read answers in one packet."""
+        if instruction in FAST_READS:
+            return self._fast_reads(instruction, requests)
+        replies = []
+        for servo_id, address, length in requests:
             servo = self._primary(servo_id)
             policy = _Policy(servo) if servo is not None else None
-            if fast and policy is not None and policy.silent:
-                return self._cut_fast_reply(blocks, requests[k:])
             if policy is None or not policy.answers(instruction):
-                if fast:
-                    return []
                 continue
             try:
                 data, error = servo.read(address, length), 0
             except StatusError as refused:
-                data, error = (bytes(length) if fast else b""), refused.error
-            if fast:
-                blocks.append(FastReadBlock(servo_id, error | policy.alert, data))
-            else:
-                replies += self._status(policy, servo_id, instruction, error, data)
-        if fast and blocks:
-            first = self._primary(blocks[0].id)
-            return [Reply(BROADCAST_ID, encode_fast_reply(blocks), first.return_delay)]
+                data, error = b"", refused.error
+            replies += self._status(policy, servo_id, instruction, error, data)
         return replies
 
-    def _cut_fast_reply(self, blocks: list[FastReadBlock], rest: list[tuple[int, int, int]]) -> list[Reply]:
-        if not blocks:
+    def _fast_reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
+        """One packet, and none when a listed servo is missing or does not answer reads. A silent
+        servo (a fault) cuts the reply where its block would begin, as on a chain: the servos
+        before it answered, the ones after wait for it and never do, and the header's LEN still
+        counts every block, so the host sees a short packet (nothing at all if the first is
+        silent). The reply is filled in place in a frame laid out once per request."""
+        answering = []
+        present = [servo.id for servo in self.servos]
+        for servo_id, _, _ in requests:
+            servo = self.servos[present.index(servo_id)] if servo_id in present else None   # _primary
+            if servo is not None and servo.silent:
+                break
+            if servo is None or not _answers(False, servo.status_return_level, instruction):
+                return []
+            answering.append(servo)
+        if not answering:
             return []
-        whole = encode_fast_reply(blocks + [FastReadBlock(i, 0, bytes(n)) for i, _, n in rest])
-        cut = FAST_BLOCKS_START + sum(len(b.data) + 4 for b in blocks)
-        return [Reply(BROADCAST_ID, whole[:cut], self._primary(blocks[0].id).return_delay)]
+        frame, starts = self._fast_frame(requests)
+        for servo, (_, address, length), start in zip(answering, requests, starts):
+            alert = ALERT_BIT if servo.alert else 0
+            try:
+                servo.read_into(frame, start + 2, address, length)
+                error = 0
+            except StatusError as refused:
+                frame[start + 2:start + 2 + length] = bytes(length)
+                error = refused.error
+            frame[start] = error | alert
+        seal_fast_reply(frame, [length for _, _, length in requests[:len(answering)]])
+        end = starts[len(answering)]          # the whole frame, or where the silent servo's block begins
+        return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:end]), answering[0].return_delay)]
+
+    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int]]:
+        """The reply to a fast read laid out (instructions.fast_reply_frame) and where each block
+        begins, the frame's end last; kept for the next time the same request comes."""
+        key = tuple(requests)
+        laid_out = self._fast_frames.get(key)
+        if laid_out is None:
+            frame = fast_reply_frame([i for i, _, _ in requests], [n for _, _, n in requests])
+            starts = [inst.FAST_BLOCKS_START]
+            for _, _, length in requests:
+                starts.append(starts[-1] + length + 4)
+            if len(self._fast_frames) >= FAST_FRAMES_KEPT:
+                self._fast_frames.clear()
+            laid_out = self._fast_frames[key] = (frame, starts)
+        return laid_out
 
     def _sync_write(self, packet, targets):
         if packet.id != BROADCAST_ID:
@@ -301,9 +341,14 @@ class VirtualBus:
 
     def _writes(self, writes: list[tuple[int, int, bytes]]) -> None:
         """Broadcast writes: a refused block is dropped silently, the others still apply."""
-        answering = [(s, (s.id, s.get("secondary_id"))) for s in self.servos]   # IDs as they were
+        answering: dict[int, list[Servo]] = {}        # by ID (primary or secondary) as they were
+        for servo in self.servos:
+            primary, secondary = servo.id, servo.get("secondary_id")
+            answering.setdefault(primary, []).append(servo)
+            if secondary != primary:
+                answering.setdefault(secondary, []).append(servo)
         for servo_id, address, data in writes:
-            for servo in [s for s, ids in answering if servo_id in ids]:
+            for servo in answering.get(servo_id, ()):
                 try:
                     servo.write(address, data)
                 except StatusError:

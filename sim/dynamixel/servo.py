@@ -10,9 +10,9 @@ Refusals raise ``StatusError`` with the e-manual's error number; the bus adds th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import struct
 
-from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field, unpack_field
+from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
 from servodyn.hal.dynamixel.control_table import (GOAL_POSITION_SPAN, PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE,
                                                   TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item,
                                                   Model, OperatingMode)
@@ -22,19 +22,17 @@ from .drive import Mechanics, PositionPid
 WATCHDOG_TRIPPED = -1
 _FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "moving"})   # set_present
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
+_CHANGES = frozenset({"operating_mode", "torque_enable"})    # items whose change, not the write, acts
 GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
               "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain")
+# a little-endian field of each (size, signed), read and written in place in the table
+_FIELD = {(size, signed): struct.Struct("<" + (code.lower() if signed else code))
+          for size, code in ((1, "B"), (2, "H"), (4, "I")) for signed in (False, True)}
+_I8, _U16, _I16, _U32, _I32 = (_FIELD[k] for k in ((1, True), (2, False), (2, True), (4, False), (4, True)))
 
 
 def _fail(number: ErrorNumber) -> StatusError:
     return StatusError(number)
-
-
-@dataclass
-class _Shaft:
-    position: float = 0.0      # rad
-    velocity: float = 0.0      # rad/s
-    current: float = 0.0       # A
 
 
 class Servo:
@@ -52,18 +50,31 @@ class Servo:
         self.mechanics = mechanics or Mechanics.of(model)
         self.zero_ticks = zero_ticks
         self.items = {item.name: item for item in model.items()}
-        # name -> (first byte, end, signed): get() and _set() are the simulator's hottest path
-        self._span = {item.name: (item.address, item.address + item.size, item.signed) for item in self.items.values()}
+        # name -> (unpack_from, pack_into, address, clamp bound): get() and _set() are the
+        # simulator's hottest path, so each item's field is packed in place by a prebuilt Struct
+        self._field = {item.name: (codec.unpack_from, codec.pack_into, item.address, 1 << (8 * item.size - 1))
+                       for item in self.items.values() for codec in [_FIELD[item.size, item.signed]]}
+        # the addresses the per-packet and per-step paths read directly (one-byte items, or a Struct)
+        self._at = {name: self.items[name].address for name in
+                    ("id", "drive_mode", "torque_enable", "status_return_level", "hardware_error_status",
+                     "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm",
+                     "pwm_limit", "goal_current", "current_limit", "present_input_voltage", "homing_offset",
+                     "moving_threshold", "moving")}
+        self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
+                                                              "present_current"))
+        self._no_load_speed = model.no_load_speed
         self._owner: list[Item | None] = [None] * TABLE_SIZE      # the item holding each byte
+        self._layouts: dict[tuple[int, int], tuple] = {}           # (address, length) -> items written
         for item in self.items.values():
             self._owner[item.address:item.address + item.size] = [item] * item.size
         self._table = bytearray(TABLE_SIZE)
-        self._shaft = _Shaft(position)
+        self._shaft = (position, 0.0, 0.0)      # rad, rad/s, A
         self._stale = False            # the shaft moved since the Present registers were written
         self._pid = PositionPid()
         self._turns = 0                # whole turns hidden from Present Position
         self._registered: tuple[int, bytes] | None = None
         self._heard_at: float | None = None
+        self.clocked_at: float | None = None     # the time of the last clock()
         self.silent = False            # a fault: the servo executes but never answers
         self._load_defaults(eeprom=True)
         self._set("id", servo_id)
@@ -76,33 +87,41 @@ class Servo:
     def get(self, name: str) -> int:
         if self._stale and name in _FROM_SHAFT:
             self._refresh_present()
-        start, end, signed = self._span[name]
-        return int.from_bytes(self._table[start:end], "little", signed=signed)
+        unpack, _, address, _ = self._field[name]
+        return unpack(self._table, address)[0]
 
     def _set(self, name: str, value: int) -> None:
-        item = self.items[name]
-        self._table[item.address:item.address + item.size] = pack_field(value, item.size, item.signed)
+        _, pack, address, _ = self._field[name]
+        try:
+            pack(self._table, address, value)
+        except struct.error:             # not an int, or out of range: as pack_field has it
+            item = self.items[name]
+            self._table[address:address + item.size] = pack_field(value, item.size, item.signed)
 
     def _set_clamped(self, name: str, value: float) -> None:
-        bound = 1 << (8 * self.items[name].size - 1)
-        self._set(name, max(-bound, min(bound - 1, round(value))))
+        _, pack, address, bound = self._field[name]
+        pack(self._table, address, max(-bound, min(bound - 1, round(value))))
 
     @property
     def id(self) -> int:
-        return self.get("id")
+        return self._table[self._at["id"]]
 
     @property
     def torque_enabled(self) -> bool:
-        return self.get("torque_enable") == 1
+        return self._table[self._at["torque_enable"]] == 1
 
     @property
     def alert(self) -> bool:
-        return self.get("hardware_error_status") != 0
+        return self._table[self._at["hardware_error_status"]] != 0
+
+    @property
+    def status_return_level(self) -> int:
+        return self._table[self._at["status_return_level"]]
 
     @property
     def return_delay(self) -> float:
         """Return Delay Time in seconds (metadata: the bus does not wait)."""
-        return self.get("return_delay_time") * RETURN_DELAY_UNIT
+        return self._table[self._at["return_delay_time"]] * RETURN_DELAY_UNIT
 
     # --- instructions on one servo ---------------------------------------------------------------
 
@@ -116,6 +135,14 @@ class Servo:
         if self._stale:
             self._refresh_present()
         return bytes(self._table[address:address + length])
+
+    def read_into(self, out: bytearray, offset: int, address: int, length: int) -> None:
+        """read(), its bytes copied into `out` at `offset` (a reply being assembled in place)."""
+        if address + length > TABLE_SIZE:
+            raise _fail(ErrorNumber.ACCESS)
+        if self._stale:
+            self._refresh_present()
+        out[offset:offset + length] = memoryview(self._table)[address:address + length]
 
     def write(self, address: int, data: bytes) -> None:
         """Write whole items, all or nothing."""
@@ -159,33 +186,48 @@ class Servo:
 
     # --- write checks and effects --------------------------------------------------------------
 
-    def _check_write(self, address: int, data: bytes) -> list[tuple[Item, int]]:
-        end = address + len(data)
-        if not data:
-            raise _fail(ErrorNumber.DATA_LENGTH)
+    def _layout(self, address: int, length: int) -> tuple | ErrorNumber:
+        """The items a write of `length` bytes at `address` covers, each with its unpacker and
+        offset in the data, and whether one is in the EEPROM; or the error that refuses it. The
+        table's layout decides, so a good one is kept for the next write of the same span."""
+        layout = self._layouts.get((address, length))
+        if layout is not None:
+            return layout
+        end = address + length
+        if not length:
+            return ErrorNumber.DATA_LENGTH
         if end > TABLE_SIZE:
-            raise _fail(ErrorNumber.ACCESS)
-        writes, k = [], address
+            return ErrorNumber.ACCESS
+        items, k = [], address
         while k < end:
             item = self._owner[k]
             if item is None or not item.writable:
-                raise _fail(ErrorNumber.ACCESS)
+                return ErrorNumber.ACCESS
             if item.address != k or k + item.size > end:      # part of an item
-                raise _fail(ErrorNumber.DATA_LENGTH)
-            writes.append((item, unpack_field(data[k - address:k - address + item.size], item.signed)))
+                return ErrorNumber.DATA_LENGTH
+            items.append((item, self._field[item.name][0], k - address))
             k += item.size
-        if self.torque_enabled and any(item.eeprom for item, _ in writes):
+        layout = self._layouts[address, length] = (tuple(items), any(item.eeprom for item, _, _ in items))
+        return layout
+
+    def _check_write(self, address: int, data: bytes) -> list[tuple[Item, int]]:
+        layout = self._layout(address, len(data))
+        if isinstance(layout, ErrorNumber):
+            raise _fail(layout)
+        items, eeprom = layout
+        writes = [(item, unpack(data, offset)[0]) for item, unpack, offset in items]
+        if eeprom and self.torque_enabled:
             raise _fail(ErrorNumber.ACCESS)
         for item, value in writes:
             self._check_value(item, value)
         return writes
 
     def _check_value(self, item: Item, value: int) -> None:
-        tripped = self.get("bus_watchdog") == WATCHDOG_TRIPPED
-        if tripped and (item.name in GOAL_ITEMS or (item.name == "bus_watchdog" and value != 0)):
+        if ((item.name in GOAL_ITEMS or (item.name == "bus_watchdog" and value != 0))
+                and self.get("bus_watchdog") == WATCHDOG_TRIPPED):
             raise _fail(ErrorNumber.DATA_RANGE)          # goals are read-only until written 0
-        shut_down = self.get("hardware_error_status") & self.get("shutdown")
-        if item.name == "torque_enable" and value == 1 and shut_down:
+        if (item.name == "torque_enable" and value == 1
+                and self.get("hardware_error_status") & self.get("shutdown")):
             raise _fail(ErrorNumber.RESULT_FAIL)         # after a shutdown only REBOOT restores torque
         if item.name == "goal_position":
             self._check_goal_position(value)
@@ -206,17 +248,19 @@ class Servo:
 
     def _apply(self, writes: list[tuple[Item, int]]) -> None:
         for item, value in writes:
-            before = self.get(item.name)
+            changes = item.name in _CHANGES
+            before = self.get(item.name) if changes else None
             self._set(item.name, value)
-            if item.name == "operating_mode" and value != before:
+            if not changes:
+                if item.name == "goal_position":
+                    self._set("position_trajectory", value)
+            elif item.name == "operating_mode" and value != before:
                 self._enter_mode(value)
             elif item.name == "torque_enable" and value != before:
                 self._pid.reset()
                 if value and self.get("operating_mode") == OperatingMode.POSITION:
                     self._reset_turns()
-            elif item.name == "goal_position":
-                self._set("position_trajectory", value)
-        self._refresh_present()
+        self._stale = True         # Present registers as the items now stand, written when next read
 
     def _enter_mode(self, mode: int) -> None:
         """Switching mode resets the profile, the gains and the goal PWM/current to their limits."""
@@ -250,14 +294,17 @@ class Servo:
     def heard(self, now: float) -> None:
         """An instruction packet for this servo arrived at ``now`` (s)."""
         self._heard_at = now
-        self.clock(now)
+        if now != self.clocked_at:      # clocked at `now` already: silent 0 now, so nothing would change
+            self.clock(now)
 
     def clock(self, now: float) -> None:
         """Advance the servo's clock: Realtime Tick, and the bus watchdog while torque is on."""
-        self._set("realtime_tick", int(now * 1000) % 32768)
-        period = self.get("bus_watchdog") * WATCHDOG_UNIT
+        table, at = self._table, self._at
+        self.clocked_at = now
+        _U16.pack_into(table, at["realtime_tick"], int(now * 1000) % 32768)
+        period = _I8.unpack_from(table, at["bus_watchdog"])[0] * WATCHDOG_UNIT
         silent = now - self._heard_at if self._heard_at is not None else 0.0
-        if period > 0 and self.torque_enabled and silent > period:
+        if period > 0 and table[at["torque_enable"]] == 1 and silent > period:
             self._trip_watchdog()
 
     def _trip_watchdog(self) -> None:
@@ -282,51 +329,62 @@ class Servo:
 
     @property
     def _sign(self) -> int:
-        return -1 if self.get("drive_mode") & 0x01 else 1
+        return -1 if self._table[self._at["drive_mode"]] & 0x01 else 1
 
     def _encoder(self, position: float) -> float:
         return self.zero_ticks + self._sign * position * TICKS_PER_REV / (2 * math.pi)
 
     def _position_ticks(self, position: float) -> float:
         """Present Position for a shaft angle: encoder, less hidden turns, plus Homing Offset."""
-        return self._encoder(position) - TICKS_PER_REV * self._turns + self.get("homing_offset")
+        return (self._encoder(position) - TICKS_PER_REV * self._turns
+                + _I32.unpack_from(self._table, self._at["homing_offset"])[0])
 
     def _reset_turns(self) -> None:
-        self._turns = math.floor(round(self._encoder(self._shaft.position)) / TICKS_PER_REV)
+        self._turns = math.floor(round(self._encoder(self._shaft[0])) / TICKS_PER_REV)
 
     def set_present(self, position: float, velocity: float, current: float) -> None:
         """The plant's shaft state: rad, rad/s, A (reverse mode flips all three in the table)."""
-        self._shaft = _Shaft(position, velocity, current)
+        self._shaft = (position, velocity, current)
         self._stale = True         # written when next read: the plant steps more often than the host reads
 
     def _refresh_present(self) -> None:
+        """Present Position, Velocity, Current and Moving from the shaft, each clamped to its field
+        (the simulator's hottest path: written out, without _set_clamped's lookups)."""
         self._stale = False
-        shaft, sign = self._shaft, self._sign
-        self._set_clamped("present_position", self._position_ticks(shaft.position))
-        self._set_clamped("present_velocity", sign * shaft.velocity / VELOCITY_UNIT)
-        self._set_clamped("present_current", sign * shaft.current / self.model.current_unit)
-        self._set("moving", int(abs(self.get("present_velocity")) > self.get("moving_threshold")))
+        position, velocity, current = self._shaft
+        table, at = self._table, self._at
+        sign = -1 if table[at["drive_mode"]] & 0x01 else 1
+        (_, pack_p, at_p, bound_p), (_, pack_v, at_v, bound_v), (_, pack_c, at_c, bound_c) = self._present
+        ticks = (self.zero_ticks + sign * position * TICKS_PER_REV / (2 * math.pi)      # _position_ticks
+                 - TICKS_PER_REV * self._turns + _I32.unpack_from(table, at["homing_offset"])[0])
+        pack_p(table, at_p, max(-bound_p, min(bound_p - 1, round(ticks))))
+        speed = max(-bound_v, min(bound_v - 1, round(sign * velocity / VELOCITY_UNIT)))
+        pack_v(table, at_v, speed)
+        pack_c(table, at_c, max(-bound_c, min(bound_c - 1, round(sign * current / self.model.current_unit))))
+        table[at["moving"]] = int(abs(speed) > _U32.unpack_from(table, at["moving_threshold"])[0])
 
     def output_current(self, position: float, velocity: float, dt: float) -> float:
         """Motor current (A, shaft sign) the drive applies for the next ``dt`` seconds."""
-        if not self.torque_enabled:
+        table, at = self._table, self._at
+        if table[at["torque_enable"]] != 1:
             self._pid.reset()
             self._set("present_pwm", 0)
             return 0.0
         model, sign = self.model, self._sign
-        back_emf = sign * velocity / model.no_load_speed      # fraction of the supply it cancels
-        supply = self.get("present_input_voltage") / 10 / model.nominal_voltage
-        pwm_cap = min(abs(self.get("goal_pwm")), self.get("pwm_limit"))
-        mode = self.get("operating_mode")
+        u16, i16 = _U16.unpack_from, _I16.unpack_from
+        back_emf = sign * velocity / self._no_load_speed      # fraction of the supply it cancels
+        supply = u16(table, at["present_input_voltage"])[0] / 10 / model.nominal_voltage
+        pwm_cap = min(abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0])
+        mode = table[at["operating_mode"]]
         if mode == OperatingMode.POSITION:                    # position PID → PWM
             pwm = self._pid_output(position, velocity, dt, pwm_cap)
             amps = model.stall_current * (pwm / PWM_FULL * supply - back_emf)
         else:
             if mode == OperatingMode.CURRENT:
-                limit = self.get("current_limit")
-                units = max(-limit, min(limit, self.get("goal_current")))
+                limit = u16(table, at["current_limit"])[0]
+                units = max(-limit, min(limit, i16(table, at["goal_current"])[0]))
             else:                                             # position PID → current, Goal Current caps it
-                units = self._pid_output(position, velocity, dt, abs(self.get("goal_current")))
+                units = self._pid_output(position, velocity, dt, abs(i16(table, at["goal_current"])[0]))
             # the current loop can only reach what the PWM cap and the back-EMF leave
             reach = model.stall_current * pwm_cap / PWM_FULL * supply
             amps = max(-reach - model.stall_current * back_emf,

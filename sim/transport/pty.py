@@ -20,6 +20,7 @@ through that socket, each request answered before the next packet is sent (deter
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import select
@@ -30,6 +31,9 @@ import sys
 import threading
 import time
 import tty
+from contextlib import nullcontext
+
+from servodyn.control.realtime import SIMULATOR_PRIORITY, realtime_priority
 
 REALTIME_WAKE = 0.02     # s: a real-time plant is brought up to the wall clock at least this often
 
@@ -332,9 +336,12 @@ def main(argv=None) -> int:
         control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())
         return 2
     server = PtyServer(arm, args.mode)
+    gc.freeze()      # the set-up's objects (model, tables, numpy) out of every later collection
     control.sendall((json.dumps({"ok": True, "path": server.path, "servos": len(arm.servos)}) + "\n").encode())
     try:
-        server.serve_forever(control)
+        # in real time the simulated servos answer ahead of everything else, as hardware does
+        with realtime_priority(SIMULATOR_PRIORITY, "the simulated bus") if args.mode == "realtime" else nullcontext():
+            server.serve_forever(control)
     finally:
         server.stop()
     return 0

@@ -438,3 +438,22 @@ int dxl_fast_bulk_reply_split(const dxl_reader* r, const uint16_t* size, const u
                               size_t count, dxl_block* blocks) {
   return split(r, size, 0, ids, count, blocks);
 }
+
+size_t dxl_fast_reply_seal(uint8_t* frame, size_t n, const uint16_t* size, size_t count) {
+  size_t end = HEAD_SIZE + 1;   // the first block's ERR, after INST
+  for (size_t k = 0; k < count; k++) {
+    end += 2u + size[k];         // its CRC
+    if (end + 2 > n) return 0;
+  }
+  uint16_t crc = 0;
+  size_t begin = 0;
+  end = HEAD_SIZE + 1;
+  for (size_t k = 0; k < count; k++) {
+    end += 2u + size[k];
+    crc = dxl_crc(crc, frame + begin, end - begin);
+    dxl_put_u16(frame + end, crc);
+    begin = end;
+    end += 2;
+  }
+  return end;
+}

@@ -143,4 +143,10 @@ int dxl_fast_reply_split(const dxl_reader* r, uint16_t size, const uint8_t* ids,
 int dxl_fast_bulk_reply_split(const dxl_reader* r, const uint16_t* size, const uint8_t* ids,
                               size_t count, dxl_block* blocks);
 
+// The servos' side: a fast read reply laid out in frame (n bytes: header, FE, LEN, INST, then
+// per block ERR ID DATA and two bytes for its CRC, block k with size[k] data bytes) gets the
+// running CRC of each of its first count blocks written in place. Returns the bytes up to the
+// last CRC written, or 0 (frame untouched) when the blocks do not fit in n.
+size_t dxl_fast_reply_seal(uint8_t* frame, size_t n, const uint16_t* size, size_t count);
+
 #endif  // DXL_H
