@@ -57,7 +57,8 @@ class RunLog:
     missed: int = 0             # ticks whose work ended after their period's end (real time)
 
     def add(self, t, q_d, state, tau, seconds, start, cpu, process_cpu) -> None:
-        self.t.append(t)
+        # t last: a signal's exception (SIGINT, SIGTERM stop the swing) between two appends
+        # leaves a row that t does not count, which close() drops (_trim)
         self.q_d.append(np.array(q_d))
         self.q.append(state.q)
         self.qd.append(state.qd)
@@ -67,6 +68,7 @@ class RunLog:
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
         self.process_cpu_seconds.append(process_cpu)
+        self.t.append(t)
         if getattr(self, "_file", None) is not None:
             # the row is formatted now, a few µs each tick, so that a flush only writes: formatting
             # 100 ms of rows at once took a real-time loop several periods
@@ -75,6 +77,7 @@ class RunLog:
                 self.flush()
 
     def write_csv(self, path: Path) -> None:
+        self._trim()
         with open(path, "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(self._header())
@@ -135,7 +138,14 @@ class RunLog:
             self._stream = after
             self._commit = None
 
+    def _trim(self) -> None:
+        """Every column as long as t: a row whose add() a signal cut short is dropped whole."""
+        for column in (self.q_d, self.q, self.qd, self.tau, self.current, self.tick_seconds, self.tick_start,
+                       self.cpu_seconds, self.process_cpu_seconds):
+            del column[len(self.t):]
+
     def close(self) -> None:
+        self._trim()
         if getattr(self, "_file", None) is not None:
             self.flush()
             self._file.close()

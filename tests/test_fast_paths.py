@@ -198,3 +198,28 @@ def test_a_signal_anywhere_in_the_log_leaves_each_row_once(tmp_path, where):
     lines = path.read_text().splitlines()
     assert lines[0].startswith("t,") and [line.split(",")[0] for line in lines[1:]] == \
         [f"{k * 1e-3:.9g}" for k in range(6)], f"every row once, in order ({where})"
+
+
+@pytest.mark.parametrize("cut_after", ["q_d", "current", "process_cpu_seconds"])
+def test_a_signal_inside_add_drops_that_row_whole(tmp_path, cut_after):
+    """A signal's exception between two of add()'s appends (SIGTERM during a swing's tick, seen
+    in a full suite run: close() then raised IndexError on the ragged row, a traceback instead of
+    exit 143): the row is not counted, the file and every column hold the whole rows only."""
+    from types import SimpleNamespace
+
+    from servodyn import loop
+    log = loop.RunLog(("a", "b"))
+    path = tmp_path / "log.csv"
+    log.stream(path, flush_every=0.0)
+    state = SimpleNamespace(q=np.zeros(2), qd=np.ones(2), current=np.zeros(2))
+    for k in range(3):
+        log.add(k * 1e-3, np.zeros(2), state, np.zeros(2), 0.0, 0.0, 0.0, 0.0)
+    # add()'s appends up to `cut_after`, then the signal: in the order add() makes them
+    order = ["q_d", "q", "qd", "tau", "current", "tick_seconds", "tick_start", "cpu_seconds", "process_cpu_seconds"]
+    for name in order[:order.index(cut_after) + 1]:
+        getattr(log, name).append(np.zeros(2) if name in ("q_d", "q", "qd", "tau", "current") else 0.0)
+    log.close()
+    lines = path.read_text().splitlines()
+    assert [line.split(",")[0] for line in lines[1:]] == [f"{k * 1e-3:.9g}" for k in range(3)], \
+        f"the three whole rows, not the cut one ({cut_after})"
+    assert {len(getattr(log, name)) for name in order + ["t"]} == {3}, "every column as long as t"
