@@ -134,15 +134,10 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
-    server, per_bus = None, {name: {"port": path} for name, path in ports.items()}
-    for name, path in ports.items():
-        if is_pseudo_terminal(path):      # `servodyn sim` in another process: no adapter is a pty
-            kind = config.buses[name].kind
-            per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[kind]
-            say(f"bus '{name}': {path} is a pseudo-terminal, a simulated bus: replies may take up to "
-                f"{SIM_REPLY_TIMEOUT[kind]:g} s (a loaded machine holds them back)")
     if simulated and bus_config.kind != "loopback":
         server, per_bus = _simulated_buses(config, realtime, say)
+    else:
+        server, per_bus = None, {name: _real_bus(config.buses[name], path, say) for name, path in ports.items()}
     if native:
         return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
                              realtime, out, say, overrun_tolerance)
@@ -216,18 +211,24 @@ def is_pseudo_terminal(path: str) -> bool:
     return os.path.realpath(path).startswith("/dev/pts/")
 
 
+def _real_bus(bus, path: str, say) -> dict:
+    """The options of a bus on `path`: a pseudo-terminal is `servodyn sim` in another process (no
+    adapter is a pty), which gets the simulated bus's patience, said in one line."""
+    if not is_pseudo_terminal(path):
+        return {"port": path}
+    say(f"bus '{bus.name}': {path} is a pseudo-terminal, a simulated bus: replies may take up to "
+        f"{SIM_REPLY_TIMEOUT[bus.kind]:g} s (a loaded machine holds them back)")
+    return {"port": path, "reply_timeout": SIM_REPLY_TIMEOUT[bus.kind]}
+
+
 def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
     """The port of each bus the swing drives on real hardware, {} for the simulated buses. `port`:
     None (each bus's configured port; "auto" means simulated), a path (a one-bus configuration), or
-    "BUS=PATH" items (a list, or a dict bus -> path) naming each bus of a configuration with several.
+    a list of "BUS=PATH" items naming each bus of a configuration with several.
     Either every bus has a real port or none has: ValueError naming what is missing or unknown."""
     given = {}
-    items = [] if port is None else list(port.items()) if isinstance(port, dict) else \
-        [port] if isinstance(port, str) else list(port)
-    for item in items:
-        if isinstance(item, tuple):
-            name, path = item
-        elif "=" in item and item.split("=", 1)[0] in config.buses:
+    for item in [] if port is None else [port] if isinstance(port, str) else port:
+        if "=" in item and item.split("=", 1)[0] in config.buses:
             name, path = item.split("=", 1)
         elif len(config.buses) == 1:
             name, path = next(iter(config.buses)), item
