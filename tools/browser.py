@@ -16,7 +16,9 @@ import base64
 import io
 import itertools
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -62,12 +64,14 @@ class Browser:
 
     def __init__(self, size=SCREEN):
         self.size = size
-        self.profile = tempfile.TemporaryDirectory(prefix="servodyn-chromium-")
+        # chromium's helper processes may still be writing its profile after the main one
+        # exits: the whole session is stopped at close(), and a file they left is no error
+        self.profile = tempfile.TemporaryDirectory(prefix="servodyn-chromium-", ignore_cleanup_errors=True)
         self.proc = subprocess.Popen(
             [find_chromium(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
              "--enable-unsafe-swiftshader", f"--window-size={size[0]},{size[1]}", "--remote-debugging-port=0",
              f"--user-data-dir={self.profile.name}", "--no-first-run", "--hide-scrollbars", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         self.ws = None
         try:
             port_file = Path(self.profile.name) / "DevToolsActivePort"
@@ -131,13 +135,20 @@ class Browser:
     def close(self) -> None:
         if self.ws is not None:
             self.ws.close()
-        self.proc.terminate()
+        self._signal_session(signal.SIGTERM)
         try:
             self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+        self._signal_session(signal.SIGKILL)     # any helper process the main one left behind
         self.profile.cleanup()
+
+    def _signal_session(self, signum) -> None:
+        try:
+            os.killpg(self.proc.pid, signum)
+        except ProcessLookupError:
+            pass
 
     def __enter__(self):
         return self
