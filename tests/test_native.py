@@ -115,6 +115,21 @@ def test_native_overrun_stops_safely(native):
     assert report["missed"] >= 1 and record.torque_off, "the missed deadline is counted, torque off sent"
 
 
+def test_native_caught_up_ticks_are_timed_each(native):
+    """Real time with a 20 us period, which no round trip through the pseudo-terminal keeps: every
+    tick after the first runs at once, catching up on the plan (a wide tolerance lets it). Each is
+    still timed from its own start in the log: the starts rise by at least the tick before's work
+    (a caught-up tick used to log the start of the first late one, and its wall time from there)."""
+    report, log, record, arm = _run(args=f"period_us=20 tolerance_us=10000000 ticks={HOME_TICKS + 100}",
+                                    realtime=True)
+    assert report["fault"] == "none" and report["missed"] >= HOME_TICKS, report
+    start, wall = np.array(log.tick_start), np.array(log.tick_seconds)
+    assert len(start) == 100, "the swing's first 100 ticks are logged"
+    assert (np.diff(start) > 0).all(), "every tick has a start of its own"
+    assert (start[1:] >= start[:-1] + wall[:-1] - 1e-9).all(), "a tick starts after the one before ended"
+    assert (wall < 0.5).all(), "each wall time is one tick's, not the run's since the first late tick"
+
+
 def test_swing_native_has_the_python_loops_summary(native, tmp_path):
     """`servodyn swing --native`: the simulator in its process, the native loop on its
     pseudo-terminal, the summary with the Python loop's keys (and the same tracking bound)."""

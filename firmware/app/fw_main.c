@@ -393,10 +393,11 @@ static void wait_for_period(void) {
   if (g.scheduled < 0) {
     board_clock_wait();
     g.scheduled = (long)board_clock_ticks();
-    return;
+  } else {
+    g.scheduled++;
+    if ((int32_t)(board_clock_ticks() - (uint32_t)g.scheduled) < 0) board_clock_wait();
   }
-  g.scheduled++;
-  if ((int32_t)(board_clock_ticks() - (uint32_t)g.scheduled) < 0) board_clock_wait();
+  board_tick_begin();
 }
 
 // where a board records each tick (the native loop's log); none on a microcontroller

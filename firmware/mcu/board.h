@@ -35,6 +35,9 @@ uint32_t board_clock_now(void);
 uint32_t board_clock_ticks(void);
 // Sleep until the next period begins.
 void board_clock_wait(void);
+// A tick begins now: after the wait, or at once when it catches up on a late plan (the native
+// board times each tick from here for its log; nothing to do on a microcontroller).
+void board_tick_begin(void);
 // Stop and restart the clock (the period's position is kept). The lock-stepped simulated bus
 // answers in no time of the emulated clock; the firmware holds the clock while it waits so that
 // a tick costs the instructions it executes, and no more, however slow the host is.

@@ -67,6 +67,8 @@ void board_clock_wait(void) {
   while (g_ticks == start) __asm__ volatile("wfi");
 }
 
+void board_tick_begin(void) {}
+
 void board_clock_hold(void) {
   SYST_CSR &= ~SYST_ENABLE;
 }
