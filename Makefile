@@ -19,7 +19,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
-HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
+HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h sim/dynamixel/c/*.c)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo bench soak venv toolchain browser test-c test-mcu test-python clean distclean

@@ -1,5 +1,6 @@
 """Builds the C core into two extension modules, double (servodyn._core) and float (servodyn._core32),
-and the firmware's Dynamixel codec into servodyn._dxl."""
+the firmware's Dynamixel codec into servodyn._dxl, and the simulated servos' per-tick work into
+servodyn.sim.dynamixel._chain."""
 import glob
 
 import numpy
@@ -22,4 +23,6 @@ def core_module(name, *defines):
 DXL = Extension("servodyn._dxl", sources=["host/binding/_dxl.c", "hal/dynamixel/c/dxl.c"],
                 include_dirs=["hal/dynamixel/c"], extra_compile_args=FLAGS)
 
-setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE"), DXL])
+CHAIN = Extension("servodyn.sim.dynamixel._chain", sources=["sim/dynamixel/c/_chain.c"], extra_compile_args=FLAGS)
+
+setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE"), DXL, CHAIN])

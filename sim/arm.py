@@ -23,7 +23,7 @@ from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
-from .dynamixel import Servo, VirtualBus
+from .dynamixel import Servo, ServoChain, VirtualBus
 from .faults import WIRE_FAULTS, WireFault
 from .plant import Plant, PlantView
 
@@ -44,12 +44,13 @@ class SimulatedArm(PlantView):
         self.config, self.model = config, config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         self.servos = [Servo(j.servo, j.id, position=0.0, zero_ticks=0) for j in self.joints]
+        chain = ServoChain(self.servos)       # the plant's drives and the bus's servos, at once
         small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
         self.plant = Plant(self.model, self.joints, self.servos, small_time_step=small_time_step, q0=q0,
-                           integrator=integrator)
+                           integrator=integrator, chain=chain)
         # the servos' clock is the plant's until wall_clock(); no byte timeout until wire_clock()
         self._servo_clock = lambda: self.plant.time
-        self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None)
+        self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None, chain=chain)
         self.small_time_step = small_time_step
         self.period = config.control_period      # s: one tick of the host (lock-step)
         self.wire: WireFault | None = None      # a fault of the wire, on every reply from then on

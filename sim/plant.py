@@ -29,14 +29,44 @@ class Drive(Protocol):
     def output_torque(self, current: float, velocity: float) -> float: ...
 
 
+class Chain(Protocol):
+    """Every drive of the plant at once, in its order, on float64 arrays (the drives one by one,
+    `Drives`, unless a chain of drives does it faster together)."""
+
+    def output(self, position, velocity, dt: float, current, torque) -> None:
+        """Each drive's current for the next `dt` into `current`, its horn torque into `torque`."""
+
+    def publish(self, position, velocity, current) -> None:
+        """Each drive's set_present."""
+
+
+class Drives:
+    """The drives one by one: the plant's chain when none is given."""
+
+    def __init__(self, drives: Sequence[Drive]):
+        self.drives = drives
+
+    def output(self, position, velocity, dt: float, current, torque) -> None:
+        for k, (drive, p, v) in enumerate(zip(self.drives, position.tolist(), velocity.tolist())):
+            current[k] = amps = float(drive.output_current(p, v, dt))
+            torque[k] = drive.output_torque(amps, v)
+
+    def publish(self, position, velocity, current) -> None:
+        for drive, p, v, i in zip(self.drives, position.tolist(), velocity.tolist(), current.tolist()):
+            drive.set_present(p, v, i)
+
+
 class Plant:
-    """A model driven through its joints' drives; q and qd in the model's dof order."""
+    """A model driven through its joints' drives; q and qd in the model's dof order. `chain`: the
+    drives as one (Chain), by default each in turn."""
 
     def __init__(self, model, joints: Sequence, drives: Sequence[Drive], *,
-                 small_time_step: float = SMALL_TIME_STEP, q0=None, integrator: str = "rk4"):
+                 small_time_step: float = SMALL_TIME_STEP, q0=None, integrator: str = "rk4",
+                 chain: Chain | None = None):
         if [j.dof for j in joints] != list(model.dof_names) or len(drives) != len(joints):
             raise ValueError("Plant: one joint and one drive per dof of the model, in its dof order")
         self.model, self.drives = model, list(drives)
+        self.chain = Drives(self.drives) if chain is None else chain
         self.small_time_step, self.integrator = small_time_step, integrator
         self.direction = np.array([j.direction for j in joints], dtype=float)
         self.gear_ratio = np.array([j.gear_ratio for j in joints], dtype=float)
@@ -56,8 +86,7 @@ class Plant:
     def publish(self) -> None:
         """Tell every drive where its horn is."""
         position, velocity = self.horn(self.q, self.qd)
-        for drive, p, v, i in zip(self.drives, position.tolist(), velocity.tolist(), self.current.tolist()):
-            drive.set_present(p, v, i)
+        self.chain.publish(position, velocity, self.current)
 
     def advance(self, duration: float) -> None:
         """Run for `duration` seconds in small_time_step steps; each drive is sampled once per
@@ -67,9 +96,7 @@ class Plant:
         horn_torque = np.empty(len(self.drives))
         for _ in range(steps):
             position, velocity = self.horn(self.q, self.qd)
-            for k, (drive, p, v) in enumerate(zip(self.drives, position.tolist(), velocity.tolist())):
-                self.current[k] = current = float(drive.output_current(p, v, self.small_time_step))
-                horn_torque[k] = drive.output_torque(current, v)
+            self.chain.output(position, velocity, self.small_time_step, self.current, horn_torque)
             self.q, self.qd = self.model.step(self.q, self.qd, scale * horn_torque, self.small_time_step,
                                               self.integrator)
             self.time += self.small_time_step

@@ -5,9 +5,10 @@ The servo models and their control tables are the HAL's (`servodyn.hal.dynamixel
 from servodyn.hal.dynamixel.control_table import (MODELS, SERVOS, XH430_W350, XH540_W270, XM430_W350, XM540_W270,
                                                   HardwareError, Item, Model, OperatingMode)
 
+from .chain import ServoChain
 from .device import Exchange, Reply, VirtualBus
 from .drive import Mechanics, PositionPid
 from .servo import Servo
 
 __all__ = ["MODELS", "SERVOS", "XH430_W350", "XH540_W270", "XM430_W350", "XM540_W270", "Exchange", "HardwareError",
-           "Item", "Mechanics", "Model", "OperatingMode", "PositionPid", "Reply", "Servo", "VirtualBus"]
+           "Item", "Mechanics", "Model", "OperatingMode", "PositionPid", "Reply", "Servo", "ServoChain", "VirtualBus"]

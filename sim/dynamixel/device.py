@@ -21,6 +21,7 @@ from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_repl
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.errors import ProtocolError
 
+from .chain import ServoChain
 from .servo import Servo
 
 READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
@@ -80,12 +81,16 @@ class VirtualBus:
     host's control tick), then ``on_instruction(exchange)`` after every instruction packet is
     answered. A frame whose bytes arrive more than ``byte_timeout`` apart is dropped, as a servo
     does (None: never), timed by ``wire_clock`` when the bytes come over a real-time wire while
-    the servos' clock is a simulated one (None: the servos' clock)."""
+    the servos' clock is a simulated one (None: the servos' clock). ``chain``: the servos as one
+    (ServoChain, built from them unless given), which clocks them and writes their Present
+    registers at once while ``servos`` still holds just its servos."""
 
     def __init__(self, servos: Iterable[Servo] = (), *, clock: Callable[[], float] = _time.monotonic,
                  on_instruction: Callable[[Exchange], None] | None = None,
-                 byte_timeout: float | None = BYTE_TIMEOUT, wire_clock: Callable[[], float] | None = None):
+                 byte_timeout: float | None = BYTE_TIMEOUT, wire_clock: Callable[[], float] | None = None,
+                 chain: ServoChain | None = None):
         self.servos = list(servos)
+        self.chain = ServoChain(self.servos) if chain is None else chain
         self.clock = clock
         self.wire_clock = wire_clock
         self.on_instruction = on_instruction
@@ -113,6 +118,9 @@ class VirtualBus:
     def tick(self, time: float | None = None) -> None:
         """Advance every servo's clock (bus watchdog, Realtime Tick) without traffic."""
         now = self.clock() if time is None else time
+        if self.chain.covers(self.servos):
+            self.chain.clock(now)
+            return
         for servo in self.servos:
             # a servo clocked at `now` already has since heard a packet (silent 0) or nothing:
             # clocking it again at the same time would change nothing
@@ -156,8 +164,11 @@ class VirtualBus:
         broadcast = packet.id == BROADCAST_ID
         targets = self.servos if broadcast else [s for s in self.servos
                                                  if packet.id in (s.id, s.get("secondary_id"))]
-        for servo in targets:
-            servo.heard(now)
+        if broadcast and self.chain.covers(targets):
+            self.chain.heard(now)
+        else:
+            for servo in targets:
+                servo.heard(now)
         handler = self._handlers.get(packet.instruction)
         if handler is None:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
@@ -291,6 +302,8 @@ class VirtualBus:
             answering.append(servo)
         if not answering:
             return []
+        if self.chain.covers(self.servos):
+            self.chain.refresh()          # every stale servo's Present registers at once
         frame, starts = self._fast_frame(requests)
         for servo, (_, address, length), start in zip(answering, requests, starts):
             alert = ALERT_BIT if servo.alert else 0

@@ -1,0 +1,473 @@
+// _chain.c: the simulated servos' per-tick work over a whole chain, in C
+// (servodyn.sim.dynamixel._chain, used by sim/dynamixel/chain.py).
+//
+// Each function here is one of Servo's (sim/dynamixel/servo.py) for every servo of a chain at
+// once, the same operations in the same order on the same doubles, so the registers and the
+// currents are bit for bit the Python ones (tests/test_sim_chain.py compares them over randomized
+// states). It works on the servos' own control tables (bytearrays) and attributes; whatever is
+// not its case (another mode, a value the Python code would refuse with an exception, a tripping
+// watchdog) it leaves to the servo's Python method. The layout (which field is where) and every
+// constant come from Python (the control table, the servo models): nothing is written twice.
+//
+//   Chain(servos, fields, constants, units)
+//     servos: the Servo objects; fields: one (address, size, signed) per name of FIELDS, in that
+//     order; constants: per servo (stall_current, nominal_voltage, no_load_speed, current_unit);
+//     units: (ticks_per_rev, velocity_unit, pwm_full, watchdog_unit, current_mode).
+//   chain.currents(position, velocity, out) -> (general, off)        Servo.output_current
+//     position, velocity: doubles (buffers) at each horn; out: a writable buffer of doubles.
+//     Bit masks of the servos left to Python (general) and of those whose torque is off (their
+//     PID is to be reset); the others' currents are in `out`, their Present PWM written.
+//   chain.publish(position, velocity, current)                        Servo.set_present
+//   chain.refresh() -> general                                        Servo._refresh_present
+//     The Present registers of every stale servo; a mask of those left to Python.
+//   chain.clock(now) -> general                                       VirtualBus.tick / Servo.clock
+//   chain.heard(now) -> general                                       Servo.heard, every servo
+//     The servos whose watchdog trips now are left to Python (general).
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_SERVOS 62     // a mask of them is a positive int64
+
+enum {
+  F_TORQUE_ENABLE, F_DRIVE_MODE, F_OPERATING_MODE, F_PRESENT_INPUT_VOLTAGE, F_GOAL_PWM, F_PWM_LIMIT,
+  F_GOAL_CURRENT, F_CURRENT_LIMIT, F_PRESENT_PWM, F_HOMING_OFFSET, F_PRESENT_POSITION, F_PRESENT_VELOCITY,
+  F_PRESENT_CURRENT, F_MOVING, F_MOVING_THRESHOLD, F_REALTIME_TICK, F_BUS_WATCHDOG, N_FIELDS
+};
+static const char* FIELD_NAMES[N_FIELDS] = {
+  "torque_enable", "drive_mode", "operating_mode", "present_input_voltage", "goal_pwm", "pwm_limit",
+  "goal_current", "current_limit", "present_pwm", "homing_offset", "present_position", "present_velocity",
+  "present_current", "moving", "moving_threshold", "realtime_tick", "bus_watchdog",
+};
+
+typedef struct {
+  int address, size, is_signed;
+} Field;
+
+typedef struct {
+  double stall_current, nominal_voltage, no_load_speed, current_unit;
+} Constants;
+
+typedef struct {
+  PyObject_HEAD
+  int n;
+  PyObject* servos[MAX_SERVOS];
+  PyObject* tables[MAX_SERVOS];      // each servo's _table (a bytearray of fixed size)
+  Constants constants[MAX_SERVOS];
+  Field fields[N_FIELDS];
+  long long ticks_per_rev;
+  double velocity_unit, pwm_full, watchdog_unit;
+  long current_mode;
+} Chain;
+
+// the Servo attributes read and written, interned once
+static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at;
+
+static inline long long get(const uint8_t* t, Field f) {
+  const uint8_t* p = t + f.address;
+  switch (f.size) {
+    case 1: return f.is_signed ? (long long)(int8_t)p[0] : (long long)p[0];
+    case 2: {
+      uint16_t v = (uint16_t)(p[0] | (p[1] << 8));
+      return f.is_signed ? (long long)(int16_t)v : (long long)v;
+    }
+    default: {
+      uint32_t v = (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+      return f.is_signed ? (long long)(int32_t)v : (long long)v;
+    }
+  }
+}
+
+static inline void put(uint8_t* t, Field f, long long value) {
+  uint8_t* p = t + f.address;
+  for (int k = 0; k < f.size; k++) p[k] = (uint8_t)(((unsigned long long)value >> (8 * k)) & 0xFF);
+}
+
+// Python's max(-bound, min(bound - 1, round(x))) for the field's bound 2**(8 size - 1); 0 where
+// round() raises (x not finite)
+static inline int clamped(double x, Field f, long long* out) {
+  if (!isfinite(x)) return 0;
+  double r = nearbyint(x);                     // round half to even, as round()
+  long long bound = 1LL << (8 * f.size - 1);
+  if (r > (double)(bound - 1)) *out = bound - 1;
+  else if (r < (double)-bound) *out = -bound;
+  else *out = (long long)r;
+  return 1;
+}
+
+// min(a, b) and max(a, b) as Python's: the first unless the second is strictly smaller / larger
+static inline double pmin(double a, double b) { return b < a ? b : a; }
+static inline double pmax(double a, double b) { return b > a ? b : a; }
+static inline long long lmin(long long a, long long b) { return b < a ? b : a; }
+static inline long long lmax(long long a, long long b) { return b > a ? b : a; }
+
+static inline uint8_t* table_of(Chain* self, int k) { return (uint8_t*)PyByteArray_AS_STRING(self->tables[k]); }
+
+static void Chain_dealloc(Chain* self) {
+  for (int k = 0; k < self->n; k++) {
+    Py_XDECREF(self->servos[k]);
+    Py_XDECREF(self->tables[k]);
+  }
+  Py_TYPE(self)->tp_free((PyObject*)self);
+}
+
+static int Chain_init(Chain* self, PyObject* args, PyObject* kwds) {
+  (void)kwds;
+  PyObject *servos, *fields, *constants;
+  if (!PyArg_ParseTuple(args, "OOO(Ldddl)", &servos, &fields, &constants, &self->ticks_per_rev,
+                        &self->velocity_unit, &self->pwm_full, &self->watchdog_unit, &self->current_mode))
+    return -1;
+  servos = PySequence_Fast(servos, "servos: a sequence");
+  if (!servos) return -1;
+  Py_ssize_t n = PySequence_Fast_GET_SIZE(servos);
+  if (n > MAX_SERVOS || !PyTuple_Check(fields) || PyTuple_GET_SIZE(fields) != N_FIELDS ||
+      !PyTuple_Check(constants) || PyTuple_GET_SIZE(constants) != n) {
+    Py_DECREF(servos);
+    PyErr_Format(PyExc_ValueError, "Chain: at most %d servos, %d fields and one constants tuple a servo",
+                 MAX_SERVOS, N_FIELDS);
+    return -1;
+  }
+  for (int f = 0; f < N_FIELDS; f++) {
+    Field* field = &self->fields[f];
+    if (!PyArg_ParseTuple(PyTuple_GET_ITEM(fields, f), "iip", &field->address, &field->size, &field->is_signed)) {
+      Py_DECREF(servos);
+      return -1;
+    }
+    if (field->size != 1 && field->size != 2 && field->size != 4) {
+      Py_DECREF(servos);
+      PyErr_Format(PyExc_ValueError, "Chain: field %s of %d bytes", FIELD_NAMES[f], field->size);
+      return -1;
+    }
+  }
+  for (int k = 0; k < self->n; k++) {       // a second __init__ starts afresh
+    Py_CLEAR(self->servos[k]);
+    Py_CLEAR(self->tables[k]);
+  }
+  self->n = 0;
+  for (Py_ssize_t k = 0; k < n; k++) {
+    PyObject* servo = PySequence_Fast_GET_ITEM(servos, k);
+    Constants* c = &self->constants[k];
+    if (!PyArg_ParseTuple(PyTuple_GET_ITEM(constants, k), "dddd", &c->stall_current, &c->nominal_voltage,
+                          &c->no_load_speed, &c->current_unit)) {
+      Py_DECREF(servos);
+      return -1;
+    }
+    PyObject* table = PyObject_GetAttrString(servo, "_table");
+    if (!table) {
+      Py_DECREF(servos);
+      return -1;
+    }
+    int big_enough = 1;
+    for (int f = 0; f < N_FIELDS; f++)
+      big_enough &= self->fields[f].address + self->fields[f].size <= (PyByteArray_Check(table) ? PyByteArray_GET_SIZE(table) : 0);
+    if (!PyByteArray_Check(table) || !big_enough) {
+      Py_DECREF(table);
+      Py_DECREF(servos);
+      PyErr_SetString(PyExc_ValueError, "Chain: a servo's _table is not a bytearray holding every field");
+      return -1;
+    }
+    Py_INCREF(servo);
+    self->servos[k] = servo;
+    self->tables[k] = table;
+    self->n = (int)k + 1;
+  }
+  Py_DECREF(servos);
+  return 0;
+}
+
+// a buffer of n doubles, C-contiguous
+static int doubles(PyObject* obj, Py_buffer* view, int n, int writable) {
+  if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0)
+    return 0;
+  if (view->itemsize != sizeof(double) || !view->format || strcmp(view->format, "d") != 0 ||
+      view->len != (Py_ssize_t)(n * sizeof(double))) {
+    PyBuffer_Release(view);
+    PyErr_Format(PyExc_ValueError, "Chain: expected %d doubles", n);
+    return 0;
+  }
+  return 1;
+}
+
+// Servo.output_current, torque on in Current Control Mode (and torque off)
+static PyObject* Chain_currents(Chain* self, PyObject* args) {
+  PyObject *p_obj, *v_obj, *o_obj;
+  if (!PyArg_ParseTuple(args, "OOO", &p_obj, &v_obj, &o_obj)) return NULL;
+  Py_buffer pb, vb, ob;
+  if (!doubles(p_obj, &pb, self->n, 0)) return NULL;
+  if (!doubles(v_obj, &vb, self->n, 0)) {
+    PyBuffer_Release(&pb);
+    return NULL;
+  }
+  if (!doubles(o_obj, &ob, self->n, 1)) {
+    PyBuffer_Release(&pb);
+    PyBuffer_Release(&vb);
+    return NULL;
+  }
+  const double* velocity = (const double*)vb.buf;
+  double* out = (double*)ob.buf;
+  const Field* F = self->fields;
+  long long general = 0, off = 0;
+  for (int k = 0; k < self->n; k++) {
+    uint8_t* t = table_of(self, k);
+    const Constants* c = &self->constants[k];
+    if (get(t, F[F_TORQUE_ENABLE]) != 1) {
+      put(t, F[F_PRESENT_PWM], 0);
+      out[k] = 0.0;
+      off |= 1LL << k;
+      continue;
+    }
+    long long input_voltage = get(t, F[F_PRESENT_INPUT_VOLTAGE]);
+    if (get(t, F[F_OPERATING_MODE]) != self->current_mode || c->no_load_speed == 0.0 || c->stall_current == 0.0 ||
+        c->nominal_voltage == 0.0 || input_voltage == 0) {
+      general |= 1LL << k;
+      continue;
+    }
+    double sign = (get(t, F[F_DRIVE_MODE]) & 0x01) ? -1.0 : 1.0;
+    double back_emf = sign * velocity[k] / c->no_load_speed;
+    double supply = (double)input_voltage / 10.0 / c->nominal_voltage;
+    long long goal_pwm = get(t, F[F_GOAL_PWM]);
+    long long pwm_cap = lmin(goal_pwm < 0 ? -goal_pwm : goal_pwm, get(t, F[F_PWM_LIMIT]));
+    long long limit = get(t, F[F_CURRENT_LIMIT]);
+    long long units = lmax(-limit, lmin(limit, get(t, F[F_GOAL_CURRENT])));
+    double stall = c->stall_current;
+    double reach = stall * (double)pwm_cap / self->pwm_full * supply;
+    double amps = pmax(-reach - stall * back_emf, pmin(reach - stall * back_emf, (double)units * c->current_unit));
+    double pwm = (amps / stall + back_emf) / supply * self->pwm_full;
+    long long present_pwm;
+    if (!clamped(pwm, F[F_PRESENT_PWM], &present_pwm)) {
+      general |= 1LL << k;
+      continue;
+    }
+    put(t, F[F_PRESENT_PWM], present_pwm);
+    out[k] = sign * amps;
+  }
+  PyBuffer_Release(&pb);
+  PyBuffer_Release(&vb);
+  PyBuffer_Release(&ob);
+  return Py_BuildValue("LL", general, off);
+}
+
+// Servo.set_present for every servo
+static PyObject* Chain_publish(Chain* self, PyObject* args) {
+  PyObject *p_obj, *v_obj, *c_obj;
+  if (!PyArg_ParseTuple(args, "OOO", &p_obj, &v_obj, &c_obj)) return NULL;
+  Py_buffer b[3];
+  PyObject* objs[3] = {p_obj, v_obj, c_obj};
+  for (int i = 0; i < 3; i++) {
+    if (!doubles(objs[i], &b[i], self->n, 0)) {
+      for (int j = 0; j < i; j++) PyBuffer_Release(&b[j]);
+      return NULL;
+    }
+  }
+  int ok = 1;
+  for (int k = 0; k < self->n && ok; k++) {
+    PyObject* shaft = Py_BuildValue("(ddd)", ((double*)b[0].buf)[k], ((double*)b[1].buf)[k], ((double*)b[2].buf)[k]);
+    ok = shaft && PyObject_SetAttr(self->servos[k], s_shaft, shaft) == 0 &&
+         PyObject_SetAttr(self->servos[k], s_stale, Py_True) == 0;
+    Py_XDECREF(shaft);
+  }
+  for (int i = 0; i < 3; i++) PyBuffer_Release(&b[i]);
+  if (!ok) return NULL;
+  Py_RETURN_NONE;
+}
+
+// Servo._refresh_present of servo k from its shaft; 0 where Python would raise (left to it), -1 on error
+static int present(Chain* self, int k) {
+  PyObject* servo = self->servos[k];
+  PyObject* shaft = PyObject_GetAttr(servo, s_shaft);
+  if (!shaft) return -1;
+  double position, velocity, current;
+  int parsed = PyTuple_Check(shaft) && PyTuple_GET_SIZE(shaft) == 3 &&
+               PyFloat_CheckExact(PyTuple_GET_ITEM(shaft, 0)) && PyFloat_CheckExact(PyTuple_GET_ITEM(shaft, 1)) &&
+               PyFloat_CheckExact(PyTuple_GET_ITEM(shaft, 2));
+  if (parsed) {
+    position = PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(shaft, 0));
+    velocity = PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(shaft, 1));
+    current = PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(shaft, 2));
+  }
+  Py_DECREF(shaft);
+  if (!parsed) return 0;                        // not three floats: Python's arithmetic decides
+  PyObject* turns_obj = PyObject_GetAttr(servo, s_turns);
+  if (!turns_obj) return -1;
+  PyObject* zero_obj = PyObject_GetAttr(servo, s_zero_ticks);
+  if (!zero_obj) {
+    Py_DECREF(turns_obj);
+    return -1;
+  }
+  int overflow_turns = 0, overflow_zero = 0;
+  long long turns = PyLong_Check(turns_obj) ? PyLong_AsLongLongAndOverflow(turns_obj, &overflow_turns) : 0;
+  long long zero = PyLong_Check(zero_obj) ? PyLong_AsLongLongAndOverflow(zero_obj, &overflow_zero) : 0;
+  int exact = PyLong_CheckExact(turns_obj) && PyLong_CheckExact(zero_obj) && !overflow_turns && !overflow_zero &&
+              llabs(turns) < (1LL << 30) && llabs(zero) < (1LL << 52);
+  Py_DECREF(turns_obj);
+  Py_DECREF(zero_obj);
+  if (!exact) return 0;                         // ints beyond a double's exact range: Python's
+  const Field* F = self->fields;
+  uint8_t* t = table_of(self, k);
+  const Constants* c = &self->constants[k];
+  double sign = (get(t, F[F_DRIVE_MODE]) & 0x01) ? -1.0 : 1.0;
+  double tpr = (double)self->ticks_per_rev;
+  double ticks = (double)zero + sign * position * tpr / (2 * Py_MATH_PI) - (double)(self->ticks_per_rev * turns) +
+                 (double)get(t, F[F_HOMING_OFFSET]);
+  long long p, v, i;
+  if (c->current_unit == 0.0 || self->velocity_unit == 0.0 || !clamped(ticks, F[F_PRESENT_POSITION], &p) ||
+      !clamped(sign * velocity / self->velocity_unit, F[F_PRESENT_VELOCITY], &v) ||
+      !clamped(sign * current / c->current_unit, F[F_PRESENT_CURRENT], &i))
+    return 0;
+  if (PyObject_SetAttr(servo, s_stale, Py_False) < 0) return -1;
+  put(t, F[F_PRESENT_POSITION], p);
+  put(t, F[F_PRESENT_VELOCITY], v);
+  put(t, F[F_PRESENT_CURRENT], i);
+  put(t, F[F_MOVING], (v < 0 ? -v : v) > get(t, F[F_MOVING_THRESHOLD]));
+  return 1;
+}
+
+static PyObject* Chain_refresh(Chain* self, PyObject* unused) {
+  (void)unused;
+  long long general = 0;
+  for (int k = 0; k < self->n; k++) {
+    PyObject* stale = PyObject_GetAttr(self->servos[k], s_stale);
+    if (!stale) return NULL;
+    int is_stale = PyObject_IsTrue(stale);
+    Py_DECREF(stale);
+    if (is_stale < 0) return NULL;
+    if (!is_stale) continue;
+    int done = present(self, k);
+    if (done < 0) return NULL;
+    if (!done) general |= 1LL << k;
+  }
+  return PyLong_FromLongLong(general);
+}
+
+// Servo.clock(now) of servo k; 0 when its watchdog trips now or `now` is no float (left to
+// Python), -1 on error
+static int clock_one(Chain* self, int k, PyObject* now_obj, double now) {
+  PyObject* servo = self->servos[k];
+  const Field* F = self->fields;
+  uint8_t* t = table_of(self, k);
+  double ms = now * 1000;
+  if (!isfinite(ms) || fabs(ms) >= 9.0e18) return 0;
+  PyObject* heard_obj = PyObject_GetAttr(servo, s_heard_at);
+  if (!heard_obj) return -1;
+  double silent = 0.0;
+  int heard_float = heard_obj == Py_None || PyFloat_CheckExact(heard_obj);
+  if (heard_obj != Py_None && heard_float) silent = now - PyFloat_AS_DOUBLE(heard_obj);
+  Py_DECREF(heard_obj);
+  if (!heard_float) return 0;
+  double period = (double)get(t, F[F_BUS_WATCHDOG]) * self->watchdog_unit;
+  if (period > 0 && get(t, F[F_TORQUE_ENABLE]) == 1 && silent > period) return 0;     // it trips: Python
+  if (PyObject_SetAttr(servo, s_clocked_at, now_obj) < 0) return -1;
+  long long tick = (long long)ms % 32768;      // int() truncates; Python's % is never negative
+  put(t, F[F_REALTIME_TICK], tick < 0 ? tick + 32768 : tick);
+  return 1;
+}
+
+// whether servo k was clocked at `now` already (clocked_at == now)
+static int clocked_at(Chain* self, int k, PyObject* now_obj) {
+  PyObject* at = PyObject_GetAttr(self->servos[k], s_clocked_at);
+  if (!at) return -1;
+  int same = PyObject_RichCompareBool(at, now_obj, Py_EQ);
+  Py_DECREF(at);
+  return same;
+}
+
+static PyObject* Chain_clock(Chain* self, PyObject* now_obj) {
+  if (!PyFloat_CheckExact(now_obj)) return PyLong_FromLongLong((1LL << self->n) - 1);   // not a float: Python's
+  double now = PyFloat_AS_DOUBLE(now_obj);
+  long long general = 0;
+  for (int k = 0; k < self->n; k++) {
+    int same = clocked_at(self, k, now_obj);
+    if (same < 0) return NULL;
+    if (same) continue;
+    int done = clock_one(self, k, now_obj, now);
+    if (done < 0) return NULL;
+    if (!done) general |= 1LL << k;
+  }
+  return PyLong_FromLongLong(general);
+}
+
+static PyObject* Chain_heard(Chain* self, PyObject* now_obj) {
+  if (!PyFloat_CheckExact(now_obj)) return PyLong_FromLongLong((1LL << self->n) - 1);   // not a float: Python's
+  double now = PyFloat_AS_DOUBLE(now_obj);
+  long long general = 0;
+  for (int k = 0; k < self->n; k++) {
+    if (PyObject_SetAttr(self->servos[k], s_heard_at, now_obj) < 0) return NULL;
+    int same = clocked_at(self, k, now_obj);
+    if (same < 0) return NULL;
+    if (same) continue;
+    int done = clock_one(self, k, now_obj, now);
+    if (done < 0) return NULL;
+    if (!done) general |= 1LL << k;
+  }
+  return PyLong_FromLongLong(general);
+}
+
+static PyMethodDef Chain_methods[] = {
+    {"currents", (PyCFunction)Chain_currents, METH_VARARGS,
+     "currents(position, velocity, out) -> (general, off): Servo.output_current of every servo"},
+    {"publish", (PyCFunction)Chain_publish, METH_VARARGS,
+     "publish(position, velocity, current): Servo.set_present of every servo"},
+    {"refresh", (PyCFunction)Chain_refresh, METH_NOARGS,
+     "refresh() -> general: the Present registers of every stale servo"},
+    {"clock", (PyCFunction)Chain_clock, METH_O, "clock(now) -> general: every servo not clocked at now"},
+    {"heard", (PyCFunction)Chain_heard, METH_O, "heard(now) -> general: Servo.heard of every servo"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject ChainType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "servodyn.sim.dynamixel._chain.Chain",
+    .tp_basicsize = sizeof(Chain),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The servos of a simulated chain, their per-tick work at once (see the module's header).",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Chain_init,
+    .tp_dealloc = (destructor)Chain_dealloc,
+    .tp_methods = Chain_methods,
+};
+
+static struct PyModuleDef chain_module = {
+    PyModuleDef_HEAD_INIT, "_chain", "The simulated servos' per-tick work over a chain, in C.", -1, NULL,
+};
+
+PyMODINIT_FUNC PyInit__chain(void) {
+  if (PyType_Ready(&ChainType) < 0) return NULL;
+  s_stale = PyUnicode_InternFromString("_stale");
+  s_shaft = PyUnicode_InternFromString("_shaft");
+  s_turns = PyUnicode_InternFromString("_turns");
+  s_zero_ticks = PyUnicode_InternFromString("zero_ticks");
+  s_clocked_at = PyUnicode_InternFromString("clocked_at");
+  s_heard_at = PyUnicode_InternFromString("_heard_at");
+  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at) return NULL;
+  PyObject* mod = PyModule_Create(&chain_module);
+  if (!mod) return NULL;
+  PyObject* names = PyTuple_New(N_FIELDS);
+  if (!names) {
+    Py_DECREF(mod);
+    return NULL;
+  }
+  for (int f = 0; f < N_FIELDS; f++) {
+    PyObject* name = PyUnicode_FromString(FIELD_NAMES[f]);
+    if (!name) {
+      Py_DECREF(names);
+      Py_DECREF(mod);
+      return NULL;
+    }
+    PyTuple_SET_ITEM(names, f, name);
+  }
+  if (PyModule_AddObject(mod, "FIELDS", names) < 0) {
+    Py_DECREF(names);
+    Py_DECREF(mod);
+    return NULL;
+  }
+  Py_INCREF(&ChainType);
+  if (PyModule_AddObject(mod, "Chain", (PyObject*)&ChainType) < 0) {
+    Py_DECREF(&ChainType);
+    Py_DECREF(mod);
+    return NULL;
+  }
+  return mod;
+}
