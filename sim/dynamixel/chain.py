@@ -13,10 +13,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from servodyn.hal.dynamixel import ALERT_BIT, ErrorNumber
 from servodyn.hal.dynamixel.control_table import PWM_FULL, TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, OperatingMode
 
 from . import _chain
-from .servo import Servo
+from .servo import _CHANGES, GOAL_ITEMS, Servo
+
+# items whose write _check_value or _apply treats apart from the rest (besides _CHANGES): their
+# writes stay with Servo.write
+_APART = frozenset({"goal_position", "bus_watchdog", "torque_enable"})
 
 
 def _bits(mask: int):
@@ -43,6 +48,7 @@ class ServoChain:
                           for s in self.servos)
         self._c = _chain.Chain(self.servos, fields, constants,
                                (TICKS_PER_REV, VELOCITY_UNIT, PWM_FULL, WATCHDOG_UNIT, int(OperatingMode.CURRENT)))
+        self._rules: dict[tuple[int, int], tuple | None] = {}      # (address, length) -> write rule
 
     def covers(self, servos: list[Servo]) -> bool:
         """Whether this chain is exactly `servos`, in order (a bus's list can be changed)."""
@@ -90,3 +96,33 @@ class ServoChain:
         general = self._c.heard(now)
         for k in _bits(general):
             self.servos[k].heard(now)
+
+    def write(self, address: int, length: int, params: bytes) -> bool:
+        """A broadcast SYNC WRITE's parameters (VirtualBus._writes) applied, when its span is one
+        RAM item that only Servo._check_value's common rules check (range, mask, limit, a
+        tripped watchdog for a goal) for every servo alike; False (nothing done) otherwise."""
+        rule = self._rules.get((address, length), False)
+        if rule is False:
+            rule = self._rules[address, length] = self._rule(address, length)
+        return rule is not None and self._c.write(params, rule) >= 0
+
+    def _rule(self, address: int, length: int) -> tuple | None:
+        rules = set()
+        for servo in self.servos:
+            layout = servo._layout(address, length)
+            if isinstance(layout, ErrorNumber):
+                return None
+            items, eeprom = layout
+            item = items[0][0]
+            if eeprom or len(items) != 1 or item.name in _CHANGES or item.name in _APART or item.choices is not None:
+                return None
+            limit = servo.items[item.limit] if item.limit is not None else None
+            rules.add((item.signed, item.name in GOAL_ITEMS, item.low, item.high, item.mask,
+                       None if limit is None else (limit.address, limit.size, limit.signed)))
+        return rules.pop() if len(rules) == 1 else None
+
+    def fast_read(self, ids: bytes, address: int, length: int, frame: bytearray, starts: list[int]) -> int:
+        """VirtualBus._fast_reads of one span from every servo of `ids`, filled in the reply laid
+        out in `frame` (block k at starts[k]): the blocks filled, -1 for no reply, -2 when it is
+        the servos' own (VirtualBus's general path)."""
+        return self._c.fast_read(ids, address, length, frame, starts, ALERT_BIT, ErrorNumber.ACCESS)

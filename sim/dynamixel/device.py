@@ -290,7 +290,17 @@ class VirtualBus:
         servo (a fault) cuts the reply where its block would begin, as on a chain: the servos
         before it answered, the ones after wait for it and never do, and the header's LEN still
         counts every block, so the host sees a short packet (nothing at all if the first is
-        silent). The reply is filled in place in a frame laid out once per request."""
+        silent). The reply is filled in place in a frame laid out once per request, by the chain
+        when it is one span of every servo's."""
+        frame, starts, ids, span = self._fast_frame(requests)
+        if span is not None and self.chain.covers(self.servos):
+            filled = self.chain.fast_read(ids, *span, frame, starts)
+            if filled != -2:
+                if filled <= 0:
+                    return []
+                seal_fast_reply(frame, [length for _, _, length in requests[:filled]])
+                first = self._primary(ids[0])
+                return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:starts[filled]]), first.return_delay)]
         answering = []
         present = [servo.id for servo in self.servos]
         for servo_id, _, _ in requests:
@@ -302,9 +312,6 @@ class VirtualBus:
             answering.append(servo)
         if not answering:
             return []
-        if self.chain.covers(self.servos):
-            self.chain.refresh()          # every stale servo's Present registers at once
-        frame, starts = self._fast_frame(requests)
         for servo, (_, address, length), start in zip(answering, requests, starts):
             alert = ALERT_BIT if servo.alert else 0
             try:
@@ -318,9 +325,10 @@ class VirtualBus:
         end = starts[len(answering)]          # the whole frame, or where the silent servo's block begins
         return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:end]), answering[0].return_delay)]
 
-    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int]]:
+    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int], bytes, tuple | None]:
         """The reply to a fast read laid out (instructions.fast_reply_frame) and where each block
-        begins, the frame's end last; kept for the next time the same request comes."""
+        begins, the frame's end last, the IDs, and (address, length) when every block reads the
+        same span; kept for the next time the same request comes."""
         key = tuple(requests)
         laid_out = self._fast_frames.get(key)
         if laid_out is None:
@@ -328,16 +336,22 @@ class VirtualBus:
             starts = [inst.FAST_BLOCKS_START]
             for _, _, length in requests:
                 starts.append(starts[-1] + length + 4)
+            spans = {(address, length) for _, address, length in requests}
             if len(self._fast_frames) >= FAST_FRAMES_KEPT:
                 self._fast_frames.clear()
-            laid_out = self._fast_frames[key] = (frame, starts)
+            laid_out = self._fast_frames[key] = (frame, starts, bytes(i for i, _, _ in requests),
+                                                 spans.pop() if len(spans) == 1 else None)
         return laid_out
 
     def _sync_write(self, packet, targets):
         if packet.id != BROADCAST_ID:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
+        params = packet.params
+        if len(params) >= 4 and self.chain.covers(self.servos) and self.chain.write(
+                params[0] | params[1] << 8, params[2] | params[3] << 8, params):
+            return []
         try:
-            address, writes = inst.parse_sync_write(packet.params)
+            address, writes = inst.parse_sync_write(params)
         except BadParameters:
             return []
         self._writes([(servo_id, address, data) for servo_id, data in writes])

@@ -23,6 +23,9 @@
 //   chain.clock(now) -> general                                       VirtualBus.tick / Servo.clock
 //   chain.heard(now) -> general                                       Servo.heard, every servo
 //     The servos whose watchdog trips now are left to Python (general).
+//   chain.write(params, rule) -> written, or -1                       VirtualBus._writes (SYNC WRITE)
+//   chain.fast_read(ids, address, length, frame, starts, alert_bit, access_error) -> n, -1, -2
+//                                                                     VirtualBus._fast_reads
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
@@ -35,12 +38,14 @@
 enum {
   F_TORQUE_ENABLE, F_DRIVE_MODE, F_OPERATING_MODE, F_PRESENT_INPUT_VOLTAGE, F_GOAL_PWM, F_PWM_LIMIT,
   F_GOAL_CURRENT, F_CURRENT_LIMIT, F_PRESENT_PWM, F_HOMING_OFFSET, F_PRESENT_POSITION, F_PRESENT_VELOCITY,
-  F_PRESENT_CURRENT, F_MOVING, F_MOVING_THRESHOLD, F_REALTIME_TICK, F_BUS_WATCHDOG, N_FIELDS
+  F_PRESENT_CURRENT, F_MOVING, F_MOVING_THRESHOLD, F_REALTIME_TICK, F_BUS_WATCHDOG, F_ID, F_SECONDARY_ID,
+  F_STATUS_RETURN_LEVEL, F_HARDWARE_ERROR_STATUS, N_FIELDS
 };
 static const char* FIELD_NAMES[N_FIELDS] = {
   "torque_enable", "drive_mode", "operating_mode", "present_input_voltage", "goal_pwm", "pwm_limit",
   "goal_current", "current_limit", "present_pwm", "homing_offset", "present_position", "present_velocity",
-  "present_current", "moving", "moving_threshold", "realtime_tick", "bus_watchdog",
+  "present_current", "moving", "moving_threshold", "realtime_tick", "bus_watchdog", "id", "secondary_id",
+  "status_return_level", "hardware_error_status",
 };
 
 typedef struct {
@@ -64,7 +69,7 @@ typedef struct {
 } Chain;
 
 // the Servo attributes read and written, interned once
-static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at;
+static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at, *s_silent;
 
 static inline long long get(const uint8_t* t, Field f) {
   const uint8_t* p = t + f.address;
@@ -405,6 +410,156 @@ static PyObject* Chain_heard(Chain* self, PyObject* now_obj) {
   return PyLong_FromLongLong(general);
 }
 
+// whether servo k listens to `id` as a broadcast write's block does (VirtualBus._writes): by its
+// ID, or by its Secondary ID where that differs
+static inline int listens(const uint8_t* t, const Field* F, long long id) {
+  long long primary = get(t, F[F_ID]), secondary = get(t, F[F_SECONDARY_ID]);
+  return primary == id || (secondary != primary && secondary == id);
+}
+
+// VirtualBus._writes of a SYNC WRITE's parameters whose span is one item that only the rule
+// checks (Servo._check_value): rule = (signed, goal, low, high, mask, limit) where low/high, mask
+// and limit (the limit item's (address, size, signed)) are None when the item has none. -1 when
+// the parameters are not whole blocks (Python's: it refuses them), else the writes applied.
+static PyObject* Chain_write(Chain* self, PyObject* args) {
+  Py_buffer params;
+  int is_signed, goal;
+  PyObject *low_obj, *high_obj, *mask_obj, *limit_obj;
+  if (!PyArg_ParseTuple(args, "y*(ppOOOO)", &params, &is_signed, &goal, &low_obj, &high_obj, &mask_obj, &limit_obj))
+    return NULL;
+  const uint8_t* p = (const uint8_t*)params.buf;
+  Py_ssize_t size = params.len;
+  long long low = 0, high = 0, mask = 0;
+  int has_range = low_obj != Py_None, has_mask = mask_obj != Py_None, has_limit = limit_obj != Py_None;
+  Field limit = {0, 1, 0};
+  if ((has_range && (((low = PyLong_AsLongLong(low_obj)) == -1 && PyErr_Occurred()) ||
+                     ((high = PyLong_AsLongLong(high_obj)) == -1 && PyErr_Occurred()))) ||
+      (has_mask && (mask = PyLong_AsLongLong(mask_obj)) == -1 && PyErr_Occurred()) ||
+      (has_limit && !PyArg_ParseTuple(limit_obj, "iip", &limit.address, &limit.size, &limit.is_signed))) {
+    PyBuffer_Release(&params);
+    return NULL;
+  }
+  if (size < 4) {
+    PyBuffer_Release(&params);
+    return PyLong_FromLong(-1);
+  }
+  Field item = {p[0] | (p[1] << 8), p[2] | (p[3] << 8), is_signed};
+  Py_ssize_t step = 1 + item.size, body = size - 4;
+  if (item.size == 0 || item.size > 4 || item.size == 3 || body == 0 || body % step) {
+    PyBuffer_Release(&params);
+    return PyLong_FromLong(-1);
+  }
+  const Field* F = self->fields;
+  long written = 0;
+  for (Py_ssize_t b = 4; b < size; b += step) {
+    long long id = p[b];
+    // the value as the item's field reads it from the block's data (Servo._check_write)
+    uint8_t data[4] = {0, 0, 0, 0};
+    memcpy(data, p + b + 1, (size_t)item.size);
+    Field at_zero = {0, item.size, item.is_signed};
+    long long value = get(data, at_zero);
+    for (int k = 0; k < self->n; k++) {
+      uint8_t* t = table_of(self, k);
+      if (!listens(t, F, id)) continue;
+      if (goal && get(t, F[F_BUS_WATCHDOG]) == -1) continue;              // tripped: goals refused
+      if (has_range && !(low <= value && value <= high)) continue;
+      if (has_mask && (value & ~mask)) continue;
+      if (has_limit && (value < 0 ? -value : value) > get(t, limit)) continue;
+      if (item.address + item.size > PyByteArray_GET_SIZE(self->tables[k])) continue;
+      memcpy(t + item.address, data, (size_t)item.size);
+      if (PyObject_SetAttr(self->servos[k], s_stale, Py_True) < 0) {
+        PyBuffer_Release(&params);
+        return NULL;
+      }
+      written++;
+    }
+  }
+  PyBuffer_Release(&params);
+  return PyLong_FromLong(written);
+}
+
+// VirtualBus._fast_reads of one address and length for every servo of `ids` (bytes), into the
+// reply laid out in `frame` with block k at starts[k]: -1 when nobody answers (a listed servo
+// missing or not answering reads), -2 when a servo's Present registers are stale and cannot be
+// written here (Python's), else how many blocks were filled (a silent servo cuts the reply).
+static PyObject* Chain_fast_read(Chain* self, PyObject* args) {
+  Py_buffer ids, frame;
+  int address, length, alert_bit, access_error;
+  PyObject* starts;
+  if (!PyArg_ParseTuple(args, "y*iiw*O!ii", &ids, &address, &length, &frame, &PyList_Type, &starts, &alert_bit,
+                        &access_error))
+    return NULL;
+  const uint8_t* want = (const uint8_t*)ids.buf;
+  uint8_t* out = (uint8_t*)frame.buf;
+  const Field* F = self->fields;
+  int order[256];
+  long answering = 0, result = 0;
+  for (Py_ssize_t j = 0; j < ids.len && j < 256; j++) {
+    int found = -1;
+    for (int k = 0; k < self->n && found < 0; k++)
+      if (get(table_of(self, k), F[F_ID]) == want[j]) found = k;
+    if (found >= 0) {
+      PyObject* silent = PyObject_GetAttr(self->servos[found], s_silent);
+      if (!silent) goto error;
+      int is_silent = PyObject_IsTrue(silent);
+      Py_DECREF(silent);
+      if (is_silent < 0) goto error;
+      if (is_silent) break;
+    }
+    long long level = found >= 0 ? get(table_of(self, found), F[F_STATUS_RETURN_LEVEL]) : 0;
+    if (found < 0 || !(level == 2 || level == 1)) {
+      result = -1;
+      goto done;
+    }
+    order[answering++] = found;
+  }
+  if (ids.len > 256 || PyList_GET_SIZE(starts) < answering + 1) {
+    PyErr_SetString(PyExc_ValueError, "Chain.fast_read: a start for every block and the end");
+    goto error;
+  }
+  for (long j = 0; j < answering; j++) {
+    PyObject* stale = PyObject_GetAttr(self->servos[order[j]], s_stale);
+    if (!stale) goto error;
+    int is_stale = PyObject_IsTrue(stale);
+    Py_DECREF(stale);
+    if (is_stale < 0) goto error;
+    if (is_stale) {
+      int done = present(self, order[j]);
+      if (done < 0) goto error;
+      if (!done) {
+        result = -2;
+        goto done;
+      }
+    }
+  }
+  for (long j = 0; j < answering; j++) {
+    int k = order[j];
+    uint8_t* t = table_of(self, k);
+    long start = PyLong_AsLong(PyList_GET_ITEM(starts, j));
+    if (start < 0 || start + 2 + length > frame.len) {
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "Chain.fast_read: a block outside the frame");
+      goto error;
+    }
+    int error = 0;
+    if (address + length > PyByteArray_GET_SIZE(self->tables[k])) {
+      memset(out + start + 2, 0, (size_t)length);
+      error = access_error;
+    } else {
+      memcpy(out + start + 2, t + address, (size_t)length);
+    }
+    out[start] = (uint8_t)(error | (get(t, F[F_HARDWARE_ERROR_STATUS]) != 0 ? alert_bit : 0));
+  }
+  result = answering;
+done:
+  PyBuffer_Release(&ids);
+  PyBuffer_Release(&frame);
+  return PyLong_FromLong(result);
+error:
+  PyBuffer_Release(&ids);
+  PyBuffer_Release(&frame);
+  return NULL;
+}
+
 static PyMethodDef Chain_methods[] = {
     {"currents", (PyCFunction)Chain_currents, METH_VARARGS,
      "currents(position, velocity, out) -> (general, off): Servo.output_current of every servo"},
@@ -414,6 +569,10 @@ static PyMethodDef Chain_methods[] = {
      "refresh() -> general: the Present registers of every stale servo"},
     {"clock", (PyCFunction)Chain_clock, METH_O, "clock(now) -> general: every servo not clocked at now"},
     {"heard", (PyCFunction)Chain_heard, METH_O, "heard(now) -> general: Servo.heard of every servo"},
+    {"write", (PyCFunction)Chain_write, METH_VARARGS,
+     "write(params, rule) -> written, or -1: a SYNC WRITE of one item checked by its rule"},
+    {"fast_read", (PyCFunction)Chain_fast_read, METH_VARARGS,
+     "fast_read(ids, address, length, frame, starts, alert_bit, access_error) -> blocks filled, -1 none, -2 Python's"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -441,7 +600,8 @@ PyMODINIT_FUNC PyInit__chain(void) {
   s_zero_ticks = PyUnicode_InternFromString("zero_ticks");
   s_clocked_at = PyUnicode_InternFromString("clocked_at");
   s_heard_at = PyUnicode_InternFromString("_heard_at");
-  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at) return NULL;
+  s_silent = PyUnicode_InternFromString("silent");
+  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent) return NULL;
   PyObject* mod = PyModule_Create(&chain_module);
   if (!mod) return NULL;
   PyObject* names = PyTuple_New(N_FIELDS);
