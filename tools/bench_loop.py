@@ -9,6 +9,9 @@ here, in one run:
   (its own process, `servodyn sim --lockstep`'s server), which bounds what any loop can reach;
 - the simulator against a minimal responder (a canned fast sync read reply, nothing simulated)
   under the same raw client, and the simulator's CPU while it serves real time with nobody talking;
+- the simulator's own CPU per transaction in this process, no pseudo-terminal (SimulatedArm.handle
+  of the same sync write + fast sync read, the plant advancing one period), torque on in Current
+  Control Mode as in the swing and torque off as the raw client leaves it;
 - real time at 1 kHz over the whole swing: the period's median, p99 and largest distance from
   1 ms and the missed deadlines, Python and native.
 Each goal of the loop is printed met or not with its numbers. Writes out/bench/loop.json and
@@ -33,13 +36,17 @@ import numpy as np
 from ..control.timing import SMALL_TIME_STEP
 from ..hal.config import load_config
 from ..hal.dynamixel import instructions
-from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH
+from ..hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
+                                           ADDR_TORQUE_ENABLE, PRESENT_LENGTH, OperatingMode)
+from ..hal.dynamixel.units import ServoMap
+from ..sim.arm import SimulatedArm
 from ..sim.transport.pty import SimProcess
 from .swing import run_swing
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW_TRANSACTIONS = 3000
 IDLE_SECONDS = 5.0
+IN_PROCESS = (15, 200)       # batches, transactions a batch: the best batch is the figure
 
 
 def _child_cpu(pid: int) -> float:
@@ -101,8 +108,39 @@ def minimal_responder_rate(ids) -> dict:
             proc.kill()
 
 
+def simulator_in_process(config, torque: bool) -> float:
+    """µs of this thread's CPU per transaction of the simulator itself (SimulatedArm.handle in
+    lock-step: a sync write of Goal Current, the plant one period on, a fast sync read of Present
+    Current..Position of the 7 servos), the best of IN_PROCESS batches. With torque on every servo
+    is in Current Control Mode holding the arm's weight at its start (Goal Current ±1 unit from
+    tick to tick, so the write's bytes change as the loop's do)."""
+    arm = SimulatedArm(config)
+    arm.lockstep()
+    ids = [j.id for j in arm.joints]
+    hold = np.zeros(len(ids), dtype=np.int64)
+    if torque:
+        for i in ids:
+            arm.handle(instructions.write(i, ADDR_OPERATING_MODE, bytes([OperatingMode.CURRENT])).encode())
+            arm.handle(instructions.write(i, ADDR_TORQUE_ENABLE, b"\x01").encode())
+        gravity = arm.model.inverse_dynamics(arm.q, np.zeros(arm.model.nv), np.zeros(arm.model.nv))
+        hold, _ = ServoMap.from_joints(arm.joints).goal_current_units(gravity, [j.current_limit for j in arm.joints])
+    writes = [instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: int(u + s).to_bytes(2, "little", signed=True)
+                                                             for i, u in zip(ids, hold)}).encode() for s in (-1, 1)]
+    read = instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, ids).encode()
+    batches, n = IN_PROCESS
+    best = float("inf")
+    for _ in range(batches):
+        began = time.thread_time()
+        for k in range(n):
+            arm.handle(writes[k & 1])
+            arm.handle(read)
+        best = min(best, (time.thread_time() - began) / n)
+    return best * 1e6
+
+
 def simulator_figures(config) -> dict:
     ids = [j.id for j in config.joints]
+    in_process = {"torque_on_us": simulator_in_process(config, True), "torque_off_us": simulator_in_process(config, False)}
     with SimProcess(config.path, "lockstep") as sim:
         raw = raw_transport(sim.path, ids)
     minimal = minimal_responder_rate(ids)
@@ -111,7 +149,8 @@ def simulator_figures(config) -> dict:
         before, began = _child_cpu(sim.process.pid), time.perf_counter()
         time.sleep(IDLE_SECONDS)
         idle = (_child_cpu(sim.process.pid) - before) / (time.perf_counter() - began)
-    return {"raw": raw, "minimal": minimal, "sim_vs_minimal": raw["hz"] / minimal["hz"], "realtime_idle_cores": idle}
+    return {"in_process": in_process, "raw": raw, "minimal": minimal, "sim_vs_minimal": raw["hz"] / minimal["hz"],
+            "realtime_idle_cores": idle}
 
 
 def swing_figures(summary: dict) -> dict:

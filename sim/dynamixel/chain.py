@@ -60,10 +60,8 @@ class ServoChain:
         """Each servo's motor current for the next `dt` (Servo.output_current) into `current` and
         the torque at its horn (Servo.output_torque) into `torque`; position and velocity at each
         horn, all four float64 arrays."""
-        general, off = self._c.currents(position, velocity, current)
+        general = self._c.currents(position, velocity, current)
         servos = self.servos
-        for k in _bits(off):
-            servos[k]._pid.reset()                 # torque off (Servo.output_current)
         velocities = velocity.tolist()
         if general:
             positions = position.tolist()

@@ -13,7 +13,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber,
+from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber, crc16,
                                     Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
@@ -29,6 +29,8 @@ READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYN
 COMMANDS = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})   # end a host's control tick
 FAST_READS = frozenset({Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ})
 FAST_FRAMES_KEPT = 8     # fast read replies laid out in advance, one per request seen lately
+COMMAND_SHAPE = 12       # header, ID, LEN, instruction, address and data length of a SYNC WRITE
+STUFFED = b"\xFF\xFF\xFD"  # what byte stuffing follows with FD
 
 
 @dataclass(frozen=True)
@@ -98,7 +100,9 @@ class VirtualBus:
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
         self.unanswerable = 0          # instructions whose answer cannot be encoded
-        self._fast_frames: dict[tuple, tuple[bytearray, list[int]]] = {}   # request -> reply laid out
+        self._fast_frames: dict[tuple, tuple] = {}   # request -> reply laid out
+        self._command: tuple[bytes, int] | None = None   # the last whole SYNC WRITE chunk's shape and size
+        self._sync_request: tuple = (None, None)          # the last SYNC READ packet and its requests
         self._handlers = {
             Instruction.PING: self._ping, Instruction.READ: self._read, Instruction.WRITE: self._write,
             Instruction.REG_WRITE: self._reg_write, Instruction.ACTION: self._action,
@@ -132,7 +136,13 @@ class VirtualBus:
         now = self.clock() if time is None else time
         self.tick(now)
         out = []
-        for event in self.reader.feed(data, now if self.wire_clock is None else self.wire_clock()):
+        events = self._repeated_command(data)
+        if events is None:
+            pending = self.reader.pending
+            events = self.reader.feed(data, now if self.wire_clock is None else self.wire_clock())
+            if not pending:
+                self._remember_command(data, events)
+        for event in events:
             if isinstance(event, BadFrame):
                 self.faults[event.fault] += 1
                 if event.fault is Fault.CRC:
@@ -151,6 +161,24 @@ class VirtualBus:
                 if self.on_instruction is not None:
                     self.on_instruction(Exchange(event, tuple(replies), now))
         return b"".join(reply.data for reply in out)
+
+    def _repeated_command(self, data: bytes) -> list[InstructionPacket] | None:
+        """A chunk that is one broadcast SYNC WRITE frame of the last whole one's shape (its first
+        COMMAND_SHAPE bytes and its size: the host's command of every tick, new values in the same
+        blocks), with a good CRC and nothing stuffed: its packet, as the reader would parse it,
+        without the parse; None for anything else (the reader's)."""
+        shape = self._command
+        if (shape is None or len(data) != shape[1] or not data.startswith(shape[0]) or self.reader.pending
+                or data.find(STUFFED, 7, len(data) - 2) >= 0 or crc16(data[:-2]) != data[-2] | data[-1] << 8):
+            return None
+        return [InstructionPacket(BROADCAST_ID, data[7], bytes(data[8:-2]))]
+
+    def _remember_command(self, data: bytes, events: list) -> None:
+        """The shape of a chunk that was one whole broadcast SYNC WRITE, for _repeated_command."""
+        if (len(events) == 1 and isinstance(events[0], InstructionPacket) and events[0].id == BROADCAST_ID
+                and events[0].instruction == Instruction.SYNC_WRITE and not self.reader.pending
+                and len(data) > COMMAND_SHAPE + 2):
+            self._command = (bytes(data[:COMMAND_SHAPE]), len(data))
 
     # --- dispatch ------------------------------------------------------------------------------------
 
@@ -253,11 +281,15 @@ class VirtualBus:
     def _sync_read(self, packet, targets):
         if packet.id != BROADCAST_ID:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
-        try:
-            address, length, ids = inst.parse_sync_read(packet.params)
-        except BadParameters:
-            return []
-        return self._reads(packet.instruction, [(i, address, length) for i in ids])
+        last, requests = self._sync_request
+        if packet is not last:             # the reader gives a repeated request's packet again
+            try:
+                address, length, ids = inst.parse_sync_read(packet.params)
+            except BadParameters:
+                return []
+            requests = [(i, address, length) for i in ids]
+            self._sync_request = (packet, requests)
+        return self._reads(packet.instruction, requests)
 
     def _bulk_read(self, packet, targets):
         if packet.id != BROADCAST_ID:

@@ -13,10 +13,10 @@
 //     servos: the Servo objects; fields: one (address, size, signed) per name of FIELDS, in that
 //     order; constants: per servo (stall_current, nominal_voltage, no_load_speed, current_unit);
 //     units: (ticks_per_rev, velocity_unit, pwm_full, watchdog_unit, current_mode).
-//   chain.currents(position, velocity, out) -> (general, off)        Servo.output_current
+//   chain.currents(position, velocity, out) -> general                Servo.output_current
 //     position, velocity: doubles (buffers) at each horn; out: a writable buffer of doubles.
-//     Bit masks of the servos left to Python (general) and of those whose torque is off (their
-//     PID is to be reset); the others' currents are in `out`, their Present PWM written.
+//     A bit mask of the servos left to Python; the others' currents are in `out`, their Present
+//     PWM written (torque off: 0, and their PID's reset() called).
 //   chain.publish(position, velocity, current)                        Servo.set_present
 //   chain.refresh() -> general                                        Servo._refresh_present
 //     The Present registers of every stale servo; a mask of those left to Python.
@@ -69,7 +69,7 @@ typedef struct {
 } Chain;
 
 // the Servo attributes read and written, interned once
-static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at, *s_silent;
+static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at, *s_silent, *s_pid, *s_reset;
 
 static inline long long get(const uint8_t* t, Field f) {
   const uint8_t* p = t + f.address;
@@ -214,14 +214,23 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
   const double* velocity = (const double*)vb.buf;
   double* out = (double*)ob.buf;
   const Field* F = self->fields;
-  long long general = 0, off = 0;
+  long long general = 0;
   for (int k = 0; k < self->n; k++) {
     uint8_t* t = table_of(self, k);
     const Constants* c = &self->constants[k];
-    if (get(t, F[F_TORQUE_ENABLE]) != 1) {
+    if (get(t, F[F_TORQUE_ENABLE]) != 1) {          // torque off: the PID reset, no PWM, no current
+      PyObject* pid = PyObject_GetAttr(self->servos[k], s_pid);
+      PyObject* done = pid ? PyObject_CallMethodNoArgs(pid, s_reset) : NULL;
+      Py_XDECREF(pid);
+      if (!done) {
+        PyBuffer_Release(&pb);
+        PyBuffer_Release(&vb);
+        PyBuffer_Release(&ob);
+        return NULL;
+      }
+      Py_DECREF(done);
       put(t, F[F_PRESENT_PWM], 0);
       out[k] = 0.0;
-      off |= 1LL << k;
       continue;
     }
     long long input_voltage = get(t, F[F_PRESENT_INPUT_VOLTAGE]);
@@ -252,7 +261,7 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
   PyBuffer_Release(&pb);
   PyBuffer_Release(&vb);
   PyBuffer_Release(&ob);
-  return Py_BuildValue("LL", general, off);
+  return PyLong_FromLongLong(general);
 }
 
 // Servo.set_present for every servo
@@ -562,7 +571,7 @@ error:
 
 static PyMethodDef Chain_methods[] = {
     {"currents", (PyCFunction)Chain_currents, METH_VARARGS,
-     "currents(position, velocity, out) -> (general, off): Servo.output_current of every servo"},
+     "currents(position, velocity, out) -> general: Servo.output_current of every servo"},
     {"publish", (PyCFunction)Chain_publish, METH_VARARGS,
      "publish(position, velocity, current): Servo.set_present of every servo"},
     {"refresh", (PyCFunction)Chain_refresh, METH_NOARGS,
@@ -601,7 +610,10 @@ PyMODINIT_FUNC PyInit__chain(void) {
   s_clocked_at = PyUnicode_InternFromString("clocked_at");
   s_heard_at = PyUnicode_InternFromString("_heard_at");
   s_silent = PyUnicode_InternFromString("silent");
-  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent) return NULL;
+  s_pid = PyUnicode_InternFromString("_pid");
+  s_reset = PyUnicode_InternFromString("reset");
+  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent || !s_pid || !s_reset)
+    return NULL;
   PyObject* mod = PyModule_Create(&chain_module);
   if (!mod) return NULL;
   PyObject* names = PyTuple_New(N_FIELDS);
