@@ -60,13 +60,12 @@ class ServoChain:
         """Each servo's motor current for the next `dt` (Servo.output_current) into `current` and
         the torque at its horn (Servo.output_torque) into `torque`; position and velocity at each
         horn, all four float64 arrays."""
-        general = self._c.currents(position, velocity, current)
         servos = self.servos
         velocities = velocity.tolist()
-        if general:
-            positions = position.tolist()
-            for k in _bits(general):
-                current[k] = float(servos[k].output_current(positions[k], velocities[k], dt))
+        k = self._c.currents(position, velocity, current, 0)
+        while k < len(servos):            # a servo of the C side's, then on from the next
+            current[k] = float(servos[k].output_current(position[k].item(), velocities[k], dt))
+            k = self._c.currents(position, velocity, current, k + 1)
         for k, (servo, amps, speed) in enumerate(zip(servos, current.tolist(), velocities)):
             torque[k] = servo.output_torque(amps, speed)
 

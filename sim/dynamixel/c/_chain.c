@@ -13,10 +13,11 @@
 //     servos: the Servo objects; fields: one (address, size, signed) per name of FIELDS, in that
 //     order; constants: per servo (stall_current, nominal_voltage, no_load_speed, current_unit);
 //     units: (ticks_per_rev, velocity_unit, pwm_full, watchdog_unit, current_mode).
-//   chain.currents(position, velocity, out) -> general                Servo.output_current
+//   chain.currents(position, velocity, out, start) -> k                Servo.output_current
 //     position, velocity: doubles (buffers) at each horn; out: a writable buffer of doubles.
-//     A bit mask of the servos left to Python; the others' currents are in `out`, their Present
-//     PWM written (torque off: 0, and their PID's reset() called).
+//     Servos start, start + 1, ... in turn, up to the first one left to Python (k; n when none):
+//     their currents in `out`, their Present PWM written (torque off: 0, and their PID's
+//     reset() called). Called again from k + 1, the servos change in the order Python's would.
 //   chain.publish(position, velocity, current)                        Servo.set_present
 //   chain.refresh() -> general                                        Servo._refresh_present
 //     The Present registers of every stale servo; a mask of those left to Python.
@@ -199,7 +200,8 @@ static int doubles(PyObject* obj, Py_buffer* view, int n, int writable) {
 // Servo.output_current, torque on in Current Control Mode (and torque off)
 static PyObject* Chain_currents(Chain* self, PyObject* args) {
   PyObject *p_obj, *v_obj, *o_obj;
-  if (!PyArg_ParseTuple(args, "OOO", &p_obj, &v_obj, &o_obj)) return NULL;
+  int start;
+  if (!PyArg_ParseTuple(args, "OOOi", &p_obj, &v_obj, &o_obj, &start)) return NULL;
   Py_buffer pb, vb, ob;
   if (!doubles(p_obj, &pb, self->n, 0)) return NULL;
   if (!doubles(v_obj, &vb, self->n, 0)) {
@@ -214,8 +216,8 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
   const double* velocity = (const double*)vb.buf;
   double* out = (double*)ob.buf;
   const Field* F = self->fields;
-  long long general = 0;
-  for (int k = 0; k < self->n; k++) {
+  int k = start < 0 ? 0 : start;
+  for (; k < self->n; k++) {
     uint8_t* t = table_of(self, k);
     const Constants* c = &self->constants[k];
     if (get(t, F[F_TORQUE_ENABLE]) != 1) {          // torque off: the PID reset, no PWM, no current
@@ -235,10 +237,8 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
     }
     long long input_voltage = get(t, F[F_PRESENT_INPUT_VOLTAGE]);
     if (get(t, F[F_OPERATING_MODE]) != self->current_mode || c->no_load_speed == 0.0 || c->stall_current == 0.0 ||
-        c->nominal_voltage == 0.0 || input_voltage == 0) {
-      general |= 1LL << k;
-      continue;
-    }
+        c->nominal_voltage == 0.0 || input_voltage == 0)
+      break;
     double sign = (get(t, F[F_DRIVE_MODE]) & 0x01) ? -1.0 : 1.0;
     double back_emf = sign * velocity[k] / c->no_load_speed;
     double supply = (double)input_voltage / 10.0 / c->nominal_voltage;
@@ -251,17 +251,14 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
     double amps = pmax(-reach - stall * back_emf, pmin(reach - stall * back_emf, (double)units * c->current_unit));
     double pwm = (amps / stall + back_emf) / supply * self->pwm_full;
     long long present_pwm;
-    if (!clamped(pwm, F[F_PRESENT_PWM], &present_pwm)) {
-      general |= 1LL << k;
-      continue;
-    }
+    if (!clamped(pwm, F[F_PRESENT_PWM], &present_pwm)) break;
     put(t, F[F_PRESENT_PWM], present_pwm);
     out[k] = sign * amps;
   }
   PyBuffer_Release(&pb);
   PyBuffer_Release(&vb);
   PyBuffer_Release(&ob);
-  return PyLong_FromLongLong(general);
+  return PyLong_FromLong(k);
 }
 
 // Servo.set_present for every servo
@@ -527,6 +524,7 @@ static PyObject* Chain_fast_read(Chain* self, PyObject* args) {
     goto error;
   }
   for (long j = 0; j < answering; j++) {
+    if (address + length > PyByteArray_GET_SIZE(self->tables[order[j]])) continue;   // refused before (read_into)
     PyObject* stale = PyObject_GetAttr(self->servos[order[j]], s_stale);
     if (!stale) goto error;
     int is_stale = PyObject_IsTrue(stale);
@@ -571,7 +569,7 @@ error:
 
 static PyMethodDef Chain_methods[] = {
     {"currents", (PyCFunction)Chain_currents, METH_VARARGS,
-     "currents(position, velocity, out) -> general: Servo.output_current of every servo"},
+     "currents(position, velocity, out, start) -> k: Servo.output_current of servos start.. up to k"},
     {"publish", (PyCFunction)Chain_publish, METH_VARARGS,
      "publish(position, velocity, current): Servo.set_present of every servo"},
     {"refresh", (PyCFunction)Chain_refresh, METH_NOARGS,
