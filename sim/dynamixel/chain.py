@@ -83,16 +83,18 @@ class ServoChain:
     def clock(self, now: float) -> None:
         """Every servo not clocked at `now` yet is (VirtualBus.tick)."""
         general = self._c.clock(now)
-        for k in _bits(general):
-            servo = self.servos[k]
-            if servo.clocked_at != now:
-                servo.clock(now)
+        if general:
+            for k in _bits(general):
+                servo = self.servos[k]
+                if servo.clocked_at != now:
+                    servo.clock(now)
 
     def heard(self, now: float) -> None:
         """A packet for every servo arrived at `now` (Servo.heard)."""
         general = self._c.heard(now)
-        for k in _bits(general):
-            self.servos[k].heard(now)
+        if general:
+            for k in _bits(general):
+                self.servos[k].heard(now)
 
     def write(self, address: int, length: int, params: bytes) -> bool:
         """A broadcast SYNC WRITE's parameters (VirtualBus._writes) applied, when its span is one

@@ -103,6 +103,7 @@ class VirtualBus:
         self._fast_frames: dict[tuple, tuple] = {}   # request -> reply laid out
         self._command: tuple[bytes, int] | None = None   # the last whole SYNC WRITE chunk's shape and size
         self._sync_request: tuple = (None, None)          # the last SYNC READ packet and its requests
+        self._fast_request: tuple = (None, None)          # the last fast read's requests, laid out
         self._handlers = {
             Instruction.PING: self._ping, Instruction.READ: self._read, Instruction.WRITE: self._write,
             Instruction.REG_WRITE: self._reg_write, Instruction.ACTION: self._action,
@@ -324,13 +325,13 @@ class VirtualBus:
         counts every block, so the host sees a short packet (nothing at all if the first is
         silent). The reply is filled in place in a frame laid out once per request, by the chain
         when it is one span of every servo's."""
-        frame, starts, ids, span = self._fast_frame(requests)
+        frame, starts, ids, span, lengths = self._fast_frame(requests)
         if span is not None and self.chain.covers(self.servos):
             filled = self.chain.fast_read(ids, *span, frame, starts)
             if filled != -2:
                 if filled <= 0:
                     return []
-                seal_fast_reply(frame, [length for _, _, length in requests[:filled]])
+                seal_fast_reply(frame, lengths if filled == len(lengths) else lengths[:filled])
                 first = self._primary(ids[0])
                 return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:starts[filled]]), first.return_delay)]
         answering = []
@@ -357,10 +358,13 @@ class VirtualBus:
         end = starts[len(answering)]          # the whole frame, or where the silent servo's block begins
         return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:end]), answering[0].return_delay)]
 
-    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int], bytes, tuple | None]:
+    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int], bytes, tuple | None,
+                                                                      list[int]]:
         """The reply to a fast read laid out (instructions.fast_reply_frame) and where each block
-        begins, the frame's end last, the IDs, and (address, length) when every block reads the
-        same span; kept for the next time the same request comes."""
+        begins, the frame's end last, the IDs, (address, length) when every block reads the same
+        span, and each block's length; kept for the next time the same request comes."""
+        if requests is self._fast_request[0]:        # the same request's list (_sync_read keeps it)
+            return self._fast_request[1]
         key = tuple(requests)
         laid_out = self._fast_frames.get(key)
         if laid_out is None:
@@ -372,7 +376,9 @@ class VirtualBus:
             if len(self._fast_frames) >= FAST_FRAMES_KEPT:
                 self._fast_frames.clear()
             laid_out = self._fast_frames[key] = (frame, starts, bytes(i for i, _, _ in requests),
-                                                 spans.pop() if len(spans) == 1 else None)
+                                                 spans.pop() if len(spans) == 1 else None,
+                                                 [length for _, _, length in requests])
+        self._fast_request = (requests, laid_out)
         return laid_out
 
     def _sync_write(self, packet, targets):
