@@ -119,7 +119,8 @@ def swing_figures(summary: dict) -> dict:
     return {"completed": summary["completed"], "ticks": summary["ticks"], "error": summary.get("error"),
             "loop_hz": summary.get("loop_hz"), "cpu_median_ms": cpu.get("median"), "cpu_p99_ms": cpu.get("p99"),
             "period_median_ms": summary.get("period_median_ms"), "error_p99_ms": summary.get("jitter_p99_ms"),
-            "error_max_ms": summary.get("jitter_max_ms"), "missed": summary.get("missed_deadlines")}
+            "error_max_ms": summary.get("jitter_max_ms"), "missed": summary.get("missed_deadlines"),
+            "cpu": summary.get("cpu")}
 
 
 def measure() -> dict:
@@ -186,7 +187,10 @@ def table(r: dict) -> str:
         x = r[name]
         lines.append(f"| {name.split()[0]} loop | {x['ticks']} | {_f(x['period_median_ms'])} | {_f(x['error_p99_ms'])} | "
                      f"{_f(x['error_max_ms'])} | {x['missed']} | {x['error'] or 'completed'} |")
-    lines += ["", f"simulator serving real time, nobody talking: {sim['realtime_idle_cores']:.2f} core", "",
+    cpu = r["native real time"].get("cpu")
+    lines += ["", "native real time: " + (f"the loop, the simulator and the kernel's tty work on CPU {cpu}" if cpu
+                                          is not None else "not placed on one CPU (control.realtime.one_cpu)"),
+              "", f"simulator serving real time, nobody talking: {sim['realtime_idle_cores']:.2f} core", "",
               "| goal | met | numbers |", "|---|---|---|"]
     lines += [f"| {name} | {'yes' if ok else 'NO'} | {numbers} |" for name, ok, numbers in goals(r)]
     return "\n".join(lines)
