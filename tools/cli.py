@@ -312,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-scale", type=float, default=None,
                    help="play the swing this many times slower (default: the configuration's)")
     p.add_argument("--realtime", action="store_true",
-                   help="pace the loop and the simulated plant by the wall clock (default lock-step); with "
+                   help="pace the loop and the simulated plant by the wall clock (default lock-step on a simulated "
+                        "bus; a real bus always runs in real time); with "
                         "--native on the simulated bus, the loop, the simulator and the kernel's tty work "
                         "share one CPU (root: the kernel's work queues are steered there for the run)")
     p.add_argument("--overrun-tolerance", type=float, default=None, metavar="MS",

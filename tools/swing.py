@@ -133,6 +133,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     mode = "feedforward_pd" if feedforward else "pd"
     if native:
         _check_native(config, motion, scale, mode, fault_at)
+    if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
+        # lock-step means "as fast as the bus answers": on real servos that would play the motion
+        # faster than it was validated for, so a real bus always keeps the period on the wall clock
+        realtime = True
+        say(f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)")
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
