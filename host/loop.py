@@ -225,6 +225,12 @@ def _follow(bus, controller, segment, log, realtime, on_tick, progress, toleranc
     return missed
 
 
+# the figures of a run that has ticks (summarize): null in the summary of one that has none
+FIGURES = ("tracking_rms_rad", "tracking_max_rad", "tracking_max_by_dof_rad", "loop_hz", "jitter_p99_ms",
+           "jitter_max_ms", "period_median_ms", "tick_median_ms", "cpu_ms_per_tick", "process_cpu_ms_per_tick",
+           "peak_torque_nm")
+
+
 def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, error=None) -> dict:
     """The figures of a run. The loop rate and the period jitter come from when the ticks began:
     in real time the jitter is each period's distance from the nominal one, in lock-step (which
@@ -233,8 +239,9 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
     also counts a simulated bus running in this process. These depend on the machine: they are
     reported, and measured in `make bench`, never asserted by a test."""
     clock = {"clock": "realtime" if realtime else "lockstep", "missed_deadlines": log.missed if realtime else None}
-    if not log.t:
-        return {"completed": False, "ticks": 0, **clock, "error": str(error) if error else "no tick ran"}
+    if not log.t:        # every key still there, null: a reader of summary.json needs no special case
+        return {"completed": False, "ticks": 0, **dict.fromkeys(FIGURES), **clock,
+                "error": str(error) if error else "no tick ran", "last_tick_time_s": None}
     names = log.dof_names
     e = np.array(log.q_d) - np.array(log.q)
     seconds = np.array(log.tick_seconds)

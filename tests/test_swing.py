@@ -184,6 +184,10 @@ def test_a_configurations_real_port_is_used(tmp_path):
     summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
     assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
     assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"
+    assert summary["clock"] == "realtime", "real servos are never driven as fast as the bus answers"
+    written = json.loads((tmp_path / "out" / "summary.json").read_text())
+    for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "cpu_ms_per_tick"):
+        assert key in written and written[key] is None, f"{key}: there, and null, in a run without ticks"
 
 
 def test_each_bus_gets_its_port():

@@ -16,11 +16,13 @@ import json
 import os
 import signal
 import threading
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 
 from ..control import ControlConfig, ControlFault, Controller
+from ..control.realtime import one_cpu
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..hal.robot import Robot
@@ -131,22 +133,36 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     mode = "feedforward_pd" if feedforward else "pd"
     if native:
         _check_native(config, motion, scale, mode, fault_at)
+    if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
+        # lock-step means "as fast as the bus answers": on real servos that would play the motion
+        # faster than it was validated for, so a real bus always keeps the period on the wall clock
+        realtime = True
+        say(f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)")
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
-    if simulated and bus_config.kind != "loopback":
-        server, per_bus = _simulated_buses(config, realtime, say)
-    else:
-        server, per_bus = None, {name: _real_bus(config.buses[name], path, say) for name, path in ports.items()}
+
+    def buses():
+        if simulated and bus_config.kind != "loopback":
+            return _simulated_buses(config, realtime, say)
+        return None, {name: _real_bus(config.buses[name], path, say) for name, path in ports.items()}
+
     if native:
-        return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
-                             realtime, out, say, overrun_tolerance)
+        # real time on the simulated bus: the native loop, the simulator and the kernel's tty
+        # work share one CPU (one_cpu); the Python loop's tick and the simulator's answer are
+        # too much for one CPU in series (it missed more deadlines placed than not)
+        with one_cpu(say=say) if realtime and simulated else nullcontext() as cpu:
+            server, per_bus = buses()
+            return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
+                                 realtime, out, say, overrun_tolerance, cpu)
+    server, per_bus = buses()
     bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
     controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
     log = RunLog(model.dof_names)
     log.stream(out / "swing_log.csv")
     error = None
     swing_start = 0.0
+    home_ticks = 0
     stopping = {"now": False}
     restore_signals = _signals_stop_the_run(stopping)
     try:
@@ -154,7 +170,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         home, played = plan_run(model, swing, bus.read_state().q, home_duration)
         bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
+        home_ticks = len(home.traj.t)
+        # homing's deadlines are the run's too (the native loop's count has them)
+        log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
@@ -191,7 +209,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     summary = summarize(log, len(swing.t), period, realtime, error)
     summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
-                   loop="python", bus=bus.stats.as_dict(bus.dof_names))
+                   loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks)
     if isinstance(error, Interrupted):
         summary["signal"] = signal.Signals(error.signum).name
     if sim is not None:
@@ -261,8 +279,9 @@ def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fau
 
 
 def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say,
-                  overrun_tolerance: float | None = None) -> dict:
-    """The firmware's loop as a Linux process plays the swing on the port; the same summary."""
+                  overrun_tolerance: float | None = None, cpu: int | None = None) -> dict:
+    """The firmware's loop as a Linux process plays the swing on the port; the same summary (and
+    `cpu`: the one CPU of the real-time path, None when not placed, control.realtime.one_cpu)."""
     from .native import fault_message, run_native
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
@@ -280,7 +299,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
                    native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
                                                       "missed", "lost", "exit_code", "notes")},
-                   exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
+                   cpu=cpu, home_ticks=report.get("home_ticks"), exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's

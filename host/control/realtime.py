@@ -5,6 +5,8 @@ have it, and no garbage collection in the middle of a tick.
         ...                                     # the previous policy is back afterwards
     with collector_paused():                    # no collection between two ticks
         ...
+    with one_cpu(say=print) as cpu:             # this process, what it starts, and the kernel's
+        ...                                     # serial-port work on one CPU (None: left as is)
 
 Under SCHED_FIFO a thread runs until it blocks, ahead of every normally scheduled one, and its
 sleeps end without timer slack; the kernel keeps 5 % of each second for the others
@@ -19,9 +21,13 @@ import gc
 import os
 import sys
 from contextlib import contextmanager
+from pathlib import Path
 
 LOOP_PRIORITY = 80       # SCHED_FIFO priority of a real-time control loop (firmware/posix: the same)
 SIMULATOR_PRIORITY = 81  # the simulated servos answer ahead of the loop, as hardware does
+# the CPUs the kernel's unbound work queues may run on: their workers carry a serial port's bytes
+# (a USB adapter's and a pseudo-terminal's) from the writer's side to the reader's
+WORKQUEUE_CPUMASK = Path("/sys/devices/virtual/workqueue/cpumask")
 
 _refused: set[str] = set()       # what was said already, once per process
 
@@ -67,3 +73,65 @@ def collector_paused():
     finally:
         if enabled:
             gc.enable()
+
+
+def _cpu_mask(text: str) -> int:
+    """A sysfs CPU mask ("3", "ff,ffffffff": 32-bit groups in hex) as an int."""
+    return int(text.strip().replace(",", ""), 16)
+
+
+def _cpu_mask_text(mask: int) -> str:
+    digits = f"{mask:x}"
+    digits = digits.zfill(-(-len(digits) // 8) * 8)
+    return ",".join(digits[k:k + 8] for k in range(0, len(digits), 8))
+
+
+@contextmanager
+def one_cpu(cpu: int | None = None, say=print, mask_file: Path = WORKQUEUE_CPUMASK):
+    """The real-time path on one CPU for the block, and the CPU (or None: nothing changed):
+    this process, and every process it starts in the block (they inherit it), pinned to `cpu`
+    (default: the last it may use), and the kernel's unbound work queues steered there too.
+
+    A byte written to a pseudo-terminal or a USB serial port reaches its reader through a kernel
+    worker; on a virtual machine a wake-up that crosses to an idle CPU can wait a millisecond for
+    it. With the loop, the simulated bus and the workers on one CPU no wake-up crosses: the native
+    loop's 1 kHz swing missed 0-1 deadlines of 5,000 so, against 9-97 with nothing placed; pinned
+    without the workers it was no better than unplaced, so without them nothing is pinned. The
+    work queues are steered only from their default (every CPU) — an administrator's mask, or
+    another run's, is left alone — and put back at the end if still as steered. One line says
+    what was done or why not."""
+    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(allowed) < 2:
+        yield None                                  # one CPU: nothing to place
+        return
+    cpu = allowed[-1] if cpu is None else cpu
+    if cpu not in allowed:
+        raise ValueError(f"CPU {cpu} is not one this process may use ({', '.join(map(str, allowed))})")
+    try:
+        before = mask_file.read_text()
+        online = sum(1 << c for c in range(os.cpu_count() or 1))
+        if _cpu_mask(before) & online != online:
+            say(f"servodyn: the kernel's work queues are kept to CPUs {before.strip()} already: "
+                "the real-time path is left unplaced")
+            yield None
+            return
+        steered = _cpu_mask_text(1 << cpu)
+        mask_file.write_text(steered)
+    except OSError as err:
+        say(f"servodyn: cannot steer the kernel's work queues ({err.strerror or err}): "
+            "the real-time path is left unplaced")
+        yield None
+        return
+    affinity = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {cpu})
+        say(f"servodyn: real time on CPU {cpu}: the loop, the processes it starts and the kernel's "
+            "serial-port work")
+        yield cpu
+    finally:
+        os.sched_setaffinity(0, affinity)
+        try:
+            if _cpu_mask(mask_file.read_text()) == 1 << cpu:
+                mask_file.write_text(before.strip())
+        except OSError:
+            pass
