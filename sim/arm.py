@@ -44,10 +44,10 @@ class SimulatedArm(PlantView):
         self.config, self.model = config, config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         self.servos = [Servo(j.servo, j.id, position=0.0, zero_ticks=0) for j in self.joints]
-        chain = ServoChain(self.servos)       # the plant's drives and the bus's servos, at once
+        chain = ServoChain.of(self.servos)    # the plant's drives and the bus's servos, at once
         small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
         self.plant = Plant(self.model, self.joints, self.servos, small_time_step=small_time_step, q0=q0,
-                           integrator=integrator, chain=chain)
+                           integrator=integrator, chain=chain if chain.covers(self.servos) else None)
         # the servos' clock is the plant's until wall_clock(); no byte timeout until wire_clock()
         self._servo_clock = lambda: self.plant.time
         self.bus = VirtualBus(self.servos, clock=lambda: self._servo_clock(), byte_timeout=None, chain=chain)

@@ -289,3 +289,14 @@ def test_a_seeded_trace_of_every_instruction_is_answered_as_without_the_chain():
     # a restart is a plant that diverged, the same on both (71 with this seed): mostly the lightest
     # link under the position PID's default gains, which a 1 ms RK4 step does not hold
     assert restarts < 100, f"{restarts} plant failures in {steps} steps: the trace should mostly run"
+
+
+def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
+    servos = [Servo(servo_id=i) for i in range(1, 64)]         # 63: more than a chain's 62
+    bus = VirtualBus(servos, byte_timeout=None)
+    assert not bus.chain.covers(bus.servos), "no chain for them"
+    reply = bus.handle(inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1, 63]).encode(), 0.0)
+    blocks = [inst.FastReadBlock(i, 0, servos[i - 1].read(ADDR_PRESENT, PRESENT_LENGTH)) for i in (1, 63)]
+    assert reply == inst.encode_fast_reply(blocks), "answered by the general path"
+    arm = SimulatedArm(CONFIG)
+    assert arm.bus.chain.covers(arm.servos) and arm.plant.chain is arm.bus.chain, "the replica's 7 servos are one"

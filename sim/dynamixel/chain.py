@@ -38,9 +38,14 @@ class ServoChain:
     """The servos of a bus as one drive chain (the plant's ``chain``) and one clock."""
 
     def __init__(self, servos: Sequence[Servo]):
+        """ValueError when the servos cannot be one chain (control tables of other layouts, too
+        many servos): `of` gives the chain that covers none then."""
         self.servos = list(servos)
-        layouts = {tuple((s.items[name].address, s.items[name].size, s.items[name].signed) for name in _chain.FIELDS)
-                   for s in self.servos}
+        try:
+            layouts = {tuple((s.items[name].address, s.items[name].size, s.items[name].signed)
+                             for name in _chain.FIELDS) for s in self.servos}
+        except KeyError as missing:
+            raise ValueError(f"ServoChain: a servo without the item {missing}") from None
         if len(layouts) > 1:
             raise ValueError("ServoChain: the servos' control tables differ in layout")
         fields = layouts.pop() if layouts else tuple((0, 1, False) for _ in _chain.FIELDS)
@@ -49,6 +54,14 @@ class ServoChain:
         self._c = _chain.Chain(self.servos, fields, constants,
                                (TICKS_PER_REV, VELOCITY_UNIT, PWM_FULL, WATCHDOG_UNIT, int(OperatingMode.CURRENT)))
         self._rules: dict[tuple[int, int], tuple | None] = {}      # (address, length) -> write rule
+
+    @classmethod
+    def of(cls, servos: Sequence[Servo]) -> ServoChain:
+        """The chain of `servos`, or one of none (it covers no bus of servos: each goes on its own)."""
+        try:
+            return cls(servos)
+        except ValueError:
+            return cls([])
 
     def covers(self, servos: list[Servo]) -> bool:
         """Whether this chain is exactly `servos`, in order (a bus's list can be changed)."""

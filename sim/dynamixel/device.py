@@ -92,7 +92,7 @@ class VirtualBus:
                  byte_timeout: float | None = BYTE_TIMEOUT, wire_clock: Callable[[], float] | None = None,
                  chain: ServoChain | None = None):
         self.servos = list(servos)
-        self.chain = ServoChain(self.servos) if chain is None else chain
+        self.chain = ServoChain.of(self.servos) if chain is None else chain
         self.clock = clock
         self.wire_clock = wire_clock
         self.on_instruction = on_instruction
@@ -169,7 +169,8 @@ class VirtualBus:
         blocks), with a good CRC and nothing stuffed: its packet, as the reader would parse it,
         without the parse; None for anything else (the reader's)."""
         shape = self._command
-        if (shape is None or len(data) != shape[1] or not data.startswith(shape[0]) or self.reader.pending
+        if (shape is None or len(data) != shape[1] or not isinstance(data, (bytes, bytearray))
+                or not data.startswith(shape[0]) or self.reader.pending
                 or data.find(STUFFED, 7, len(data) - 2) >= 0 or crc16(data[:-2]) != data[-2] | data[-1] << 8):
             return None
         return [InstructionPacket(BROADCAST_ID, data[7], bytes(data[8:-2]))]

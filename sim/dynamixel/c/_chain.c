@@ -385,11 +385,13 @@ static int clocked_at(Chain* self, int k, PyObject* now_obj) {
   return same;
 }
 
-static PyObject* Chain_clock(Chain* self, PyObject* now_obj) {
+// every servo clocked at `now` (VirtualBus.tick), or first told it heard a packet then (Servo.heard)
+static PyObject* clock_every(Chain* self, PyObject* now_obj, int heard) {
   if (!PyFloat_CheckExact(now_obj)) return PyLong_FromLongLong((1LL << self->n) - 1);   // not a float: Python's
   double now = PyFloat_AS_DOUBLE(now_obj);
   long long general = 0;
   for (int k = 0; k < self->n; k++) {
+    if (heard && PyObject_SetAttr(self->servos[k], s_heard_at, now_obj) < 0) return NULL;
     int same = clocked_at(self, k, now_obj);
     if (same < 0) return NULL;
     if (same) continue;
@@ -400,21 +402,9 @@ static PyObject* Chain_clock(Chain* self, PyObject* now_obj) {
   return PyLong_FromLongLong(general);
 }
 
-static PyObject* Chain_heard(Chain* self, PyObject* now_obj) {
-  if (!PyFloat_CheckExact(now_obj)) return PyLong_FromLongLong((1LL << self->n) - 1);   // not a float: Python's
-  double now = PyFloat_AS_DOUBLE(now_obj);
-  long long general = 0;
-  for (int k = 0; k < self->n; k++) {
-    if (PyObject_SetAttr(self->servos[k], s_heard_at, now_obj) < 0) return NULL;
-    int same = clocked_at(self, k, now_obj);
-    if (same < 0) return NULL;
-    if (same) continue;
-    int done = clock_one(self, k, now_obj, now);
-    if (done < 0) return NULL;
-    if (!done) general |= 1LL << k;
-  }
-  return PyLong_FromLongLong(general);
-}
+static PyObject* Chain_clock(Chain* self, PyObject* now_obj) { return clock_every(self, now_obj, 0); }
+
+static PyObject* Chain_heard(Chain* self, PyObject* now_obj) { return clock_every(self, now_obj, 1); }
 
 // whether servo k listens to `id` as a broadcast write's block does (VirtualBus._writes): by its
 // ID, or by its Secondary ID where that differs
