@@ -286,9 +286,9 @@ def test_a_seeded_trace_of_every_instruction_is_answered_as_without_the_chain():
                 arms = _arms()
                 restarts += 1
                 break
-    # a restart is a plant that diverged, the same on both (71 with this seed): mostly the lightest
+    # a restart is a plant that diverged, the same on both (76 with this seed): mostly the lightest
     # link under the position PID's default gains, which a 1 ms RK4 step does not hold
-    assert restarts < 100, f"{restarts} plant failures in {steps} steps: the trace should mostly run"
+    assert restarts < 120, f"{restarts} plant failures in {steps} steps: the trace should mostly run"
 
 
 def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
