@@ -300,3 +300,13 @@ def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
     assert reply == inst.encode_fast_reply(blocks), "answered by the general path"
     arm = SimulatedArm(CONFIG)
     assert arm.bus.chain.covers(arm.servos) and arm.plant.chain is arm.bus.chain, "the replica's 7 servos are one"
+
+
+def test_a_fast_read_of_hundreds_of_blocks_is_the_general_paths():
+    a, b, _ = _twins(3)
+    bus_a, bus_b = VirtualBus(a, byte_timeout=None), VirtualBus(b, byte_timeout=None, chain=ServoChain([]))
+    for count in (250, 300):            # the chain sorts up to 256 IDs, the reply's seal 256 blocks
+        packet = inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1 + k % 7 for k in range(count)]).encode()
+        got, want = _outcome(lambda: bus_a.handle(packet, 0.0)), _outcome(lambda: bus_b.handle(packet, 0.0))
+        assert got == want, f"{count} blocks (IDs repeated): as the general path answers them"
+        assert count > 256 or len(got) == inst.fast_reply_size([PRESENT_LENGTH] * count), f"{count} whole blocks"

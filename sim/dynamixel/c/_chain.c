@@ -67,6 +67,7 @@ typedef struct {
   long long ticks_per_rev;
   double velocity_unit, pwm_full, watchdog_unit;
   long current_mode;
+  Py_ssize_t need;                   // bytes a table needs to hold every field
 } Chain;
 
 // the Servo attributes read and written, interned once
@@ -112,6 +113,14 @@ static inline long long lmax(long long a, long long b) { return b > a ? b : a; }
 
 static inline uint8_t* table_of(Chain* self, int k) { return (uint8_t*)PyByteArray_AS_STRING(self->tables[k]); }
 
+// whether every servo's table still holds every field (a bytearray could be cut short): if not,
+// every call leaves everything to Python
+static inline int whole(Chain* self) {
+  for (int k = 0; k < self->n; k++)
+    if (PyByteArray_GET_SIZE(self->tables[k]) < self->need) return 0;
+  return 1;
+}
+
 static void Chain_dealloc(Chain* self) {
   for (int k = 0; k < self->n; k++) {
     Py_XDECREF(self->servos[k]);
@@ -136,6 +145,7 @@ static int Chain_init(Chain* self, PyObject* args, PyObject* kwds) {
                  MAX_SERVOS, N_FIELDS);
     return -1;
   }
+  self->need = 0;
   for (int f = 0; f < N_FIELDS; f++) {
     Field* field = &self->fields[f];
     if (!PyArg_ParseTuple(PyTuple_GET_ITEM(fields, f), "iip", &field->address, &field->size, &field->is_signed)) {
@@ -147,6 +157,7 @@ static int Chain_init(Chain* self, PyObject* args, PyObject* kwds) {
       PyErr_Format(PyExc_ValueError, "Chain: field %s of %d bytes", FIELD_NAMES[f], field->size);
       return -1;
     }
+    if (field->address + field->size > self->need) self->need = field->address + field->size;
   }
   for (int k = 0; k < self->n; k++) {       // a second __init__ starts afresh
     Py_CLEAR(self->servos[k]);
@@ -217,7 +228,7 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
   double* out = (double*)ob.buf;
   const Field* F = self->fields;
   int k = start < 0 ? 0 : start;
-  for (; k < self->n; k++) {
+  for (; k < self->n && whole(self); k++) {
     uint8_t* t = table_of(self, k);
     const Constants* c = &self->constants[k];
     if (get(t, F[F_TORQUE_ENABLE]) != 1) {          // torque off: the PID reset, no PWM, no current
@@ -338,6 +349,7 @@ static int present(Chain* self, int k) {
 
 static PyObject* Chain_refresh(Chain* self, PyObject* unused) {
   (void)unused;
+  if (!whole(self)) return PyLong_FromLongLong((1LL << self->n) - 1);
   long long general = 0;
   for (int k = 0; k < self->n; k++) {
     PyObject* stale = PyObject_GetAttr(self->servos[k], s_stale);
@@ -387,7 +399,8 @@ static int clocked_at(Chain* self, int k, PyObject* now_obj) {
 
 // every servo clocked at `now` (VirtualBus.tick), or first told it heard a packet then (Servo.heard)
 static PyObject* clock_every(Chain* self, PyObject* now_obj, int heard) {
-  if (!PyFloat_CheckExact(now_obj)) return PyLong_FromLongLong((1LL << self->n) - 1);   // not a float: Python's
+  if (!PyFloat_CheckExact(now_obj) || !whole(self))             // not a float: Python's
+    return PyLong_FromLongLong((1LL << self->n) - 1);
   double now = PyFloat_AS_DOUBLE(now_obj);
   long long general = 0;
   for (int k = 0; k < self->n; k++) {
@@ -435,7 +448,7 @@ static PyObject* Chain_write(Chain* self, PyObject* args) {
     PyBuffer_Release(&params);
     return NULL;
   }
-  if (size < 4) {
+  if (size < 4 || !whole(self)) {
     PyBuffer_Release(&params);
     return PyLong_FromLong(-1);
   }
@@ -476,8 +489,9 @@ static PyObject* Chain_write(Chain* self, PyObject* args) {
 
 // VirtualBus._fast_reads of one address and length for every servo of `ids` (bytes), into the
 // reply laid out in `frame` with block k at starts[k]: -1 when nobody answers (a listed servo
-// missing or not answering reads), -2 when a servo's Present registers are stale and cannot be
-// written here (Python's), else how many blocks were filled (a silent servo cuts the reply).
+// missing or not answering reads), -2 when it is Python's (a servo's Present registers stale and
+// not to be written here, more than 256 IDs), else how many blocks were filled (a silent servo
+// cuts the reply).
 static PyObject* Chain_fast_read(Chain* self, PyObject* args) {
   Py_buffer ids, frame;
   int address, length, alert_bit, access_error;
@@ -490,7 +504,11 @@ static PyObject* Chain_fast_read(Chain* self, PyObject* args) {
   const Field* F = self->fields;
   int order[256];
   long answering = 0, result = 0;
-  for (Py_ssize_t j = 0; j < ids.len && j < 256; j++) {
+  if (ids.len > 256 || !whole(self)) {
+    result = -2;
+    goto done;
+  }
+  for (Py_ssize_t j = 0; j < ids.len; j++) {
     int found = -1;
     for (int k = 0; k < self->n && found < 0; k++)
       if (get(table_of(self, k), F[F_ID]) == want[j]) found = k;
@@ -509,7 +527,7 @@ static PyObject* Chain_fast_read(Chain* self, PyObject* args) {
     }
     order[answering++] = found;
   }
-  if (ids.len > 256 || PyList_GET_SIZE(starts) < answering + 1) {
+  if (PyList_GET_SIZE(starts) < answering + 1) {
     PyErr_SetString(PyExc_ValueError, "Chain.fast_read: a start for every block and the end");
     goto error;
   }
