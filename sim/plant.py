@@ -17,6 +17,7 @@ through them (the replicas' elbows sagged 0.05-0.1 rad past full extension in 5 
 
 from __future__ import annotations
 
+import math
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -126,6 +127,9 @@ class Plant:
         """The joints' stops at (q, qd): zero inside the limits; past one, the spring-damper's torque,
         which only ever pushes back (it never holds a joint that is leaving its stop)."""
         q, qd = self.q, self.qd
+        if all(low <= x <= high and -math.inf < x < math.inf
+               for low, x, high in zip(self.lower.tolist(), q.tolist(), self.upper.tolist())):
+            return np.zeros_like(q)           # every finite joint inside its limits (past = 0, below)
         past = np.minimum(q - self.lower, 0.0) + np.maximum(q - self.upper, 0.0)
         if not past.any():
             return np.zeros_like(q)

@@ -17,7 +17,7 @@ from servodyn.hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_PRESEN
                                                   HardwareError, OperatingMode)
 from servodyn.sim.arm import SimulatedArm
 from servodyn.sim.dynamixel import Servo, ServoChain, VirtualBus
-from servodyn.sim.plant import Drives
+from servodyn.sim.plant import STOP_TIME_CONSTANT, Drives
 
 CONFIG = load_config("replica")
 MODELS = list(SERVOS.values())
@@ -310,3 +310,32 @@ def test_a_fast_read_of_hundreds_of_blocks_is_the_general_paths():
         got, want = _outcome(lambda: bus_a.handle(packet, 0.0)), _outcome(lambda: bus_b.handle(packet, 0.0))
         assert got == want, f"{count} blocks (IDs repeated): as the general path answers them"
         assert count > 256 or len(got) == inst.fast_reply_size([PRESENT_LENGTH] * count), f"{count} whole blocks"
+
+
+def _stop_torque(plant):
+    """The stops' torque as the numpy expressions alone give it (Plant.stop_torque checks first
+    whether every joint is finite and inside its limits)."""
+    q, qd = plant.q, plant.qd
+    past = np.minimum(q - plant.lower, 0.0) + np.maximum(q - plant.upper, 0.0)
+    if not past.any():
+        return np.zeros_like(q)
+    w = 1.0 / STOP_TIME_CONSTANT
+    push = -plant._stop_inertia * (w * w * past + 2.0 * w * qd)
+    push = np.where(past > 0, np.minimum(push, 0.0), np.maximum(push, 0.0))
+    return np.where((past != 0) & plant.stops, push, 0.0)
+
+
+def test_the_stops_quick_check_gives_what_the_full_expressions_give():
+    plant = SimulatedArm(CONFIG).plant
+    rng = np.random.default_rng(5)
+    for trial in range(3000):
+        q = rng.uniform(plant.lower - 0.1, plant.upper + 0.1)
+        at = rng.integers(0, len(q), 3)
+        q[at[0]] = plant.lower[at[0]]                          # exactly on a limit
+        q[at[1]] = plant.upper[at[1]]
+        if trial % 10 == 0:
+            q[at[2]] = rng.choice([math.inf, -math.inf, math.nan])
+        plant.q, plant.qd = q, rng.normal(0.0, 2.0, len(q))
+        with np.errstate(invalid="ignore"):
+            got, want = plant.stop_torque(), _stop_torque(plant)
+        assert _bits(got).tobytes() == _bits(want).tobytes(), f"trial {trial}: q {q} bit for bit"
