@@ -16,7 +16,7 @@ from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, SERVOS, TABLE_SIZE,
                                                   HardwareError, OperatingMode)
 from servodyn.sim.arm import SimulatedArm
-from servodyn.sim.dynamixel import Servo, ServoChain, VirtualBus
+from servodyn.sim.dynamixel import Mechanics, Servo, ServoChain, VirtualBus
 from servodyn.sim.plant import STOP_TIME_CONSTANT, Drives
 
 CONFIG = load_config("replica")
@@ -40,8 +40,12 @@ def _twins(seed: int, n: int = 7):
     rng = np.random.default_rng(seed)
     models = [MODELS[k] for k in rng.integers(0, len(MODELS), n)]
     zeros = [int(z) for z in rng.integers(0, 4096, n)]
-    a, b = ([Servo(m, i + 1, position=0.0, zero_ticks=z) for i, (m, z) in enumerate(zip(models, zeros))]
-            for _ in range(2))
+    # each servo's friction drawn (now and then an int, which Mechanics.torque takes as well)
+    mechanics = [Mechanics.of(m, viscous_friction=float(rng.uniform(0.0, 0.05)),
+                              coulomb_friction=int(rng.integers(0, 2)) if rng.random() < 0.2 else float(rng.uniform(0, 0.1)),
+                              coulomb_velocity=float(rng.uniform(0.001, 0.1))) for m in models]
+    a, b = ([Servo(m, i + 1, position=0.0, zero_ticks=z, mechanics=f)
+             for i, (m, z, f) in enumerate(zip(models, zeros, mechanics))] for _ in range(2))
     for servo_a, servo_b in zip(a, b):
         writes = []
         mode = int(rng.choice([m.value for m in OperatingMode]))

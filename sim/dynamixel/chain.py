@@ -17,8 +17,11 @@ from servodyn.hal.dynamixel import ALERT_BIT, ErrorNumber
 from servodyn.hal.dynamixel.control_table import PWM_FULL, TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, OperatingMode
 
 from . import _chain
+from .drive import Mechanics
 from .servo import _CHANGES, GOAL_ITEMS, Servo
 
+# the Mechanics fields Mechanics.torque reads, in the order the C side takes them
+_MECHANICS = ("torque_constant", "gear_efficiency", "viscous_friction", "coulomb_friction", "coulomb_velocity")
 # items whose write _check_value or _apply treats apart from the rest (besides _CHANGES): their
 # writes stay with Servo.write
 _APART = frozenset({"goal_position", "bus_watchdog", "torque_enable"})
@@ -54,6 +57,9 @@ class ServoChain:
         self._c = _chain.Chain(self.servos, fields, constants,
                                (TICKS_PER_REV, VELOCITY_UNIT, PWM_FULL, WATCHDOG_UNIT, int(OperatingMode.CURRENT)))
         self._rules: dict[tuple[int, int], tuple | None] = {}      # (address, length) -> write rule
+        # the torque in C only for servos whose output_torque is Servo's (Mechanics.torque)
+        self._torque_kind = Mechanics if all(type(s).output_torque is Servo.output_torque for s in self.servos) \
+            else None
 
     @classmethod
     def of(cls, servos: Sequence[Servo]) -> ServoChain:
@@ -79,8 +85,11 @@ class ServoChain:
         while k < len(servos):            # a servo of the C side's, then on from the next
             current[k] = float(servos[k].output_current(position[k].item(), velocities[k], dt))
             k = self._c.currents(position, velocity, current, k + 1)
-        for k, (servo, amps, speed) in enumerate(zip(servos, current.tolist(), velocities)):
-            torque[k] = servo.output_torque(amps, speed)
+        kind, n = self._torque_kind, len(servos)
+        k = self._c.torques(current, velocity, torque, 0, kind, _MECHANICS) if kind is not None else 0
+        while k < n:                      # Servo.output_torque: another Mechanics or another Servo
+            torque[k] = servos[k].output_torque(current[k].item(), velocities[k])
+            k = self._c.torques(current, velocity, torque, k + 1, kind, _MECHANICS) if kind is not None else k + 1
 
     def publish(self, position, velocity, current) -> None:
         """Servo.set_present of every servo (float64 arrays)."""

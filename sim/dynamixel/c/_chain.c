@@ -18,6 +18,8 @@
 //     Servos start, start + 1, ... in turn, up to the first one left to Python (k; n when none):
 //     their currents in `out`, their Present PWM written (torque off: 0, and their PID's
 //     reset() called). Called again from k + 1, the servos change in the order Python's would.
+//   chain.torques(current, velocity, out, start, Mechanics, fields) -> k   Servo.output_torque
+//     As currents: from start up to the first servo left to Python (k).
 //   chain.publish(position, velocity, current)                        Servo.set_present
 //   chain.refresh() -> general                                        Servo._refresh_present
 //     The Present registers of every stale servo; a mask of those left to Python.
@@ -71,7 +73,8 @@ typedef struct {
 } Chain;
 
 // the Servo attributes read and written, interned once
-static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at, *s_silent, *s_pid, *s_reset;
+static PyObject *s_stale, *s_shaft, *s_turns, *s_zero_ticks, *s_clocked_at, *s_heard_at, *s_silent, *s_pid, *s_reset,
+    *s_mechanics;
 
 static inline long long get(const uint8_t* t, Field f) {
   const uint8_t* p = t + f.address;
@@ -575,9 +578,70 @@ error:
   return NULL;
 }
 
+// Servo.output_torque (Mechanics.torque) of servos start, start + 1, ... for their currents and
+// horn speeds, up to the first one left to Python (its Mechanics not of the type given, or a zero
+// coulomb_velocity Python divides by): its index, n when none. `parameters` names the Mechanics
+// fields in the order read here (torque_constant, gear_efficiency, viscous_friction,
+// coulomb_friction, coulomb_velocity).
+static PyObject* Chain_torques(Chain* self, PyObject* args) {
+  PyObject *c_obj, *v_obj, *t_obj, *kind, *names;
+  int start;
+  if (!PyArg_ParseTuple(args, "OOOiOO!", &c_obj, &v_obj, &t_obj, &start, &kind, &PyTuple_Type, &names)) return NULL;
+  if (PyTuple_GET_SIZE(names) != 5) {
+    PyErr_SetString(PyExc_ValueError, "Chain.torques: five Mechanics fields");
+    return NULL;
+  }
+  Py_buffer cb, vb, tb;
+  if (!doubles(c_obj, &cb, self->n, 0)) return NULL;
+  if (!doubles(v_obj, &vb, self->n, 0)) {
+    PyBuffer_Release(&cb);
+    return NULL;
+  }
+  if (!doubles(t_obj, &tb, self->n, 1)) {
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&vb);
+    return NULL;
+  }
+  const double* current = (const double*)cb.buf;
+  const double* velocity = (const double*)vb.buf;
+  double* torque = (double*)tb.buf;
+  int k = start < 0 ? 0 : start, failed = 0;
+  for (; k < self->n; k++) {
+    PyObject* mechanics = PyObject_GetAttr(self->servos[k], s_mechanics);
+    if (!mechanics) {
+      failed = 1;
+      break;
+    }
+    double p[5];
+    int ok = Py_TYPE(mechanics) == (PyTypeObject*)kind;
+    for (int i = 0; i < 5 && ok; i++) {
+      PyObject* value = PyObject_GetAttr(mechanics, PyTuple_GET_ITEM(names, i));
+      if (!value) {
+        failed = 1;
+        break;
+      }
+      ok = PyFloat_CheckExact(value);
+      if (ok) p[i] = PyFloat_AS_DOUBLE(value);
+      Py_DECREF(value);
+    }
+    Py_DECREF(mechanics);
+    if (failed || !ok || p[4] == 0.0) break;
+    double v = velocity[k];
+    double friction = p[2] * v + p[3] * tanh(v / p[4]);
+    torque[k] = current[k] * p[0] * p[1] - friction;
+  }
+  PyBuffer_Release(&cb);
+  PyBuffer_Release(&vb);
+  PyBuffer_Release(&tb);
+  if (failed) return NULL;
+  return PyLong_FromLong(k);
+}
+
 static PyMethodDef Chain_methods[] = {
     {"currents", (PyCFunction)Chain_currents, METH_VARARGS,
      "currents(position, velocity, out, start) -> k: Servo.output_current of servos start.. up to k"},
+    {"torques", (PyCFunction)Chain_torques, METH_VARARGS,
+     "torques(current, velocity, out, start, Mechanics, fields) -> k: Servo.output_torque of servos start.. up to k"},
     {"publish", (PyCFunction)Chain_publish, METH_VARARGS,
      "publish(position, velocity, current): Servo.set_present of every servo"},
     {"refresh", (PyCFunction)Chain_refresh, METH_NOARGS,
@@ -618,7 +682,9 @@ PyMODINIT_FUNC PyInit__chain(void) {
   s_silent = PyUnicode_InternFromString("silent");
   s_pid = PyUnicode_InternFromString("_pid");
   s_reset = PyUnicode_InternFromString("reset");
-  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent || !s_pid || !s_reset)
+  s_mechanics = PyUnicode_InternFromString("mechanics");
+  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent || !s_pid || !s_reset ||
+      !s_mechanics)
     return NULL;
   PyObject* mod = PyModule_Create(&chain_module);
   if (!mod) return NULL;
