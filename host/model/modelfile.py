@@ -217,7 +217,8 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
             dwhere = f"dof '{dname}'"
             dofs.append(Dof(dname, _vector(dof, "axis", dwhere, default=None),
                             _number(dof, "lower", dwhere, default=-math.inf),
-                            _number(dof, "upper", dwhere, default=math.inf)))
+                            _number(dof, "upper", dwhere, default=math.inf),
+                            _number(dof, "armature", dwhere, default=0.0)))
         solids = _tables(entry.get("solid", []), f"{where}: solid")
         shaped = [_solid(s, f"{where} solid", total_mass) for s in solids]
         parts = [part for part, _ in shaped]
