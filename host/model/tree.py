@@ -37,6 +37,7 @@ class Dof:
     lower: float = -math.inf
     upper: float = math.inf
     armature: float = 0.0     # kg m², inertia turning with this dof alone: rotor inertia x gear ratio²
+    motor: str = ""           # the part (parts.toml) that drives it and brings its armature, if named
 
 
 @dataclass(frozen=True)
