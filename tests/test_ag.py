@@ -165,3 +165,61 @@ def test_ball_and_hinge_parametrizations_move_alike():
     q_b, _ = balls.step(q_b, np.zeros(balls.nv), np.zeros(balls.nv), 2.5e-4, nsteps=800)
     assert np.abs(hinges.com_positions(q_h) - balls.com_positions(q_b)).max() <= 1e-9, \
         "largest centre-of-mass gap (m) between the ball-joint and the hinge-chain motion"
+
+
+# ------------------------------------------------------------------ armature
+
+def test_armature_matches_pinocchio(twin):
+    """The armature adds to each joint's D = S' IA S (1-, 2- and 3-dof joints): the built-in
+    models with their own armature (the replicas) or a random one, and random trees and chains,
+    against Pinocchio's ABA with model.armature; and ABA(RNEA(qdd)) = qdd."""
+    from test_rnea import _with_random_armature
+    rng = np.random.default_rng(79)
+    models = [servodyn.load_model(n) for n in ("replica", "replica_dm", "replica_mixed")]
+    models += [_with_random_armature(rng, servodyn.load_model(n)) for n in ("human_arm", "human15")]
+    models += [_with_random_armature(rng, random_model(rng, int(rng.integers(1, 40)), chain=k % 2 == 1))
+               for k in range(30)]
+    worst, worst_roundtrip = 0.0, 0.0
+    for model in models:
+        pin = twin(model)
+        for _ in range(5):
+            q, qd, qdd = random_state(rng, model)
+            tau = rng.normal(size=model.nv) * 5
+            if np.linalg.cond(model.mass_matrix(q)) <= 1e6:
+                worst = max(worst, rel_err(model.forward_dynamics(q, qd, tau), pin.aba(q, qd, tau)))
+            tau = model.inverse_dynamics(q, qd, qdd)
+            worst_roundtrip = max(worst_roundtrip, rel_err(model.forward_dynamics(q, qd, tau), qdd))
+    print(f"armature: worst qdd difference to Pinocchio {worst:.2e}, ABA(RNEA(qdd)) {worst_roundtrip:.2e}")
+    assert worst <= FORWARD_TOL, f"forward dynamics with armature differ from Pinocchio by {worst:.2e}"
+    assert worst_roundtrip <= 1e-9, f"ABA(RNEA(qdd)) differs from qdd by {worst_roundtrip:.2e}"
+
+
+def test_free_root_and_ball_armature_match_pinocchio(twin):
+    """An armature on a free root's six dofs (the 6x6 solve) and on ball joints (the 3x3 D of a
+    quaternion joint), against Pinocchio's free-flyer and spherical joints."""
+    import pinocchio as pin
+    from conftest import pinocchio_direct
+    from test_rnea import _core_with_armature, _random_free_model, _with_random_armature
+    rng = np.random.default_rng(80)
+    for _ in range(5):
+        model = _with_random_armature(rng, _random_free_model(rng))
+        armature = model.armature
+        armature[:6] = rng.uniform(0, 0.05, 6)
+        core, twin_pin = _core_with_armature(model, armature), twin(model)
+        twin_pin.set_armature(armature)
+        for _ in range(5):
+            q, qd, _ = random_state(rng, model)
+            tau = rng.normal(size=model.nv) * 5
+            err = rel_err(core.forward(q, qd, tau), twin_pin.aba(q, qd, tau))
+            assert err <= FORWARD_TOL, f"free-root forward dynamics with armature differ by {err:.2e}"
+    model = _with_random_armature(rng, servodyn.load_model("human15", free_root=True).with_ball_joints())
+    pm = pinocchio_direct(model)
+    pd = pm.createData()
+    for _ in range(10):
+        q = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
+        qd, qdd = rng.normal(size=(2, model.nv))
+        tau = model.inverse_dynamics(q, qd, qdd)
+        assert rel_err(tau, pin.rnea(pm, pd, q, qd, qdd)) <= 1e-9, \
+            "ball-joint inverse dynamics with armature differ from Pinocchio's"
+        assert rel_err(model.forward_dynamics(q, qd, tau), pin.aba(pm, pd, q, qd, tau)) <= FORWARD_TOL, \
+            "ball-joint forward dynamics with armature differ from Pinocchio's"
