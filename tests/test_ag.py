@@ -132,12 +132,17 @@ def test_free_root_matches_pinocchio_free_flyer(seed, twin):
         assert residual <= 1e-8, f"free-root qdd residual in Pinocchio's RNEA {residual:.2e}"
 
 
-def test_ball_joints_match_pinocchio_spherical():
+@pytest.mark.parametrize("armature", [False, True])
+def test_ball_joints_match_pinocchio_spherical(armature):
     """human15 floating free with its 3-dof joints as ball joints (quaternion coordinates),
-    against Pinocchio built joint by joint with spherical joints: inverse and direct dynamics."""
+    against Pinocchio built joint by joint with spherical joints: inverse and direct dynamics;
+    also with a random armature on every dof (the 3x3 D of a ball joint)."""
     import pinocchio as pin
     from conftest import pinocchio_direct
+    from test_rnea import _with_random_armature
     model = servodyn.load_model("human15", free_root=True).with_ball_joints()
+    if armature:
+        model = _with_random_armature(np.random.default_rng(22), model)
     pm = pinocchio_direct(model)
     pd = pm.createData()
     assert (pm.nq, pm.nv) == (model.nq, model.nv), "a quaternion (4 q, 3 v) per ball joint in both builds"
@@ -194,32 +199,13 @@ def test_armature_matches_pinocchio(twin):
     assert worst_roundtrip <= 1e-9, f"ABA(RNEA(qdd)) differs from qdd by {worst_roundtrip:.2e}"
 
 
-def test_free_root_and_ball_armature_match_pinocchio(twin):
-    """An armature on a free root's six dofs (the 6x6 solve) and on ball joints (the 3x3 D of a
-    quaternion joint), against Pinocchio's free-flyer and spherical joints."""
-    import pinocchio as pin
-    from conftest import pinocchio_direct
-    from test_rnea import _core_with_armature, _random_free_model, _with_random_armature
+def test_free_root_armature_matches_pinocchio(twin):
+    """An armature on a free root's six dofs too (the 6x6 solve), against Pinocchio's free-flyer."""
+    from test_rnea import free_models_with_armature
     rng = np.random.default_rng(80)
-    for _ in range(5):
-        model = _with_random_armature(rng, _random_free_model(rng))
-        armature = model.armature
-        armature[:6] = rng.uniform(0, 0.05, 6)
-        core, twin_pin = _core_with_armature(model, armature), twin(model)
-        twin_pin.set_armature(armature)
+    for model, core, pin in free_models_with_armature(rng, twin):
         for _ in range(5):
             q, qd, _ = random_state(rng, model)
             tau = rng.normal(size=model.nv) * 5
-            err = rel_err(core.forward(q, qd, tau), twin_pin.aba(q, qd, tau))
+            err = rel_err(core.forward(q, qd, tau), pin.aba(q, qd, tau))
             assert err <= FORWARD_TOL, f"free-root forward dynamics with armature differ by {err:.2e}"
-    model = _with_random_armature(rng, servodyn.load_model("human15", free_root=True).with_ball_joints())
-    pm = pinocchio_direct(model)
-    pd = pm.createData()
-    for _ in range(10):
-        q = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
-        qd, qdd = rng.normal(size=(2, model.nv))
-        tau = model.inverse_dynamics(q, qd, qdd)
-        assert rel_err(tau, pin.rnea(pm, pd, q, qd, qdd)) <= 1e-9, \
-            "ball-joint inverse dynamics with armature differ from Pinocchio's"
-        assert rel_err(model.forward_dynamics(q, qd, tau), pin.aba(pm, pd, q, qd, tau)) <= FORWARD_TOL, \
-            "ball-joint forward dynamics with armature differ from Pinocchio's"

@@ -200,16 +200,23 @@ def test_armature_matches_pinocchio(twin):
     assert worst_m <= RNEA_TOL, f"M(q) differs from Pinocchio's CRBA + diag(armature) by {worst_m:.2e}"
 
 
+def free_models_with_armature(rng, twin, count=5):
+    """(model, its core, its Pinocchio twin) of random free-root models with a random armature on
+    every dof, a free root's six included (set on the core and the twin alone)."""
+    for _ in range(count):
+        model = _with_random_armature(rng, _random_free_model(rng))
+        armature = model.armature
+        armature[:6] = rng.uniform(0, 0.05, 6)
+        pin = twin(model)
+        pin.set_armature(armature)
+        yield model, _core_with_armature(model, armature), pin
+
+
 def test_free_root_armature_matches_pinocchio(twin):
     """A floating body 0 with an armature on all six of its dofs too: RNEA against Pinocchio's
     free-flyer with the same model.armature."""
     rng = np.random.default_rng(78)
-    for _ in range(5):
-        model = _with_random_armature(rng, _random_free_model(rng))
-        armature = model.armature
-        armature[:6] = rng.uniform(0, 0.05, 6)
-        core, pin = _core_with_armature(model, armature), twin(model)
-        pin.set_armature(armature)
+    for model, core, pin in free_models_with_armature(rng, twin):
         for _ in range(5):
             q, qd, qdd = random_state(rng, model)
             err = rel_err(core.rnea(q, qd, qdd), pin.rnea(q, qd, qdd))
