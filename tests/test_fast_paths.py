@@ -72,6 +72,12 @@ def test_seal_refuses_blocks_that_do_not_fit():
     frame = fast_reply_frame([1, 2], [4, 4])
     with pytest.raises(ValueError):
         seal_fast_reply(frame, [4, 40])
+    for blocks in (2, 3, 7):       # short by one byte: each earlier block's CRC counts (the codec's
+        short = fast_reply_frame(list(range(1, blocks + 1)), [4] * blocks)[:-1]     # fit check once
+        with pytest.raises(ValueError):                                             # left them out and
+            seal_fast_reply(short, [4] * blocks)                                    # wrote past the end)
+    with pytest.raises(ValueError):
+        seal_fast_reply(bytearray(5), [])                      # not even a header
     seal_fast_reply(frame, [4, 4])
     assert bytes(frame) == encode_fast_reply([FastReadBlock(1, 0, bytes(4)), FastReadBlock(2, 0, bytes(4))]), \
         "sealed in place = encoded"

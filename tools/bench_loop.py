@@ -120,7 +120,7 @@ def swing_figures(summary: dict) -> dict:
             "loop_hz": summary.get("loop_hz"), "cpu_median_ms": cpu.get("median"), "cpu_p99_ms": cpu.get("p99"),
             "period_median_ms": summary.get("period_median_ms"), "error_p99_ms": summary.get("jitter_p99_ms"),
             "error_max_ms": summary.get("jitter_max_ms"), "missed": summary.get("missed_deadlines"),
-            "cpu": summary.get("cpu")}
+            "cpu": summary.get("cpu"), "home_ticks": summary.get("home_ticks") or 0}
 
 
 def measure() -> dict:
@@ -147,7 +147,8 @@ def goals(r: dict) -> list[tuple[str, bool, str]]:
     sim, raw = r["simulator"], r["simulator"]["raw"]
     py, nat = r["python lock-step"], r["native lock-step"]
     pyrt, natrt = r["python real time"], r["native real time"]
-    py_missed = (pyrt["missed"] or 0) / max(1, pyrt["ticks"])
+    run_ticks = lambda x: x["ticks"] + x.get("home_ticks", 0)     # homing's deadlines are the run's too
+    py_missed = (pyrt["missed"] or 0) / max(1, run_ticks(pyrt))
     return [
         ("simulator ≥ 0.4 × a minimal responder (raw client)", sim["sim_vs_minimal"] >= 0.4,
          f"{raw['hz']:.0f} / {sim['minimal']['hz']:.0f} Hz = {sim['sim_vs_minimal']:.2f}"),
@@ -160,10 +161,10 @@ def goals(r: dict) -> list[tuple[str, bool, str]]:
         ("native loop CPU per tick ≤ 0.05 ms", (nat["cpu_median_ms"] or 1) <= 0.05, f"{_f(nat['cpu_median_ms'])} ms"),
         ("native real time: p99 period error ≤ 0.1 ms, no missed deadline",
          natrt["completed"] and (natrt["error_p99_ms"] or 1) <= 0.1 and natrt["missed"] == 0,
-         f"p99 {_f(natrt['error_p99_ms'])} ms, {natrt['missed']} missed, {natrt['ticks']} ticks"
+         f"p99 {_f(natrt['error_p99_ms'])} ms, {natrt['missed']} missed of {run_ticks(natrt)} ticks"
          + (f", stopped: {natrt['error']}" if natrt["error"] else "")),
         ("Python real time: ≤ 1 % missed", pyrt["completed"] and py_missed <= 0.01,
-         f"{100 * py_missed:.1f} % ({pyrt['missed']} of {pyrt['ticks']})"
+         f"{100 * py_missed:.1f} % ({pyrt['missed']} of {run_ticks(pyrt)} ticks, homing's included)"
          + (f", stopped: {pyrt['error']}" if pyrt["error"] else "")),
     ]
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import re
 import signal
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -130,6 +132,7 @@ def cmd_sim(args) -> None:
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
     from ..sim.arm import SimulatedArm
+    from ..control.realtime import SIMULATOR_PRIORITY, realtime_priority
     from ..sim.transport.pty import PtyServer
     try:
         config = load_config(args.config)
@@ -141,14 +144,23 @@ def cmd_sim(args) -> None:
     server = PtyServer(arm, "lockstep" if args.lockstep else "realtime")
     print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
           f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
-    print(f"connect with: servodyn swing --config {args.config} --port {server.path}   (Ctrl-C stops)",
-          flush=True)
+    print(f"connect with: servodyn swing --config {args.config} --port {server.path}{_paced(args)}   "
+          "(Ctrl-C stops)", flush=True)
+    gc.freeze()        # the set-up's objects out of every later collection, as the swing's simulator
     try:
-        server.serve_forever()          # in this thread, blocked on the pseudo-terminal
+        # in real time the servos answer ahead of everything else, as the swing's own simulator does
+        with nullcontext() if args.lockstep else realtime_priority(SIMULATOR_PRIORITY, "the simulated bus"):
+            server.serve_forever()      # in this thread, blocked on the pseudo-terminal
     except KeyboardInterrupt:
         print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
     finally:
         server.stop()
+
+
+def _paced(args) -> str:
+    """The swing's option that matches the simulator's clock: a plant on the wall clock wants a
+    loop paced by it (lock-step, one period per command, wants the loop as fast as it goes)."""
+    return "" if args.lockstep else " --realtime"
 
 
 def _serve_robot(config, args) -> None:
@@ -187,10 +199,11 @@ def _serve_robot(config, args) -> None:
             path = next(iter(paths.values()))
             bus = next(iter(config.buses.values()))
             print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})  or  "
-                  f"servodyn swing --config {args.config} --port {path}   (Ctrl-C stops)", flush=True)
+                  f"servodyn swing --config {args.config} --port {path}{_paced(args)}   (Ctrl-C stops)", flush=True)
         else:
             ports = " ".join(f"--port {name}={path}" for name, path in paths.items())
-            print(f"connect with: servodyn swing --config {args.config} {ports}   (Ctrl-C stops)", flush=True)
+            print(f"connect with: servodyn swing --config {args.config} {ports}{_paced(args)}   (Ctrl-C stops)",
+                  flush=True)
         try:
             while True:
                 _time.sleep(0.5)

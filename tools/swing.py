@@ -162,6 +162,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     log.stream(out / "swing_log.csv")
     error = None
     swing_start = 0.0
+    home_ticks = 0
     stopping = {"now": False}
     restore_signals = _signals_stop_the_run(stopping)
     try:
@@ -169,7 +170,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         home, played = plan_run(model, swing, bus.read_state().q, home_duration)
         bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
         say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
+        home_ticks = len(home.traj.t)
+        # homing's deadlines are the run's too (the native loop's count has them)
+        log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
         say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
             f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
             f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
@@ -206,7 +209,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     summary = summarize(log, len(swing.t), period, realtime, error)
     summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
     summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
-                   loop="python", bus=bus.stats.as_dict(bus.dof_names))
+                   loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks)
     if isinstance(error, Interrupted):
         summary["signal"] = signal.Signals(error.signum).name
     if sim is not None:
@@ -296,7 +299,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
                    native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
                                                       "missed", "lost", "exit_code", "notes")},
-                   cpu=cpu, exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
+                   cpu=cpu, home_ticks=report.get("home_ticks"), exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's

@@ -441,9 +441,11 @@ int dxl_fast_bulk_reply_split(const dxl_reader* r, const uint16_t* size, const u
 
 size_t dxl_fast_reply_seal(uint8_t* frame, size_t n, const uint16_t* size, size_t count) {
   size_t end = HEAD_SIZE + 1;   // the first block's ERR, after INST
+  if (end > n) return 0;        // not even the header: no reply of any blocks fits
   for (size_t k = 0; k < count; k++) {
     end += 2u + size[k];         // its CRC
     if (end + 2 > n) return 0;
+    end += 2;                    // the next block's ERR
   }
   uint16_t crc = 0;
   size_t begin = 0;
