@@ -92,10 +92,10 @@ def test_float_build_matches_double_on_builtins():
     rounding by cond(M), up to 2.5e3 on human_arm and 3e6 on human15 (light hands and feet on a
     heavy trunk), so the float accelerations are held to what float can promise: they satisfy
     the double equations of motion within 1e-5 relative (backward error), and differ from the
-    double ones by at most 10 * eps_float * cond(M)."""
+    double ones by at most 10 * eps_float * cond(M). The replicas with their motors' armature too."""
     eps_float = float(np.finfo(np.float32).eps)
     rng = np.random.default_rng(6)
-    for name in ("human_arm", "human15"):
+    for name in ("human_arm", "human15", "replica", "replica_dm"):
         model = servodyn.load_model(name)
         worst_residual, worst_ratio = 0.0, 0.0
         for _ in range(50):

@@ -82,9 +82,10 @@ def test_batch_equals_single_calls():
 
 
 def test_float_build_matches_double_on_builtins():
-    """The MCU's single-precision arithmetic (servodyn._core32, same source) within 1e-4."""
+    """The MCU's single-precision arithmetic (servodyn._core32, same source) within 1e-4; the
+    replicas with their motors' armature too."""
     rng = np.random.default_rng(5)
-    for name in ("human_arm", "human15"):
+    for name in ("human_arm", "human15", "replica", "replica_dm"):
         model = servodyn.load_model(name)
         for _ in range(50):
             q, qd, qdd = random_state(rng, model)
