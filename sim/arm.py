@@ -98,7 +98,7 @@ class SimulatedArm(PlantView):
             return
         if fault == "pushed":
             j = self.servos.index(servo)
-            self.plant.q[j] = self.joints[j].position_limits[1] + PUSHED
+            self.plant.push(j, self.joints[j].position_limits[1] + PUSHED)
             return
         if fault in WIRE_FAULTS:
             self.wire = WireFault(fault, len(self.servos), seed=servo_id)

@@ -122,7 +122,7 @@ class SimulatedRobot(PlantView):
             k = next((k for k, j in enumerate(self.joints) if j.id == device_id), None)
             if k is None:
                 raise KeyError(f"no device with id {device_id}")
-            self.plant.q[k] = self.joints[k].position_limits[1] + PUSHED
+            self.plant.push(k, self.joints[k].position_limits[1] + PUSHED)
             return
         if fault in CAN_WIRE_FAULTS:
             network = next((n for n in self.networks.values() if any(m.can_id == device_id for m in n.motors)), None)

@@ -195,15 +195,21 @@ def _serve_robot(config, args) -> None:
             paths[name], first = server.path, False
         if not args.lockstep and len(config.buses) > 1:
             arm.free_running()           # the first server's clock alone moves the plant
+        def swing(path_of):
+            return f"servodyn swing --config {args.config} " + " ".join(
+                f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
         if len(paths) == 1:
             path = next(iter(paths.values()))
             bus = next(iter(config.buses.values()))
-            print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})  or  "
-                  f"servodyn swing --config {args.config} --port {path}{_paced(args)}   (Ctrl-C stops)", flush=True)
-        else:
-            ports = " ".join(f"--port {name}={path}" for name, path in paths.items())
-            print(f"connect with: servodyn swing --config {args.config} {ports}{_paced(args)}   (Ctrl-C stops)",
-                  flush=True)
+            print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
+                  + (f"  or  {swing(paths.get)}" if args.lockstep else "") + "   (Ctrl-C stops)", flush=True)
+        elif args.lockstep:
+            print(f"connect with: {swing(paths.get)}   (Ctrl-C stops)", flush=True)
+        if not args.lockstep:
+            # a swing paced by the wall clock cannot keep its period through an SLCAN pseudo-terminal
+            print(f"a swing: serve with --lockstep, then {swing(lambda name: 'PATH')} (an SLCAN pseudo-terminal carries a "
+                  f"tick slower than the {config.control_period * 1e3:g} ms period; real time needs SocketCAN; "
+                  "Ctrl-C stops)", flush=True)
         try:
             while True:
                 _time.sleep(0.5)
