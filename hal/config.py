@@ -244,6 +244,15 @@ def _load_model(ref: str, base: Path | None, where: str):
         raise ConfigError(f"{where}: 'model' {err}") from None
 
 
+def _geared_armature(model, joints: dict[str, JointConfig]):
+    """The model with the armature of every motor it names (at the motor's output) multiplied by
+    the square of the gear stage its joint puts after that output. The motor is the model's, like
+    its housing's mass: a configuration that drives the dof with another servo changes neither."""
+    scaled = {d.name: d.armature * joints[d.name].gear_ratio ** 2
+              for b in model.bodies for d in b.dofs if d.motor and joints[d.name].gear_ratio != 1.0}
+    return model.with_armature(scaled) if scaled else model
+
+
 def config_from_dict(data: dict, origin: str = "config", base: Path | None = None) -> RobotConfig:
     """Build and check a RobotConfig from parsed TOML; `base` resolves relative model paths."""
     top = _Checker(data, origin, TOP_KEYS)
@@ -272,6 +281,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     missing = [d for d in model.dof_names if d not in joints]
     if missing:
         raise ConfigError(f"{origin}: 'joint' missing for dof '{missing[0]}' (every dof of '{model.name}' needs one)")
+    model = _geared_armature(model, joints)
     nominal = {j.servo.nominal_voltage for j in joints.values()}
     supply = SupplyConfig(voltage=max(nominal), current_limit=None)
     if "supply" in data:

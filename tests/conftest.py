@@ -25,7 +25,6 @@ class PinocchioTwin:
         else:
             self.model = pin.buildModelFromUrdf(str(path))
         self.model.gravity.linear = np.asarray(model.gravity)
-        self.data = self.model.createData()
         assert self.model.nq == model.nq and self.model.nv == model.nv, "same coordinates"
         # Pinocchio's free-flyer has servodyn's order and frames: (x, y, z, quaternion), (v, w)
         hinge_names = model.dof_names[6:] if model.free_root else model.dof_names
@@ -36,6 +35,12 @@ class PinocchioTwin:
         # the Pinocchio joint that carries each servodyn body (its last dof; 1 for a free root)
         self.body_joint = [1 if b.free else self.model.getJointId(b.dofs[-1].name) if b.dofs else None
                            for b in model.bodies]
+        self.set_armature(model.armature)
+
+    def set_armature(self, armature):
+        """Pinocchio's model.armature from servodyn-ordered values (URDF has none to carry it)."""
+        self.model.armature = self.to_pin(armature)
+        self.data = self.model.createData()
 
     def to_pin(self, x):
         out = np.zeros(len(self.index))
@@ -116,4 +121,5 @@ def pinocchio_direct(model):
         pm.appendBodyToJoint(jid, pin.Inertia(body.mass, np.asarray(body.com, float),
                                               np.asarray(body.inertia, float)), pin.SE3.Identity())
         joint_of[i] = jid
+    pm.armature = model.armature
     return pm

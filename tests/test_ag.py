@@ -92,10 +92,10 @@ def test_float_build_matches_double_on_builtins():
     rounding by cond(M), up to 2.5e3 on human_arm and 3e6 on human15 (light hands and feet on a
     heavy trunk), so the float accelerations are held to what float can promise: they satisfy
     the double equations of motion within 1e-5 relative (backward error), and differ from the
-    double ones by at most 10 * eps_float * cond(M)."""
+    double ones by at most 10 * eps_float * cond(M). The replicas with their motors' armature too."""
     eps_float = float(np.finfo(np.float32).eps)
     rng = np.random.default_rng(6)
-    for name in ("human_arm", "human15"):
+    for name in ("human_arm", "human15", "replica", "replica_dm"):
         model = servodyn.load_model(name)
         worst_residual, worst_ratio = 0.0, 0.0
         for _ in range(50):
@@ -132,12 +132,17 @@ def test_free_root_matches_pinocchio_free_flyer(seed, twin):
         assert residual <= 1e-8, f"free-root qdd residual in Pinocchio's RNEA {residual:.2e}"
 
 
-def test_ball_joints_match_pinocchio_spherical():
+@pytest.mark.parametrize("armature", [False, True])
+def test_ball_joints_match_pinocchio_spherical(armature):
     """human15 floating free with its 3-dof joints as ball joints (quaternion coordinates),
-    against Pinocchio built joint by joint with spherical joints: inverse and direct dynamics."""
+    against Pinocchio built joint by joint with spherical joints: inverse and direct dynamics;
+    also with a random armature on every dof (the 3x3 D of a ball joint)."""
     import pinocchio as pin
     from conftest import pinocchio_direct
+    from test_rnea import _with_random_armature
     model = servodyn.load_model("human15", free_root=True).with_ball_joints()
+    if armature:
+        model = _with_random_armature(np.random.default_rng(22), model)
     pm = pinocchio_direct(model)
     pd = pm.createData()
     assert (pm.nq, pm.nv) == (model.nq, model.nv), "a quaternion (4 q, 3 v) per ball joint in both builds"
@@ -165,3 +170,42 @@ def test_ball_and_hinge_parametrizations_move_alike():
     q_b, _ = balls.step(q_b, np.zeros(balls.nv), np.zeros(balls.nv), 2.5e-4, nsteps=800)
     assert np.abs(hinges.com_positions(q_h) - balls.com_positions(q_b)).max() <= 1e-9, \
         "largest centre-of-mass gap (m) between the ball-joint and the hinge-chain motion"
+
+
+# ------------------------------------------------------------------ armature
+
+def test_armature_matches_pinocchio(twin):
+    """The armature adds to each joint's D = S' IA S (1-, 2- and 3-dof joints): the built-in
+    models with their own armature (the replicas) or a random one, and random trees and chains,
+    against Pinocchio's ABA with model.armature; and ABA(RNEA(qdd)) = qdd."""
+    from test_rnea import _with_random_armature
+    rng = np.random.default_rng(79)
+    models = [servodyn.load_model(n) for n in ("replica", "replica_dm", "replica_mixed")]
+    models += [_with_random_armature(rng, servodyn.load_model(n)) for n in ("human_arm", "human15")]
+    models += [_with_random_armature(rng, random_model(rng, int(rng.integers(1, 40)), chain=k % 2 == 1))
+               for k in range(30)]
+    worst, worst_roundtrip = 0.0, 0.0
+    for model in models:
+        pin = twin(model)
+        for _ in range(5):
+            q, qd, qdd = random_state(rng, model)
+            tau = rng.normal(size=model.nv) * 5
+            if np.linalg.cond(model.mass_matrix(q)) <= 1e6:
+                worst = max(worst, rel_err(model.forward_dynamics(q, qd, tau), pin.aba(q, qd, tau)))
+            tau = model.inverse_dynamics(q, qd, qdd)
+            worst_roundtrip = max(worst_roundtrip, rel_err(model.forward_dynamics(q, qd, tau), qdd))
+    print(f"armature: worst qdd difference to Pinocchio {worst:.2e}, ABA(RNEA(qdd)) {worst_roundtrip:.2e}")
+    assert worst <= FORWARD_TOL, f"forward dynamics with armature differ from Pinocchio by {worst:.2e}"
+    assert worst_roundtrip <= 1e-9, f"ABA(RNEA(qdd)) differs from qdd by {worst_roundtrip:.2e}"
+
+
+def test_free_root_armature_matches_pinocchio(twin):
+    """An armature on a free root's six dofs too (the 6x6 solve), against Pinocchio's free-flyer."""
+    from test_rnea import free_models_with_armature
+    rng = np.random.default_rng(80)
+    for model, core, pin in free_models_with_armature(rng, twin):
+        for _ in range(5):
+            q, qd, _ = random_state(rng, model)
+            tau = rng.normal(size=model.nv) * 5
+            err = rel_err(core.forward(q, qd, tau), pin.aba(q, qd, tau))
+            assert err <= FORWARD_TOL, f"free-root forward dynamics with armature differ by {err:.2e}"

@@ -24,7 +24,10 @@ from servodyn.sim.transport.can import VirtualCanServer
 
 PATIENT = 0.5          # s: a loaded machine can hold a thread back far beyond a real bus's deadline
 CHANNELS = (f"test-hal-can-{k}" for k in itertools.count())
-HOLD = dict(kp=10.0, kd=0.1)   # N m/rad, N m s/rad: replica_dm's 2.5 kg arm within 0.08 rad in 0.3 s
+# N m/rad, N m s/rad: replica_dm's 2.5 kg arm, behind its motors' rotors (armature 0.16 kg m² at a
+# J4340: about 0.3 kg m² at the shoulder, damping ratio 0.4), within 0.05 rad in 0.3 s (measured
+# 0.043; kp 10, kd 0.1 held the bare links within 0.08 rad, but ring for seconds behind the rotors)
+HOLD = dict(kp=20.0, kd=2.0)
 
 
 @pytest.fixture

@@ -279,3 +279,14 @@ def test_a_byte_order_mark_before_the_toml_is_dropped(tmp_path):
     marked.write_bytes(b"\xef\xbb\xbf" + plain.replace(b'model = "replica"', b'model = "replica"', 1))
     config = load_config(marked)
     assert config.name == "replica" and len(config.joints) == 7, "the marked file is the replica"
+
+
+def test_a_gear_stage_scales_the_motors_armature():
+    """A 2:1 stage after the horn turns the servo's rotor twice as fast as the joint: its armature
+    at the joint is 4 x the motor's (XM540-W270: 0.14 kg m², parts.toml); the other dofs keep
+    their motor's."""
+    config = build(set_joint(0, "gear_ratio", 2.0))
+    plain = load_config("replica").model.armature
+    assert config.model.armature[0] == pytest.approx(4 * 0.14), "0.14 kg m² x 2²"
+    assert np.array_equal(config.model.armature[1:], plain[1:]), "the other dofs unchanged"
+    assert plain[0] == 0.14, "without a stage, the motor's own"

@@ -111,6 +111,9 @@ def write(tmp_path, name, text):
     return path
 
 
+_DOF = "[[body]]\nname='a'\n[[body.dof]]\nname='j'\naxis=[0,0,1]\n{}\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n"
+
+
 @pytest.mark.parametrize("text,message", [
     ("name = 'x'\n", "needs at least one"),
     ("[[body]]\nname='a'\nparent='nope'\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "parent 'nope'"),
@@ -130,12 +133,26 @@ def write(tmp_path, name, text):
     ("[[body]]\nname='a'\ninertial=2\n", "inertial must be a table"),
     ("[[body]]\nname='a'\nparent=[]\n[body.solid]\ntype='sphere'\nradius=0.1\nmass=1\n", "parent '\\[\\]' is not"),
     ("[[body]]\nname='a'\n[body.solid]\ntype=[]\nradius=0.1\nmass=1\n", "'type' must be one of"),
+    # a dof's armature: its own, or its motor's, never both; a motor the parts list has with one
+    (_DOF.format("armature=-0.1"), "dof 'j': the armature must be a finite number >= 0"),
+    (_DOF.format("armature='big'"), "dof 'j': 'armature' must be a finite number"),
+    (_DOF.format("motor='XM430-W351'"), "dof 'j': unknown motor 'XM430-W351' \\(parts with an armature: DM-J4340"),
+    (_DOF.format("motor='DM-J4310'\narmature=0.2"), "dof 'j': give 'motor' or 'armature', not both"),
 ])
 def test_bad_model_files_give_one_clear_line(tmp_path, text, message):
     path = write(tmp_path, "bad.toml", text)
     with pytest.raises(ModelError, match=message) as err:
         servodyn.load_model(path)
     assert "\n" not in str(err.value)
+
+
+def test_a_dof_takes_its_armature_or_its_motors(tmp_path):
+    """`armature` is the dof's own (kg m²); `motor` names a part whose armature it takes."""
+    own = servodyn.load_model(write(tmp_path, "own.toml", _DOF.format("armature=0.02")))
+    geared = servodyn.load_model(write(tmp_path, "geared.toml", _DOF.format("motor='DM-J4340'")))
+    assert own.armature.tolist() == [0.02] and own.bodies[0].dofs[0].motor == "", "the dof's own"
+    assert geared.armature.tolist() == [0.16] and geared.bodies[0].dofs[0].motor == "DM-J4340", \
+        "the DM-J4340's 0.16 kg m² (parts.toml)"
 
 
 def test_unknown_model_name():

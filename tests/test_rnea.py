@@ -82,9 +82,10 @@ def test_batch_equals_single_calls():
 
 
 def test_float_build_matches_double_on_builtins():
-    """The MCU's single-precision arithmetic (servodyn._core32, same source) within 1e-4."""
+    """The MCU's single-precision arithmetic (servodyn._core32, same source) within 1e-4; the
+    replicas with their motors' armature too."""
     rng = np.random.default_rng(5)
-    for name in ("human_arm", "human15"):
+    for name in ("human_arm", "human15", "replica", "replica_dm"):
         model = servodyn.load_model(name)
         for _ in range(50):
             q, qd, qdd = random_state(rng, model)
@@ -144,3 +145,90 @@ def _random_free_model(rng):
     # body 0's own dofs give way to the free joint; bodies on the base move onto body 0
     rest = [replace(b, parent=max(b.parent, 0)) for b in model.bodies[1:]]
     return Model(bodies + rest, name="random_free")
+
+
+# ------------------------------------------------------------------ armature
+
+def _with_random_armature(rng, model, scale=0.05):
+    """The model with a random armature on every hinge and ball dof, up to `scale` kg m²: as large
+    as the links' own inertias or larger, as a geared motor's reflected rotor is."""
+    return model.with_armature({d.name: float(rng.uniform(0, scale)) for b in model.bodies for d in b.dofs})
+
+
+def _core_with_armature(model, armature):
+    """The C core of `model` with `armature` on every velocity dof, a free root's six included
+    (which the Model API leaves at 0: no motor drives a floating body)."""
+    from servodyn import _core
+    return _core.Core(**{**model._arrays, "armature": armature})
+
+
+@pytest.mark.parametrize("name", ["replica", "replica_dm", "replica_mixed"])
+def test_replica_armature_is_its_motors(name):
+    """Each replica dof carries its motor's reflected rotor inertia (parts.toml), 0.01-0.16 kg m²,
+    and the paper's models none: their experiments stay as they were."""
+    from servodyn.model.modelfile import parts
+    model = servodyn.load_model(name)
+    motors = [d.motor for b in model.bodies for d in b.dofs]
+    assert all(motors), f"{name}: every dof names the motor that drives it"
+    assert np.array_equal(model.armature, [parts()[m]["armature"] for m in motors]), \
+        f"{name}: a dof's armature is its motor's"
+    assert 0.01 <= model.armature.min() and model.armature.max() <= 0.16, f"{name}: {model.armature}"
+    for paper in ("human_arm", "human15"):
+        assert not servodyn.load_model(paper).armature.any(), f"{paper}: a human arm has no motors"
+
+
+def test_armature_matches_pinocchio(twin):
+    """Random trees and chains (1-3-dof joints) and the built-in models with a random armature on
+    every dof: RNEA equals Pinocchio's with model.armature to 1e-9, and M(q) equals Pinocchio's
+    CRBA of the rigid bodies plus diag(armature)."""
+    rng = np.random.default_rng(77)
+    models = [servodyn.load_model(n) for n in ("human_arm", "human15", "replica", "replica_dm")]
+    models += [random_model(rng, int(rng.integers(1, 40)), chain=k % 2 == 1) for k in range(30)]
+    worst_tau = worst_m = 0.0
+    for k, rigid in enumerate(models):
+        model = _with_random_armature(rng, rigid)
+        pin = twin(model)
+        for _ in range(5):
+            q, qd, qdd = random_state(rng, model)
+            worst_tau = max(worst_tau, rel_err(model.inverse_dynamics(q, qd, qdd), pin.rnea(q, qd, qdd)))
+        pin.set_armature(np.zeros(model.nv))
+        M_rigid = pin.pin.crba(pin.model, pin.data, pin.to_pin_q(q))
+        M_rigid = np.triu(M_rigid) + np.triu(M_rigid, 1).T
+        expected = M_rigid[np.ix_(pin.index, pin.index)] + np.diag(model.armature)
+        worst_m = max(worst_m, rel_err(model.mass_matrix(q), expected))
+    print(f"armature: worst RNEA difference {worst_tau:.2e}, worst M(q) difference {worst_m:.2e}")
+    assert worst_tau <= RNEA_TOL, f"rnea with armature differs from Pinocchio by {worst_tau:.2e}"
+    assert worst_m <= RNEA_TOL, f"M(q) differs from Pinocchio's CRBA + diag(armature) by {worst_m:.2e}"
+
+
+def free_models_with_armature(rng, twin, count=5):
+    """(model, its core, its Pinocchio twin) of random free-root models with a random armature on
+    every dof, a free root's six included (set on the core and the twin alone)."""
+    for _ in range(count):
+        model = _with_random_armature(rng, _random_free_model(rng))
+        armature = model.armature
+        armature[:6] = rng.uniform(0, 0.05, 6)
+        pin = twin(model)
+        pin.set_armature(armature)
+        yield model, _core_with_armature(model, armature), pin
+
+
+def test_free_root_armature_matches_pinocchio(twin):
+    """A floating body 0 with an armature on all six of its dofs too: RNEA against Pinocchio's
+    free-flyer with the same model.armature."""
+    rng = np.random.default_rng(78)
+    for model, core, pin in free_models_with_armature(rng, twin):
+        for _ in range(5):
+            q, qd, qdd = random_state(rng, model)
+            err = rel_err(core.rnea(q, qd, qdd), pin.rnea(q, qd, qdd))
+            assert err <= RNEA_TOL, f"free-root rnea with armature differs from Pinocchio by {err:.2e}"
+
+
+@pytest.mark.parametrize("armature", [-1e-3, float("nan"), float("inf")])
+def test_bad_armature_is_refused(armature):
+    """A negative or non-finite armature: a ModelError naming the dof (Python) and the body (C)."""
+    model = servodyn.load_model("human_arm")
+    with pytest.raises(servodyn.ModelError, match="dof 'r_elbow_flexion': the armature must be a finite"):
+        model.with_armature({"r_elbow_flexion": armature})
+    with pytest.raises(ValueError, match="body 1: an armature must be a finite number >= 0"):
+        _core_with_armature(model, [0, 0, 0, armature, 0, 0, 0])

@@ -134,11 +134,13 @@ def test_speed_and_within_one_percent(tmp_path):
 
 
 def test_torque_speed(tmp_path):
-    """The elbow accelerated hard near its no-load speed: within its speed and current limits, but
-    torque and speed together leave the envelope (driving quadrant)."""
+    """The elbow accelerated near its no-load speed: within its speed and current limits, but
+    torque and speed together leave the envelope (driving quadrant). At 20 rad/s², 2 N m (0.9 N m of
+    it the XM430-W350's rotor, armature 0.045 kg m²); at the 50 rad/s² this used before the
+    rotor was modelled, 4 N m pass the current limit too."""
     cfg = config()
     names = cfg.model.dof_names
-    report = validate(cfg, ramp(tmp_path / "m.csv", names, 3, 3.8, accel=50.0, seconds=0.004,
+    report = validate(cfg, ramp(tmp_path / "m.csv", names, 3, 3.8, accel=20.0, seconds=0.004,
                                 start=np.array([0, 0, 0, 1.0, 0, 0, 0])), **QUIET)
     assert failing(report) == {"torque_speed"}, report["violations"]
     row = report["joints"]["r_elbow_flexion"]

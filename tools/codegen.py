@@ -41,6 +41,7 @@ def _sd_model_dtype(max_body: int, max_dof: int) -> np.dtype:
         ("body_parent", i4, B), ("body_dofnum", i4, B), ("body_dofadr", i4, B), ("body_ball", i4, B),
         ("body_pos", f8, (B, 3)), ("body_rot", f8, (B, 9)), ("dof_rot", f8, (D, 9)),
         ("body_mass", f8, B), ("body_com", f8, (B, 3)), ("body_inertia", f8, (B, 6)),
+        ("dof_armature", f8, D),
         ("nq", i4), ("body_qadr", i4, B), ("body_mcom", f8, (B, 3)), ("body_inertia0", f8, (B, 6)),
         ("body_rotT", f8, (B, 9)), ("dof_rotT", f8, (D, 9)), ("body_ident", i4, B),
     ], align=True)

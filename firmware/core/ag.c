@@ -4,6 +4,8 @@
 // assume a 3-dof joint and the paper projects with eq. 3.1, this divides by the articulated
 // inertia about the joint's own free axes, D = S' IA S (at most 3x3), which is exact for 1-, 2-
 // and 3-dof joints (Featherstone's articulated-body algorithm; his names: S, c, IA, pA, U, D, u).
+// A dof's armature (a geared motor's rotor inertia x gear ratio^2) turns with the dof alone, so it
+// adds to D's diagonal only: D = S' IA S + diag(armature), as in Pinocchio's ABA and MuJoCo.
 //
 // Spatial vectors are (angular; linear) at the body origin in the body frame; the transforms and
 // the block storage of IA are in sd_spatial.h. Each per-body step takes its joint's dof count nd
@@ -97,21 +99,25 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
   // U D^-1 U' = W X' and U D^-1 u = W v: W = X = U L'^-1 and v = L^-1 u (no growth of D^-1);
   // for one dof simply W = U / D, X = U, v = u
   sd_real W[3][6], X[3][6], v[3];
-  int complete = 1;  // every dof projected out cleanly (well away from a gimbal lock)
+  int complete = 1;  // Ia S = 0: every dof projected out cleanly (well away from a gimbal lock)
+  const sd_real* armature = m->dof_armature + adr;
 
   if (nd == 1) {
-    // one dof about z: U = IA S is IA's third column, D = S' U its zz entry
+    // one dof about z: U = IA S is IA's third column, D = S' U its zz entry plus the armature
     sd_real* U = d->dof_U[adr];
     sd_ia_mulzaxis(U, IA);
     d->dof_u[adr] = tau[adr] - pA[2];
+    sd_real D = U[2] + armature[0];
     sd_real Dinv = 0;
-    if (U[2] > 0) {
-      Dinv = SD_R(1) / U[2];
+    if (D > 0) {
+      Dinv = SD_R(1) / D;
     } else {
       d->warning[SD_WARN_SINGULAR]++;
     }
     d->body_L[i][0] = Dinv;
-    complete = Dinv > 0;
+    // Ia S = 0 (or IA's z row is zero, behind a massless body), but with an armature
+    // Ia S = U armature / D: then the parent takes all of Ia
+    complete = armature[0] == 0;
     for (int e = 0; e < 6; e++) {
       W[0][e] = U[e] * Dinv;
       X[0][e] = U[e];
@@ -127,20 +133,25 @@ static inline void inbound_body(const sd_model* m, sd_data* d, int i, const sd_r
     sd_ia_mulzaxis(d->dof_U[adr + nd - 1], IA);
     d->dof_u[adr + nd - 1] = tau[adr + nd - 1] - pA[2];
 
-    // D = S' U and its factor
+    // D = S' U + diag(armature) and its factor
     sd_real D[9], min_pivot;
     for (int k = 0; k < nd; k++) {
       for (int l = 0; l < nd; l++) {
         D[3*k + l] = sd_dot(d->dof_axis[adr + k], d->dof_U[adr + l]);
       }
+      D[4*k] += armature[k];
     }
     sd_real* L = d->body_L[i];
     if (sd_cholesky(L, D, nd, 3, &min_pivot)) {
       d->warning[SD_WARN_SINGULAR]++;
     }
     // far from a lock the projection zeroes Ia's rotational blocks to rounding; near one the
-    // computed blocks carry the rounding that keeps Ia consistent with L, so they are kept
+    // computed blocks carry the rounding that keeps Ia consistent with L, so they are kept, and
+    // so they are with an armature, which leaves Ia S non-zero
     complete = min_pivot > SD_R(1e-3);
+    for (int k = 0; k < nd; k++) {
+      complete = complete && armature[k] == 0;
+    }
 
     // W = X = U L'^-1, one row of U at a time, and v = L^-1 u
     for (int e = 0; e < 6; e++) {
@@ -238,7 +249,7 @@ static inline void free_outbound(const sd_model* m, sd_data* d, const sd_real* q
 }
 
 // The free root's acceleration: with a' = (0; R (-g)) from the base, solve the full 6x6
-// articulated inertia, IA (a - a') = tau - pA - IA a'.
+// articulated inertia, (IA + diag(armature)) (a - a') = tau - pA - IA a'.
 static inline void free_acceleration(const sd_model* m, sd_data* d, const sd_real* tau,
                                      sd_real* qdd) {
   const sd_real* pA = d->body_pA[0];
@@ -258,7 +269,12 @@ static inline void free_acceleration(const sd_model* m, sd_data* d, const sd_rea
     x[r] = s;
   }
 
-  // a - a' = IA^-1 x, factored in place
+  // the armatures turn with the dofs alone: (IA + diag(armature)) (a - a') = x
+  for (int r = 0; r < 6; r++) {
+    M[7*r] += m->dof_armature[r < 3 ? 3 + r : r - 3];
+  }
+
+  // a - a' = (IA + diag(armature))^-1 x, factored in place
   if (sd_cholesky(M, M, 6, 6, &min_pivot)) {
     d->warning[SD_WARN_SINGULAR]++;
   }

@@ -119,6 +119,16 @@ int sd_model_setup(sd_model* m, int* bad_body) {
     *bad_body = -1;
     return SD_ERR_DOFNUM;
   }
+
+  // armatures: finite and not negative, named by the body whose joint has the dof
+  for (int i = 0; i < m->nbody; i++) {
+    *bad_body = i;
+    for (int j = m->body_dofadr[i]; j < m->body_dofadr[i] + m->body_dofnum[i]; j++) {
+      if (!sd_allfinite(&m->dof_armature[j], 1) || m->dof_armature[j] < 0) {
+        return SD_ERR_ARMATURE;
+      }
+    }
+  }
   *bad_body = -1;
 
   // derived constants: coordinate addresses (a free root's quaternion takes one more),
@@ -173,6 +183,7 @@ const char* sd_strerror(int code) {
     case SD_ERR_FIRSTDOF:  return "the first dof of a joint must have an identity dof_rot";
     case SD_ERR_FREE:      return "a free root must be body 0, on the base, with 6 dofs";
     case SD_ERR_BALL:      return "a ball joint has exactly 3 dofs and is not the free root";
+    case SD_ERR_ARMATURE:  return "an armature must be a finite number >= 0";
     default:               return "unknown error";
   }
 }

@@ -9,7 +9,8 @@
 //   - every quantity is taken about the body origin with the first moment h = m s, so gravity is
 //     the base's upward acceleration -g and needs no per-body term g_i.
 // Every joint goes through the same two steps, as with spatial_v2's jcalc: its kinematics
-// (sd_joint_kinematics) and its motion below; a free root is the joint of 6 dofs.
+// (sd_joint_kinematics) and its motion below; a free root is the joint of 6 dofs. A dof's
+// armature (a geared motor's rotor) adds armature qdd to its torque, as in Pinocchio and MuJoCo.
 #include "servodyn.h"
 #include "sd_joint.h"
 #include "sd_spatial.h"
@@ -47,21 +48,25 @@ static inline void joint_motion(const sd_model* m, const sd_data* d, int i, cons
   }
 }
 
-// The generalized force of body i's nd-dof joint from the wrench (n, f) the body receives.
+// The generalized force of body i's nd-dof joint from the wrench (n, f) the body receives,
+// plus what accelerates each dof's armature: armature qdd.
 static inline void joint_force(const sd_model* m, const sd_data* d, int i, const int nd,
-                               const sd_real* n, const sd_real* f, sd_real* tau) {
+                               const sd_real* n, const sd_real* f, const sd_real* qdd,
+                               sd_real* tau) {
   int adr = m->body_dofadr[i];
 
   // a free root: its whole wrench, force first, then moment
   if (nd == 6) {
     sd_copy3(tau + adr, f);
     sd_copy3(tau + adr + 3, n);
-    return;
+  } else {
+    // a hinge or ball joint: the moment about each dof axis
+    for (int j = adr; j < adr + nd; j++) {
+      tau[j] = sd_dot(n, d->dof_axis[j]);
+    }
   }
-
-  // a hinge or ball joint: the moment about each dof axis
   for (int j = adr; j < adr + nd; j++) {
-    tau[j] = sd_dot(n, d->dof_axis[j]);
+    tau[j] += m->dof_armature[j] * qdd[j];
   }
 }
 
@@ -130,7 +135,7 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
   // backward pass: joint torques from the leaves, each body's wrench passed to its parent
   for (int i = m->nbody - 1; i >= 0; i--) {
     int parent = m->body_parent[i];
-    joint_force(m, d, i, m->body_dofnum[i], d->body_n[i], d->body_f[i], tau);
+    joint_force(m, d, i, m->body_dofnum[i], d->body_n[i], d->body_f[i], qdd, tau);
     if (parent >= 0) {
       sd_addto_xtforce(d->body_n[parent], d->body_f[parent], d->body_R[i], m->body_pos[i],
                        d->body_n[i], d->body_f[i]);

@@ -147,14 +147,14 @@ static inline void sd_ia_subouter(sd_real IA[21], const sd_real w[6], const sd_r
 // by p, with P the cross-product matrix of p:
 //   C_p = C', B_p = B' + P C', A_p = A' + P M' + M P' where M = B' + P C' / 2
 // (the last is A' + P B'' + B' P' + P C' P', written to need one product fewer).
-// Ia S = 0 for the joint's motion S, which zeroes blocks that then need no rotation: behind a
-// 1-dof joint (about z) A's third row and column and B's third row, behind a 3-dof joint well
-// away from its lock (complete) all of A and B.
+// When Ia S = 0 for the joint's motion S (complete: no armature, and for 3 dofs well away from
+// the lock) it zeroes blocks that then need no rotation: behind a 1-dof joint (about z) A's third
+// row and column and B's third row, behind a 3-dof joint all of A and B.
 static inline void sd_ia_addto_parent(sd_real IAp[21], const sd_real Ia[21], const sd_real R[9],
                                       const sd_real p[3], const int nd, int complete) {
   // the blocks in the parent's axes
   sd_real A[6] = {0, 0, 0, 0, 0, 0}, B[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0}, C[6];
-  if (nd == 1) {
+  if (nd == 1 && complete) {
     sd_rotate_sym(A, R, Ia, 2);
     sd_rotate_full(B, R, Ia + 6, 2);
   } else if (nd != 3 || !complete) {

@@ -106,13 +106,13 @@ static int fill_int(int* dst, PyObject* obj, npy_intp count, const char* name) {
 
 static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"parent", "dofnum", "pos", "rot", "dof_rot", "mass", "com",
-                           "inertia", "gravity", "free_root", "ball", NULL};
+                           "inertia", "gravity", "free_root", "ball", "armature", NULL};
   PyObject *parent, *dofnum, *pos, *rot, *dof_rot, *mass, *com, *inertia, *gravity;
-  PyObject* ball = Py_None;
+  PyObject *ball = Py_None, *armature = Py_None;
   int free_root = 0;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO|pO", kwlist, &parent, &dofnum, &pos,
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OOOOOOOOO|pOO", kwlist, &parent, &dofnum, &pos,
                                    &rot, &dof_rot, &mass, &com, &inertia, &gravity, &free_root,
-                                   &ball)) {
+                                   &ball, &armature)) {
     return -1;
   }
   sd_model* m = &self->model;
@@ -152,7 +152,8 @@ static int Core_init(CoreObject* self, PyObject* args, PyObject* kwargs) {
       sd_fill(m->body_mass, mass, nbody, "mass") ||
       sd_fill(&m->body_com[0][0], com, 3 * nbody, "com") ||
       sd_fill(&m->body_inertia[0][0], inertia, 6 * nbody, "inertia") ||
-      sd_fill(m->gravity, gravity, 3, "gravity")) {
+      sd_fill(m->gravity, gravity, 3, "gravity") ||
+      (armature != Py_None && sd_fill(m->dof_armature, armature, ndof, "armature"))) {
     return -1;
   }
   int bad = -1;

@@ -92,8 +92,24 @@ def parts() -> dict[str, dict]:
     global _parts
     if _parts is None:
         table = read_toml(PARTS_FILE, ModelError).get("part", {})
-        _parts = {name: _part_solid(name, entry) for name, entry in table.items()}
+        _parts = {name: _part_solid(name, entry) | {"armature": float(entry.get("armature", 0.0))}
+                  for name, entry in table.items()}
     return _parts
+
+
+def _dof_armature(dof: dict, where: str) -> tuple[float, str]:
+    """(armature, motor) of a [[body.dof]]: its `motor` part's armature (rotor inertia x gear
+    ratio², at the output), or its own `armature`, 0 by default."""
+    if "motor" not in dof:
+        return _number(dof, "armature", where, default=0.0), ""
+    name = dof["motor"]
+    catalogue = parts()
+    if "armature" in dof:
+        raise ModelError(f"{where}: give 'motor' or 'armature', not both (the motor brings its armature)")
+    if not isinstance(name, str) or name not in catalogue or not catalogue[name]["armature"] > 0:
+        motors = [k for k, v in catalogue.items() if v["armature"] > 0]
+        raise ModelError(f"{where}: unknown motor {name!r} (parts with an armature: {', '.join(motors)})")
+    return catalogue[name]["armature"], name
 
 
 def _part_solid(name: str, entry: dict) -> dict:
@@ -117,7 +133,7 @@ def _placed_part(solid: dict, where: str) -> dict:
     if extra:
         raise ModelError(f"{where}: part '{name}' brings its own type, size and mass; "
                          f"give it only pos and rpy, not {', '.join(extra)}")
-    return {k: v for k, v in catalogue[name].items() if k != "source"} | solid
+    return {k: v for k, v in catalogue[name].items() if k not in ("source", "armature")} | solid
 
 
 def _solid(solid: dict, where: str, total_mass: float | None):
@@ -215,9 +231,10 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
             if not isinstance(dname, str) or not dname:
                 raise ModelError(f"{where}: dof #{k + 1} needs a 'name'")
             dwhere = f"dof '{dname}'"
+            armature, motor = _dof_armature(dof, dwhere)
             dofs.append(Dof(dname, _vector(dof, "axis", dwhere, default=None),
                             _number(dof, "lower", dwhere, default=-math.inf),
-                            _number(dof, "upper", dwhere, default=math.inf)))
+                            _number(dof, "upper", dwhere, default=math.inf), armature, motor))
         solids = _tables(entry.get("solid", []), f"{where}: solid")
         shaped = [_solid(s, f"{where} solid", total_mass) for s in solids]
         parts = [part for part, _ in shaped]

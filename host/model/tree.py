@@ -36,6 +36,8 @@ class Dof:
     axis: np.ndarray
     lower: float = -math.inf
     upper: float = math.inf
+    armature: float = 0.0     # kg m², inertia turning with this dof alone: rotor inertia x gear ratio²
+    motor: str = ""           # the part (parts.toml) that drives it and brings its armature, if named
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,9 @@ class Model:
                     raise ModelError(f"dof '{dof.name}': the axis must be a finite non-zero vector")
                 if not dof.lower <= dof.upper:
                     raise ModelError(f"dof '{dof.name}': lower limit above upper limit")
+                if not (math.isfinite(dof.armature) and dof.armature >= 0):
+                    raise ModelError(f"dof '{dof.name}': the armature must be a finite number >= 0 kg m², "
+                                     f"got {dof.armature}")
 
     def _compile(self, gravity: np.ndarray):
         """Turn the user-frame description into the core's z-axis dof frames and build the core."""
@@ -168,7 +173,9 @@ class Model:
                     dof_rot=dof_rot if dof_rot else np.zeros((0, 9)),
                     mass=[b.mass for b in self.bodies], com=com, inertia=inertia, gravity=gravity,
                     free_root=bool(self.bodies and self.bodies[0].free),
-                    ball=[int(b.ball) for b in self.bodies])
+                    ball=[int(b.ball) for b in self.bodies],
+                    armature=[0.0] * (6 if self.bodies[0].free else 0)
+                    + [d.armature for b in self.bodies for d in b.dofs])
         try:
             self.core = _core.Core(**args)
             self.core32 = _core32.Core(**args)
@@ -383,6 +390,22 @@ class Model:
         return self._limits("upper")
 
     @property
+    def armature(self) -> np.ndarray:
+        """Armature per velocity dof (kg m²): the inertia that turns with the dof alone (a geared
+        motor's rotor inertia x gear ratio²), added to the diagonal of M(q); 0 for a free root."""
+        return np.array(self._arrays["armature"], dtype=float)
+
+    def with_armature(self, armature: dict[str, float]) -> "Model":
+        """The same model with the armature (kg m²) of the named dofs set to the given values."""
+        unknown = sorted(set(armature) - {d.name for b in self.bodies for d in b.dofs})
+        if unknown:
+            raise ModelError(f"no dof '{unknown[0]}' in model '{self.name}'")
+        bodies = [replace(b, dofs=[replace(d, armature=float(armature.get(d.name, d.armature)))
+                                   for d in b.dofs]) for b in self.bodies]
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
+
+    @property
     def total_mass(self) -> float:
         return float(sum(b.mass for b in self.bodies))
 
@@ -431,7 +454,8 @@ class Model:
                                           None if f_ext is None else self._core_fext(f_ext))
 
     def mass_matrix(self, q) -> np.ndarray:
-        """The joint-space inertia matrix M(q), column by column from inverse dynamics."""
+        """The joint-space inertia matrix M(q), column by column from inverse dynamics (the
+        armatures on its diagonal)."""
         q = np.asarray(q, dtype=float)
         n = self.nv
         g = self.gravity

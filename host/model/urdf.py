@@ -4,6 +4,8 @@ In: a revolute or continuous joint is one dof named after the joint; a fixed joi
 child link into the parent body; consecutive revolute joints whose origins coincide, with
 massless links between them, form one multi-dof joint (paper Fig. 3). The root link is the fixed
 base. Out: one revolute joint per dof, with massless links between the dofs of one joint.
+URDF has no armature (a geared motor's reflected rotor inertia): a URDF's dofs get none, and a
+model's is not written (Pinocchio and MuJoCo set theirs apart: `model.armature`, `<joint armature>`).
 """
 
 from __future__ import annotations

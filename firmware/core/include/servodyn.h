@@ -57,6 +57,9 @@ typedef struct sd_model_ {
   sd_real body_com[SD_MAX_BODY][3];       // (nbody x 3) centre of mass in the body frame (m)
   sd_real body_inertia[SD_MAX_BODY][6];   // (nbody x 6) inertia about the com, body frame:
                                           //   xx yy zz xy xz yz (kg m^2)
+  sd_real dof_armature[SD_MAX_DOF];       // (ndof) armature: inertia that turns with the dof alone,
+                                          //   a geared motor's rotor inertia x gear ratio^2 (kg m^2),
+                                          //   added to the joint-space inertia's diagonal; >= 0
 
   // derived by sd_model_setup
   int nq;                                 // length of q: ndof, plus 1 per quaternion (free
@@ -82,6 +85,7 @@ enum sd_error_ {
   SD_ERR_FIRSTDOF = -8,      // dof_rot of a joint's first dof is not the identity
   SD_ERR_FREE = -9,          // a free root that is not body 0 on the base with 6 dofs
   SD_ERR_BALL = -10,         // a ball joint without exactly 3 dofs
+  SD_ERR_ARMATURE = -11,     // an armature negative, NaN or infinite
 };
 
 // Validate a model filled in by the caller and compute its derived fields.
