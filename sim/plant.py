@@ -127,9 +127,12 @@ class Plant:
         """The joints' stops at (q, qd): zero inside the limits; past one, the spring-damper's torque,
         which only ever pushes back (it never holds a joint that is leaving its stop)."""
         q, qd = self.q, self.qd
-        if all(low <= x <= high and -math.inf < x < math.inf
-               for low, x, high in zip(self.lower.tolist(), q.tolist(), self.upper.tolist())):
+        lower, upper, angles = self.lower.tolist(), self.upper.tolist(), q.tolist()
+        if all(low <= x <= high and -math.inf < x < math.inf for low, x, high in zip(lower, angles, upper)):
             return np.zeros_like(q)           # every finite joint inside its limits (past = 0, below)
+        one_by_one = self._stops_one_by_one(lower, angles, upper)
+        if one_by_one is not None:
+            return one_by_one
         past = np.minimum(q - self.lower, 0.0) + np.maximum(q - self.upper, 0.0)
         if not past.any():
             return np.zeros_like(q)
@@ -137,6 +140,27 @@ class Plant:
         push = -self._stop_inertia * (w * w * past + 2.0 * w * qd)
         push = np.where(past > 0, np.minimum(push, 0.0), np.maximum(push, 0.0))    # back, never on
         return np.where((past != 0) & self.stops, push, 0.0)
+
+    def _stops_one_by_one(self, lower: list, angles: list, upper: list) -> np.ndarray | None:
+        """stop_torque's expressions joint by joint on floats, the same operations in the same
+        order (a handful of joints: numpy's calls cost more than the arithmetic); None where they
+        could differ from numpy's: a non-finite state, limits out of order, a push of exactly 0
+        (whose sign numpy's minimum and maximum may set otherwise)."""
+        w = 1.0 / STOP_TIME_CONSTANT
+        out = []
+        for x, v, low, high, inertia, stop in zip(angles, self.qd.tolist(), lower, upper,
+                                                   self._stop_inertia.tolist(), self.stops.tolist()):
+            if not (-math.inf < x < math.inf and -math.inf < v < math.inf and low <= high):
+                return None
+            if low <= x <= high or not stop:
+                out.append(0.0)
+                continue
+            past = x - low if x < low else x - high       # min(x - low, 0) + max(x - high, 0)
+            push = -inertia * (w * w * past + 2.0 * w * v)
+            if push == 0.0 or push != push:
+                return None
+            out.append(min(push, 0.0) if past > 0 else max(push, 0.0))     # back, never on
+        return np.array(out)
 
 
 class PlantView:

@@ -340,6 +340,7 @@ def test_the_stops_quick_check_gives_what_the_full_expressions_give():
         if trial % 10 == 0:
             q[at[2]] = rng.choice([math.inf, -math.inf, math.nan])
         plant.q, plant.qd = q, rng.normal(0.0, 2.0, len(q))
+        plant.stops = rng.random(len(q)) < 0.8                 # now and then a stop broken
         with np.errstate(invalid="ignore"):
             got, want = plant.stop_torque(), _stop_torque(plant)
         assert _bits(got).tobytes() == _bits(want).tobytes(), f"trial {trial}: q {q} bit for bit"
