@@ -30,7 +30,8 @@ def _bits(values):
 
 def _state(servo: Servo):
     """Everything a servo holds that the chain may change (the shaft as its bits: NaN included)."""
-    return (bytes(servo._table), [type(x) for x in servo._shaft], _bits(servo._shaft).tobytes(), servo._stale, servo._pid.integral, servo._turns, servo.clocked_at,
+    return (bytes(servo._table), [type(x) for x in servo._shaft], _bits(servo._shaft).tobytes(), servo._stale,
+            servo._pid.integral, servo._turns, servo.clocked_at,
             servo._heard_at)
 
 
@@ -42,7 +43,8 @@ def _twins(seed: int, n: int = 7):
     zeros = [int(z) for z in rng.integers(0, 4096, n)]
     # each servo's friction drawn (now and then an int, which Mechanics.torque takes as well)
     mechanics = [Mechanics.of(m, viscous_friction=float(rng.uniform(0.0, 0.05)),
-                              coulomb_friction=int(rng.integers(0, 2)) if rng.random() < 0.2 else float(rng.uniform(0, 0.1)),
+                              coulomb_friction=(int(rng.integers(0, 2)) if rng.random() < 0.2
+                                                else float(rng.uniform(0, 0.1))),
                               coulomb_velocity=float(rng.uniform(0.001, 0.1))) for m in models]
     a, b = ([Servo(m, i + 1, position=0.0, zero_ticks=z, mechanics=f)
              for i, (m, z, f) in enumerate(zip(models, zeros, mechanics))] for _ in range(2))
@@ -151,13 +153,16 @@ def test_clocks_watchdogs_and_writes_are_the_servos_own(seed):
                 packet = inst.InstructionPacket(BROADCAST_ID, packet[7], params).encode()
             assert bus_a.handle(packet, now) == bus_b.handle(packet, now) == b"", "a broadcast write is not answered"
         for servo_a, servo_b in zip(a, b):
-            assert _state(servo_a) == _state(servo_b), f"seed {seed} step {step}: servo {servo_a.id}" + _diff(servo_a, servo_b)
+            assert _state(servo_a) == _state(servo_b), \
+                f"seed {seed} step {step}: servo {servo_a.id}" + _diff(servo_a, servo_b)
 
 
 def _diff(a: Servo, b: Servo) -> str:
     """Where two servos' tables differ, for a failing assertion's message."""
+    def field(servo, item):
+        return servo._table[item.address:item.address + item.size]
     return "".join(f"; {item.name} {a.get(item.name)} != {b.get(item.name)}" for item in a.items.values()
-                   if a._table[item.address:item.address + item.size] != b._table[item.address:item.address + item.size])
+                   if field(a, item) != field(b, item))
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -184,10 +189,12 @@ def test_fast_reads_are_the_general_paths(seed):
             int(rng.integers(0, TABLE_SIZE)), int(rng.integers(1, 12)))
         packet = (inst.fast_sync_read(address, length, ids) if rng.random() < 0.8 else
                   inst.fast_bulk_read([(i, address, length) for i in ids])).encode()
-        got, want = _outcome(lambda: bus_a.handle(packet, 0.001 * step)), _outcome(lambda: bus_b.handle(packet, 0.001 * step))
+        got = _outcome(lambda: bus_a.handle(packet, 0.001 * step))
+        want = _outcome(lambda: bus_b.handle(packet, 0.001 * step))
         assert got == want, f"seed {seed} step {step}: the same reply to {packet.hex()}"
         for servo_a, servo_b in zip(a, b):
-            assert _state(servo_a) == _state(servo_b), f"seed {seed} step {step}: servo {servo_a.id}" + _diff(servo_a, servo_b)
+            assert _state(servo_a) == _state(servo_b), \
+                f"seed {seed} step {step}: servo {servo_a.id}" + _diff(servo_a, servo_b)
 
 
 def _trace(rng, arm):

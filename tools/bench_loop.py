@@ -146,7 +146,8 @@ def simulator_in_process(config, torque: bool) -> float:
 
 def simulator_figures(config) -> dict:
     ids = [j.id for j in config.joints]
-    in_process = {"torque_on_us": simulator_in_process(config, True), "torque_off_us": simulator_in_process(config, False)}
+    in_process = {"torque_on_us": simulator_in_process(config, True),
+                  "torque_off_us": simulator_in_process(config, False)}
     print(f"  the simulator in this process: {in_process['torque_on_us']:.0f} µs a transaction torque on, "
           f"{in_process['torque_off_us']:.0f} µs torque off", flush=True)
     with SimProcess(config.path, "lockstep") as sim:

@@ -180,9 +180,9 @@ static int Chain_init(Chain* self, PyObject* args, PyObject* kwds) {
       Py_DECREF(servos);
       return -1;
     }
+    Py_ssize_t size = PyByteArray_Check(table) ? PyByteArray_GET_SIZE(table) : 0;
     int big_enough = 1;
-    for (int f = 0; f < N_FIELDS; f++)
-      big_enough &= self->fields[f].address + self->fields[f].size <= (PyByteArray_Check(table) ? PyByteArray_GET_SIZE(table) : 0);
+    for (int f = 0; f < N_FIELDS; f++) big_enough &= self->fields[f].address + self->fields[f].size <= size;
     if (!PyByteArray_Check(table) || !big_enough) {
       Py_DECREF(table);
       Py_DECREF(servos);
@@ -683,8 +683,8 @@ PyMODINIT_FUNC PyInit__chain(void) {
   s_pid = PyUnicode_InternFromString("_pid");
   s_reset = PyUnicode_InternFromString("reset");
   s_mechanics = PyUnicode_InternFromString("mechanics");
-  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent || !s_pid || !s_reset ||
-      !s_mechanics)
+  if (!s_stale || !s_shaft || !s_turns || !s_zero_ticks || !s_clocked_at || !s_heard_at || !s_silent || !s_pid ||
+      !s_reset || !s_mechanics)
     return NULL;
   PyObject* mod = PyModule_Create(&chain_module);
   if (!mod) return NULL;
