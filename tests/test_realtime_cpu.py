@@ -1,7 +1,7 @@
 """The real-time path on one CPU (control.realtime.one_cpu): the process pinned and the kernel's
 work queues steered for the block, each put back after, and left alone — with one line — whenever
-they cannot or should not be touched. A file stands in for the sysfs mask, so the machine's own
-work queues are never changed by the suite."""
+they cannot or should not be touched. A file stands in for the sysfs mask here (the real one is
+steered by the real-time swings of other tests, and put back by them)."""
 
 from __future__ import annotations
 

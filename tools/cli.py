@@ -332,9 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the swing this many times slower (default: the configuration's)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the loop and the simulated plant by the wall clock (default lock-step on a simulated "
-                        "bus; a real bus always runs in real time); with "
-                        "--native on the simulated bus, the loop, the simulator and the kernel's tty work "
-                        "share one CPU (root: the kernel's work queues are steered there for the run)")
+                        "bus; a real bus always runs in real time); on the simulated Dynamixel bus the loop, "
+                        "the simulator and the kernel's tty work share one CPU (root: the kernel's work "
+                        "queues are steered there for the run)")
     p.add_argument("--overrun-tolerance", type=float, default=None, metavar="MS",
                    help="in real time, how far (ms) the loop may fall behind its period schedule before it stops "
                         f"safely (overrun, exit 14; default {OVERRUN_TOLERANCE * 1e3:g})")

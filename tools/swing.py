@@ -16,7 +16,7 @@ import json
 import os
 import signal
 import threading
-from contextlib import nullcontext
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
@@ -142,86 +142,91 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
 
-    def buses():
-        if simulated and bus_config.kind != "loopback":
-            return _simulated_buses(config, realtime, say)
-        return None, {name: _real_bus(config.buses[name], path, say) for name, path in ports.items()}
+    # real time on the simulated Dynamixel bus: the loop, the simulator's process and the kernel's
+    # tty work that carries their bytes share one CPU for the run (control.realtime.one_cpu); the
+    # CAN buses are simulated in this process, with no tty between them and the loop
+    placed = ExitStack()
+    on_pty = simulated and all(b.kind == "dynamixel" for b in config.buses.values())
+    cpu = placed.enter_context(one_cpu(say=say)) if realtime and on_pty else None
+    try:
+        def buses():
+            if simulated and bus_config.kind != "loopback":
+                return _simulated_buses(config, realtime, say)
+            return None, {name: _real_bus(config.buses[name], path, say) for name, path in ports.items()}
 
-    if native:
-        # real time on the simulated bus: the native loop, the simulator and the kernel's tty
-        # work share one CPU (one_cpu); the Python loop's tick and the simulator's answer are
-        # too much for one CPU in series (it missed more deadlines placed than not)
-        with one_cpu(say=say) if realtime and simulated else nullcontext() as cpu:
+        if native:
             server, per_bus = buses()
             return _native_swing(server, per_bus[bus_config.name]["port"], config, swing, verdict, scale, mode,
                                  realtime, out, say, overrun_tolerance, cpu)
-    server, per_bus = buses()
-    bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
-    controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
-    log = RunLog(model.dof_names)
-    log.stream(out / "swing_log.csv")
-    error = None
-    swing_start = 0.0
-    home_ticks = 0
-    stopping = {"now": False}
-    restore_signals = _signals_stop_the_run(stopping)
-    try:
-        bus.open()
-        home, played = plan_run(model, swing, bus.read_state().q, home_duration)
-        bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
-        say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
-        home_ticks = len(home.traj.t)
-        # homing's deadlines are the run's too (the native loop's count has them)
-        log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
-        say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
-            f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
-            f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
-        # the plant's time when the swing begins: in lock-step one period per homing tick (asking
-        # the simulator would race it: it may not have taken the last homing write yet, a sync
-        # write gets no reply); in real time, the plant clock now
-        swing_start = (server.status()["time"] if realtime else len(home.traj.t) * period) \
-            if server is not None else 0.0
-        follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
-               observer=observer, tolerance=overrun_tolerance,
-               progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
-                                              f"largest error {np.degrees(err):6.3f} deg"))
-    except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
-        stopping["now"] = True
-        error = err
-        say(f"{'servo error' if isinstance(err, ServoError) else 'stopped'}: {err} — torque off on every servo")
-    except Overrun as err:
-        stopping["now"] = True
-        error = err
-        say(f"{err} — torque off on every servo")
-    except BaseException:
-        restore_signals()
-        raise
-    finally:
-        stopping["now"] = True
-        bus.stop()
-        sim = server.status() if server is not None else None
-        if server is not None:
-            server.stop()
-        for extra in per_bus.values():
-            if "can_bus" in extra:
-                extra["can_bus"].shutdown()
-        log.close()
-    summary = summarize(log, len(swing.t), period, realtime, error)
-    summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
-    summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
-                   loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks)
-    if isinstance(error, Interrupted):
-        summary["signal"] = signal.Signals(error.signum).name
-    if sim is not None:
-        # what the simulated servos saw: plant time at the stop and every torque switched off
-        summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
-        summary["torque_off"] = sim["torque_off"]
-    try:
-        _write(out, log, summary, say, figure)
-    finally:
-        restore_signals()          # until the summary is written a signal is ignored, not fatal
-    return summary
+        server, per_bus = buses()
+        bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
+        controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
+        log = RunLog(model.dof_names)
+        log.stream(out / "swing_log.csv")
+        error = None
+        swing_start = 0.0
+        home_ticks = 0
+        stopping = {"now": False}
+        restore_signals = _signals_stop_the_run(stopping)
+        try:
+            bus.open()
+            home, played = plan_run(model, swing, bus.read_state().q, home_duration)
+            bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
+            say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
+            home_ticks = len(home.traj.t)
+            # homing's deadlines are the run's too (the native loop's count has them)
+            log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
+            say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
+                f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
+                f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
+            # the plant's time when the swing begins: in lock-step one period per homing tick (asking
+            # the simulator would race it: it may not have taken the last homing write yet, a sync
+            # write gets no reply); in real time, the plant clock now
+            swing_start = (server.status()["time"] if realtime else len(home.traj.t) * period) \
+                if server is not None else 0.0
+            follow(bus, controller, played, log, realtime, on_tick=_fault_injector(server, fault_at, played, config),
+                   observer=observer, tolerance=overrun_tolerance,
+                   progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
+                                                  f"largest error {np.degrees(err):6.3f} deg"))
+        except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
+            stopping["now"] = True
+            error = err
+            say(f"{'servo error' if isinstance(err, ServoError) else 'stopped'}: {err} — torque off on every servo")
+        except Overrun as err:
+            stopping["now"] = True
+            error = err
+            say(f"{err} — torque off on every servo")
+        except BaseException:
+            restore_signals()
+            raise
+        finally:
+            stopping["now"] = True
+            bus.stop()
+            sim = server.status() if server is not None else None
+            if server is not None:
+                server.stop()
+            for extra in per_bus.values():
+                if "can_bus" in extra:
+                    extra["can_bus"].shutdown()
+            log.close()
+        summary = summarize(log, len(swing.t), period, realtime, error)
+        summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
+        summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
+                       loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=cpu)
+        if isinstance(error, Interrupted):
+            summary["signal"] = signal.Signals(error.signum).name
+        if sim is not None:
+            # what the simulated servos saw: plant time at the stop and every torque switched off
+            summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
+            summary["torque_off"] = sim["torque_off"]
+        try:
+            _write(out, log, summary, say, figure)
+        finally:
+            restore_signals()          # until the summary is written a signal is ignored, not fatal
+        return summary
 
+    finally:
+        placed.close()
 
 def is_pseudo_terminal(path: str) -> bool:
     """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
