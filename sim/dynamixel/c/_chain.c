@@ -211,24 +211,31 @@ static int doubles(PyObject* obj, Py_buffer* view, int n, int writable) {
   return 1;
 }
 
+// three buffers of n doubles, the third writable when `out` (each released on failure)
+static int three(Chain* self, PyObject* a, PyObject* b, PyObject* c, Py_buffer view[3], int out) {
+  PyObject* objs[3] = {a, b, c};
+  for (int i = 0; i < 3; i++) {
+    if (!doubles(objs[i], &view[i], self->n, out && i == 2)) {
+      for (int j = 0; j < i; j++) PyBuffer_Release(&view[j]);
+      return 0;
+    }
+  }
+  return 1;
+}
+
+static void release(Py_buffer view[3]) {
+  for (int i = 0; i < 3; i++) PyBuffer_Release(&view[i]);
+}
+
 // Servo.output_current, torque on in Current Control Mode (and torque off)
 static PyObject* Chain_currents(Chain* self, PyObject* args) {
   PyObject *p_obj, *v_obj, *o_obj;
   int start;
   if (!PyArg_ParseTuple(args, "OOOi", &p_obj, &v_obj, &o_obj, &start)) return NULL;
-  Py_buffer pb, vb, ob;
-  if (!doubles(p_obj, &pb, self->n, 0)) return NULL;
-  if (!doubles(v_obj, &vb, self->n, 0)) {
-    PyBuffer_Release(&pb);
-    return NULL;
-  }
-  if (!doubles(o_obj, &ob, self->n, 1)) {
-    PyBuffer_Release(&pb);
-    PyBuffer_Release(&vb);
-    return NULL;
-  }
-  const double* velocity = (const double*)vb.buf;
-  double* out = (double*)ob.buf;
+  Py_buffer view[3];
+  if (!three(self, p_obj, v_obj, o_obj, view, 1)) return NULL;
+  const double* velocity = (const double*)view[1].buf;
+  double* out = (double*)view[2].buf;
   const Field* F = self->fields;
   int k = start < 0 ? 0 : start;
   for (; k < self->n && whole(self); k++) {
@@ -239,9 +246,7 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
       PyObject* done = pid ? PyObject_CallMethodNoArgs(pid, s_reset) : NULL;
       Py_XDECREF(pid);
       if (!done) {
-        PyBuffer_Release(&pb);
-        PyBuffer_Release(&vb);
-        PyBuffer_Release(&ob);
+        release(view);
         return NULL;
       }
       Py_DECREF(done);
@@ -269,9 +274,7 @@ static PyObject* Chain_currents(Chain* self, PyObject* args) {
     put(t, F[F_PRESENT_PWM], present_pwm);
     out[k] = sign * amps;
   }
-  PyBuffer_Release(&pb);
-  PyBuffer_Release(&vb);
-  PyBuffer_Release(&ob);
+  release(view);
   return PyLong_FromLong(k);
 }
 
@@ -280,13 +283,7 @@ static PyObject* Chain_publish(Chain* self, PyObject* args) {
   PyObject *p_obj, *v_obj, *c_obj;
   if (!PyArg_ParseTuple(args, "OOO", &p_obj, &v_obj, &c_obj)) return NULL;
   Py_buffer b[3];
-  PyObject* objs[3] = {p_obj, v_obj, c_obj};
-  for (int i = 0; i < 3; i++) {
-    if (!doubles(objs[i], &b[i], self->n, 0)) {
-      for (int j = 0; j < i; j++) PyBuffer_Release(&b[j]);
-      return NULL;
-    }
-  }
+  if (!three(self, p_obj, v_obj, c_obj, b, 0)) return NULL;
   int ok = 1;
   for (int k = 0; k < self->n && ok; k++) {
     PyObject* shaft = Py_BuildValue("(ddd)", ((double*)b[0].buf)[k], ((double*)b[1].buf)[k], ((double*)b[2].buf)[k]);
@@ -294,7 +291,7 @@ static PyObject* Chain_publish(Chain* self, PyObject* args) {
          PyObject_SetAttr(self->servos[k], s_stale, Py_True) == 0;
     Py_XDECREF(shaft);
   }
-  for (int i = 0; i < 3; i++) PyBuffer_Release(&b[i]);
+  release(b);
   if (!ok) return NULL;
   Py_RETURN_NONE;
 }
@@ -591,20 +588,11 @@ static PyObject* Chain_torques(Chain* self, PyObject* args) {
     PyErr_SetString(PyExc_ValueError, "Chain.torques: five Mechanics fields");
     return NULL;
   }
-  Py_buffer cb, vb, tb;
-  if (!doubles(c_obj, &cb, self->n, 0)) return NULL;
-  if (!doubles(v_obj, &vb, self->n, 0)) {
-    PyBuffer_Release(&cb);
-    return NULL;
-  }
-  if (!doubles(t_obj, &tb, self->n, 1)) {
-    PyBuffer_Release(&cb);
-    PyBuffer_Release(&vb);
-    return NULL;
-  }
-  const double* current = (const double*)cb.buf;
-  const double* velocity = (const double*)vb.buf;
-  double* torque = (double*)tb.buf;
+  Py_buffer view[3];
+  if (!three(self, c_obj, v_obj, t_obj, view, 1)) return NULL;
+  const double* current = (const double*)view[0].buf;
+  const double* velocity = (const double*)view[1].buf;
+  double* torque = (double*)view[2].buf;
   int k = start < 0 ? 0 : start, failed = 0;
   for (; k < self->n; k++) {
     PyObject* mechanics = PyObject_GetAttr(self->servos[k], s_mechanics);
@@ -630,9 +618,7 @@ static PyObject* Chain_torques(Chain* self, PyObject* args) {
     double friction = p[2] * v + p[3] * tanh(v / p[4]);
     torque[k] = current[k] * p[0] * p[1] - friction;
   }
-  PyBuffer_Release(&cb);
-  PyBuffer_Release(&vb);
-  PyBuffer_Release(&tb);
+  release(view);
   if (failed) return NULL;
   return PyLong_FromLong(k);
 }
