@@ -242,6 +242,20 @@ def test_model_file_is_valid_or_one_model_error_and_its_dynamics_are_finite_or_r
     check_core(model, data)
 
 
+@pytest.mark.parametrize("key, value", [("pos", [1.0669111456987818e+293, 0.0, 0.0]),
+                                        ("radius", 3.2711701842277253e+154)])
+def test_a_solid_too_large_for_its_inertia_is_one_model_error(key, value):
+    """Found by the property above: a solid's position or size that is a finite number on its own
+    but overflows the body's inertia (squared) raised numpy's overflow warning, not a ModelError."""
+    import copy
+    tree = copy.deepcopy(MODEL)
+    solids = [s for body in tree["body"] for s in (lambda x: x if isinstance(x, list) else [x])(body.get("solid", []))]
+    next(s for s in solids if "radius" in s)[key] = value
+    with pytest.raises(ModelError, match="not finite") as refused:
+        model_from_dict(tree, origin="hostile.toml")
+    assert one_line(refused.value)
+
+
 @settings(PROPERTY, max_examples=100)
 @given(st.data())
 def test_motion_file_is_valid_or_one_trajectory_error(tmp_path, data):

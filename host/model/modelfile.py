@@ -171,7 +171,18 @@ def _solid(solid: dict, where: str, total_mass: float | None):
     if draw not in ("", "box") or (draw and kind != "ellipsoid"):
         raise ModelError(f"{where}: 'draw' can only be \"box\", on an ellipsoid (a box of the same inertia)")
     shape = Solid(kind, tuple(dims), pos, R, mass, draw)
-    return (mass, pos + R @ np.array([0.0, 0.0, com_z]), R @ I_local @ R.T), shape
+    with np.errstate(all="ignore"):        # a huge size or position: refused below, not warned of
+        part = (mass, pos + R @ np.array([0.0, 0.0, com_z]), R @ I_local @ R.T)
+    return _finite(part, where), shape
+
+
+def _finite(part: tuple[float, np.ndarray, np.ndarray], where: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """A (mass, com, inertia) whose every number is finite, or ModelError: sizes and positions
+    valid each on its own can still overflow a solid's or a body's inertia (1e154 m squared)."""
+    mass, com, inertia = part
+    if not (math.isfinite(mass) and np.isfinite(com).all() and np.isfinite(inertia).all()):
+        raise ModelError(f"{where}: its mass, centre of mass or inertia is not finite (a size or position too large)")
+    return part
 
 
 def _other_file(name, where: str, folder: Path | None) -> Path:
@@ -246,7 +257,8 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
                           np.array([[I6[0], I6[3], I6[4]], [I6[3], I6[1], I6[5]], [I6[4], I6[5], I6[2]]])))
         if not parts:
             raise ModelError(f"{where}: needs a [body.solid] or a [body.inertial]")
-        mass, com, inertia = combine(parts)
+        with np.errstate(all="ignore"):
+            mass, com, inertia = _finite(combine(parts), where)
         bodies.append(Body(name=name, parent=index.get(parent_name, -1),
                            pos=_vector(entry, "pos", where), rot=rpy_to_matrix(_vector(entry, "rpy", where)),
                            dofs=dofs, mass=mass, com=com, inertia=inertia,
