@@ -236,9 +236,10 @@ def table(r: dict) -> str:
         x = r[name]
         lines.append(f"| {name.split()[0]} loop | {x['ticks']} | {_f(x['period_median_ms'])} | {_f(x['error_p99_ms'])} | "
                      f"{_f(x['error_max_ms'])} | {x['missed']} | {x['error'] or 'completed'} |")
-    cpu = r["native real time"].get("cpu")
-    lines += ["", "native real time: " + (f"the loop, the simulator and the kernel's tty work on CPU {cpu}" if cpu
-                                          is not None else "not placed on one CPU (control.realtime.one_cpu)"),
+    placed = {name.split()[0]: r[name].get("cpu") for name in ("python real time", "native real time")}
+    lines += ["", "real time, the loop, the simulator and the kernel's tty work on one CPU (control.realtime."
+              "one_cpu): " + ", ".join(f"{loop} on CPU {cpu}" if cpu is not None else f"{loop} not placed"
+                                       for loop, cpu in placed.items()),
               "", f"simulator serving real time, nobody talking: {sim['realtime_idle_cores']:.2f} core",
               f"simulator's own CPU per transaction in this process (sync write + one period + fast sync read of "
               f"the 7 servos, best of {IN_PROCESS[0]} × {IN_PROCESS[1]}): {sim['in_process']['torque_on_us']:.0f} µs "
