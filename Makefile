@@ -6,6 +6,7 @@
 #   make soak    swings with one random fault each, host and firmware (a few minutes; not in make test)
 #   make fuzz    the wire codecs under libFuzzer with ASan and UBSan (FUZZ_SECONDS each, default 60)
 #   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget
+#   make docs    rewrite the figures the READMEs quote from the commands (tests/test_docs.py checks them)
 #   make clean   remove what the build made (keeps .venv; make distclean removes it too)
 #
 # On a fresh Debian machine the targets install what is missing: the virtual environment in
@@ -22,7 +23,7 @@ CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h sim/dynamixel/c/*.c)
 
 .DEFAULT_GOAL := test
-.PHONY: test demo bench soak venv toolchain browser test-c test-mcu test-python clean distclean
+.PHONY: test demo docs bench soak venv toolchain browser test-c test-mcu test-python clean distclean
 
 test: venv toolchain browser
 	@$(MAKE) --no-print-directory test-c test-mcu test-fuzz test-python
@@ -30,6 +31,11 @@ test: venv toolchain browser
 demo: venv
 	@echo "== servodyn demo"
 	@$(VENV)/bin/servodyn swing
+
+# the READMEs' cog blocks run the commands whose figures they quote (scripts/docs/figures.py)
+docs: venv
+	@echo "== documents: the figures quoted from the commands"
+	@$(VENV)/bin/python scripts/docs/docs.py
 
 bench: venv
 	@echo "== servodyn benchmark"

@@ -1,0 +1,34 @@
+"""Regenerate (or, with --check, verify) the figures the documents quote from the commands.
+
+    python scripts/docs/docs.py            # rewrite every document's cog blocks (make docs)
+    python scripts/docs/docs.py --check    # fail, with a diff, where a document is out of date
+
+The documents are every tracked Markdown file with a cog block; one cog process runs them all, so
+each command behind them runs once (scripts/docs/figures.py).
+"""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from cogapp import Cog
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def documents() -> list[str]:
+    files = subprocess.run(["git", "ls-files", "*.md"], cwd=ROOT, capture_output=True, text=True,
+                           check=True).stdout.split()
+    return [f for f in files if "[[[cog" in (ROOT / f).read_text(encoding="utf-8")]
+
+
+def main(argv: list[str]) -> int:
+    check = "--check" in argv
+    args = ["cog", "-P", "-I", str(ROOT / "scripts" / "docs"), "-p", "import figures as F",
+            "--markers=[[[cog ]]] [[[end]]]"]
+    args += ["--check", "--diff", "--check-fail-msg=make docs rewrites them"] if check else ["-r"]
+    return Cog().main(args + [str(ROOT / f) for f in documents()])
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,298 @@
+"""The figures the documents quote, produced by the commands that print them.
+
+The README and the folder READMEs hold cog blocks (`<!-- [[[cog ... ]]] -->` … `<!-- [[[end]]] -->`)
+whose generators call the functions here: each runs the real command (`servodyn swing`,
+`servodyn validate`, `servodyn experiment`, `servodyn demo`) in a scratch folder, reads what it
+printed or wrote (summary.json, report.json) and prints the document's text with the figures
+filled in. `make docs` rewrites the blocks; `tests/test_docs.py` runs the same with `--check`, so
+a change that moves a figure fails `make test` until the document moves with it
+(scripts/docs/docs.py runs cog on every document).
+
+Each command runs once per cog process, whatever the number of blocks quoting it (`run` is
+cached): cog processes every document in one process.
+
+Only deterministic figures: the lock-step swing, the validator, the experiments and the demo's
+torques. Timings (Hz, ms of CPU, "on this machine") stay out: a block masks them.
+
+A command that fails (a traceback, an exit status it should not have) does not fail the
+generation: its figures read *pending* with one line saying which command failed and why, so a
+document can quote a command that others are still fixing; once the command runs, `make docs`
+fills the figures in (and `--check` fails until it has).
+"""
+
+from __future__ import annotations
+
+import atexit
+import functools
+import json
+import math
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+_SCRATCH = Path(tempfile.mkdtemp(prefix="servodyn-docs-"))
+atexit.register(shutil.rmtree, _SCRATCH, ignore_errors=True)
+_runs = 0
+
+
+class CommandFailed(Exception):
+    def __init__(self, command: str, why: str):
+        super().__init__(f"{command}: {why}")
+        self.command, self.why = command, why
+
+
+@functools.cache
+def run(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[str, Path]:
+    """`servodyn ARGS` with `--out` in a fresh scratch folder (when the command takes one);
+    its standard output and that folder. Raises CommandFailed on a traceback or another exit."""
+    global _runs
+    _runs += 1
+    out = _SCRATCH / f"run{_runs}"
+    argv = list(args)
+    if args[0] in ("swing", "validate", "experiment", "demo"):
+        argv += ["--out", str(out)]
+    proc = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *argv], cwd=_SCRATCH,
+                          capture_output=True, text=True)
+    shown = "servodyn " + shlex.join(args)
+    default = {"swing": "out/swing", "validate": "out/validate", "demo": "out/demo"}.get(args[0])
+    if args[0] == "experiment":
+        default = f"out/{args[1]}"
+    if "Traceback" in proc.stderr or proc.returncode not in ok:
+        last = (proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
+        raise CommandFailed(shown, f"exit {proc.returncode}, {last.strip()}")
+    return proc.stdout.replace(str(out), default) if default else proc.stdout, out
+
+
+def _json(args: tuple[str, ...], name: str, ok=(0,)) -> dict:
+    _, out = run(*args, ok=ok)
+    return json.loads((out / name).read_text())
+
+
+def swing(*args: str) -> dict:
+    """`servodyn swing ARGS` (lock-step on the simulated bus): its summary.json."""
+    return _json(("swing", *args), "summary.json")
+
+
+def validate(config: str, motion: str = "tennis_forehand", *args: str) -> dict:
+    """`servodyn validate CONFIG MOTION ARGS`: its report.json (exit 0 pass or 1 fail)."""
+    return _json(("validate", config, motion, *args), "report.json", ok=(0, 1))
+
+
+def validate_output(config: str, motion: str = "tennis_forehand", *args: str) -> str:
+    return run("validate", config, motion, *args, ok=(0, 1))[0]
+
+
+def experiment(name: str) -> dict:
+    return _json(("experiment", name), "summary.json")
+
+
+def experiment_output(name: str) -> str:
+    return run("experiment", name)[0]
+
+
+def demo_output() -> str:
+    return run("demo")[0]
+
+
+@functools.cache
+def model_mass(name: str) -> float:
+    import servodyn
+    return servodyn.load_model(name).total_mass
+
+
+@functools.cache
+def config(name: str):
+    from servodyn.hal import load_config
+    return load_config(name)
+
+
+def make_recipe(target: str) -> list[str]:
+    """The commands of a Makefile target's recipe, less the echo lines and the venv's path."""
+    lines = (ROOT / "Makefile").read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if re.match(rf"{re.escape(target)}\s*:", line))
+    recipe = []
+    for line in lines[start + 1:]:
+        if not line.startswith("\t"):
+            break
+        command = line.strip().lstrip("@")
+        if not command.startswith("echo"):
+            recipe.append(command.replace("$(VENV)/bin/", ""))
+    return recipe
+
+
+# ---------------------------------------------------------------------------------- writing
+
+def deg(rad: float) -> float:
+    return math.degrees(rad)
+
+
+class _Pending:
+    def __format__(self, spec: str) -> str:
+        return "*pending*"
+
+    def __getattr__(self, name):
+        return self
+
+    def __getitem__(self, key):
+        return self
+
+
+class _AllPending(dict):
+    def __missing__(self, key):
+        return _Pending()
+
+
+def fill(template: str, values) -> None:
+    """Print `template` (dedented, str.format fields) filled with `values()`, a dict. When a
+    command behind it fails, every field reads *pending* and a line says which command and why."""
+    note = ""
+    try:
+        got = values()
+    except CommandFailed as failed:
+        got = _AllPending()
+        note = (f"\n\n*Pending: `{failed.command}` fails today ({failed.why}); `make docs` writes "
+                f"these figures once it runs.*")
+    print(textwrap.dedent(template).strip("\n").format_map(got) + note)
+
+
+def code(text: str, lang: str = "") -> None:
+    print(f"```{lang}\n{text.rstrip()}\n```")
+
+
+def mask_timings(text: str) -> str:
+    """A command's output with its measured times (ms, us, s of computation) replaced by '…'."""
+    text = re.sub(r"in [0-9.]+ ms = [0-9.]+ us per sample", "in … ms = … us per sample", text)
+    text = re.sub(r"steps in [0-9.]+ ms", "steps in … ms", text)
+    text = re.sub(r"(\d+ plans?), [0-9.]+ s\)", r"\1, … s)", text)
+    text = re.sub(r" \([0-9.]+ s\)$", " (… s)", text, flags=re.M)
+    return text
+
+
+def wrap(line: str, width: int = 100, indent: int = 6) -> str:
+    return "\n".join(textwrap.wrap(line, width, subsequent_indent=" " * indent, break_on_hyphens=False))
+
+
+# ---------------------------------------------------------------------------------- the figures
+# One function per passage: the values its template names. Keep them thin: the commands compute.
+
+def _joint(report: dict, dof: str) -> dict:
+    return report["joints"][dof]
+
+
+def _limit(report: dict, dof: str, check: str, peak: str) -> float:
+    """A joint's limit in a check, from its peak and the peak's ratio (report.json's own figures)."""
+    row = _joint(report, dof)
+    return row[peak] / row["checks"][check]
+
+
+def make_demo() -> dict:
+    return {"demo": "; ".join(make_recipe("demo"))}
+
+
+def readme_swing() -> dict:
+    ff, pd, human = swing(), swing("--no-feedforward"), validate("replica")
+    return {**make_demo(), "ff_max": deg(ff["tracking_max_rad"]), "ff_rms": deg(ff["tracking_rms_rad"]),
+            "pd_max": deg(pd["tracking_max_rad"]), "ticks": ff["ticks"] + ff["home_ticks"],
+            "home_ticks": ff["home_ticks"], "scale": ff["time_scale"],
+            "rot_speed": _joint(human, "r_shoulder_rotation")["peak_speed_rad_s"],
+            "rot_limit": _limit(human, "r_shoulder_rotation", "speed", "peak_speed_rad_s")}
+
+
+def readme_can() -> dict:
+    can, can_pd, mixed = swing("--config", "replica_can"), swing("--config", "replica_can", "--no-feedforward"), \
+        swing("--config", "replica_mixed")
+    wire = validate("replica_can")["bus"]
+    return {"can_mass": config("replica_can").model.total_mass, "can_scale": can["time_scale"],
+            "can_ff": deg(can["tracking_max_rad"]), "can_pd": deg(can_pd["tracking_max_rad"]),
+            "mixed_mass": config("replica_mixed").model.total_mass, "mixed_scale": mixed["time_scale"],
+            "mixed_ff": deg(mixed["tracking_max_rad"]),
+            "can_wire_ms": max(bus["seconds_per_tick"] for bus in wire) * 1e3,
+            "can_period_ms": config("replica_can").control_period * 1e3,
+            "can_hz": 1 / config("replica_can").control_period,
+            "mixed_period_ms": config("replica_mixed").control_period * 1e3}
+
+
+def readme_demo() -> None:
+    """`servodyn demo`'s output, abridged to two rows of its table, its times masked."""
+    lines = mask_timings(demo_output()).splitlines()
+    header = next(i for i, line in enumerate(lines) if line.lstrip().startswith("t (s)"))
+    rows = [line for line in lines[header + 1:] if re.match(r"\s+0\.[46]0 ", line)]
+    peak = next(i for i, line in enumerate(lines) if line.lstrip().startswith("peak"))
+    code("\n".join(lines[:header + 1] + rows + ["  ..."] + lines[peak:]))
+
+
+def sci(x: float | None, digits: int = 1) -> str:
+    """1.9e-8 style (no exponent padding); plain decimals from 0.1 up; 'inf' for a run that diverged."""
+    if x is None or not math.isfinite(x):
+        return "inf"
+    if x >= 0.1:
+        return f"{x:.2f}"
+    mantissa, exponent = f"{x:.{digits}e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def readme_experiments() -> dict:
+    pend, still, sw = experiment("pendulum"), experiment("still"), experiment("swing")
+    ff_only = dict(still["ff_only_drift_by_time"])
+    return {"pend_step_ms": pend["small_time_step_s"] * 1e3, "pend_s": pend["duration_s"],
+            "pend_drift": sci(pend["energy_drift_rel"]), "pend_com": sci(pend["com_displacement_max_m"]),
+            "still_drift": sci(still["max_drift_rad"]), "still_s": still["duration_s"],
+            "still_1s": sci(ff_only[1.0], 0), "still_2s": sci(ff_only[2.0], 0) if ff_only[2.0] < 0.1 else f"{ff_only[2.0]:.2f}",
+            "still_growth": math.log(ff_only[2.0] / ff_only[1.0]),
+            "swing_max": deg(sw["tracking_max_rad"]), "swing_rms": deg(sw["tracking_rms_rad"]),
+            "tau_flex": sw["peak_torque_nm"]["r_shoulder_flexion"],
+            "tau_abd": sw["peak_torque_nm"]["r_shoulder_abduction"],
+            "tau_rot": sw["peak_torque_nm"]["r_shoulder_rotation"]}
+
+
+def readme_singular_table() -> None:
+    def cell(run: dict) -> str:
+        return sci(run["energy_drift_rel"]) if run["energy_drift_rel"] is not None \
+            else f"div. {run['ran_until_s']:.1f} s"
+    try:
+        rows = experiment("pendulum")["drift_table"]
+    except CommandFailed as failed:
+        return fill("", lambda: (_ for _ in ()).throw(failed))
+    print("| step | RK4, ball joints | Euler, ball joints | RK4, hinge chains | Euler, hinge chains |")
+    print("|---|---|---|---|---|")
+    for row in rows:
+        cells = [cell(row[k]) for k in ("rk4_ball", "euler_ball", "rk4_angles", "euler_angles")]
+        print(f"| {row['small_time_step_s'] * 1e3:g} ms | " + " | ".join(cells) + " |")
+
+
+def readme_numbers_tables() -> None:
+    numbers = experiment("numbers")
+    tracking = numbers["swing_tracking"]
+    ratios = list(next(iter(tracking.values())))
+    print("| mode | " + " | ".join(f"ratio {r}" for r in ratios) + " |")
+    print("|---|" + "---|" * len(ratios))
+    for mode, by_ratio in tracking.items():
+        print(f"| {mode} | " + " | ".join(f"{deg(by_ratio[r]['tracking_max_rad']):.3f} / "
+                                          f"{deg(by_ratio[r]['tracking_rms_rad']):.3f}" for r in ratios) + " |")
+    print()
+    print("| integrator | swing tracking max (deg) | pendulum drift 10 s, 1 ms | pendulum drift 10 s, 0.25 ms |")
+    print("|---|---|---|---|")
+    for name, row in numbers["integrators"].items():
+        drifts = [row["pendulum_energy_drift_rel_1ms"], row["pendulum_energy_drift_rel_0.25ms"]]
+        print(f"| {name} | {deg(row['swing_tracking_max_rad']):.4f} | "
+              + " | ".join("inf" if d is None else f"{d:.2e}" for d in drifts) + " |")
+
+
+def readme_claims() -> dict:
+    numbers, pend = experiment("numbers"), experiment("pendulum")
+    tracking, integrators = numbers["swing_tracking"], numbers["integrators"]
+    finest = min(pend["drift_table"], key=lambda row: row["small_time_step_s"])
+    at = lambda mode, ratio: deg(tracking[mode][str(ratio)]["tracking_max_rad"])
+    return {"euler_fine": 100 * finest["euler_ball"]["energy_drift_rel"], "fine_ms": finest["small_time_step_s"] * 1e3,
+            "rk4_fine": sci(finest["rk4_ball"]["energy_drift_rel"], 0),
+            "int_rk4": deg(integrators["rk4"]["swing_tracking_max_rad"]),
+            "int_euler": deg(integrators["euler"]["swing_tracking_max_rad"]),
+            "pd": at("pd", 10), "ff1": at("feedforward_pd", 1), "ff5": at("feedforward_pd", 5),
+            "ff10": at("feedforward_pd", 10), "ff20": at("feedforward_pd", 20),
+            "ct1": at("computed_torque", 1), "ct10": at("computed_torque", 10)}

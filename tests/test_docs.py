@@ -1,0 +1,60 @@
+"""The documents' figures: every figure the README and the folder READMEs quote from a command's
+output is generated into the file by a cog block that runs the command (scripts/docs/figures.py).
+Here the blocks run again and must give the documents' text as it is: a change that moves a figure
+fails until `make docs` has rewritten the document (and the change is reviewed with it).
+
+One cog process runs every block, so each command behind them runs once (about a minute: five
+lock-step swings, the experiments, a dozen validator runs). Timings are not generated (they vary);
+the documents mark them as measured on this machine, with a date."""
+
+import contextlib
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts" / "docs"))
+
+import figures  # noqa: E402
+
+
+def test_documents_quote_what_the_commands_print():
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "docs" / "docs.py"), "--check"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=280)
+    assert proc.returncode == 0, (
+        "a document quotes figures the commands no longer print; `make docs` rewrites them "
+        "(review the diff):\n" + proc.stdout[-20000:] + proc.stderr[-5000:])
+
+
+def test_a_failing_command_leaves_its_figures_pending():
+    """A command others are still fixing: its figures read *pending*, with the command and why;
+    once it runs, `make docs` fills them in and the check above fails until it has."""
+    def broken():
+        raise figures.CommandFailed("servodyn validate replica_can tennis_forehand --simulate",
+                                    "exit 1, AttributeError: ...")
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        figures.fill("tracking max {tracking:.2f}°, fit {fit[scale]:.4f}", broken)
+    text = out.getvalue()
+    assert text.startswith("tracking max *pending*°, fit *pending*")
+    assert "`servodyn validate replica_can tennis_forehand --simulate` fails today (exit 1, AttributeError" in text
+
+
+def test_a_traceback_is_a_failed_command():
+    with pytest.raises(figures.CommandFailed, match="no such configuration|error"):
+        figures.run("validate", "no_such_configuration", "tennis_forehand")
+
+
+def test_make_demo_is_read_from_the_makefile():
+    recipe = figures.make_recipe("demo")
+    assert recipe and all(line.startswith("servodyn") for line in recipe), recipe
+
+
+def test_timings_are_masked():
+    assert figures.mask_timings("2001 samples in 0.41 ms = 0.21 us per sample") == \
+        "2001 samples in … ms = … us per sample"
+    assert figures.mask_timings("passes the dense check (1 plan, 0.03 s); as written") == \
+        "passes the dense check (1 plan, … s); as written"
