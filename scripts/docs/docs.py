@@ -3,7 +3,8 @@
     python scripts/docs/docs.py            # rewrite every document's cog blocks (make docs)
     python scripts/docs/docs.py --check    # fail, with a diff, where a document is out of date
 
-The documents are every tracked Markdown file with a cog block; one cog process runs them all, so
+The documents are every tracked Markdown (and TOML: a configuration's comments) file with a cog
+block; one cog process runs them all, so
 each command behind them runs once (scripts/docs/figures.py).
 """
 
@@ -17,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def documents() -> list[str]:
-    files = subprocess.run(["git", "ls-files", "*.md"], cwd=ROOT, capture_output=True, text=True,
+    files = subprocess.run(["git", "ls-files", "*.md", "*.toml"], cwd=ROOT, capture_output=True, text=True,
                            check=True).stdout.split()
     return [f for f in files if "[[[cog" in (ROOT / f).read_text(encoding="utf-8")]
 

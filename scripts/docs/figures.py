@@ -148,9 +148,10 @@ class _AllPending(dict):
         return _Pending()
 
 
-def fill(template: str, values) -> None:
+def fill(template: str, values, prefix: str = "") -> None:
     """Print `template` (dedented, str.format fields) filled with `values()`, a dict. When a
-    command behind it fails, every field reads *pending* and a line says which command and why."""
+    command behind it fails, every field reads *pending* and a line says which command and why.
+    `prefix` starts every line (a comment's "# " in a TOML file)."""
     note = ""
     try:
         got = values()
@@ -158,7 +159,8 @@ def fill(template: str, values) -> None:
         got = _AllPending()
         note = (f"\n\n*Pending: `{failed.command}` fails today ({failed.why}); `make docs` writes "
                 f"these figures once it runs.*")
-    print(textwrap.dedent(template).strip("\n").format_map(got) + note)
+    text = textwrap.dedent(template).strip("\n").format_map(got) + note
+    print("\n".join(prefix + line for line in text.splitlines()))
 
 
 def code(text: str, lang: str = "") -> None:
@@ -196,7 +198,8 @@ def make_demo() -> dict:
 
 
 def readme_swing() -> dict:
-    ff, pd, human = swing(), swing("--no-feedforward"), validate("replica")
+    ff, pd = swing(), swing("--no-feedforward")
+    human = validate("replica", "tennis_forehand", "--fit", "--retime")
     return {**make_demo(), "ff_max": deg(ff["tracking_max_rad"]), "ff_rms": deg(ff["tracking_rms_rad"]),
             "pd_max": deg(pd["tracking_max_rad"]), "ticks": ff["ticks"] + ff["home_ticks"],
             "home_ticks": ff["home_ticks"], "scale": ff["time_scale"],
@@ -296,3 +299,127 @@ def readme_claims() -> dict:
             "pd": at("pd", 10), "ff1": at("feedforward_pd", 1), "ff5": at("feedforward_pd", 5),
             "ff10": at("feedforward_pd", 10), "ff20": at("feedforward_pd", 20),
             "ct1": at("computed_torque", 1), "ct10": at("computed_torque", 10)}
+
+
+def readme_validate_output() -> None:
+    """`servodyn validate replica tennis_forehand --fit --retime`, its times masked, the long
+    lines wrapped, without the list of files it wrote."""
+    out = mask_timings(validate_output("replica", "tennis_forehand", "--fit", "--retime"))
+    lines = [line for line in out.splitlines()[1:] if not line.startswith("wrote ")]
+    code("\n".join(wrap(line) if len(line) > 100 and not line.startswith("  ") else line
+                   for line in lines if line.strip()))
+
+
+def _ticks(n: int) -> str:
+    if n == 0:
+        return "at the predicted time"
+    return f"{abs(n)} tick{'' if abs(n) == 1 else 's'} {'after' if n > 0 else 'before'} the predicted time"
+
+
+def readme_validate_bullets() -> dict:
+    human = validate("replica", "tennis_forehand", "--fit", "--retime")
+    sim1 = validate("replica", "tennis_forehand", "--simulate")["simulation"]
+    sim3 = validate("replica", "tennis_forehand", "--time-scale", "3", "--simulate")["simulation"]
+    first = sim1["first"]
+    same = first["predicted"]["dof"] == first["saturated"]["dof"]
+    saturated_3 = [dof for dof, row in sim3["joints"].items() if row["saturated_s"] is not None]
+    return {"fit_08": validate("replica", "tennis_forehand", "--margin", "0.8", "--fit")["fit_time_scale"],
+            "scale": swing()["time_scale"],
+            "retime_s": human["retime"]["duration_s"], "fit_s": human["fit_time_scale"] * human["duration_s"],
+            "first": "the one predicted" if same else
+            f"{first['saturated']['dof']} (predicted: {first['predicted']['dof']})",
+            "ticks": _ticks(first["ticks_apart"]),
+            "at_3": "no servo saturates" if not saturated_3 else "saturated: " + ", ".join(saturated_3),
+            "track_3": deg(sim3["tracking_max_rad"])}
+
+
+# ---------------------------------------------------------------------------------- hal/README.md
+
+GRID = (1, 1.5, 2, 3, 4, 5, 6)          # the time scales of the replica's table
+MARGIN = "0.8"                          # 20 % in reserve
+
+
+def _short(dof: str) -> str:
+    return dof.removeprefix("r_").replace("_", " ")
+
+
+def at_scale(s: float, *args: str) -> dict:
+    return validate("replica", "tennis_forehand", "--time-scale", f"{s:g}", "--margin", MARGIN, *args)
+
+
+def _worst(report: dict, check: str) -> tuple[float, str]:
+    return max((row["checks"][check], dof) for dof, row in report["joints"].items())
+
+
+def chosen_scale() -> float:
+    return next(s for s in GRID if at_scale(s)["passed"])
+
+
+def hal_margin_table() -> None:
+    chosen = chosen_scale()
+    print("| s | duration (s) | peak current, % of limit | peak speed, % of limit | torque-speed envelope, % "
+          f"| `--margin {MARGIN}` |")
+    print("|---|---|---|---|---|---|")
+    for s in GRID:
+        report = at_scale(s)
+        cells = [f"{s:g}", f"{report['duration_s']:.1f}"]
+        for check in ("current", "speed", "torque_speed"):
+            ratio, dof = _worst(report, check)
+            cells.append(f"{100 * ratio:.0f} ({_short(dof)})")
+        cells.append("PASS" if report["passed"] else "FAIL")
+        if s == chosen:
+            cells = [f"**{c}**" for c in cells]
+        print("| " + " | ".join(cells) + " |")
+
+
+def hal_joint_table() -> None:
+    chosen, cfg = chosen_scale(), config("replica")
+    one, slow = at_scale(1), at_scale(chosen)
+    print(f"| joint | servo | peak torque (N m) s=1 / s={chosen:g} | stall torque (N m) | peak current (A) s=1 / "
+          f"s={chosen:g}, limit | peak speed (rad/s) s=1 / s={chosen:g}, limit |")
+    print("|---|---|---|---|---|---|")
+    for joint in cfg.joints:
+        a, b = one["joints"][joint.dof], slow["joints"][joint.dof]
+        print(f"| {joint.dof} | {joint.servo.name} | {a['peak_torque_nm']:.2f} / {b['peak_torque_nm']:.2f} "
+              f"| {joint.servo.stall_torque:g} "
+              f"| {a['peak_current_a']:.2f} / {b['peak_current_a']:.2f}, "
+              f"{_limit(one, joint.dof, 'current', 'peak_current_a'):.1f} "
+              f"| {a['peak_speed_rad_s']:.2f} / {b['peak_speed_rad_s']:.2f}, "
+              f"{_limit(one, joint.dof, 'speed', 'peak_speed_rad_s'):.2f} |")
+
+
+def hal_margins() -> dict:
+    chosen, one = chosen_scale(), at_scale(1)
+    current, current_dof = _worst(one, "current")
+    below = max(s for s in GRID if s < chosen)
+    before = at_scale(below)
+    check_before = max(("speed", "torque_speed", "current"), key=lambda c: _worst(before, c)[0])
+    ratio_before, dof_before = _worst(before, check_before)
+    finer = (below + chosen) / 2
+    fit = validate("replica", "tennis_forehand", "--margin", MARGIN, "--fit")
+    slow = [at_scale(s) for s in GRID if s >= below]
+    flexion = [r["joints"]["r_shoulder_flexion"]["peak_torque_nm"] for r in slow]
+    at_chosen = at_scale(chosen)["joints"]["r_shoulder_flexion"]
+    j = lambda dof: one["joints"][dof]["checks"]["speed"]
+    return {
+        "mass": config("replica").model.total_mass, "human_mass": model_mass("human_arm"),
+        "rot_x": j("r_shoulder_rotation"), "flex_x": j("r_shoulder_flexion"),
+        "elbow_pct": 100 * j("r_elbow_flexion"), "pron_pct": 100 * j("r_forearm_pronation"),
+        "current_sentence": _current_sentence(100 * current, _short(current_dof)),
+        "current_t": one["joints"][current_dof]["worst_at_s"]["current"],
+        "below": below, "chosen": chosen, "check_before": check_before.replace("_", "-"),
+        "dof_before": _short(dof_before), "pct_before": 100 * ratio_before,
+        "finer": finer, "finer_pct": 100 * max(_worst(at_scale(finer), c)[0] for c in ("speed", "torque_speed", "current")),
+        "flex_lo": min(flexion), "flex_hi": max(flexion), "flex_a": at_chosen["peak_current_a"],
+        "flex_limit": _limit(at_scale(chosen), "r_shoulder_flexion", "current", "peak_current_a"),
+        "duration": at_scale(chosen)["duration_s"],
+        "fit": fit["fit_time_scale"], "fit_s": fit["fit_time_scale"] * fit["duration_s"],
+        "fit_148": validate("replica", "tennis_forehand", "--supply-voltage", "14.8", "--margin", MARGIN,
+                            "--fit")["fit_time_scale"],
+    }
+
+
+def _current_sentence(pct: float, joint: str) -> str:
+    if pct <= 100:
+        return f"no joint needs more than {pct:.0f} % of its current"
+    return f"the {joint} needs {pct:.0f} % of its current limit"
