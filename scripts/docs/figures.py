@@ -57,8 +57,11 @@ def run(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[str, Path]:
     argv = list(args)
     if args[0] in ("swing", "validate", "experiment", "demo"):
         argv += ["--out", str(out)]
-    proc = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *argv], cwd=_SCRATCH,
-                          capture_output=True, text=True)
+    if args[0] == "validate" and "--simulate" not in args:
+        proc = _in_process(argv)
+    else:
+        proc = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *argv], cwd=_SCRATCH,
+                              capture_output=True, text=True)
     shown = "servodyn " + shlex.join(args)
     default = {"swing": "out/swing", "validate": "out/validate", "demo": "out/demo"}.get(args[0])
     if args[0] == "experiment":
@@ -67,6 +70,38 @@ def run(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[str, Path]:
         last = (proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
         raise CommandFailed(shown, f"exit {proc.returncode}, {last.strip()}")
     return proc.stdout.replace(str(out), default) if default else proc.stdout, out
+
+
+def _in_process(argv: list[str]) -> subprocess.CompletedProcess:
+    """`servodyn validate` through the command's own entry point in this process, less its two
+    figures (their drawing is most of its time, and no document reads them): a dozen runs take
+    seconds instead of half a minute. Where the plots have moved, they are simply drawn."""
+    import contextlib
+    import io
+    import os
+    import traceback
+    from unittest import mock
+    from servodyn.tools import cli
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.ExitStack() as stack:
+        try:
+            from servodyn.tools import plots
+            for name in ("envelope_figure", "limits_in_time_figure"):
+                if hasattr(plots, name):
+                    stack.enter_context(mock.patch.object(plots, name, lambda *a, **k: None))
+        except ImportError:
+            pass
+        cwd = os.getcwd()
+        os.chdir(_SCRATCH)
+        stack.callback(os.chdir, cwd)
+        stack.enter_context(contextlib.redirect_stdout(out))
+        stack.enter_context(contextlib.redirect_stderr(err))
+        try:
+            code = cli.main(argv)
+        except BaseException:               # a traceback, as the command would print it
+            traceback.print_exc(file=err)
+            code = 1
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
 
 
 def _json(args: tuple[str, ...], name: str, ok=(0,)) -> dict:
@@ -423,3 +458,85 @@ def _current_sentence(pct: float, joint: str) -> str:
     if pct <= 100:
         return f"no joint needs more than {pct:.0f} % of its current"
     return f"the {joint} needs {pct:.0f} % of its current limit"
+
+
+# ------------------------------------------------------------------- every built-in configuration
+
+CONFIGS = ("replica", "replica_can", "replica_mixed")
+
+
+def configurations_table() -> None:
+    """`servodyn validate CONFIG tennis_forehand --time-scale S --fit --retime` and `--simulate`
+    on each built-in configuration at its swing's time scale S; a cell whose command fails (or a
+    retime that finds no plan, a known fault) reads *pending* and a note below says why."""
+    notes = []
+
+    def cell(fn):
+        try:
+            return fn()
+        except CommandFailed as failed:
+            notes.append(f"`{failed.command}` fails today ({failed.why})")
+            return "*pending*"
+
+    def retime(report):
+        info = report["retime"]
+        if info["passed"]:
+            return f"{info['duration_s']:.2f} s"
+        notes.append(f"`--retime` on {report['config']} finds no plan today (“{info['why']}”)")
+        return "*pending*"
+
+    print("| configuration | period | S | verdict at S | fit: time scale (duration) | retime (TOPP-RA) | simulated at S: "
+          "tracking max |")
+    print("|---|---|---|---|---|---|---|")
+    for name in CONFIGS:
+        cfg = config(name)
+        scale = cfg.swing_time_scale or 1.0
+        args = (name, "tennis_forehand", "--time-scale", f"{scale:g}")
+        checked = cell(lambda: validate(*args, "--fit", "--retime"))
+        simulated = cell(lambda: validate(*args, "--simulate")["simulation"])
+        if isinstance(checked, dict):
+            verdict = "PASS" if checked["passed"] else "FAIL"
+            human = checked["duration_s"] / checked["time_scale"]
+            fit = (f"{checked['fit_time_scale']:.4f} ({checked['fit_time_scale'] * human:.3f} s)"
+                   if checked.get("fit_time_scale") else "none")
+            retimed = retime(checked)
+        else:
+            verdict = fit = retimed = checked
+        tracking = (f"{deg(simulated['tracking_max_rad']):.2f}° "
+                    f"({'completed' if simulated['completed'] else 'stopped'})"
+                    if isinstance(simulated, dict) else simulated)
+        print(f"| `{name}` | {cfg.control_period * 1e3:g} ms | {scale:g} | {verdict} | {fit} | {retimed} "
+              f"| {tracking} |")
+    if notes:
+        print("\n*Pending:* " + "; ".join(dict.fromkeys(notes)) + ". `make docs` fills these cells in once "
+              "the commands run.")
+
+
+SHORTEST_FRAME_BITS = 111               # an 8-byte standard CAN frame with no stuff bit (CAN 2.0A)
+
+
+def hal_can_wire() -> dict:
+    can, mixed = validate("replica_can")["bus"], validate("replica_mixed")["bus"]
+    frames, bits = map(int, re.match(r"(\d+) frames x (\d+) bits", can[0]["what"]).groups())
+    bitrate = frames * bits / can[0]["seconds_per_tick"]
+    shortest = frames * SHORTEST_FRAME_BITS / bitrate
+    mixed_can = next(bus for bus in mixed if "frames" in bus["what"])
+    return {**readme_can(), "bits": bits, "frames": frames, "short_bits": SHORTEST_FRAME_BITS,
+            "short_ms": shortest * 1e3, "can_ms": can[0]["seconds_per_tick"] * 1e3,
+            "slow_hz": 1 / can[0]["seconds_per_tick"], "fast_hz": 1 / shortest,
+            "mixed_ms": mixed_can["seconds_per_tick"] * 1e3,
+            "mixed_motors": int(re.match(r"(\d+) frames", mixed_can["what"]).group(1)) // 2,
+            "per_ms": int(1e-3 // (2 * bits / bitrate))}
+
+
+# ------------------------------------------------------------------ host/model/builtin/README.md
+
+@functools.cache
+def model_counts() -> dict:
+    """Per built-in model, from `servodyn models`: bodies, dofs and mass (kg, the API's unrounded)."""
+    values = {}
+    for line in run("models")[0].splitlines()[1:]:
+        name, bodies, dofs = line.split()[:3]
+        values[f"{name}_bodies"], values[f"{name}_dofs"] = int(bodies), int(dofs)
+        values[f"{name}_kg"] = model_mass(name)
+    return values
