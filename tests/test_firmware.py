@@ -93,6 +93,19 @@ def test_firmware_swings_the_replica(swing_run, host_swing):
     assert report["stack"] <= 2048, f"{report['stack']} B of stack used; the budget is 2 KB"
 
 
+
+def test_readme_quotes_this_swing(swing_run, host_swing):
+    """README.md's firmware section quotes this run's tracking and the host loop's on the same bus,
+    to the 0.001° it prints: the documents' check (tests/test_docs.py) leaves this figure to this
+    test, which has the minute-long run under QEMU already."""
+    import re
+    summary = swing_run[3]
+    quoted = re.search(r"tracking max ([0-9.]+)° vs ([0-9.]+)° for the host loop",
+                       (ROOT / "README.md").read_text(encoding="utf-8"))
+    assert quoted, "README.md no longer quotes the firmware's tracking: update this test with it"
+    actual = (f"{math.degrees(summary['tracking_max_rad']):.3f}", f"{math.degrees(host_swing['tracking_max_rad']):.3f}")
+    assert quoted.groups() == actual, f"README.md quotes {quoted.groups()}, the runs give {actual}: update README.md"
+
 def test_budget_flash_ram_stack(images):
     """The M4F image's footprint against its goals: flash <= 64 KB, RAM (data + bss with a 4 KB
     stack) <= 16 KB; the stack used is checked by the swing test (<= 2 KB)."""
