@@ -18,8 +18,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def documents() -> list[str]:
-    files = subprocess.run(["git", "ls-files", "*.md", "*.toml"], cwd=ROOT, capture_output=True, text=True,
-                           check=True).stdout.split()
+    try:
+        files = subprocess.run(["git", "ls-files", "*.md", "*.toml"], cwd=ROOT, capture_output=True, text=True,
+                               check=True).stdout.split()
+    except (OSError, subprocess.CalledProcessError):      # not a git checkout: the tree as it is
+        files = [str(f.relative_to(ROOT)) for pattern in ("*.md", "*.toml") for f in ROOT.rglob(pattern)
+                 if not any(part.startswith(".") or part in ("build", "out") for part in f.relative_to(ROOT).parts)]
     return [f for f in files if "[[[cog" in (ROOT / f).read_text(encoding="utf-8")]
 
 

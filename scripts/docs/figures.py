@@ -296,7 +296,8 @@ def readme_singular_table() -> None:
     try:
         rows = experiment("pendulum")["drift_table"]
     except CommandFailed as failed:
-        return fill("", lambda: (_ for _ in ()).throw(failed))
+        return print(f"*Pending: `{failed.command}` fails today ({failed.why}); `make docs` writes this table "
+                     "once it runs.*")
     print("| step | RK4, ball joints | Euler, ball joints | RK4, hinge chains | Euler, hinge chains |")
     print("|---|---|---|---|---|")
     for row in rows:
