@@ -55,7 +55,7 @@ def _ticks(bus, n: int) -> float:
 
 def _virtual(config, threaded: bool, n: int) -> float:
     robot = SimulatedRobot(config)
-    server = VirtualCanServer(robot, f"bench-{id(robot):x}", threaded=threaded)
+    server = VirtualCanServer(robot.port(), f"bench-{id(robot):x}", threaded=threaded)
     server.start()
     host = server.host_bus() if not threaded else __import__("can").Bus(interface="virtual", channel=server.channel)
     try:

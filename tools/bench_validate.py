@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.motion import motion_path
 from ..hal.config import load_config
+from ..validation import Limits, check, retime
 from .bench_loop import publish
-from .retime import retime
-from .validate import Limits, check, motion_path
 
 ROOT = Path(__file__).resolve().parents[1]
 GOALS = {"validate_ms": 50.0, "retime_s": 2.0}
