@@ -27,3 +27,11 @@ def read_toml(path: str | Path, error: type[Exception], label: str | None = None
         raise error(f"{label}: not a text file (TOML is UTF-8 text)") from None
     except tomllib.TOMLDecodeError as err:
         raise error(f"{label}: not valid TOML ({err})") from None
+
+
+BUILTIN_DIR = Path(__file__).parent / "builtin"
+
+
+def builtin_models() -> dict[str, Path]:
+    """Built-in model names and their files."""
+    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.toml"))}

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..control.timing import SMALL_TIME_STEP
-from ..hal.bus import backend_class
+from ..hal.backend import backend
 
 
 @dataclass
@@ -37,10 +37,10 @@ class Limits:
     def of(cls, config, voltage: float) -> "Limits":
         joints = config.joints
         servos = [j.servo for j in joints]
-        command = [backend_class(config.buses[j.bus].kind).command_range(j) for j in joints]
+        command = [backend(config.buses[j.bus].kind).command_range(j) for j in joints]
         wire = []
         for name, bus in config.buses.items():
-            seconds, what = backend_class(bus.kind).wire_time(config.joints_on(name), bus)
+            seconds, what = backend(bus.kind).wire_time(config.joints_on(name), bus)
             wire.append((name, seconds, what))
         arr = lambda values: np.array(list(values), dtype=float)
         gear = arr(j.gear_ratio for j in joints)

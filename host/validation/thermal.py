@@ -10,7 +10,7 @@ AMBIENT = 25.0              # °C
 CHUNK = 4096                # samples of the thermal recurrence evaluated at once
 
 
-def winding_temperature(current: np.ndarray, dt: float, L: "Limits", repeat: int, ambient: float) -> np.ndarray:
+def winding_temperature(current: np.ndarray, dt: float, L, repeat: int, ambient: float) -> np.ndarray:
     """The winding temperature over the last of `repeat` plays, from ambient at the start of the
     first. Within a sample the current is held, so C·dT/dt = a·T + b is linear in T and each step
     is exact: T ← e^(a·dt/C)·T + (b/a)·(e^(a·dt/C) − 1). Unmodelled servos (R_th = 0) stay at ambient."""

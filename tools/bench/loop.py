@@ -34,17 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control.timing import SMALL_TIME_STEP
-from ..hal.config import load_config
-from ..hal.dynamixel import instructions
-from ..hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
+from ...control.timing import SMALL_TIME_STEP
+from ...hal.config import load_config
+from ...hal.dynamixel import instructions
+from ...hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
                                            ADDR_TORQUE_ENABLE, PRESENT_LENGTH, OperatingMode)
-from ..hal.dynamixel.units import ServoMap
-from ..sim.robot import SimulatedRobot
-from .simulator import SimProcess
-from .swing import run_swing
+from ...hal.dynamixel.units import ServoMap
+from ...sim.robot import SimulatedRobot
+from ..simulator import SimProcess
+from ..swing import run_swing
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RAW_TRANSACTIONS = 3000
 IDLE_SECONDS = 5.0
 IN_PROCESS = (15, 200)       # batches, transactions a batch: the best batch is the figure
@@ -250,7 +250,7 @@ def table(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench_loop", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench.loop", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")
     args = parser.parse_args(argv)
     print(f"servodyn control loop: the replica's swing on the simulated bus, {os.cpu_count()} cpus", flush=True)
