@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gc
 import math
+import os
 import re
 import signal
 import sys
@@ -40,6 +41,51 @@ def cmd_models(args) -> None:
     for name in builtin_models():
         model = load_model(name)
         print(f"{name:<12} {model.nbody:>6} {model.nq:>5} {model.total_mass:>8.2f}  {', '.join(model.dof_names)}")
+
+
+def catalogue() -> dict:
+    """The built-in models, configurations and motions, with what a newcomer picks them by."""
+    from ..control.motion import builtin_motions
+    from ..hal.config import builtin_configs, load_config
+    from ..model.files import read_toml
+    models = []
+    for name in builtin_models():
+        model = load_model(name)
+        models.append({"name": name, "bodies": model.nbody, "dofs": model.nq, "mass_kg": round(model.total_mass, 3)})
+    configs = []
+    for name in builtin_configs():
+        config = load_config(name)
+        configs.append({"name": name, "model": config.model_ref,
+                        "buses": {bus.name: bus.kind for bus in config.buses.values()},
+                        "servos": sorted({j.servo.name for j in config.joints}),
+                        "control_period_s": config.control_period})
+    motions = []
+    for name, path in builtin_motions().items():
+        data = read_toml(path, CliError)
+        frames = data.get("keyframe", [])
+        times = [f.get("t") for f in frames if isinstance(f, dict)]
+        motions.append({"name": name, "model": data.get("model"), "keyframes": len(frames),
+                        "duration_s": float(times[-1] - times[0]) if len(times) > 1 else 0.0})
+    return {"models": models, "configurations": configs, "motions": motions}
+
+
+def cmd_list(args) -> None:
+    import json
+    found = catalogue()
+    if args.json:
+        print(json.dumps(found, indent=1))
+        return
+    print("models (servodyn torques/export/view MODEL):")
+    for m in found["models"]:
+        print(f"  {m['name']:<16} {m['bodies']:>3} bodies {m['dofs']:>3} dofs {m['mass_kg']:>7.2f} kg")
+    print("configurations (servodyn swing --config CONFIG, validate CONFIG MOTION, view CONFIG):")
+    for c in found["configurations"]:
+        buses = ", ".join(f"{name} ({kind})" for name, kind in c["buses"].items())
+        print(f"  {c['name']:<16} model {c['model']}, bus {buses}, {', '.join(c['servos'])}, "
+              f"{c['control_period_s'] * 1e3:g} ms period")
+    print("motions (--motion NAME; or a keyframe .toml or trajectory .csv file):")
+    for m in found["motions"]:
+        print(f"  {m['name']:<16} {m['keyframes']} keyframes, {m['duration_s']:g} s, for model {m['model']}")
 
 
 def cmd_torques(args) -> None:
@@ -271,14 +317,43 @@ def cmd_demo(args) -> None:
     run_demo(args.model, Path(args.out))
 
 
+def _version() -> str:
+    """The installed package's version (its metadata), or the source tree's when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("servodyn")
+    except PackageNotFoundError:
+        from .. import __version__
+        return __version__
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse measures the subcommands' names one indent short of where it prints them, so a
+    name as long as 'experiment' pushed its help to a line of its own: measured where printed."""
+
+    def add_argument(self, action):
+        super().add_argument(action)
+        if isinstance(action, argparse._SubParsersAction) and action.choices:
+            longest = max(map(len, action.choices)) + self._current_indent + self._indent_increment
+            self._action_max_length = max(self._action_max_length, longest)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="servodyn",
+        prog="servodyn", formatter_class=_Formatter,
         description="Closed-form inverse and direct dynamics for a servo-driven humanoid arm.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    p = sub.add_parser("models", help="list the built-in models")
+    p = sub.add_parser("list", help="list the built-in models, configurations and motions",
+                       description="List what servodyn ships: models, robot configurations and motions, "
+                       "each by the name the other commands take.")
+    p.add_argument("--json", action="store_true", help="as JSON, for scripts")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("models", help="list the built-in models with their bodies and dofs",
+                       description="List the built-in models: bodies, dofs, mass and dof names.")
     p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("torques", help="offline inverse dynamics of a trajectory CSV",
@@ -298,7 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "--max-acceleration when given")
     p.set_defaults(func=cmd_torques)
 
-    p = sub.add_parser("export", help="write a model as URDF")
+    p = sub.add_parser("export", help="write a model as URDF",
+                       description="Write a model (built-in or file) as URDF, with its solids as visuals.")
     p.add_argument("model", help="built-in model name, .urdf or .toml file")
     p.add_argument("output", help="URDF file to write")
     p.set_defaults(func=cmd_export)
@@ -311,7 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default out/<name>)")
     p.set_defaults(func=cmd_experiment)
 
-    p = sub.add_parser("swing", help="the tennis swing, or any motion, on servos (the simulated bus by default)",
+    p = sub.add_parser("swing", help="play a motion on servos (the simulated bus by default)",
                        description="Validate the motion against the servos' limits, home the arm, play it "
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
                        "is started and used. The log streams to OUT/swing_log.csv (on disk at least every "
@@ -350,7 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view-host", default="127.0.0.1", help="the page's address (default 127.0.0.1)")
     p.set_defaults(func=cmd_swing)
 
-    p = sub.add_parser("view", help="the arm in 3-D in a browser: play a motion or a logged run, shape keyframes",
+    p = sub.add_parser("view", help="the arm in 3-D in a browser: play, compare, shape keyframes",
                        description="Serve a page with the arm drawn from its solids: play, pause and scrub a "
                        "motion or a logged run (the planned arm as a ghost, the measured one solid, angle, "
                        "tracking error and torque plots, each joint coloured by its torque's share of the "
@@ -369,21 +445,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)
 
-    p = sub.add_parser("sim", help="serve the simulated bus on a pseudo-terminal (Dynamixel, or an SLCAN "
-                                              "adapter for a CAN configuration)")
+    p = sub.add_parser("sim", help="serve the simulated bus on a pseudo-terminal",
+                       description="Serve the simulated bus of a configuration on a pseudo-terminal: "
+                       "Dynamixel, or an SLCAN adapter for a CAN configuration.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.set_defaults(func=cmd_sim)
 
-    p = sub.add_parser("codegen", help="write a robot configuration and its swing as C for the firmware")
+    p = sub.add_parser("codegen", help="write a configuration and its motion as C for the firmware",
+                       description="Write a robot configuration and a keyframe motion as C source "
+                       "(servodyn_gen.h, servodyn_gen.c) for the firmware.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--motion", default="tennis_forehand", help="motion (default tennis_forehand)")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.set_defaults(func=cmd_codegen)
 
-    p = sub.add_parser("firmware", help="run the firmware under QEMU against the simulated bus "
-                                        "(hardware in the loop)")
+    p = sub.add_parser("firmware", help="run the firmware under QEMU on the simulated bus (HIL)",
+                       description="Run the firmware under QEMU against the simulated bus "
+                       "(hardware in the loop).")
     p.add_argument("--board", default="an386", choices=("an386", "an500"),
                    help="QEMU board: an386 = Cortex-M4F (default), an500 = Cortex-M7")
     p.add_argument("--elf", default=None, help="firmware image (default build/fw/BOARD/servodyn-fw.elf; "
@@ -425,7 +505,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
+    p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
+                       description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
@@ -454,6 +535,9 @@ def main(argv: list[str] | None = None) -> int:
     except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
         return getattr(err, "code", 2)
+    except BrokenPipeError:        # `servodyn list | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as err:
         print(f"servodyn: error: {_file_error(err, args)}", file=sys.stderr)
         return 2

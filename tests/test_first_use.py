@@ -1,0 +1,73 @@
+"""What a newcomer trips on (issue 21, item 7): the help and the version, a list of what ships,
+and every mistake ending in one line `servodyn: error: ...` with exit status 2, never a traceback."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from importlib.metadata import version
+
+import pytest
+
+
+def run(*args, cwd=None, env=None):
+    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=300, cwd=cwd, env={**os.environ, **(env or {})})
+
+
+def one_error_line(res, *words):
+    """The result failed with exit 2 and one line `servodyn: error: ...` holding every word."""
+    assert res.returncode == 2, f"exit {res.returncode}, stderr: {res.stderr}"
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1, f"one line on stderr, got {len(lines)}:\n{res.stderr}"
+    assert lines[0].startswith("servodyn: error: "), f"argparse's prefix, got {lines[0]!r}"
+    for word in words:
+        assert word in lines[0], f"{word!r} missing from {lines[0]!r}"
+    return lines[0]
+
+
+# ---------------------------------------------------------------------------- help, version, list
+
+def test_every_subcommand_has_a_one_line_description():
+    res = run("--help", env={"COLUMNS": "80"})
+    assert res.returncode == 0, res.stderr
+    listing = res.stdout.split("COMMAND\n", 1)[1].split("\n\n", 1)[0].splitlines()
+    from servodyn.tools.cli import build_parser
+    commands = build_parser()._subparsers._group_actions[0].choices
+    assert len(listing) == len(commands), \
+        f"{len(commands)} subcommands, {len(listing)} lines: a description wrapped or is missing:\n" + "\n".join(listing)
+    for line, name in zip(listing, commands):
+        words = line.split()
+        assert words[0] == name and len(words) > 2, f"'{name}' and its description on one line, got {line!r}"
+        assert len(line) <= 80, f"{line!r} is wider than 80 columns"
+
+
+def test_version_is_the_packages():
+    res = run("--version")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == f"servodyn {version('servodyn')}", \
+        f"the installed package's metadata version, got {res.stdout!r}"
+
+
+def test_list_names_every_builtin_model_configuration_and_motion():
+    from servodyn.control.motion import builtin_motions
+    from servodyn.hal.config import builtin_configs
+    from servodyn.model import builtin_models
+    res = run("list", "--json")
+    assert res.returncode == 0, res.stderr
+    found = json.loads(res.stdout)
+    assert [m["name"] for m in found["models"]] == list(builtin_models()), "every built-in model, in order"
+    assert [c["name"] for c in found["configurations"]] == list(builtin_configs()), "every built-in configuration"
+    assert [m["name"] for m in found["motions"]] == list(builtin_motions()), "every built-in motion"
+    replica = next(c for c in found["configurations"] if c["name"] == "replica")
+    assert replica["buses"] == {"arm": "dynamixel"} and replica["model"] == "replica", \
+        "a configuration says its model and its buses' kinds"
+    forehand = next(m for m in found["motions"] if m["name"] == "tennis_forehand")
+    assert forehand["duration_s"] == pytest.approx(1.8), "the forehand's keyframes span 1.8 s"
+    text = run("list")
+    assert text.returncode == 0, text.stderr
+    for name in ["human15", "replica_can", "tennis_forehand"]:
+        assert re.search(rf"^\s+{name}\s", text.stdout, re.M), f"{name} on a line of its own in the text listing"
