@@ -71,3 +71,37 @@ def test_list_names_every_builtin_model_configuration_and_motion():
     assert text.returncode == 0, text.stderr
     for name in ["human15", "replica_can", "tennis_forehand"]:
         assert re.search(rf"^\s+{name}\s", text.stdout, re.M), f"{name} on a line of its own in the text listing"
+
+
+# ---------------------------------------------------------------------------- options that make no sense
+
+@pytest.mark.parametrize("args, words", [
+    (["validate", "replica", "tennis_forehand", "--repeat", "-1"], ["--repeat", "1 or more", "-1"]),
+    (["validate", "replica", "tennis_forehand", "--repeat", "two"], ["--repeat", "whole number"]),
+    (["torques", "human_arm", "t.csv", "-o", "tau.csv", "--top", "-3"], ["--top", "0 or more"]),
+    (["firmware", "--icount-shift", "40"], ["--icount-shift", "from 0 to 10"]),
+    (["view", "--port", "-80"], ["--port", "from 1 to 65535"]),
+    (["swing", "--view-port", "70000"], ["--view-port", "from 1 to 65535"]),
+    (["bogus"], ["invalid choice"]),
+    ([], ["COMMAND"]),
+])
+def test_a_count_that_makes_no_sense_is_refused_in_one_line(tmp_path, args, words):
+    one_error_line(run(*args, cwd=tmp_path), *words)
+    assert not any(tmp_path.iterdir()), "nothing written for a refused command"
+
+
+def test_the_soak_refuses_no_workers():
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.soak", "--jobs", "0"], capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, f"one line, exit 2: {res.stderr}"
+    assert "--jobs" in res.stderr and "1 or more" in res.stderr, res.stderr
+
+
+# ---------------------------------------------------------------------------- codegen
+
+def test_codegen_says_it_takes_keyframes_for_a_csv(tmp_path):
+    (tmp_path / "retimed.csv").write_text("t,q_a\n0,0\n0.001,0\n")
+    line = one_error_line(run("codegen", "--motion", tmp_path / "retimed.csv", "-o", tmp_path / "gen"),
+                          "keyframes", "retimed.csv")
+    assert "TOML" not in line, f"not a TOML parser's complaint about a CSV: {line}"
+    assert not (tmp_path / "gen").exists(), "nothing generated"

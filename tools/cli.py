@@ -19,6 +19,7 @@ from ..control.motion import check_limits
 from ..control.timing import OVERRUN_TOLERANCE
 from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
 from ..model import ModelError, builtin_models, load_model
+from .argtypes import OneLineParser, count
 
 
 class CliError(Exception):
@@ -339,7 +340,7 @@ class _Formatter(argparse.HelpFormatter):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="servodyn", formatter_class=_Formatter,
         description="Closed-form inverse and direct dynamics for a servo-driven humanoid arm.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -363,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="built-in model name, .urdf or .toml file")
     p.add_argument("trajectory", help="trajectory CSV")
     p.add_argument("-o", "--output", required=True, help="torque CSV to write (t, tau_<dof>)")
-    p.add_argument("--top", type=int, default=7, help="how many peak torques to print (default 7)")
+    p.add_argument("--top", type=count(0), default=7, help="how many peak torques to print (default 7)")
     p.add_argument("--max-velocity", type=float, default=None, metavar="RAD_S",
                    help="refuse a trajectory faster than this at any dof")
     p.add_argument("--max-acceleration", type=float, default=None, metavar="RAD_S2",
@@ -422,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.add_argument("--view", action="store_true",
                    help="show the arm live in a browser page (servodyn view), then the logged run")
-    p.add_argument("--view-port", type=int, default=8080, metavar="N", help="the page's port (default 8080)")
+    p.add_argument("--view-port", type=count(1, 65535, "a TCP port"), default=8080, metavar="N", help="the page's port (default 8080)")
     p.add_argument("--view-host", default="127.0.0.1", help="the page's address (default 127.0.0.1)")
     p.set_defaults(func=cmd_swing)
 
@@ -441,7 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the motion this many times slower (default: the configuration's for the forehand)")
     p.add_argument("--save", default=None, metavar="FILE",
                    help="where 'Save keyframes' writes (default out/view/<motion>.toml)")
-    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--port", type=count(1, 65535, "a TCP port"), default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)
 
@@ -469,7 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elf", default=None, help="firmware image (default build/fw/BOARD/servodyn-fw.elf; "
                                                "`make fw` builds it)")
     p.add_argument("--config", default="replica", help="robot configuration the image was generated for")
-    p.add_argument("--icount-shift", type=int, default=3,
+    p.add_argument("--icount-shift", type=count(0, 10, "QEMU takes shifts up to 10"), default=3,
                    help="QEMU -icount shift: 2^N ns of emulated time per instruction (default 3: "
                         "125 MIPS, a fast Cortex-M4; 7 for the budget figures)")
     p.add_argument("--out", default="out/firmware", help="output folder (default out/firmware)")
@@ -493,7 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="supply voltage (default: the configuration's)")
     p.add_argument("--margin", type=float, default=1.0, metavar="F",
                    help="fraction of each limit allowed (default 1.0; 0.8 keeps 20%% in reserve)")
-    p.add_argument("--repeat", type=int, default=1, metavar="N", help="plays in a row, for the heat (default 1)")
+    p.add_argument("--repeat", type=count(1, what="plays"), default=1, metavar="N", help="plays in a row, for the heat (default 1)")
     p.add_argument("--ambient", type=float, default=25.0, metavar="C", help="ambient temperature (default 25 °C)")
     p.add_argument("--fit", action="store_true", help="also find the smallest time scale at which every check passes")
     p.add_argument("--retime", action="store_true",
