@@ -105,3 +105,16 @@ def test_codegen_says_it_takes_keyframes_for_a_csv(tmp_path):
                           "keyframes", "retimed.csv")
     assert "TOML" not in line, f"not a TOML parser's complaint about a CSV: {line}"
     assert not (tmp_path / "gen").exists(), "nothing generated"
+
+
+# ---------------------------------------------------------------------------- the swing
+
+@pytest.mark.parametrize("args", [["--port", "/dev/servodyn-no-such-port"],
+                                  ["--config", "replica_can", "--port", "servodyn-no-such-adapter"]])
+def test_a_port_that_does_not_open_is_one_line_and_no_run(tmp_path, args):
+    res = run("swing", *args, "--out", tmp_path / "out")
+    one_error_line(res, "cannot open", "No such file or directory")
+    assert "torque off" not in res.stdout + res.stderr, "nothing was switched on, so nothing is switched off"
+    assert res.stdout == "", f"nothing else said for a run that never started: {res.stdout!r}"
+    for never in ("swing_log.csv", "summary.json"):
+        assert not (tmp_path / "out" / never).exists(), f"{never} written for a run that never started"

@@ -131,13 +131,14 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     period = config.control_period
     swing = motion_path(motion, model).at_scale(scale, period)
     mode = "feedforward_pd" if feedforward else "pd"
+    paced = None
     if native:
         _check_native(config, motion, scale, mode, fault_at)
     if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
         # lock-step means "as fast as the bus answers": on real servos that would play the motion
         # faster than it was validated for, so a real bus always keeps the period on the wall clock
         realtime = True
-        say(f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)")
+        paced = f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)"
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
@@ -160,6 +161,17 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                  realtime, out, say, overrun_tolerance, cpu)
         server, per_bus = buses()
         bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
+        try:
+            bus.open()        # a port that does not open ends here: nothing ran, so no log and no summary
+        except BaseException:
+            if server is not None:
+                server.stop()
+            for extra in per_bus.values():
+                if "can_bus" in extra:
+                    extra["can_bus"].shutdown()
+            raise
+        if paced:
+            say(paced)
         controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
         log = RunLog(model.dof_names)
         log.stream(out / "swing_log.csv")
@@ -169,7 +181,6 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         try:
-            bus.open()
             home, played = plan_run(model, swing, bus.read_state().q, home_duration)
             bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
             say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
