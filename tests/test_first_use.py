@@ -118,3 +118,16 @@ def test_a_port_that_does_not_open_is_one_line_and_no_run(tmp_path, args):
     assert res.stdout == "", f"nothing else said for a run that never started: {res.stdout!r}"
     for never in ("swing_log.csv", "summary.json"):
         assert not (tmp_path / "out" / never).exists(), f"{never} written for a run that never started"
+
+
+def test_a_refused_swing_is_one_line_and_verbose_lists_every_violation(tmp_path):
+    res = run("swing", "--time-scale", "1", "--out", tmp_path / "out")
+    line = one_error_line(res, "would leave a servo's limits", "--verbose lists them", "--fit")
+    count = int(re.search(r"\((\d+) violations", line).group(1))
+    assert count > 1, f"the forehand at human speed breaks several limits on the replica: {line}"
+    assert res.stdout == "" and not (tmp_path / "out").exists(), "nothing ran, nothing said or written"
+    verbose = run("swing", "--time-scale", "1", "--out", tmp_path / "out", "--verbose")
+    one_error_line(verbose, "would leave a servo's limits")
+    listed = verbose.stdout.splitlines()
+    assert len(listed) == count, f"--verbose lists all {count} violations, one a line: {verbose.stdout}"
+    assert listed[0].strip() in line, "the one line's violation is the first listed"

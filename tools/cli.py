@@ -160,6 +160,8 @@ def cmd_swing(args) -> int | None:
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         if viewer is not None:
             viewer.close()
+        if args.verbose and getattr(err, "violations", None):      # the validator's refusal, in full
+            print("\n".join(f"  {line}" for line in err.violations), flush=True)
         raise CliError(str(err)) from None
     if viewer is not None and (summary.get("signal") or summary.get("error")):
         viewer.close()
@@ -419,6 +421,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
     p.add_argument("--force", action="store_true",
                    help="play a motion the validator refuses (on the simulated bus only)")
+    p.add_argument("--verbose", action="store_true",
+                   help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.add_argument("--view", action="store_true",

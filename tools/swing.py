@@ -65,7 +65,12 @@ def exit_code(error) -> int:
 
 
 class MotionRefused(ValueError):
-    """The validator says the motion would leave a servo's limits: nothing moved."""
+    """The validator says the motion would leave a servo's limits: nothing moved. One line, the
+    first violation; `violations` has every one (`servodyn swing --verbose` prints them)."""
+
+    def __init__(self, message: str, violations: list[str] = ()):
+        super().__init__(message)
+        self.violations = list(violations)
 
 
 class Interrupted(Exception):
@@ -124,9 +129,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     if not verdict["passed"]:
         first = verdict["violations"][0]["message"]
         if not (force and simulated):
+            found = [v["message"] for v in verdict["violations"]]
+            more = f"{len(found)} violations, --verbose lists them; " if len(found) > 1 else ""
             raise MotionRefused(f"'{verdict['motion']}' at time scale {scale:g} would leave a servo's limits: {first}"
-                                f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
-                                f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
+                                f" ({more}servodyn validate {config.name} {motion} --fit finds a time scale that "
+                                f"passes{'; --force plays it anyway on the simulated bus' if simulated else ''})", found)
         say(f"forced past the validator: {first}")
     period = config.control_period
     swing = motion_path(motion, model).at_scale(scale, period)
