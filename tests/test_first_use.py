@@ -131,3 +131,51 @@ def test_a_refused_swing_is_one_line_and_verbose_lists_every_violation(tmp_path)
     listed = verbose.stdout.splitlines()
     assert len(listed) == count, f"--verbose lists all {count} violations, one a line: {verbose.stdout}"
     assert listed[0].strip() in line, "the one line's violation is the first listed"
+
+
+# ---------------------------------------------------------------------------- huge but finite numbers
+
+def _csv(path, names, t, q, qd, qdd):
+    import numpy as np
+    header = ["t"] + [f"{k}_{n}" for k in ("q", "qd", "qdd") for n in names]
+    rows = np.hstack([t[:, None], q, qd, qdd])
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(repr(float(x)) for x in row) for row in rows) + "\n")
+
+
+def test_readable_keeps_ordinary_numbers_and_shortens_huge_ones():
+    from servodyn.readable import fixed, percent
+    assert fixed(3.14159, 3) == "3.142" and fixed(-12.5, 2) == "-12.50", "ordinary numbers as :.Nf prints them"
+    assert fixed(1.8463e295, 2) == "1.85e+295", "a huge number in scientific notation"
+    assert percent(1.002) == "100.2%" and percent(3e297) == "3.00e+299%", "percentages likewise"
+    assert fixed(float("inf")) == "inf", "inf stays inf"
+
+
+def test_huge_torques_print_as_numbers_a_person_reads(tmp_path):
+    import numpy as np
+    import servodyn
+    arm = servodyn.load_model("human_arm")
+    t = np.arange(10) * 1e-3
+    q = np.tile((np.nan_to_num(arm.lower, posinf=0, neginf=0) + np.nan_to_num(arm.upper, posinf=0, neginf=0)) / 2,
+                (10, 1))
+    _csv(tmp_path / "huge.csv", arm.dof_names, t, q, np.zeros_like(q), np.full_like(q, 1e295))
+    res = run("torques", "human_arm", tmp_path / "huge.csv", "-o", tmp_path / "tau.csv")
+    assert res.returncode == 0, res.stderr
+    peaks = [line for line in res.stdout.splitlines() if "peak |tau|" in line]
+    assert len(peaks) == 7, res.stdout
+    for line in peaks:
+        assert len(line) < 60 and re.search(r"\d\.\d{3}e\+29\d N·m$", line), f"short, in scientific notation: {line!r}"
+
+
+def test_a_huge_position_in_the_validators_lines_is_readable(tmp_path):
+    import numpy as np
+    import servodyn
+    names = servodyn.load_model("replica").dof_names
+    t = np.arange(10) * 1e-3
+    q = np.zeros((10, len(names)))
+    q[:, 0] = 1e300
+    _csv(tmp_path / "far.csv", names, t, q, np.zeros_like(q), np.zeros_like(q))
+    res = run("validate", "replica", tmp_path / "far.csv", "--out", tmp_path / "out")
+    assert res.returncode == 1, f"a fail, not an error: {res.stderr}"
+    lines = [line for line in res.stdout.splitlines() if not line.startswith("wrote ")]   # (long paths)
+    assert max(map(len, lines)) < 200, f"no line of hundreds of digits:\n{res.stdout}"
+    assert "reaches 1.000e+300 rad" in res.stdout, res.stdout

@@ -19,6 +19,7 @@ from ..control.motion import check_limits
 from ..control.timing import OVERRUN_TOLERANCE
 from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
 from ..model import ModelError, builtin_models, load_model
+from ..readable import fixed
 from .argtypes import OneLineParser, count
 
 
@@ -115,7 +116,7 @@ def cmd_torques(args) -> None:
           f"{elapsed * 1e3:.2f} ms ({elapsed / len(traj.t) * 1e6:.2f} us per sample) -> {args.output}")
     peak = np.abs(tau).max(axis=0)
     for name, value in sorted(zip(model.dof_names, peak), key=lambda x: -x[1])[:args.top]:
-        print(f"  peak |tau| {name:<24} {value:9.3f} N·m")
+        print(f"  peak |tau| {name:<24} {fixed(value, 3):>9} N·m")
 
 
 def cmd_export(args) -> None:

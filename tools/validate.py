@@ -38,6 +38,7 @@ from ..control.timing import SMALL_TIME_STEP, played_periods
 from ..control.trajectory import Trajectory, TrajectoryError, read_trajectory_csv, write_trajectory_csv
 from ..hal.bus import backend_class
 from ..hal.dynamixel.units import ServoMap
+from ..readable import fixed, percent
 
 CHECKS = ("position", "speed", "torque_speed", "current", "temperature", "supply", "bus", "command_range")
 COPPER_ALPHA = 0.00393      # 1/°C: copper's resistance rises with temperature
@@ -397,7 +398,7 @@ def describe(violation: dict, config, limits: Limits, repeat: int, margin: float
     """One line a person understands, for a violation (naming the margin when it is not 1)."""
     line = _describe(violation, config, limits, repeat)
     if violation["worst_ratio"] > violation["ratio"] * 1.001:
-        line += f"; at worst {violation['worst_ratio']:.1%} of its limit, at t = {violation['worst_t_s']:.3f} s"
+        line += f"; at worst {percent(violation['worst_ratio'])} of its limit, at t = {fixed(violation['worst_t_s'], 3)} s"
     if margin != 1 and violation["check"] != "position":
         line += f" (the margin allows {margin:.0%})"
     return line
@@ -405,30 +406,30 @@ def describe(violation: dict, config, limits: Limits, repeat: int, margin: float
 
 def _describe(violation: dict, config, limits: Limits, repeat: int) -> str:
     check_name, dof, t, value, limit = (violation[k] for k in ("check", "dof", "t_s", "value", "limit"))
-    when = f"at t = {t:.3f} s"
+    when = f"at t = {fixed(t, 3)} s"
     if dof is not None:
         j = config.model.dof_names.index(dof)
         servo = config.joints[j].servo.name
     V = f"{limits.voltage:g} V"
     if check_name == "position":
-        return f"{dof} reaches {value:.3f} rad {when}; its limit is {limit:.3f} rad"
+        return f"{dof} reaches {fixed(value, 3)} rad {when}; its limit is {fixed(limit, 3)} rad"
     if check_name == "speed":
-        return f"{dof} needs {abs(value):.2f} rad/s {when}; its {servo} turns {limit:.2f} rad/s at {V} (or its velocity limit)"
+        return f"{dof} needs {fixed(abs(value), 2)} rad/s {when}; its {servo} turns {fixed(limit, 2)} rad/s at {V} (or its velocity limit)"
     if check_name == "torque_speed":
-        return (f"{dof} needs {value:.2f} N·m at {abs(violation['speed_rad_s']):.2f} rad/s {when}: "
-                f"{violation['ratio']:.1%} of its {servo}'s torque-speed envelope at {V} (it gives {limit:.2f} N·m "
+        return (f"{dof} needs {fixed(value, 2)} N·m at {fixed(abs(violation['speed_rad_s']), 2)} rad/s {when}: "
+                f"{percent(violation['ratio'])} of its {servo}'s torque-speed envelope at {V} (it gives {fixed(limit, 2)} N·m "
                 f"at that speed)")
     if check_name == "current":
-        return f"{dof} draws {value:.2f} A {when}; its current limit is {limit:.2f} A"
+        return f"{dof} draws {fixed(value, 2)} A {when}; its current limit is {fixed(limit, 2)} A"
     if check_name == "temperature":
-        return (f"{dof}'s winding reaches {value:.1f} °C {when} of play {repeat}; the {servo} faults at "
-                f"{limit:.0f} °C")
+        return (f"{dof}'s winding reaches {fixed(value, 1)} °C {when} of play {repeat}; the {servo} faults at "
+                f"{fixed(limit, 0)} °C")
     if check_name == "supply":
-        return f"the servos draw {value:.2f} A from the {V} supply {when}; it is rated {limit:.2f} A"
+        return f"the servos draw {fixed(value, 2)} A from the {V} supply {when}; it is rated {fixed(limit, 2)} A"
     if check_name == "bus":
         what = "; ".join(f"{name}: {text}" for name, _, text in limits.wire)
-        return f"one tick's transactions take {value * 1e3:.3f} ms on the wire ({what}); the period is {limit * 1e3:g} ms"
-    return f"{dof} needs {value:.2f} N·m {when}; its wire commands at most {limit:.2f} N·m"
+        return f"one tick's transactions take {fixed(value * 1e3, 3)} ms on the wire ({what}); the period is {limit * 1e3:g} ms"
+    return f"{dof} needs {fixed(value, 2)} N·m {when}; its wire commands at most {fixed(limit, 2)} N·m"
 
 
 def make_report(config, path: MotionPath, scale: float, result: Result, limits: Limits, *, margin: float,
@@ -537,7 +538,7 @@ def summary_table(report: dict) -> str:
              "temperature": "heat", "supply": "supply", "bus": "bus", "command_range": "command"}
     lines = [f"  {'dof':<24}" + "".join(f"{short[c]:>8}" for c in CHECKS) + "   verdict"]
     for dof, row in report["joints"].items():
-        cells = "".join(f"{row['checks'][c]:>8.2f}" for c in CHECKS)
+        cells = "".join(f"{fixed(row['checks'][c]):>8}" for c in CHECKS)
         lines.append(f"  {dof:<24}{cells}   {'PASS' if row['passed'] else 'FAIL (' + row['worst_check'] + ')'}")
     lines.append(f"  (peak ratio to each limit: up to {report['margin']:g} passes, up to 1 for position)")
     return "\n".join(lines)
