@@ -179,3 +179,63 @@ def test_a_huge_position_in_the_validators_lines_is_readable(tmp_path):
     lines = [line for line in res.stdout.splitlines() if not line.startswith("wrote ")]   # (long paths)
     assert max(map(len, lines)) < 200, f"no line of hundreds of digits:\n{res.stdout}"
     assert "reaches 1.000e+300 rad" in res.stdout, res.stdout
+
+
+# ---------------------------------------------------------------------------- supply voltage, strict JSON, numpy
+
+def test_a_tiny_supply_voltage_is_refused_with_the_data_sheets_range(tmp_path):
+    line = one_error_line(run("validate", "replica", "tennis_forehand", "--supply-voltage", "5e-324",
+                              "--out", tmp_path / "out"), "--supply-voltage", "[5.55, 100] V", "data sheets")
+    assert "nan" not in line.lower() and not (tmp_path / "out").exists(), "refused before anything is computed"
+    from servodyn.hal.config import CONFIGS_DIR
+    config = tmp_path / "tiny.toml"
+    config.write_text((CONFIGS_DIR / "replica.toml").read_text() + "\n[supply]\nvoltage = 5e-324\n")
+    one_error_line(run("validate", config, "tennis_forehand", "--out", tmp_path / "out"),
+                   "tiny.toml: supply: 'voltage'", "11.1 V")
+    one_error_line(run("validate", "replica_can", "tennis_forehand", "--supply-voltage", "11", "--out",
+                       tmp_path / "out"), "[12, 100] V", "24 V"), "the CAN motors' data sheets rate them at 24 V"
+    res = run("validate", "replica", "tennis_forehand", "--supply-voltage", "11.1", "--time-scale", "3",
+              "--out", tmp_path / "ok")
+    assert res.returncode == 0, f"a supply the data sheet rates passes: {res.stderr}"
+
+
+def test_report_json_is_strict_and_names_what_is_not_finite(tmp_path):
+    from servodyn.tools.validate import report_json
+    res = run("validate", "replica", "tennis_forehand", "--time-scale", "3", "--out", tmp_path)
+    assert res.returncode == 0, res.stderr
+    text = (tmp_path / "report.json").read_text()
+    json.loads(text, parse_constant=lambda token: pytest.fail(f"{token} in report.json: not JSON"))
+    with pytest.raises(ValueError, match=r"joints\.r_elbow_flexion\.peak_current_a = nan is not a finite number"):
+        report_json({"passed": False, "joints": {"r_elbow_flexion": {"peak_current_a": float("nan")}}})
+    with pytest.raises(ValueError, match=r"violations\.0\.limit = inf"):
+        report_json({"violations": [{"limit": float("inf")}]})
+
+
+def test_no_numpy_warning_reaches_the_user(tmp_path):
+    import numpy as np
+    import servodyn
+    names = servodyn.load_model("replica").dof_names
+    t = np.arange(10) * 1e-3
+    q = np.zeros((10, len(names)))
+    _csv(tmp_path / "wild.csv", names, t, q, np.zeros_like(q), np.full_like(q, 1e295))
+    res = run("validate", "replica", tmp_path / "wild.csv", "--out", tmp_path / "out")
+    line = one_error_line(res, "double precision", "overflow")
+    assert "Warning" not in res.stderr and "Traceback" not in res.stderr, res.stderr
+    assert not (tmp_path / "out" / "report.json").exists(), "no report computed from an overflow"
+
+
+# ---------------------------------------------------------------------------- the configuration
+
+@pytest.mark.parametrize("key, value, words", [
+    ("torque_constant", 1e-300, ["'torque_constant' 1e-300 is below 0.01", "N m per A", "slip of units"]),
+    ("torque_constant", 1e300, ["'torque_constant' 1e+300 is beyond 100"]),
+    ("gear_ratio", 1e-3, ["'gear_ratio' 0.001 is below 0.1", "ten times the servo's speed"]),
+    ("gear_ratio", 1e300, ["'gear_ratio' 1e+300 is beyond 100"]),
+])
+def test_an_absurd_torque_constant_or_gear_is_refused_at_load(tmp_path, key, value, words):
+    from servodyn.hal.config import CONFIGS_DIR
+    text = (CONFIGS_DIR / "replica.toml").read_text()
+    config = tmp_path / "absurd.toml"
+    config.write_text(re.sub(rf"^{key} = .*$", f"{key} = {value!r}", text, count=1, flags=re.M))
+    line = one_error_line(run("codegen", "--config", config, "-o", tmp_path / "gen"), "absurd.toml: joint 1", *words)
+    assert not (tmp_path / "gen").exists(), f"nothing compiled for the firmware: {line}"

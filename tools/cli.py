@@ -10,6 +10,7 @@ import re
 import signal
 import sys
 import time
+import warnings
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -532,12 +533,27 @@ def _file_error(err: OSError, args) -> str:
     return f"{path}: {reason}" if path else reason
 
 
+# numpy's floating-point warnings: raised as errors in a command, so a result computed from an
+# overflow or a 0/0 is never printed beside a warning the user cannot act on
+NUMPY_WARNINGS = r"(overflow|invalid value|divide by zero) encountered"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "command", None) == "experiment" and args.out is None:
         args.out = f"out/{args.name}"
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=NUMPY_WARNINGS, category=RuntimeWarning)
+        return _run(args)
+
+
+def _run(args) -> int:
     try:
         return args.func(args) or 0
+    except RuntimeWarning as err:
+        print(f"servodyn: error: a computation left the range of double precision ({err}): an input "
+              "is far outside what the model and the servos allow", file=sys.stderr)
+        return 2
     except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
         return getattr(err, "code", 2)
