@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
-from ..model.files import read_toml
+from ..model.files import read_toml, string_key
 from .bus import BACKENDS, backend_class, servo_catalogue
 from .errors import ConfigError
 from .servos import ServoSpec
@@ -274,6 +274,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     """Build and check a RobotConfig from parsed TOML; `base` resolves relative model paths."""
     top = _Checker(data, origin, TOP_KEYS)
     name = top.get("name", "str")
+    string_key(data, "description", "", ConfigError, origin)      # a string, if given
     model_ref = top.get("model", "str")
     model = _load_model(model_ref, base, origin)
     bus_tables = data.get("bus")

@@ -239,3 +239,31 @@ def test_an_absurd_torque_constant_or_gear_is_refused_at_load(tmp_path, key, val
     config.write_text(re.sub(rf"^{key} = .*$", f"{key} = {value!r}", text, count=1, flags=re.M))
     line = one_error_line(run("codegen", "--config", config, "-o", tmp_path / "gen"), "absurd.toml: joint 1", *words)
     assert not (tmp_path / "gen").exists(), f"nothing compiled for the firmware: {line}"
+
+
+# ---------------------------------------------------------------------------- wrongly typed keys
+
+def _builtin(kind):
+    from servodyn.control.motion import builtin_motions
+    from servodyn.hal.config import CONFIGS_DIR
+    from servodyn.model import builtin_models
+    return {"config": CONFIGS_DIR / "replica.toml", "model": builtin_models()["human_arm"],
+            "motion": builtin_motions()["tennis_forehand"]}[kind]
+
+
+@pytest.mark.parametrize("kind", ["config", "model", "motion"])
+@pytest.mark.parametrize("key, value, words", [("name", "false", ["'name' must be a non-empty string", "False"]),
+                                               ("description", "[]", ["'description' must be a string", "[]"])])
+def test_a_wrongly_typed_key_is_refused_in_one_line(tmp_path, kind, key, value, words):
+    source = _builtin(kind).read_text()
+    # the key's first assignment (a multi-line string included) replaced by the wrong type
+    changed, n = re.subn(rf'^{key} = ("""[\s\S]*?"""|"[^"\n]*")', f"{key} = {value}", source, count=1, flags=re.M)
+    if not n:      # a file without the key gets it
+        changed, n = re.subn(r"^name = ", f"{key} = {value}\nname = ", source, count=1, flags=re.M)
+    assert n == 1, f"the {kind} file has a top-level 'name'"
+    path = tmp_path / f"wrong_{kind}.toml"
+    path.write_text(changed)
+    args = {"config": ["validate", path, "tennis_forehand"], "model": ["export", path, tmp_path / "out.urdf"],
+            "motion": ["validate", "replica", path]}[kind]
+    one_error_line(run(*args, "--out", tmp_path / "out") if args[0] == "validate" else run(*args),
+                   f"wrong_{kind}", *words)
