@@ -267,3 +267,28 @@ def test_a_wrongly_typed_key_is_refused_in_one_line(tmp_path, kind, key, value, 
             "motion": ["validate", "replica", path]}[kind]
     one_error_line(run(*args, "--out", tmp_path / "out") if args[0] == "validate" else run(*args),
                    f"wrong_{kind}", *words)
+
+
+# ---------------------------------------------------------------------------- a very long name
+
+def test_a_100k_character_name_is_cut_in_every_figure_title(tmp_path, monkeypatch):
+    """matplotlib lays out every glyph of a title: a configuration named with 100 000 characters
+    took half a minute to draw. Every text of the validator's figures is cut to a line's length."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+    from servodyn.hal.config import CONFIGS_DIR, load_config
+    from servodyn.tools.validate import validate
+    config = tmp_path / "long.toml"
+    config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace('name = "replica"', f'name = "{"x" * 100_000}"'))
+    texts = []
+    original = Figure.savefig
+
+    def savefig(fig, *args, **kwargs):
+        texts.extend(t.get_text() for t in fig.findobj(matplotlib.text.Text))
+        return original(fig, *args, **kwargs)
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    validate(load_config(config), "tennis_forehand", time_scale=3.0, out=tmp_path / "out", say=lambda *a, **k: None)
+    assert any("xxx" in t for t in texts), "the configuration's name is in the figures' titles"
+    longest = max(texts, key=len)
+    assert len(longest) <= 120, f"a figure's text of {len(longest)} characters: {longest[:80]}..."

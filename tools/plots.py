@@ -11,6 +11,16 @@ VIEWS = {"side": (0, 2, "x forward (m)", "z up (m)"), "top": (0, 1, "x forward (
          "front": (1, 2, "y left (m)", "z up (m)")}
 
 
+TITLE_CHARS = 100        # a title or label longer than this is cut: matplotlib lays out every glyph, and
+                         # a 100 000-character configuration name took half a minute to draw
+
+
+def short(text: str, limit: int = TITLE_CHARS) -> str:
+    """`text` cut to `limit` characters, an ellipsis marking the cut."""
+    text = str(text)
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
 def _pyplot():
     import matplotlib
     matplotlib.use("Agg")
@@ -56,7 +66,7 @@ def posture_series(path: Path, model, qs, times, views=("side", "top"), title: s
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(times[0], times[-1]))
     fig.colorbar(sm, ax=axes.tolist(), label="time (s)", shrink=0.8)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -82,7 +92,7 @@ def snapshots(path: Path, model, qs, times, view: str = "front", title: str = ""
         ax.set_ylabel("")
         ax.tick_params(labelsize=7)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -94,7 +104,7 @@ def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for name, values in series.items():
-        ax.plot(t, values, label=name)
+        ax.plot(t, values, label=short(name, 40))
     for label, when in (marks or {}).items():
         ax.axvline(when, color="0.5", ls=":", lw=1)
         ax.text(when, ax.get_ylim()[1], label, rotation=90, va="top", ha="right", fontsize=8, color="0.4")
@@ -103,7 +113,7 @@ def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
-        ax.set_title(title)
+        ax.set_title(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -131,7 +141,7 @@ def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
     for ax in (ax0, ax1, ax2):
         ax.grid(alpha=0.3)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -153,7 +163,7 @@ def tracking_figure(path: Path, t, q_d, q, tau, names, title: str) -> None:
     axes[0].legend(fontsize=7, ncol=2)
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].set_title(title)
+    axes[0].set_title(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -184,7 +194,7 @@ def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
         ax.plot(result.qd[:, j], result.tau[:, j], color="tab:blue", lw=1, label="motion")
         if bad.any():
             ax.plot(result.qd[bad, j], result.tau[bad, j], ".", color="tab:red", ms=2, label="outside")
-        ax.set_title(dof, fontsize=9)
+        ax.set_title(short(dof, 40), fontsize=9)
         ax.set_xlabel("speed (rad/s)", fontsize=8)
         ax.set_ylabel("torque (N m)", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -192,7 +202,7 @@ def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(title)
+    fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(file, dpi=100)
     plt.close(fig)
@@ -203,9 +213,9 @@ def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> 
     plt = _pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     for j, dof in enumerate(dof_names):
-        line, = top.plot(result.t, result.current[:, j], lw=1, label=dof)
+        line, = top.plot(result.t, result.current[:, j], lw=1, label=short(dof, 40))
         top.axhline(limits.current[j], color=line.get_color(), ls=":", lw=1)
-        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=dof)
+        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=short(dof, 40))
     for limit in sorted(set(limits.temperature)):
         bottom.axhline(limit, color="tab:red", ls=":", lw=1)
     top.set_ylabel("current (A), dotted: limit")
@@ -214,7 +224,7 @@ def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> 
     top.legend(fontsize=7, ncol=2)
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
-    top.set_title(title)
+    top.set_title(short(title))
     fig.tight_layout()
     fig.savefig(file, dpi=100)
     plt.close(fig)
