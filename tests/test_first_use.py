@@ -292,3 +292,42 @@ def test_a_100k_character_name_is_cut_in_every_figure_title(tmp_path, monkeypatc
     assert any("xxx" in t for t in texts), "the configuration's name is in the figures' titles"
     longest = max(texts, key=len)
     assert len(longest) <= 120, f"a figure's text of {len(longest)} characters: {longest[:80]}..."
+
+
+# ---------------------------------------------------------------------------- the swing's figure
+
+def test_the_swings_figure_reads_at_a_glance(tmp_path, monkeypatch):
+    """Per joint a panel of its tracking error with one encoder count shaded, the PD-only run named so
+    in the title, and the commanded torques against their limits drawn at ±100 %."""
+    import math
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+    from servodyn.hal.config import load_config
+    from servodyn.tools.swing import run_swing
+    figures = []
+    original = Figure.savefig
+
+    def savefig(fig, *args, **kwargs):
+        figures.append(fig)
+        return original(fig, *args, **kwargs)
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    summary = run_swing("replica", out=tmp_path, feedforward=False, say=lambda *a, **k: None)
+    assert summary["completed"], summary.get("error")
+    assert (tmp_path / "swing_tracking.png").exists(), "the figure is written"
+    fig = figures[-1]
+    assert "PD only" in fig._suptitle.get_text(), f"the PD-only run says so: {fig._suptitle.get_text()!r}"
+    config = load_config("replica")
+    names = config.model.dof_names
+    panels = [ax for ax in fig.axes if ax.get_title().split(":")[0] in names]
+    assert len(panels) == len(names), f"one error panel per joint, got {[ax.get_title() for ax in fig.axes]}"
+    step = math.degrees(2 * math.pi / 4096)        # an XM servo's position count, gear 1
+    for ax in panels:
+        bands = [p for p in ax.patches if p.get_label() == "±1 encoder count"]
+        assert bands, f"{ax.get_title()}: one encoder count shaded"
+        low, high = bands[0].get_y(), bands[0].get_y() + bands[0].get_height()     # axhspan: y in data
+        assert math.isclose(low, -step) and math.isclose(high, step), f"±{step:.4f}°, got [{low}, {high}]"
+    torque = next(ax for ax in fig.axes if "% of limit" in ax.get_ylabel())
+    limits = sorted(line.get_ydata()[0] for line in torque.lines if line.get_linestyle() == "--")
+    assert limits == [-100, 100], f"the torque limit drawn at ±100 %, got {limits}"
+    assert any("torque limit" in t.get_text() for t in torque.get_legend().get_texts()), "and named in the legend"

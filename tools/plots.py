@@ -3,6 +3,7 @@ joint torques (Fig. 6), torque curves (Fig. 8). matplotlib, off-screen."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -147,25 +148,75 @@ def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
     plt.close(fig)
 
 
-def tracking_figure(path: Path, t, q_d, q, tau, names, title: str) -> None:
-    """Angles (desired dotted), tracking errors and commanded torques of a run, one line per dof."""
+ERROR_SMOOTHING = 0.05    # s: the tracking error's moving average in the swing's figure
+
+
+def _moving_mean(x: np.ndarray, width: int) -> np.ndarray:
+    """The mean of `width` samples centred on each one (fewer at the ends), per column."""
+    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+    k = np.arange(len(x))
+    lo, hi = np.clip(k - width // 2, 0, len(x)), np.clip(k - width // 2 + width, 0, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def tracking_figure(path: Path, t, q_d, q, tau, names, title: str, torque_limits=None, encoder_steps=None) -> None:
+    """A run at a glance: the angles (desired dotted); each joint's tracking error in a panel of its
+    own, the raw error faint under its ERROR_SMOOTHING moving average, one encoder count at the joint
+    (`encoder_steps`, rad) shaded; and the commanded torques as a share of each joint's torque limit
+    (`torque_limits`, N m; without them in N m), the limit drawn at ±100 %."""
     plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    n = len(names)
+    cols = min(4, n)
+    rows = -(-n // cols)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    color = [colors[k % len(colors)] for k in range(n)]
+    fig = plt.figure(figsize=(12, 3.2 + 1.9 * rows + 3.2), layout="constrained")
+    grid = fig.add_gridspec(2 + rows, cols, height_ratios=[1.7] + [1.0] * rows + [1.7])
+    angles = fig.add_subplot(grid[0, :])
+    torques = fig.add_subplot(grid[-1, :], sharex=angles)
+    error = np.degrees(q_d - q)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+    smooth = _moving_mean(error, max(1, int(round(ERROR_SMOOTHING / dt)))) if len(t) else error
+    first = None
     for k, name in enumerate(names):
-        line, = axes[0].plot(t, np.degrees(q[:, k]), label=name)
-        axes[0].plot(t, np.degrees(q_d[:, k]), ":", color=line.get_color())
-        axes[1].plot(t, np.degrees(q_d[:, k] - q[:, k]), label=name)
-        axes[2].plot(t, tau[:, k], label=name)
-    axes[0].set_ylabel("angle (deg), dotted: desired")
-    axes[1].set_ylabel("tracking error (deg)")
-    axes[2].set_ylabel("commanded torque (N m)")
-    axes[2].set_xlabel("time (s)")
-    axes[0].legend(fontsize=7, ncol=2)
-    for ax in axes:
+        angles.plot(t, np.degrees(q[:, k]), color=color[k], lw=1.2, label=short(name, 40))
+        angles.plot(t, np.degrees(q_d[:, k]), ":", color=color[k], lw=1.2)
+        ax = fig.add_subplot(grid[1 + k // cols, k % cols], sharex=angles, sharey=first)
+        first = first or ax
+        if encoder_steps is not None and encoder_steps[k]:
+            step = math.degrees(encoder_steps[k])
+            ax.axhspan(-step, step, color="0.88", lw=0, label="±1 encoder count")
+        ax.plot(t, error[:, k], color=color[k], lw=0.5, alpha=0.35, label="error")
+        ax.plot(t, smooth[:, k], color=color[k], lw=1.4, label=f"{ERROR_SMOOTHING * 1e3:g} ms mean")
+        rms = float(np.sqrt(np.mean(error[:, k] ** 2))) if len(t) else 0.0
+        peak = float(np.abs(error[:, k]).max()) if len(t) else 0.0
+        ax.set_title(f"{short(name, 28)}: rms {rms:.3f}°, max {peak:.3f}°", fontsize=8, color=color[k])
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    axes[0].set_title(short(title))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+        if k % cols == 0:
+            ax.set_ylabel("error (deg)", fontsize=8)
+        if k == 0:
+            ax.legend(fontsize=6, loc="upper right")
+    if torque_limits is not None:
+        for k, name in enumerate(names):
+            torques.plot(t, 100 * tau[:, k] / torque_limits[k], color=color[k], lw=1,
+                         label=f"{short(name, 28)} (limit {torque_limits[k]:.2f} N m)")
+        for sign in (1, -1):
+            torques.axhline(100 * sign, color="tab:red", ls="--", lw=1.2,
+                            label="torque limit (current limit × torque constant × gear)" if sign > 0 else None)
+        torques.set_ylabel("commanded torque (% of limit)")
+    else:
+        for k, name in enumerate(names):
+            torques.plot(t, tau[:, k], color=color[k], lw=1, label=short(name, 28))
+        torques.set_ylabel("commanded torque (N m)")
+    angles.set_ylabel("angle (deg), dotted: desired")
+    torques.set_xlabel("time (s)")
+    angles.legend(fontsize=7, ncol=4, loc="best")
+    torques.legend(fontsize=7, ncol=2, loc="best")
+    for ax in (angles, torques):
+        ax.grid(alpha=0.3)
+    fig.suptitle(short(title))
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 

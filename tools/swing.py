@@ -238,7 +238,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
             summary["torque_off"] = sim["torque_off"]
         try:
-            _write(out, log, summary, say, figure)
+            _write(out, log, summary, say, figure, config)
         finally:
             restore_signals()          # until the summary is written a signal is ignored, not fatal
         return summary
@@ -331,7 +331,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     if error:
         say(f"{error} — torque off on every servo")
     log.write_csv(out / "swing_log.csv")
-    _write(out, log, summary, say)
+    _write(out, log, summary, say, config=config)
     return summary
 
 
@@ -441,7 +441,26 @@ def _fault_injector(server, fault_at, played, config):
     return inject
 
 
-def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> None:
+def encoder_step(joint) -> float | None:
+    """rad at the joint of one count of the position its servo reports: a Dynamixel's register
+    (ticks per horn turn), a CAN motor's 16-bit MIT position over ±p_max; None when not known."""
+    servo = joint.servo
+    if getattr(servo, "ticks_per_rev", None):
+        horn = 2 * np.pi / servo.ticks_per_rev
+    elif getattr(servo, "ranges", None) is not None:
+        horn = 2 * servo.ranges.p_max / 65535
+    else:
+        return None
+    return horn / joint.gear_ratio
+
+
+def _title(summary: dict, config: RobotConfig | None) -> str:
+    """The figure's title: what played, where, and under which control (PD only says so)."""
+    control = "PD only, no feed-forward" if summary.get("mode") == "pd" else "feed-forward + PD"
+    return f"{summary['motion']} on {config.name if config is not None else 'the servo bus'}: {control}"
+
+
+def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True, config: RobotConfig | None = None) -> None:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not log.t:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
@@ -460,6 +479,8 @@ def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> N
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
         return
     from .plots import tracking_figure
+    limits = [j.torque_limit for j in config.joints] if config is not None else None
+    steps = [encoder_step(j) for j in config.joints] if config is not None else None
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
-                    np.array(log.tau), log.dof_names, f"{summary['motion']} on the servo bus")
+                    np.array(log.tau), log.dof_names, _title(summary, config), limits, steps)
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")
