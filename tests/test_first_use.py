@@ -80,8 +80,7 @@ def test_list_names_every_builtin_model_configuration_and_motion():
     (["validate", "replica", "tennis_forehand", "--repeat", "two"], ["--repeat", "whole number"]),
     (["torques", "human_arm", "t.csv", "-o", "tau.csv", "--top", "-3"], ["--top", "0 or more"]),
     (["firmware", "--icount-shift", "40"], ["--icount-shift", "from 0 to 10"]),
-    (["view", "--port", "-80"], ["--port", "from 1 to 65535"]),
-    (["swing", "--view-port", "70000"], ["--view-port", "from 1 to 65535"]),
+    (["view", "--port", "-80"], ["--port must be from 0 to 65535"]),
     (["bogus"], ["invalid choice"]),
     ([], ["COMMAND"]),
 ])
@@ -331,3 +330,25 @@ def test_the_swings_figure_reads_at_a_glance(tmp_path, monkeypatch):
     limits = sorted(line.get_ydata()[0] for line in torque.lines if line.get_linestyle() == "--")
     assert limits == [-100, 100], f"the torque limit drawn at ±100 %, got {limits}"
     assert any("torque limit" in t.get_text() for t in torque.get_legend().get_texts()), "and named in the legend"
+
+
+# ---------------------------------------------------------------------------- the view
+
+def test_the_views_plots_have_legends_and_a_model_without_a_motion_says_why_no_play(tmp_path):
+    from servodyn.tools.view import open_view
+    quiet = dict(say=lambda *a, **k: None)
+    viewer = open_view("replica", port=0, **quiet)
+    try:
+        assert viewer.plots, "the forehand's plots are shown"
+        for title, handle in viewer.plots.items():
+            assert handle.legend["show"], f"the {title} plot names its joints in a legend"
+    finally:
+        viewer.close()
+    viewer = open_view("human15", port=0, **quiet)      # a model, no configuration: the forehand does not fit
+    try:
+        assert viewer.player is None, "nothing to play"
+        said = viewer.readout.content
+        assert "No Play panel" in said and "tennis_forehand" in said and "--motion" in said, \
+            f"the page says why there is no Play panel and how to get one: {said!r}"
+    finally:
+        viewer.close()

@@ -429,7 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.add_argument("--view", action="store_true",
                    help="show the arm live in a browser page (servodyn view), then the logged run")
-    p.add_argument("--view-port", type=count(1, 65535, "a TCP port"), default=8080, metavar="N", help="the page's port (default 8080)")
+    p.add_argument("--view-port", type=int, default=8080, metavar="N", help="the page's port (default 8080)")
     p.add_argument("--view-host", default="127.0.0.1", help="the page's address (default 127.0.0.1)")
     p.set_defaults(func=cmd_swing)
 
@@ -448,7 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the motion this many times slower (default: the configuration's for the forehand)")
     p.add_argument("--save", default=None, metavar="FILE",
                    help="where 'Save keyframes' writes (default out/view/<motion>.toml)")
-    p.add_argument("--port", type=count(1, 65535, "a TCP port"), default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)
 
