@@ -133,7 +133,7 @@ def test_a_motion_the_validator_refuses_never_moves(tmp_path):
     """A configuration whose shoulder may turn only 1e-9 rad/s: the swing is refused before anything
     moves — one line naming the joint, no log — and --force plays it on the simulated bus."""
     from servodyn.hal.config import CONFIGS_DIR
-    from servodyn.tools.swing import MotionRefused
+    from servodyn.validation import MotionRefused
     config = tmp_path / "crawl.toml"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
         "velocity_limit = 3.1416          # 30 rpm", "velocity_limit = 1e-9", 1))
@@ -150,7 +150,7 @@ def test_any_motion_plays(tmp_path):
     plays as the built-in does, within the same tracking."""
     from servodyn.control.trajectory import write_trajectory_csv
     from servodyn.hal.config import load_config
-    from servodyn.tools.validate import motion_path
+    from servodyn.control.motion import motion_path
     model = load_config("replica").model
     path = tmp_path / "forehand.csv"
     write_trajectory_csv(path, motion_path("tennis_forehand", model).at_scale(1.0), model.dof_names)

@@ -146,7 +146,7 @@ def _overrun_tolerance(ms: float | None) -> float | None:
 
 def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
-    from ..sim.transport.pty import SimProcessError
+    from .simulator import SimProcessError
     from .hil import FirmwareError
     from .swing import run_swing
     viewer = feed = None
@@ -180,92 +180,68 @@ def cmd_swing(args) -> int | None:
 
 
 def cmd_sim(args) -> None:
+    """The configuration's buses simulated, each on a pseudo-terminal (a CAN bus behind an SLCAN
+    adapter), one plant behind all of them (servodyn.tools.simulator.serve); lock-step advances the
+    plant when every bus has had its tick's commands."""
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
-    from ..sim.arm import SimulatedArm
-    from ..control.realtime import SIMULATOR_PRIORITY, realtime_priority
-    from ..sim.transport.pty import PtyServer
+    from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
+    from . import simulator
+    mode = "lockstep" if args.lockstep else "realtime"
     try:
         config = load_config(args.config)
-        if any(bus.kind == "can" for bus in config.buses.values()):
-            return _serve_robot(config, args)
-        arm = SimulatedArm(config)
+        served = simulator.serve(config, mode, process=False, can="slcan", start=False)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
-    server = PtyServer(arm, "lockstep" if args.lockstep else "realtime")
-    print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
-          f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
-    print(f"connect with: servodyn swing --config {args.config} --port {server.path}{_paced(args)}   "
-          "(Ctrl-C stops)", flush=True)
+    robot, paths = served.robot, {name: options["port"] for name, options in served.buses.items()}
+    for name, bus in config.buses.items():
+        if bus.kind == "can":
+            devices = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in robot.port(name).motors)
+            print(f"simulated CAN bus '{name}' of '{config.name}' (SLCAN adapter, {bus.baud} bit/s): "
+                  f"{devices} on {paths[name]}", flush=True)
+        else:
+            ids = ", ".join(str(j.id) for j in config.joints_on(name))
+            print(f"simulated Dynamixel bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
+                  f"{paths[name]}", flush=True)
+
+    def swing(path_of):
+        return f"servodyn swing --config {args.config} " + " ".join(
+            f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
+    kinds = {bus.kind for bus in config.buses.values()}
+    if kinds == {"dynamixel"}:
+        print(f"connect with: {swing(paths.get)}{_paced(args)}   (Ctrl-C stops)", flush=True)
+    elif len(paths) == 1:
+        path, bus = next(iter(paths.values())), next(iter(config.buses.values()))
+        print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
+              + (f"  or  {swing(paths.get)}" if args.lockstep else "") + "   (Ctrl-C stops)", flush=True)
+    elif args.lockstep:
+        print(f"connect with: {swing(paths.get)}   (Ctrl-C stops)", flush=True)
+    if "can" in kinds and not args.lockstep:
+        # a swing paced by the wall clock cannot keep its period through an SLCAN pseudo-terminal
+        print(f"a swing: serve with --lockstep, then {swing(lambda name: 'PATH')} (an SLCAN pseudo-terminal carries a "
+              f"tick slower than the {config.control_period * 1e3:g} ms period; real time needs SocketCAN; "
+              "Ctrl-C stops)", flush=True)
     gc.freeze()        # the set-up's objects out of every later collection, as the swing's simulator
     try:
-        # in real time the servos answer ahead of everything else, as the swing's own simulator does
-        with nullcontext() if args.lockstep else realtime_priority(SIMULATOR_PRIORITY, "the simulated bus"):
-            server.serve_forever()      # in this thread, blocked on the pseudo-terminal
+        if len(served.servers) == 1 and kinds == {"dynamixel"}:
+            # in real time the servos answer ahead of everything else, as the swing's own simulator does
+            with nullcontext() if args.lockstep else realtime_priority(SIMULATOR_PRIORITY, "the simulated bus"):
+                next(iter(served.servers.values())).serve_forever()   # in this thread, blocked on the pty
+        else:
+            for server in served.servers.values():
+                server.start()
+            while True:
+                time.sleep(0.5)
     except KeyboardInterrupt:
-        print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+        print(f"\nstopped after {robot.time:.2f} s of simulated time", flush=True)
     finally:
-        server.stop()
+        served.stop()
 
 
 def _paced(args) -> str:
     """The swing's option that matches the simulator's clock: a plant on the wall clock wants a
     loop paced by it (lock-step, one period per command, wants the loop as fast as it goes)."""
     return "" if args.lockstep else " --realtime"
-
-
-def _serve_robot(config, args) -> None:
-    """A configuration with CAN buses, alone or beside Dynamixel buses: one simulated plant, each CAN
-    bus behind an SLCAN adapter on a pseudo-terminal, each Dynamixel bus on a pseudo-terminal of its
-    own; lock-step advances the plant when every bus has had its tick's commands."""
-    import contextlib
-    import time as _time
-    from ..sim.robot import SimulatedRobot
-    from ..sim.transport.can import SlcanServer
-    from ..sim.transport.pty import PtyServer
-    arm = SimulatedRobot(config)
-    first = True
-    with contextlib.ExitStack() as stack:
-        paths = {}
-        for name, bus in config.buses.items():
-            # real time: the first bus's server runs the plant's clock, the others only answer
-            mode = "lockstep" if args.lockstep or not first else "realtime"
-            if bus.kind == "can":
-                server = stack.enter_context(SlcanServer(arm, bus=name, mode=mode))
-                devices = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors
-                                    if m in arm.networks[name].motors)
-                print(f"simulated CAN bus '{name}' of '{config.name}' (SLCAN adapter, {bus.baud} bit/s): "
-                      f"{devices} on {server.path}", flush=True)
-            else:
-                server = PtyServer(arm.dynamixel_port(name), mode)
-                server.start()
-                stack.callback(server.stop)
-                ids = ", ".join(str(j.id) for j in config.joints_on(name))
-                print(f"simulated Dynamixel bus '{name}' of '{config.name}': servos {ids} on {server.path}",
-                      flush=True)
-            paths[name], first = server.path, False
-        if not args.lockstep and len(config.buses) > 1:
-            arm.free_running()           # the first server's clock alone moves the plant
-        def swing(path_of):
-            return f"servodyn swing --config {args.config} " + " ".join(
-                f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
-        if len(paths) == 1:
-            path = next(iter(paths.values()))
-            bus = next(iter(config.buses.values()))
-            print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
-                  + (f"  or  {swing(paths.get)}" if args.lockstep else "") + "   (Ctrl-C stops)", flush=True)
-        elif args.lockstep:
-            print(f"connect with: {swing(paths.get)}   (Ctrl-C stops)", flush=True)
-        if not args.lockstep:
-            # a swing paced by the wall clock cannot keep its period through an SLCAN pseudo-terminal
-            print(f"a swing: serve with --lockstep, then {swing(lambda name: 'PATH')} (an SLCAN pseudo-terminal carries a "
-                  f"tick slower than the {config.control_period * 1e3:g} ms period; real time needs SocketCAN; "
-                  "Ctrl-C stops)", flush=True)
-        try:
-            while True:
-                _time.sleep(0.5)
-        except KeyboardInterrupt:
-            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
 
 
 def cmd_codegen(args) -> None:

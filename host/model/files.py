@@ -38,3 +38,11 @@ def string_key(table: dict, key: str, default: str, error: type[Exception], wher
         kind = "a string" if empty else "a non-empty string"
         raise error(f"{where}: '{key}' must be {kind}, got {value!r}"[:300])
     return value
+
+
+BUILTIN_DIR = Path(__file__).parent / "builtin"
+
+
+def builtin_models() -> dict[str, Path]:
+    """Built-in model names and their files."""
+    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.toml"))}
