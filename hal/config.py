@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
-from ..model.files import read_toml
+from ..model.files import read_toml, string_key
 from .backend import BACKENDS, backend, servo_catalogue
 from .errors import ConfigError
 from .servos import ServoSpec
@@ -33,8 +33,10 @@ JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_rat
 RANGES = {
     "zero_offset": (-2 * math.pi, 2 * math.pi, "rad, the horn's angle at dof = 0: one turn either way "
                                                "covers every mounting"),
-    "gear_ratio": (0.0, 100.0, "horn turns per joint turn, a belt or gear stage after the servo"),
-    "torque_constant": (0.0, 100.0, "N m per A at the horn; servos' are 0.5 to 10"),
+    "gear_ratio": (0.1, 100.0, "horn turns per joint turn, a belt or gear stage after the servo; below 1/10 "
+                               "the joint would turn ten times the servo's speed with a tenth of its torque"),
+    "torque_constant": (0.01, 100.0, "N m per A at the horn; the catalogue's servos and motors have 0.8 to 4.1, a "
+                                     "calibration 100 times off is a slip of units"),
     "velocity_limit": (0.0, 1000.0, "rad/s at the joint, ten times the fastest servo's no-load speed"),
     "current_unit": (0.0, 1.0, "A per register unit; Dynamixel's is a few mA"),
     "voltage": (0.0, 100.0, "V at the servos; their supplies are 5 to 48 V"),
@@ -129,12 +131,14 @@ class _Checker:
         self.fail(key, f"must be {expected}, got {value!r}")
 
     def positive(self, key: str, default=None) -> float:
-        """A positive number, and no more than its physical range allows (RANGES)."""
+        """A positive number inside its physical range (RANGES)."""
         value = self.get(key, "float", default)
         if value <= 0:
             self.fail(key, f"must be positive, got {value:g}")
         if key in RANGES and value > RANGES[key][1]:
             self.fail(key, f"{value:g} is beyond {RANGES[key][1]:g} ({RANGES[key][2]})")
+        if key in RANGES and value < RANGES[key][0]:
+            self.fail(key, f"{value:g} is below {RANGES[key][0]:g} ({RANGES[key][2]})")
         return value
 
     def within(self, key: str, default: float) -> float:
@@ -148,6 +152,19 @@ class _Checker:
 
 def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def supply_voltage_error(voltage: float, joints) -> str | None:
+    """Why `voltage` cannot supply these joints' servos, or None. The lowest is half the lowest voltage
+    any of their data sheets rates them at (a Dynamixel X's 11.1 V row; its driver cuts out below
+    9.5 V, the floor of its Min Voltage Limit): below it no servo runs, and the validator's envelope,
+    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324."""
+    rated = min(min([j.servo.nominal_voltage, *(row[0] for row in j.servo.ratings)]) for j in joints)
+    low, high = rated / 2, RANGES["voltage"][1]
+    if not (_is_number(voltage) and low <= voltage <= high):
+        return (f"{voltage:g} V is outside [{low:g}, {high:g}] V: half the lowest voltage the servos' data sheets "
+                f"rate them at ({rated:g} V; below it their drivers cut out), and no servo's supply is above 48 V")
+    return None
 
 
 def _bus(name: str, table, where: str) -> BusConfig:
@@ -257,6 +274,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     """Build and check a RobotConfig from parsed TOML; `base` resolves relative model paths."""
     top = _Checker(data, origin, TOP_KEYS)
     name = top.get("name", "str")
+    string_key(data, "description", "", ConfigError, origin)      # a string, if given
     model_ref = top.get("model", "str")
     model = _load_model(model_ref, base, origin)
     bus_tables = data.get("bus")
@@ -288,6 +306,9 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
         c = _Checker(data["supply"], f"{origin}: supply", SUPPLY_KEYS)
         supply = SupplyConfig(voltage=c.positive("voltage", supply.voltage),
                               current_limit=c.positive("current_limit") if "current_limit" in data["supply"] else None)
+        why = supply_voltage_error(supply.voltage, joints.values())
+        if why:
+            c.fail("voltage", why)
     time_scale = None
     if "swing" in data:
         time_scale = _Checker(data["swing"], f"{origin}: swing", {"time_scale"}).positive("time_scale")

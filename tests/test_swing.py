@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.hal.errors import ServoInitializationError
 from servodyn.tools.swing import run_swing
 
 QUIET = dict(say=lambda *a, **k: None)
@@ -181,13 +182,14 @@ def test_a_configurations_real_port_is_used(tmp_path):
     missing = tmp_path / "ttyUSB9"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
         'port = "auto"', f'port = "{missing}"', 1))
-    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
-    assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
-    assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"
-    assert summary["clock"] == "realtime", "real servos are never driven as fast as the bus answers"
-    written = json.loads((tmp_path / "out" / "summary.json").read_text())
-    for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "cpu_ms_per_tick"):
-        assert key in written and written[key] is None, f"{key}: there, and null, in a run without ticks"
+    said = []
+    with pytest.raises(ServoInitializationError) as refused:
+        run_swing(str(config), out=tmp_path / "out", say=said.append)
+    assert str(missing) in str(refused.value) and "cannot open" in str(refused.value), str(refused.value)
+    assert "No such file or directory" in str(refused.value), f"the OS's reason, once: {refused.value}"
+    assert said == [], f"a run that never started says nothing but its error: {said}"
+    for never in ("swing_log.csv", "summary.json"):
+        assert not (tmp_path / "out" / never).exists(), f"{never}: no log or summary of a run that never started"
 
 
 def test_each_bus_gets_its_port():

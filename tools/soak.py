@@ -23,7 +23,6 @@ early, so that hundreds of runs take minutes; the runs are spread over worker pr
 
 from __future__ import annotations
 
-import argparse
 import csv
 import multiprocessing
 import random
@@ -37,6 +36,7 @@ from ..control.timing import SMALL_TIME_STEP
 from ..errors import ExitCode
 from ..hal.config import load_config
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
+from .argtypes import OneLineParser, count
 from .hil import run_qemu
 from .swing import run_swing
 
@@ -232,14 +232,14 @@ def _where(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="soak", description=__doc__.split("\n\n")[1])
-    parser.add_argument("--runs", type=int, default=207, help="swings on the host (default 207: 23 per class)")
-    parser.add_argument("--firmware", type=int, default=14, help="runs through the firmware under QEMU "
+    parser = OneLineParser(prog="soak", description=__doc__.split("\n\n")[1])
+    parser.add_argument("--runs", type=count(0), default=207, help="swings on the host (default 207: 23 per class)")
+    parser.add_argument("--firmware", type=count(0), default=14, help="runs through the firmware under QEMU "
                         "(default 14: 2 per class that can run there; 0 for none)")
-    parser.add_argument("--can", type=int, default=48, help="swings on the simulated CAN motors (default 48: 6 "
+    parser.add_argument("--can", type=count(0), default=48, help="swings on the simulated CAN motors (default 48: 6 "
                         f"per class, every {MIXED_EVERY}th on replica_mixed; 0 for none)")
     parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument("--jobs", type=count(1, what="worker processes"), default=2, help="worker processes (default 2)")
     args = parser.parse_args(argv)
     assert SMALL_TIME_STEP == SMALL, "the soak's tick is the swing's small_time_step"
     specs = plan(args.runs, args.seed, args.firmware, args.can)

@@ -93,20 +93,23 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     if not verdict.passed:
         first = verdict.violations[0]["message"]
         if not (force and simulated):
+            found = [v["message"] for v in verdict.violations]
+            more = f"{len(found)} violations, --verbose lists them; " if len(found) > 1 else ""
             raise MotionRefused(f"'{path.name}' at time scale {scale:g} would leave a servo's limits: {first}"
-                                f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
-                                f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
+                                f" ({more}servodyn validate {config.name} {motion} --fit finds a time scale that "
+                                f"passes{'; --force plays it anyway on the simulated bus' if simulated else ''})", found)
         say(f"forced past the validator: {first}")
     period = config.control_period
     swing = path.at_scale(scale, period)
     mode = "feedforward_pd" if feedforward else "pd"
+    paced = None
     if native:
         _check_native(config, motion, scale, mode, fault_at)
     if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
         # lock-step means "as fast as the bus answers": on real servos that would play the motion
         # faster than it was validated for, so a real bus always keeps the period on the wall clock
         realtime = True
-        say(f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)")
+        paced = f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)"
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
@@ -129,6 +132,14 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                  realtime, out, say, overrun_tolerance, cpu)
         server, per_bus = buses()
         bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
+        try:
+            bus.open()        # a port that does not open ends here: nothing ran, so no log and no summary
+        except BaseException:
+            if server is not None:
+                server.stop()
+            raise
+        if paced:
+            say(paced)
         controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
         log = RunLog(model.dof_names) if log is None else log
         log.stream(out / "swing_log.csv")
@@ -138,7 +149,6 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         try:
-            bus.open()
             home, played = plan_run(model, swing, bus.read_state().q, home_duration)
             bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
             say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
@@ -186,7 +196,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
             summary["torque_off"] = sim["torque_off"]
         try:
-            _write(out, log, summary, say, figure)
+            _write(out, log, summary, say, figure, config)
         finally:
             restore_signals()          # until the summary is written a signal is ignored, not fatal
         return summary
@@ -277,7 +287,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     if error:
         say(f"{error} — torque off on every servo")
     log.write_csv(out / "swing_log.csv")
-    _write(out, log, summary, say)
+    _write(out, log, summary, say, config=config)
     return summary
 
 
@@ -315,7 +325,26 @@ def _fault_injector(server, fault_at, played, config):
     return inject
 
 
-def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> None:
+def encoder_step(joint) -> float | None:
+    """rad at the joint of one count of the position its servo reports: a Dynamixel's register
+    (ticks per horn turn), a CAN motor's 16-bit MIT position over ±p_max; None when not known."""
+    servo = joint.servo
+    if getattr(servo, "ticks_per_rev", None):
+        horn = 2 * np.pi / servo.ticks_per_rev
+    elif getattr(servo, "ranges", None) is not None:
+        horn = 2 * servo.ranges.p_max / 65535
+    else:
+        return None
+    return horn / joint.gear_ratio
+
+
+def _title(summary: dict, config: RobotConfig | None) -> str:
+    """The figure's title: what played, where, and under which control (PD only says so)."""
+    control = "PD only, no feed-forward" if summary.get("mode") == "pd" else "feed-forward + PD"
+    return f"{summary['motion']} on {config.name if config is not None else 'the servo bus'}: {control}"
+
+
+def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True, config: RobotConfig | None = None) -> None:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not log.t:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
@@ -333,6 +362,8 @@ def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> N
     if not figure:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
         return
+    limits = [j.torque_limit for j in config.joints] if config is not None else None
+    steps = [encoder_step(j) for j in config.joints] if config is not None else None
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
-                    np.array(log.tau), log.dof_names, f"{summary['motion']} on the servo bus")
+                    np.array(log.tau), log.dof_names, _title(summary, config), limits, steps)
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")

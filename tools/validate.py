@@ -16,7 +16,9 @@ import numpy as np
 
 from ..control.motion import motion_path
 from ..control.trajectory import write_trajectory_csv
+from ..hal.config import supply_voltage_error
 from ..loop import RunLog
+from ..readable import fixed
 from ..validation import AMBIENT, CHECKS, Judgement, Limits, Result, fit_time_scale, judge, retime
 from .plots import envelope_figure, limits_in_time_figure
 from .swing import run_swing
@@ -142,8 +144,9 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         payload_info = {"mass_kg": payload, "body": payload_body or model.body_names[-1],
                         "com_m": None if payload_com is None else [float(x) for x in payload_com]}
     voltage = supply_voltage if supply_voltage is not None else config.supply.voltage
-    if not (math.isfinite(voltage) and voltage > 0):
-        raise ValueError(f"--supply-voltage must be a positive number of volts, got {voltage}")
+    why = supply_voltage_error(voltage, config.joints)
+    if why:
+        raise ValueError(f"--supply-voltage {why}")
     judged = judge(config, motion_path(motion, model), time_scale, model=model, voltage=voltage, margin=margin,
                    repeat=repeat, ambient=ambient)
     path, limits, result = judged.path, judged.limits, judged.result
@@ -188,12 +191,29 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         if report.get("retime", {}).get("passed"):
             write_trajectory_csv(out / "retimed.csv", traj, model.dof_names)
             report["retime"]["file"] = str(out / "retimed.csv")
+        text = report_json(report)         # strict JSON, or one error before any file is drawn
         title = f"{path.name} on {config.name}, time scale {time_scale:g}, {voltage:g} V"
         envelope_figure(out / "envelopes.png", result, limits, model.dof_names, title)
         limits_in_time_figure(out / "current_temperature.png", result, limits, model.dof_names, title)
-        (out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+        (out / "report.json").write_text(text)
         say(f"wrote {out / 'report.json'}, {out / 'envelopes.png'}, {out / 'current_temperature.png'}")
     return report
+
+
+def report_json(report: dict) -> str:
+    """The report as strict JSON (no NaN or Infinity tokens, which JSON has not); ValueError naming
+    the first entry that is not a finite number."""
+    try:
+        return json.dumps(report, indent=1, allow_nan=False) + "\n"
+    except ValueError:
+        def first(value, where):
+            if isinstance(value, float) and not math.isfinite(value):
+                return f"{where} = {value}"
+            items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+            return next((found for key, item in items if (found := first(item, f"{where}.{key}" if where else str(key)))),
+                        None)
+        raise ValueError(f"report.json: {first(report, '')} is not a finite number, which JSON cannot hold (the "
+                         "inputs took a check out of the range it computes in)") from None
 
 
 def summary_table(report: dict) -> str:
@@ -201,7 +221,7 @@ def summary_table(report: dict) -> str:
              "temperature": "heat", "supply": "supply", "bus": "bus", "command_range": "command"}
     lines = [f"  {'dof':<24}" + "".join(f"{short[c]:>8}" for c in CHECKS) + "   verdict"]
     for dof, row in report["joints"].items():
-        cells = "".join(f"{row['checks'][c]:>8.2f}" for c in CHECKS)
+        cells = "".join(f"{fixed(row['checks'][c]):>8}" for c in CHECKS)
         lines.append(f"  {dof:<24}{cells}   {'PASS' if row['passed'] else 'FAIL (' + row['worst_check'] + ')'}")
     lines.append(f"  (peak ratio to each limit: up to {report['margin']:g} passes, up to 1 for position)")
     return "\n".join(lines)

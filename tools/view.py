@@ -376,7 +376,7 @@ class Viewer:
                     self.plots[title] = self.server.gui.add_uplot(
                         data=data, series=specs, title=title, aspect=1.6,
                         scales={"x": uplot.Scale(time=False, auto=False, range=(0.0, PLOT_WINDOW))},
-                        legend=uplot.Legend(show=False))
+                        legend=uplot.Legend(show=True, live=False))
             else:
                 handle.data = data
         for title in list(self.plots):
@@ -576,11 +576,15 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
     if log is not None:
         timeline = log_timeline(model, config, Path(log))
     motion_obj = None
+    nothing_to_play = None             # why there is no Play panel
     if log is None and motion is None:
         try:                           # the forehand, where the model has its dofs
             motion_obj = load_motion(DEFAULT_MOTION, model)
-        except (TrajectoryError, ModelError):
-            pass
+        except (TrajectoryError, ModelError) as err:
+            nothing_to_play = (f"**No Play panel**: nothing to play. No --motion or --log was given, and the "
+                               f"default motion, {DEFAULT_MOTION}, does not fit model '{model.name}' "
+                               f"({str(err).split(': ', 1)[-1]}). Give `--motion` a keyframe file or a "
+                               f"trajectory CSV of this model's dofs, or `--log` a run's folder.")
     elif log is None:
         name = motion
         if str(name).lower().endswith(".csv"):
@@ -605,6 +609,8 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
         viewer.edit(motion_obj, time_scale, save_to or Path("out/view") / f"{motion_obj.name}.toml")
     elif timeline is not None:
         viewer.show_timeline(timeline, f"run {log}" if log else f"{motion} at time scale {time_scale:g}")
+    elif nothing_to_play:
+        viewer.readout.content = nothing_to_play
     return viewer
 
 

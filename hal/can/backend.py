@@ -22,6 +22,7 @@ kp_motor = kp/gear², kd_motor = kd/gear² (gear_ratio: a reduction after the mo
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -85,7 +86,11 @@ class CanBus(ServoBus):
             try:
                 self.can = can.Bus(interface=self.interface, channel=self.channel, bitrate=int(self.bus.baud))
             except (can.CanError, OSError, ValueError, ImportError) as err:
-                raise ServoInitializationError(f"{self.interface} {self.channel}: cannot open ({err})") from None
+                # the OS's reason, on the error or under python-can's own
+                errno = next((e.errno for e in (err, err.__cause__, err.__context__)
+                              if isinstance(getattr(e, "errno", None), int)), None)
+                reason = os.strerror(errno) if errno is not None else err
+                raise ServoInitializationError(f"{self.interface} {self.channel}: cannot open ({reason})") from None
         try:
             self._torque_on = False
             self._pending: set[int] = set()

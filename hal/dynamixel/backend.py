@@ -122,8 +122,9 @@ class DynamixelBus(ServoBus):
         self.port = _patient(sdk.PortHandler(self.port_name), self.reply_timeout)
         try:
             opened = self.port.openPort()
-        except Exception as err:      # pyserial raises its own kinds
-            raise ServoInitializationError(f"{self.port_name}: cannot open ({err})") from None
+        except Exception as err:      # pyserial raises its own kinds, most with the OS's errno
+            reason = os.strerror(err.errno) if isinstance(getattr(err, "errno", None), int) else err
+            raise ServoInitializationError(f"{self.port_name}: cannot open ({reason})") from None
         if not opened or not self.port.setBaudRate(int(self.bus.baud)):
             raise ServoInitializationError(f"{self.port_name}: cannot open at {self.bus.baud} baud")
         self.packets = _stuffing_packet_handler()

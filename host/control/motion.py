@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from ..model.files import read_toml
+from ..model.files import read_toml, string_key
 from .trajectory import MotionPath, Trajectory, TrajectoryError, read_trajectory_csv
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
@@ -117,9 +117,12 @@ def load_motion(name_or_path: str | Path, model) -> Motion:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise TrajectoryError(f"{where}, dof '{name}': angle must be a finite number")
             q[k, j] = value
-    motion = Motion(name=str(data.get("name", path.stem)), model=str(data.get("model", model.name)),
-                    t=t, q=q, dof_names=names, phases=[str(f.get("phase", "")) for f in frames],
-                    description=str(data.get("description", "")), source=str(data.get("source", "")))
+    motion = Motion(name=string_key(data, "name", path.stem, TrajectoryError, str(path), empty=False),
+                    model=string_key(data, "model", model.name, TrajectoryError, str(path), empty=False),
+                    t=t, q=q, dof_names=names,
+                    phases=[string_key(f, "phase", "", TrajectoryError, f"{path}: keyframe {k + 1}") for k, f in enumerate(frames)],
+                    description=string_key(data, "description", "", TrajectoryError, str(path)),
+                    source=string_key(data, "source", "", TrajectoryError, str(path)))
     check_limits(motion.sample(1e-3), model, origin=str(path))
     return motion
 

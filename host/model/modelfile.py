@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .files import builtin_models, read_toml
+from .files import builtin_models, read_toml, string_key
 from .tree import Body, Dof, Model, ModelError, Solid, combine
 from .rotations import rpy_to_matrix
 from .shapes import BOX_FROM_ELLIPSOID
@@ -250,8 +250,9 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
                            dofs=dofs, mass=mass, com=com, inertia=inertia,
                            solids=[shape for _, shape in shaped]))
         index[name] = n
-    return Model(bodies, name=str(data.get("name", origin)), gravity=gravity,
-                 description=str(data.get("description", "")), source=str(data.get("source", "")))
+    return Model(bodies, name=string_key(data, "name", origin, ModelError, origin, empty=False), gravity=gravity,
+                 description=string_key(data, "description", "", ModelError, origin),
+                 source=string_key(data, "source", "", ModelError, origin))
 
 
 def load_model_file(path: str | Path) -> Model:

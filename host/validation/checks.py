@@ -10,11 +10,17 @@ import numpy as np
 
 from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError
+from ..readable import fixed, percent
 from .limits import Limits
 from .thermal import AMBIENT, winding_temperature
 
 class MotionRefused(ServodynError, ValueError):
-    """The validator says a motion would leave a servo's limits: nothing moved."""
+    """The validator says a motion would leave a servo's limits: nothing moved. One line, the
+    first violation; `violations` has every one (`servodyn swing --verbose` prints them)."""
+
+    def __init__(self, message: str, violations: list[str] = ()):
+        super().__init__(message)
+        self.violations = list(violations)
 
 
 CHECKS = ("position", "speed", "torque_speed", "current", "temperature", "supply", "bus", "command_range")
@@ -147,7 +153,7 @@ def describe(violation: dict, config, limits: Limits, repeat: int, margin: float
     """One line a person understands, for a violation (naming the margin when it is not 1)."""
     line = _describe(violation, config, limits, repeat)
     if violation["worst_ratio"] > violation["ratio"] * 1.001:
-        line += f"; at worst {violation['worst_ratio']:.1%} of its limit, at t = {violation['worst_t_s']:.3f} s"
+        line += f"; at worst {percent(violation['worst_ratio'])} of its limit, at t = {fixed(violation['worst_t_s'], 3)} s"
     if margin != 1 and violation["check"] != "position":
         line += f" (the margin allows {margin:.0%})"
     return line
@@ -155,30 +161,30 @@ def describe(violation: dict, config, limits: Limits, repeat: int, margin: float
 
 def _describe(violation: dict, config, limits: Limits, repeat: int) -> str:
     check_name, dof, t, value, limit = (violation[k] for k in ("check", "dof", "t_s", "value", "limit"))
-    when = f"at t = {t:.3f} s"
+    when = f"at t = {fixed(t, 3)} s"
     if dof is not None:
         j = config.model.dof_names.index(dof)
         servo = config.joints[j].servo.name
     V = f"{limits.voltage:g} V"
     if check_name == "position":
-        return f"{dof} reaches {value:.3f} rad {when}; its limit is {limit:.3f} rad"
+        return f"{dof} reaches {fixed(value, 3)} rad {when}; its limit is {fixed(limit, 3)} rad"
     if check_name == "speed":
-        return f"{dof} needs {abs(value):.2f} rad/s {when}; its {servo} turns {limit:.2f} rad/s at {V} (or its velocity limit)"
+        return f"{dof} needs {fixed(abs(value), 2)} rad/s {when}; its {servo} turns {fixed(limit, 2)} rad/s at {V} (or its velocity limit)"
     if check_name == "torque_speed":
-        return (f"{dof} needs {value:.2f} N·m at {abs(violation['speed_rad_s']):.2f} rad/s {when}: "
-                f"{violation['ratio']:.1%} of its {servo}'s torque-speed envelope at {V} (it gives {limit:.2f} N·m "
+        return (f"{dof} needs {fixed(value, 2)} N·m at {fixed(abs(violation['speed_rad_s']), 2)} rad/s {when}: "
+                f"{percent(violation['ratio'])} of its {servo}'s torque-speed envelope at {V} (it gives {fixed(limit, 2)} N·m "
                 f"at that speed)")
     if check_name == "current":
-        return f"{dof} draws {value:.2f} A {when}; its current limit is {limit:.2f} A"
+        return f"{dof} draws {fixed(value, 2)} A {when}; its current limit is {fixed(limit, 2)} A"
     if check_name == "temperature":
-        return (f"{dof}'s winding reaches {value:.1f} °C {when} of play {repeat}; the {servo} faults at "
-                f"{limit:.0f} °C")
+        return (f"{dof}'s winding reaches {fixed(value, 1)} °C {when} of play {repeat}; the {servo} faults at "
+                f"{fixed(limit, 0)} °C")
     if check_name == "supply":
-        return f"the servos draw {value:.2f} A from the {V} supply {when}; it is rated {limit:.2f} A"
+        return f"the servos draw {fixed(value, 2)} A from the {V} supply {when}; it is rated {fixed(limit, 2)} A"
     if check_name == "bus":
         what = "; ".join(f"{name}: {text}" for name, _, text in limits.wire)
-        return f"one tick's transactions take {value * 1e3:.3f} ms on the wire ({what}); the period is {limit * 1e3:g} ms"
-    return f"{dof} needs {value:.2f} N·m {when}; its wire commands at most {limit:.2f} N·m"
+        return f"one tick's transactions take {fixed(value * 1e3, 3)} ms on the wire ({what}); the period is {limit * 1e3:g} ms"
+    return f"{dof} needs {fixed(value, 2)} N·m {when}; its wire commands at most {fixed(limit, 2)} N·m"
 
 
 @dataclass
