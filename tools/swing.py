@@ -69,7 +69,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     simulated bus. fault_at = (time, servo id) or (time, servo id, fault): on the simulated bus,
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
     bits ("overload", "overheating", ... or the bits as an int), or any other fault of
-    SimulatedArm.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
+    SimulatedRobot.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
     from then on), to show the safe stop. native: the firmware's loop plays it as a Linux process
     (tools/native.py) instead of the Python loop, with the same summary. observer: called by the
     loop with every tick's state (servodyn.loop.follow), e.g. the browser view's. home_duration: s
