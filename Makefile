@@ -40,14 +40,14 @@ docs: venv
 bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
-	@$(VENV)/bin/python -m servodyn.tools.bench
+	@$(VENV)/bin/python -m servodyn.tools.bench.core
 	@$(MAKE) --no-print-directory fw
-	@$(VENV)/bin/python -m servodyn.tools.bench_loop
-	@$(VENV)/bin/python -m servodyn.tools.bench_view
-	@$(VENV)/bin/python -m servodyn.tools.bench_validate
-	@$(VENV)/bin/python -m servodyn.tools.bench_can
+	@$(VENV)/bin/python -m servodyn.tools.bench.loop
+	@$(VENV)/bin/python -m servodyn.tools.bench.view
+	@$(VENV)/bin/python -m servodyn.tools.bench.validate
+	@$(VENV)/bin/python -m servodyn.tools.bench.can
 	@$(MAKE) --no-print-directory fw
-	@$(VENV)/bin/python -m servodyn.tools.fw_budget
+	@$(VENV)/bin/python -m servodyn.tools.bench.fw_budget
 
 soak: venv fw
 	@echo "== fault-injection soak"

@@ -4,7 +4,8 @@ backends that speak each bus's wire protocol (Dynamixel; loopback for tests with
     from servodyn.hal import load_config, make_bus, JointCommand
 """
 
-from .bus import BACKENDS, BusStats, JointCommand, JointState, ServoBus, make_bus
+from .backend import BACKENDS
+from .bus import BusStats, JointCommand, JointState, ServoBus, make_bus
 from .config import RobotConfig, load_config
 from .errors import (ConfigError, HalError, ProtocolError, ServoError, ServoHardwareError,
                      ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError,

@@ -13,55 +13,24 @@ bus is open, commands are well formed and clamped to the joint limits (counted p
 `stats.limited`: *limiting*, not a fault), and measured positions are inside the limits.
 
 A backend implements `_open`, `_close`, `_enable_torque`, `_read` and `_write` (and `_stop` where
-it can switch torque off faster than `_enable_torque(False)`), and describes its bus: `servos`
-(its catalogue of data sheets), `bauds`, `protocols`, `max_id`, and the joint keys of its own.
-`make_bus` finds it by kind in BACKENDS and imports it only then.
+it can switch torque off faster than `_enable_torque(False)`); what it is (its catalogue of data
+sheets, rates, ids, configuration keys, wire time) is described apart, in hal.backend, where
+`make_bus` finds it by kind and imports it only then.
 """
 
 from __future__ import annotations
 
-import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .backend import backend
 from .errors import ServoInitializationError, ServoLimitError, ServoOperationError
 
 if TYPE_CHECKING:
     from .config import RobotConfig
-    from .servos import ServoSpec
-
-BACKENDS = {   # kind -> "module:class", imported on first use
-    "dynamixel": "servodyn.hal.dynamixel.backend:DynamixelBus",
-    "loopback": "servodyn.hal.loopback:LoopbackBus",
-    "can": "servodyn.hal.can.backend:CanBus",
-}
-
-
-def backend_class(kind: str) -> type["ServoBus"]:
-    """The backend class of a bus kind, imported on first use."""
-    if kind not in BACKENDS:
-        raise ServoInitializationError(f"no backend for bus kind {kind!r} (known: {', '.join(BACKENDS)})")
-    module_name, class_name = BACKENDS[kind].split(":")
-    try:
-        return getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as err:
-        raise ServoInitializationError(f"bus kind {kind!r}: cannot load {BACKENDS[kind]} ({err})") from err
-
-
-def servo_catalogue(kind: str | None) -> dict[str, "ServoSpec"]:
-    """The servo models a bus kind drives, by name (None, or a kind without a catalogue of its
-    own such as loopback: every backend's)."""
-    servos = backend_class(kind).servos if kind is not None else None
-    if servos is not None:
-        return dict(servos)
-    every = {}
-    for other in BACKENDS:
-        every.update(backend_class(other).servos or {})
-    return every
-
 
 # ---------------------------------------------------------------------------- data
 
@@ -158,42 +127,7 @@ class BusStats:
 class ServoBus(ABC):
     """The joints of one bus of a robot configuration, in the model's dof order."""
 
-    kind: str = ""
-    servos: dict | None = None            # name -> ServoSpec this backend drives (None: any)
-    bauds: tuple[int, ...] | None = None  # the rates the bus accepts (None: any positive)
-    default_baud: int = 1_000_000
-    protocols: tuple[float, ...] | None = None   # the protocol versions it speaks (None: any)
-    max_id: int = 255
-    joint_keys: frozenset[str] = frozenset()   # configuration keys of this backend's own
-    port_key, baud_key = "port", "baud"        # what its [bus] table calls the port and the rate
-    device_key = "servo"                       # what a [[joint]] calls its device's model
-    bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
-
-    @classmethod
-    def bus_options(cls, checker) -> dict:
-        """This backend's own keys of a [bus] table, checked (checker: hal.config's)."""
-        return {}
-
-    @classmethod
-    def joint_options(cls, checker, servo) -> dict:
-        """This backend's own keys of a [[joint]] table, checked (checker: hal.config's)."""
-        return {}
-
-    @classmethod
-    def max_current(cls, servo, options: dict) -> tuple[float, str]:
-        """The largest current limit (A) a joint may configure, and how it follows."""
-        return servo.max_current, f"{servo.max_current:g} A"
-
-    @classmethod
-    def wire_time(cls, joints, bus) -> tuple[float, str]:
-        """Seconds one tick's transactions occupy the wire of `bus` (hal.config.BusConfig) for
-        these joints, and what they are (the offline validator's bus check)."""
-        return 0.0, "no wire"
-
-    @classmethod
-    def command_range(cls, joint) -> tuple[float, float]:
-        """(largest joint torque the wire can command, its quantization step), N m."""
-        return float("inf"), 0.0
+    kind: str = ""                        # the kind of bus (hal.backend: its description)
 
     def __init__(self, config: "RobotConfig", bus: str | None = None, *, position_margin: float = 0.05):
         if bus is None:
@@ -319,4 +253,4 @@ def make_bus(config: "RobotConfig", bus: str | None = None, kind: str | None = N
         bus = next(iter(config.buses))
     if bus not in config.buses:
         raise ServoInitializationError(f"'{config.name}' has no bus {bus!r} (buses: {', '.join(config.buses)})")
-    return backend_class(kind or config.buses[bus].kind)(config, bus, **options)
+    return backend(kind or config.buses[bus].kind).bus_class()(config, bus, **options)

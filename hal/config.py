@@ -16,8 +16,8 @@ from pathlib import Path
 
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
-from ..model.files import read_toml
-from .bus import BACKENDS, backend_class, servo_catalogue
+from ..model.files import read_toml, string_key
+from .backend import BACKENDS, backend, servo_catalogue
 from .errors import ConfigError
 from .servos import ServoSpec
 
@@ -33,8 +33,10 @@ JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_rat
 RANGES = {
     "zero_offset": (-2 * math.pi, 2 * math.pi, "rad, the horn's angle at dof = 0: one turn either way "
                                                "covers every mounting"),
-    "gear_ratio": (0.0, 100.0, "horn turns per joint turn, a belt or gear stage after the servo"),
-    "torque_constant": (0.0, 100.0, "N m per A at the horn; servos' are 0.5 to 10"),
+    "gear_ratio": (0.1, 100.0, "horn turns per joint turn, a belt or gear stage after the servo; below 1/10 "
+                               "the joint would turn ten times the servo's speed with a tenth of its torque"),
+    "torque_constant": (0.01, 100.0, "N m per A at the horn; the catalogue's servos and motors have 0.8 to 4.1, a "
+                                     "calibration 100 times off is a slip of units"),
     "velocity_limit": (0.0, 1000.0, "rad/s at the joint, ten times the fastest servo's no-load speed"),
     "current_unit": (0.0, 1.0, "A per register unit; Dynamixel's is a few mA"),
     "voltage": (0.0, 100.0, "V at the servos; their supplies are 5 to 48 V"),
@@ -45,7 +47,7 @@ RANGES = {
 @dataclass(frozen=True)
 class BusConfig:
     name: str
-    kind: str                     # a key of hal.bus.BACKENDS
+    kind: str                     # a key of hal.backend.BACKENDS
     port: str                     # serial device path, or "auto": the simulated bus
     baud: int
     protocol: float
@@ -129,12 +131,14 @@ class _Checker:
         self.fail(key, f"must be {expected}, got {value!r}")
 
     def positive(self, key: str, default=None) -> float:
-        """A positive number, and no more than its physical range allows (RANGES)."""
+        """A positive number inside its physical range (RANGES)."""
         value = self.get(key, "float", default)
         if value <= 0:
             self.fail(key, f"must be positive, got {value:g}")
         if key in RANGES and value > RANGES[key][1]:
             self.fail(key, f"{value:g} is beyond {RANGES[key][1]:g} ({RANGES[key][2]})")
+        if key in RANGES and value < RANGES[key][0]:
+            self.fail(key, f"{value:g} is below {RANGES[key][0]:g} ({RANGES[key][2]})")
         return value
 
     def within(self, key: str, default: float) -> float:
@@ -150,41 +154,54 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def supply_voltage_error(voltage: float, joints) -> str | None:
+    """Why `voltage` cannot supply these joints' servos, or None. The lowest is half the lowest voltage
+    any of their data sheets rates them at (a Dynamixel X's 11.1 V row; its driver cuts out below
+    9.5 V, the floor of its Min Voltage Limit): below it no servo runs, and the validator's envelope,
+    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324."""
+    rated = min(min([j.servo.nominal_voltage, *(row[0] for row in j.servo.ratings)]) for j in joints)
+    low, high = rated / 2, RANGES["voltage"][1]
+    if not (_is_number(voltage) and low <= voltage <= high):
+        return (f"{voltage:g} V is outside [{low:g}, {high:g}] V: half the lowest voltage the servos' data sheets "
+                f"rate them at ({rated:g} V; below it their drivers cut out), and no servo's supply is above 48 V")
+    return None
+
+
 def _bus(name: str, table, where: str) -> BusConfig:
     first = _Checker(table, where, set(table) if isinstance(table, dict) else BUS_KEYS)
     kind = first.get("kind", "str")
     if kind not in BACKENDS:
         first.fail("kind", f"must be one of {', '.join(BACKENDS)}, got {kind!r}")
-    backend = backend_class(kind)
-    # a backend may name the port and the rate in its own words (CAN: channel, bitrate)
-    port_key, baud_key = backend.port_key, backend.baud_key
-    c = _Checker(table, where, {"kind", "protocol", port_key, baud_key} | backend.bus_keys)
+    spec = backend(kind)
+    # a spec may name the port and the rate in its own words (CAN: channel, bitrate)
+    port_key, baud_key = spec.port_key, spec.baud_key
+    c = _Checker(table, where, {"kind", "protocol", port_key, baud_key} | spec.bus_keys)
     port = c.get(port_key, "str", "auto")
-    baud = c.get(baud_key, "int", backend.default_baud)
-    if backend.bauds is not None and baud not in backend.bauds:
-        c.fail(baud_key, f"must be a {kind} rate ({', '.join(map(str, backend.bauds))}), got {baud}")
+    baud = c.get(baud_key, "int", spec.default_baud)
+    if spec.bauds is not None and baud not in spec.bauds:
+        c.fail(baud_key, f"must be a {kind} rate ({', '.join(map(str, spec.bauds))}), got {baud}")
     if baud <= 0:
         c.fail(baud_key, f"must be positive, got {baud}")
-    protocol = c.get("protocol", "float", backend.protocols[0] if backend.protocols else 1.0)
-    if backend.protocols is not None and protocol not in backend.protocols:
-        c.fail("protocol", f"must be {' or '.join(f'{p:.1f}' for p in backend.protocols)} (what servodyn "
+    protocol = c.get("protocol", "float", spec.protocols[0] if spec.protocols else 1.0)
+    if spec.protocols is not None and protocol not in spec.protocols:
+        c.fail("protocol", f"must be {' or '.join(f'{p:.1f}' for p in spec.protocols)} (what servodyn "
                            f"speaks on a {kind} bus), got {protocol:.1f}")
-    return BusConfig(name, kind, port, baud, protocol, backend.bus_options(c))
+    return BusConfig(name, kind, port, baud, protocol, spec.bus_options(c))
 
 
 def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig:
     bus_name = table.get("bus") if isinstance(table, dict) and isinstance(table.get("bus"), str) else None
     if bus_name is None and len(buses) == 1:
         bus_name = next(iter(buses))
-    backend = backend_class(buses[bus_name].kind) if bus_name in buses else None
-    # the keys of the bus's backend; a bus without a catalogue of its own (loopback) or an unknown
-    # bus takes every backend's, so the error that follows can name what is really wrong
-    if backend is not None and backend.servos is not None:
-        own_keys = backend.joint_keys
+    spec = backend(buses[bus_name].kind) if bus_name in buses else None
+    # the keys of the bus's spec; a bus without a catalogue of its own (loopback) or an unknown
+    # bus takes every spec's, so the error that follows can name what is really wrong
+    if spec is not None and spec.servos is not None:
+        own_keys = spec.joint_keys
     else:
-        own_keys = {k for kind in BACKENDS for k in backend_class(kind).joint_keys}
-    device_keys = {"servo"} | ({backend.device_key} if backend is not None else
-                               {backend_class(kind).device_key for kind in BACKENDS})
+        own_keys = {k for kind in BACKENDS for k in backend(kind).joint_keys}
+    device_keys = {"servo"} | ({spec.device_key} if spec is not None else
+                               {backend(kind).device_key for kind in BACKENDS})
     c = _Checker(table, where, JOINT_KEYS | own_keys | device_keys)
     dof = c.get("dof", "str")
     if dof not in model.dof_names:
@@ -194,13 +211,13 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail("bus", f"{bus_name!r} is not a [bus.<name>] of this file ({', '.join(buses)})")
     bus = buses[bus_name]
     servo_id = c.get("id", "int")
-    if not 0 <= servo_id <= backend.max_id:
-        c.fail("id", f"{servo_id} is out of range 0..{backend.max_id} for a {bus.kind} bus")
+    if not 0 <= servo_id <= spec.max_id:
+        c.fail("id", f"{servo_id} is out of range 0..{spec.max_id} for a {bus.kind} bus")
     # the device's model: `servo`, or the bus's own word for it (a CAN bus's `motor`), once
     given = [k for k in sorted(device_keys) if k in table]
     if len(given) > 1:
         c.fail(given[1], f"and '{given[0]}' both name the device: give one")
-    device_key = given[0] if given else (backend.device_key if backend is not None else "servo")
+    device_key = given[0] if given else (spec.device_key if spec is not None else "servo")
     servo_name = c.get(device_key, "str")
     catalogue = servo_catalogue(bus.kind)
     if servo_name not in catalogue:
@@ -208,13 +225,13 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         if servo_name in others:
             c.fail(device_key, f"{servo_name} is a {others[servo_name].kind} device but bus '{bus_name}' is "
                                f"{bus.kind}")
-        c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {backend.device_key} ({', '.join(catalogue)})")
+        c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {spec.device_key} ({', '.join(catalogue)})")
     servo = catalogue[servo_name]
     direction = c.get("direction", "int", 1)
     if direction not in (1, -1):
         c.fail("direction", f"must be +1 or -1, got {direction}")
     gear_ratio = c.positive("gear_ratio", 1.0)
-    servo_backend = backend_class(servo.kind)        # whose units and registers the servo has
+    servo_backend = backend(servo.kind)        # whose units and registers the servo has
     options = servo_backend.joint_options(c, servo)
     lower, upper = model.lower[model.dof_names.index(dof)], model.upper[model.dof_names.index(dof)]
     limits = c.get("position_limits", "pair", (lower, upper))
@@ -257,6 +274,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     """Build and check a RobotConfig from parsed TOML; `base` resolves relative model paths."""
     top = _Checker(data, origin, TOP_KEYS)
     name = top.get("name", "str")
+    string_key(data, "description", "", ConfigError, origin)      # a string, if given
     model_ref = top.get("model", "str")
     model = _load_model(model_ref, base, origin)
     bus_tables = data.get("bus")
@@ -288,6 +306,9 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
         c = _Checker(data["supply"], f"{origin}: supply", SUPPLY_KEYS)
         supply = SupplyConfig(voltage=c.positive("voltage", supply.voltage),
                               current_limit=c.positive("current_limit") if "current_limit" in data["supply"] else None)
+        why = supply_voltage_error(supply.voltage, joints.values())
+        if why:
+            c.fail("voltage", why)
     time_scale = None
     if "swing" in data:
         time_scale = _Checker(data["swing"], f"{origin}: swing", {"time_scale"}).positive("time_scale")

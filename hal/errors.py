@@ -1,21 +1,24 @@
-"""Every error the HAL raises, in one tree (as python-can's CanError):
+"""Every error the HAL raises, in one tree (as python-can's CanError), a branch of servodyn's
+(servodyn.errors), each with the exit status a run stopped by it ends with:
 
     HalError
     ├── ConfigError              a robot configuration that cannot be used (also a ValueError)
     ├── ProtocolError            bytes that break a wire protocol (a codec's errors derive from it)
     └── ServoError               a bus or a servo failed at run time
-        ├── ServoInitializationError   no backend, port, servo, or the wrong model
-        ├── ServoOperationError        bus not open, corrupt reply, rejected instruction
-        ├── ServoTimeoutError          a servo stopped answering
-        ├── BusStallError              no servo answered: the bus (or the port) stalled
-        ├── ServoHardwareError         a servo reports a fault of its own
-        └── ServoLimitError            a joint measured outside its limits
+        ├── ServoInitializationError   no backend, port, servo, or the wrong model      (2)
+        ├── ServoOperationError        bus not open, corrupt reply, rejected instruction (12)
+        ├── ServoTimeoutError          a servo stopped answering                        (10)
+        ├── BusStallError              no servo answered: the bus (or the port) stalled (10)
+        ├── ServoHardwareError         a servo reports a fault of its own               (11)
+        └── ServoLimitError            a joint measured outside its limits              (15)
 """
 
 from __future__ import annotations
 
+from ..errors import ExitCode, ServodynError
 
-class HalError(Exception):
+
+class HalError(ServodynError):
     """Root of every HAL error."""
 
 
@@ -37,10 +40,12 @@ class ServoInitializationError(ServoError):
 
 class ServoOperationError(ServoError):
     """A bus operation failed: bus not open, corrupt reply, rejected instruction."""
+    exit_code = ExitCode.CORRUPT
 
 
 class ServoTimeoutError(ServoError, TimeoutError):
     """A servo stopped answering."""
+    exit_code = ExitCode.TIMEOUT
 
     def __init__(self, joint: str, servo_id: int, detail: str = ""):
         self.joint, self.servo_id = joint, servo_id
@@ -49,6 +54,7 @@ class ServoTimeoutError(ServoError, TimeoutError):
 
 class BusStallError(ServoError, TimeoutError):
     """The whole bus went quiet: no servo answered for a while, so none of them is to blame."""
+    exit_code = ExitCode.TIMEOUT
 
     def __init__(self, bus: str, detail: str = ""):
         self.bus = bus
@@ -57,6 +63,7 @@ class BusStallError(ServoError, TimeoutError):
 
 class ServoHardwareError(ServoError):
     """A servo reports hardware errors: its status bits, and their names (the backend's table)."""
+    exit_code = ExitCode.STATUS
 
     def __init__(self, joint: str, servo_id: int, status: int, faults: tuple[str, ...]):
         self.joint, self.servo_id, self.status, self.faults = joint, servo_id, status, tuple(faults)
@@ -66,6 +73,7 @@ class ServoHardwareError(ServoError):
 
 class ServoLimitError(ServoError):
     """A measured joint position outside its limits: stop and go to a safe state."""
+    exit_code = ExitCode.RANGE
 
     def __init__(self, joint: str, value: float, limits: tuple[float, float], state=None):
         self.joint, self.value, self.limits, self.state = joint, value, limits, state

@@ -119,7 +119,7 @@ class Plant:
 
     def push(self, k: int, angle: float) -> None:
         """An external push puts joint k at `angle`, past its stop if need be: that stop gives from
-        then on (a fault, sim/arm.py's "pushed")."""
+        then on (a fault, sim/robot.py's "pushed")."""
         self.q[k] = angle
         self.stops[k] = False
 

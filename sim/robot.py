@@ -1,15 +1,24 @@
-"""The simulated robot of a configuration with CAN buses, alone or beside Dynamixel buses: one
-plant, and behind each bus the devices that speak its wire — a network of CAN motors answering
-frames, or a chain of Dynamixel servos answering packets (sim/dynamixel).
+"""The simulated robot of any configuration: one plant, and behind each bus of the configuration the
+devices that speak its wire — a chain of Dynamixel servos answering packets (sim/dynamixel, the
+servos' per-tick work in C where their tables allow), or a network of CAN motors answering frames
+(sim/can).
 
     robot = SimulatedRobot(load_config("replica_mixed"))
-    replies = robot.handle("shoulder", 0x001, command_bytes)   # [(id, data)] the CAN motors answer
-    port = robot.dynamixel_port("wrist")                       # what a PtyServer serves
-    robot.inject_fault(4, "silent")                            # or "overheat", a status code, a bit name
+    port = robot.port("wrist")                      # a Dynamixel bus: what a PtyServer serves
+    reply = port.handle(request_bytes)              # what its servos put on the wire
+    replies = robot.port("shoulder").handle(0x001, command_bytes)   # a CAN bus: [(id, data)]
+    robot.advance(1e-3)                             # the plant runs; the devices' registers follow
+    robot.inject_fault(4, "silent")                 # device 4 stops answering (or "overload", ...)
 
-Lock-step: the plant advances one control period once every bus has had the tick's commands (each
-CAN network its full round of command frames, each Dynamixel chain its sync write); the last one
-moves the plant. Every transport serving the robot takes `robot.lock` around it.
+Each simulated servo starts as the configuration sets it up (its ID, its bus's baud rate in its
+Baud Rate register). Two clocks, chosen by whoever serves the robot (sim/transport): `lockstep()`
+advances the plant by one control period once every bus has had the tick's commands (each CAN
+network its full round of command frames, each Dynamixel chain its sync write; the last one moves
+the plant), so a run is deterministic and as fast as the host can go; otherwise the server advances
+it by the wall clock, and `wall_clock()` puts the servos' own clocks (Bus Watchdog, Realtime Tick)
+on it too, so a host that dies is noticed in real time even when the plant falls behind. A port's
+`wire_clock()` times the bytes as a servo's receiver does (a frame with a gap over 1.5 ms between
+bytes is dropped). Every transport serving the robot takes `robot.lock` around it.
 """
 
 from __future__ import annotations
@@ -22,68 +31,95 @@ from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
-from .arm import PUSHED
 from .can import CanMotor, CanNetwork
-from .dynamixel import Servo, VirtualBus
-from .faults import CAN_WIRE_FAULTS
+from .dynamixel import Servo, ServoChain, VirtualBus
+from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import Plant, PlantView
 
-FAULTS = ("silent", "overheat", "pushed", *HARDWARE_FAULTS, *CAN_WIRE_FAULTS)
+PUSHED = 0.5     # rad beyond its upper limit an external push moves a joint ("pushed"): past
+                 # the host's and the firmware's range margins (0.05, 0.35 rad)
+FAULTS = ("silent", "pushed", "overheat", *HARDWARE_FAULTS, *WIRE_FAULTS, *CAN_WIRE_FAULTS)
 
 
 class SimulatedRobot(PlantView):
+    """Every device and the plant of a robot configuration; q in the model's dof order."""
+
     def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
                  integrator: str = "rk4"):
         kinds = {bus.kind for bus in config.buses.values()}
-        if not kinds <= {"can", "dynamixel"} or "can" not in kinds:
-            raise ValueError(f"'{config.name}': this simulator serves CAN buses, alone or with Dynamixel buses "
+        if not kinds <= {"can", "dynamixel"}:
+            raise ValueError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
                              f"(this configuration has {', '.join(sorted(kinds))})")
         self.config, self.model = config, config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         voltage = config.supply.voltage if config.supply else None
-        self.drives = []
-        for j in self.joints:
-            if config.buses[j.bus].kind == "can":
-                self.drives.append(CanMotor(j.servo, j.id, dialect=j.options["dialect"],
-                                            feedback_id=j.options["feedback_id"], ranges=j.options["ranges"],
-                                            supply_voltage=voltage))
-            else:
-                self.drives.append(Servo(j.servo, j.id, position=0.0, zero_ticks=0))
-        self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
+        self.drives = [self._device(j, config.buses[j.bus], voltage) for j in self.joints]
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
+        self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
+        on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name]
+        # the fast chain: the plant's drives and a bus's servos at once, when one bus holds them all
+        chain = ServoChain.of(self.drives) if len(self.servos) == len(self.drives) else None
         small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
         self.plant = Plant(self.model, self.joints, self.drives, small_time_step=small_time_step, q0=q0,
-                           integrator=integrator)
-        on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name]
-        self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
-        # the servos' clock is the plant's until wall_clock() (as sim/arm.py's)
+                           integrator=integrator, chain=chain if chain is not None and chain.covers(self.drives)
+                           else None)
+        # the servos' clock is the plant's until wall_clock(); no byte timeout until a port's wire_clock()
         self._servo_clock = lambda: self.plant.time
-        self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None)
+        self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
+                                        chain=chain if chain is not None and len(config.buses) == 1 else None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
+        self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
+        self.wire: dict[str, WireFault | None] = {name: None for name in self.chains}   # a Dynamixel wire's fault
         self.small_time_step = small_time_step
         self.period = config.control_period      # s: one tick of the host (lock-step)
         self.lock = threading.RLock()
         self._round: set[str] = set()
 
+    @staticmethod
+    def _device(joint, bus, voltage):
+        """A joint's device, set up as the configuration says (its id; a servo's bus baud rate)."""
+        if bus.kind == "can":
+            return CanMotor(joint.servo, joint.id, dialect=joint.options["dialect"],
+                            feedback_id=joint.options["feedback_id"], ranges=joint.options["ranges"],
+                            supply_voltage=voltage)
+        return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud)
+
+    # --- the buses --------------------------------------------------------------------------------
+
+    def port(self, bus: str | None = None) -> "DynamixelPort | CanPort":
+        """One bus of the robot as its transport serves it (default: the only bus, or the first)."""
+        name = bus or next(iter(self.config.buses))
+        if name in self.chains:
+            return DynamixelPort(self, name)
+        if name in self.networks:
+            return CanPort(self, name)
+        raise KeyError(f"'{self.config.name}' has no bus {name!r} (buses: {', '.join(self.config.buses)})")
+
     def advance(self, duration: float) -> None:
+        """Run the plant; the servos' clocks (bus watchdog, Realtime Tick) follow."""
         self.plant.advance(duration)
+        self.tick()
+
+    def tick(self) -> None:
+        """The servos' clocks to now (the plant's or the wall clock's), the plant held."""
         for chain in self.chains.values():
             chain.tick()
 
     def wall_clock(self) -> None:
-        """The Dynamixel servos' clocks (Bus Watchdog) follow the wall clock from now on."""
+        """The servos' clocks (Bus Watchdog, Realtime Tick) follow the wall clock from now on (its
+        seconds since this call plus the plant's time now), not the plant's."""
         offset = _time.monotonic() - self.plant.time
         self._servo_clock = lambda: _time.monotonic() - offset
 
-    def handle(self, bus: str, arbitration_id: int, data: bytes) -> list[tuple[int, bytes]]:
-        return self.networks[bus].handle(arbitration_id, data)
-
     def lockstep(self, period: float | None = None) -> None:
+        """Advance the plant by `period` (default the control period) once every bus has ended a
+        tick's commands (a Dynamixel chain its command transaction, a CAN network its round)."""
         period = period or self.period
+        buses = len(self.networks) + len(self.chains)
 
         def tick(name):
             self._round.add(name)
-            if len(self._round) == len(self.networks) + len(self.chains):
+            if len(self._round) == buses:
                 self._round.clear()
                 self.advance(period)
 
@@ -99,98 +135,135 @@ class SimulatedRobot(PlantView):
         for chain in self.chains.values():
             chain.on_command = None
 
-    def dynamixel_port(self, bus: str) -> "DynamixelPort":
-        return DynamixelPort(self, bus)
+    def status(self) -> dict:
+        """The plant's time (s) and whether each device's torque is off, in the model's dof order."""
+        return {"time": self.time, "torque_off": [not d.torque_enabled for d in self.drives]}
+
+    # --- the devices --------------------------------------------------------------------------------
+
+    def servo(self, servo_id: int, bus: str | None = None) -> Servo:
+        for name, chain in self.chains.items():
+            if bus in (None, name):
+                try:
+                    return chain.servo(servo_id)
+                except (KeyError, ValueError, LookupError):
+                    pass
+        raise KeyError(f"no Dynamixel servo with id {servo_id}")
 
     def motor(self, can_id: int, bus: str | None = None) -> CanMotor:
-        networks = [self.networks[bus]] if bus else self.networks.values()
-        for network in networks:
-            try:
-                return network.motor(can_id)
-            except KeyError:
-                pass
+        for name, network in self.networks.items():
+            if bus in (None, name):
+                try:
+                    return network.motor(can_id)
+                except KeyError:
+                    pass
         raise KeyError(f"no motor with CAN id {can_id}")
 
     def inject_fault(self, device_id: int, fault: str | int = "silent") -> None:
-        """From now on, on the CAN motor or Dynamixel servo with this id (the first found):
-        "silent" (no answer); a CAN motor: "overheat" (the winding over its limit: the motor's own
-        over-temperature fault on its next step) or a status / error code latched; a servo:
-        Hardware Error Status bits by name ("overload", ...) or as an int; either: "pushed" (an
-        external push moves its joint PUSHED rad beyond its upper limit); a CAN motor's bus: a fault
-        of the wire (sim/faults.py: "garbage", "wrong_id", "error_frame", "bus_off")."""
+        """From now on, on the device with this id (a Dynamixel servo first, then a CAN motor):
+        "silent" (it stops answering); "pushed" (an external push moves its joint PUSHED rad beyond
+        the configuration's upper limit); a Dynamixel servo: Hardware Error Status bits by name
+        ("overload", "overheating", ...) or as an int, or a fault of its bus's wire (sim/faults.py:
+        "flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall"); a CAN motor: "overheat"
+        (the winding over its limit: its own over-temperature fault on its next step), a status or
+        error code as an int, or a fault of its wire ("garbage", "wrong_id", "error_frame", "bus_off")."""
+        if isinstance(fault, str) and fault not in FAULTS:
+            raise ValueError(f"unknown fault {fault!r} (one of {', '.join(FAULTS)})")
+        k = next((k for k, j in enumerate(self.joints) if j.id == device_id), None)
         if fault == "pushed":
-            k = next((k for k, j in enumerate(self.joints) if j.id == device_id), None)
             if k is None:
                 raise KeyError(f"no device with id {device_id}")
             self.plant.push(k, self.joints[k].position_limits[1] + PUSHED)
             return
-        if fault in CAN_WIRE_FAULTS:
-            network = next((n for n in self.networks.values() if any(m.can_id == device_id for m in n.motors)), None)
-            if network is None:
-                raise KeyError(f"no CAN motor with id {device_id}")
-            network.inject(device_id, fault, seed=device_id * 1_000_003 + round(self.time / self.small_time_step))
-            return
-        for chain in self.chains.values():
-            try:
-                servo = chain.servo(device_id)
-            except (KeyError, ValueError, LookupError):
-                continue
+        try:
+            servo = self.servo(device_id)
+        except KeyError:
+            servo = None
+        if servo is not None:
+            bus = next(name for name, chain in self.chains.items() if servo in chain.servos)
             if fault == "silent":
                 servo.silent = True
+            elif fault in WIRE_FAULTS:
+                self.wire[bus] = WireFault(fault, len(self.chains[bus].servos), seed=device_id)
+            elif isinstance(fault, int) and not isinstance(fault, bool):
+                servo.set_hardware_error(fault)
             elif fault in HARDWARE_FAULTS:
                 servo.set_hardware_error(HARDWARE_FAULTS[fault])
-            elif isinstance(fault, int):
-                servo.set_hardware_error(fault)
             else:
-                raise ValueError(f"unknown fault {fault!r} (one of {', '.join(FAULTS)})")
+                raise ValueError(f"a Dynamixel servo takes no {fault!r} fault")
             return
         motor = self.motor(device_id)
         if fault == "silent":
             motor.silent = True
         elif fault == "overheat":
             motor.temperature = motor.spec.temperature_limit + 1.0
+        elif fault in CAN_WIRE_FAULTS:
+            network = next(n for n in self.networks.values() if motor in n.motors)
+            network.inject(device_id, fault, seed=device_id * 1_000_003 + round(self.time / self.small_time_step))
         elif isinstance(fault, int) and not isinstance(fault, bool):
             motor.fault = fault
         else:
-            raise ValueError(f"unknown fault {fault!r} (one of {', '.join(FAULTS[:2])}, or a status code)")
+            raise ValueError(f"a CAN motor takes no {fault!r} fault")
 
     def clear_faults(self) -> None:
+        """Every device answers again, every wire is clean (hardware errors stay until a reboot,
+        as on a real servo)."""
         for drive in self.drives:
             drive.silent = False
+        for name in self.wire:
+            self.wire[name] = None
         for network in self.networks.values():
             network.wire.clear()
 
 
-class DynamixelPort:
-    """One Dynamixel bus of a SimulatedRobot as sim/transport/pty.py's PtyServer serves an arm."""
+class _Port(PlantView):
+    """One bus of a SimulatedRobot, as a transport serves it; the rest is the robot's."""
 
     def __init__(self, robot: SimulatedRobot, bus: str):
-        self.robot, self.chain = robot, robot.chains[bus]
+        self.robot, self.name, self.plant = robot, bus, robot.plant
         self.small_time_step, self.period, self.lock = robot.small_time_step, robot.period, robot.lock
 
+    def __getattr__(self, name):          # advance, tick, lockstep, wall_clock, inject_fault, status, ...
+        return getattr(self.robot, name)
+
+
+class DynamixelPort(_Port):
+    """A Dynamixel bus: bytes in, the servos' replies out (with its wire's fault, if any)."""
+
     @property
-    def time(self) -> float:
-        return self.robot.time
+    def bus(self) -> VirtualBus:
+        return self.robot.chains[self.name]
+
+    @property
+    def servos(self) -> list[Servo]:
+        return self.bus.servos
+
+    def servo(self, servo_id: int) -> Servo:
+        return self.robot.servo(servo_id, self.name)
 
     def handle(self, data: bytes) -> bytes:
-        return self.chain.handle(data)
-
-    def wall_clock(self) -> None:
-        self.robot.wall_clock()
+        reply = self.bus.handle(data)
+        wire = self.robot.wire[self.name]
+        return reply if wire is None else wire.apply(reply)
 
     def wire_clock(self, clock=_time.monotonic) -> None:
-        """A frame whose bytes arrive more than BYTE_TIMEOUT apart on `clock` is dropped."""
-        self.chain.reader.byte_timeout = BYTE_TIMEOUT
-        self.chain.wire_clock = clock
+        """The host's bytes come over a real-time wire: a frame whose bytes arrive more than
+        BYTE_TIMEOUT apart on `clock` is dropped, as a servo does, so a truncated frame cannot
+        swallow the next packet."""
+        self.bus.reader.byte_timeout = BYTE_TIMEOUT
+        self.bus.wire_clock = clock
 
-    def advance(self, duration: float) -> None:
-        self.robot.advance(duration)
 
-    def lockstep(self, period: float | None = None) -> None:
-        self.robot.lockstep(period)
+class CanPort(_Port):
+    """A CAN bus: a frame in, the frames the motors answer out."""
 
-    def inject_fault(self, device_id: int, fault="silent") -> None:
-        self.robot.inject_fault(device_id, fault)
+    @property
+    def network(self) -> CanNetwork:
+        return self.robot.networks[self.name]
 
-    def clear_faults(self) -> None:
-        self.robot.clear_faults()
+    @property
+    def motors(self) -> list[CanMotor]:
+        return self.network.motors
+
+    def handle(self, arbitration_id: int, data: bytes) -> list[tuple[int, bytes]]:
+        return self.network.handle(arbitration_id, data)

@@ -1,11 +1,11 @@
-"""The firmware budget's plan against the wall clock (tools/fw_budget.py, run by `make bench`): it
+"""The firmware budget's plan against the wall clock (tools/bench/fw_budget.py, run by `make bench`): it
 times a short and a longer run, and measures the whole swing only when it fits its budget, else
 the ticks that fit; a board whose run fails is one line, never a traceback. The runs are replaced
 here by stand-ins whose wall times are given (no time is measured in the test suite)."""
 
 import pytest
 
-from servodyn.tools import fw_budget
+from servodyn.tools.bench import fw_budget
 from servodyn.tools.hil import FirmwareError
 
 

@@ -7,6 +7,7 @@ from servodyn.control.motion import load_motion
 from servodyn.hal import (ConfigError, HalError, JointCommand, ProtocolError, ServoError, ServoHardwareError,
                           ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError,
                           load_config, make_bus)
+from servodyn.hal import backend as hal_backend
 from servodyn.hal import bus as hal_bus
 from servodyn.hal.dynamixel import FieldRangeError, PacketError, StatusError
 from servodyn.hal.dynamixel.control_table import hardware_faults
@@ -52,7 +53,7 @@ def test_make_bus_finds_backends_by_kind(monkeypatch):
     bus = make_bus(CONFIG, kind="loopback")
     assert isinstance(bus, LoopbackBus) and not bus.is_open and bus.dof_names == MODEL.dof_names, \
         "the loopback backend, not opened until used, driving the model's dofs in order"
-    monkeypatch.setitem(hal_bus.BACKENDS, "dynamixel", "servodyn.hal.no_such_module:Bus")
+    monkeypatch.setitem(hal_backend.BACKENDS, "dynamixel", "servodyn.hal.no_such_module:Bus")
     with pytest.raises(ServoInitializationError, match="no_such_module"):
         make_bus(CONFIG)
     with pytest.raises(ServoInitializationError, match="'ethercat'"):

@@ -36,7 +36,7 @@ def rig():
     config = load_config("replica_can")
     arm = SimulatedRobot(config)
     channel = next(CHANNELS)
-    server = VirtualCanServer(arm, channel, mode="lockstep")
+    server = VirtualCanServer(arm.port(), channel, mode="lockstep")
     server.start()
     host = can.Bus(interface="virtual", channel=channel)
     bus = make_bus(config, can_bus=host, reply_timeout=PATIENT)
@@ -247,7 +247,7 @@ def test_dialects_that_answer_on_one_shared_id_are_routed_by_motor_id(dialect):
     config = config_from_dict(data, "x.toml")
     assert {j.options["feedback_id"] for j in config.joints} == {0}, "every reply on id 0"
     arm = SimulatedRobot(config)
-    server = VirtualCanServer(arm, next(CHANNELS), threaded=False)
+    server = VirtualCanServer(arm.port(), next(CHANNELS), threaded=False)
     server.start()
     host = server.host_bus()
     bus = make_bus(config, can_bus=host, reply_timeout=PATIENT)

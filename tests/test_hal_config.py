@@ -243,7 +243,7 @@ def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
     that model's number (a configuration with an XH430-W350 used to load and then crash the
     simulator)."""
     from servodyn.hal.dynamixel import decode_frame, instructions as inst
-    from servodyn.sim.arm import SimulatedArm
+    from servodyn.sim.robot import SimulatedRobot
     spec = SERVOS[servo_name]
 
     def wrist(data):
@@ -252,7 +252,7 @@ def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
                      torque_constant=spec.torque_constant)
     config = build(wrist)
     assert config.joints[6].servo is spec, "the configuration holds the catalogue's data sheet itself"
-    arm = SimulatedArm(config)
+    arm = SimulatedRobot(config).port()
     reply = decode_frame(arm.handle(inst.ping(7).encode()))
     assert int.from_bytes(reply.params[:2], "little") == spec.model_number, \
         f"servo 7 answers as model {spec.model_number} ({servo_name})"

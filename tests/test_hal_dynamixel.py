@@ -1,5 +1,5 @@
 """The Dynamixel backend (hal/dynamixel/backend.py) through dynamixel-sdk on the simulated bus
-(sim/arm.py, lock-step): one fast sync read and one sync write per tick and their bytes on the
+(sim/robot.py, lock-step): one fast sync read and one sync write per tick and their bytes on the
 wire, a silent servo's truncated fast reply, values that need byte stuffing, hardware errors."""
 
 import math
@@ -15,7 +15,7 @@ from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel import (BROADCAST_ID, FastReadBlock, Instruction, InstructionPacket, PacketReader,
                                     StatusPacket, crc16, decode_frame, encode_fast_reply, split_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
-from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.sim.dynamixel import HardwareError
 
@@ -35,7 +35,7 @@ class Sim:
     record of every chunk the host sent and what the bus answered."""
 
     def __init__(self):
-        self.arm = SimulatedArm(CONFIG)
+        self.arm = SimulatedRobot(CONFIG).port()
         self.server = PtyServer(self.arm, "lockstep")
         self.wire: list[tuple[bytes, bytes]] = []
         handle = self.arm.handle
@@ -145,7 +145,7 @@ def test_fast_reply_stops_at_the_silent_servo():
     """sim/dynamixel/device.py: the chain's fast reply holds the blocks of the servos before the
     silent one (each 14 bytes after the 8-byte header), with the LEN of the whole reply; a silent
     first servo leaves nothing; a plain sync read only loses the silent servo's own packet."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     request = inst.fast_sync_read(*PRESENT, IDS).encode()
     full = arm.handle(request)
     assert len(full) == 106, "every servo answers: the 8-byte header and seven 14-byte blocks"
@@ -171,7 +171,7 @@ def test_fast_reply_stops_at_the_silent_servo():
 
 def test_fast_bulk_reply_with_unequal_blocks_stops_at_the_silent_servo():
     """Blocks of 10, 4 and 1 data bytes: the boundaries come from the running CRCs."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     request = inst.fast_bulk_read([(1, 126, 10), (2, 132, 4), (3, 64, 1)]).encode()
     assert len(arm.handle(request)) == 8 + 14 + 8 + 5, "header, then error, ID, data and CRC: 4 bytes + data each"
     arm.inject_fault(3, "silent")
@@ -308,7 +308,7 @@ def test_an_answer_the_wire_cannot_carry_leaves_the_bus_answering():
     """A fast sync read of 10,000 bytes from each of the seven servos would need a reply of
     70,000 bytes, more than a 16-bit LEN can say: nobody answers, it is counted, and the next
     ping is answered as before (the simulator used to raise in its serving thread and go deaf)."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     assert arm.handle(inst.fast_sync_read(0, 10_000, IDS).encode()) == b"", "no reply can be encoded"
     assert arm.bus.unanswerable == 1, "and the refusal is counted"
     assert decode_frame(arm.handle(inst.ping(1).encode())).id == 1, "the next ping is answered"
@@ -316,7 +316,7 @@ def test_an_answer_the_wire_cannot_carry_leaves_the_bus_answering():
 
 def test_the_pty_server_survives_an_exception_in_the_arm():
     """Whatever the arm raises while answering, the server reports it in one line and goes on."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     seen = []
     server = PtyServer(arm, "lockstep", on_error=seen.append)
     handle = arm.handle

@@ -15,7 +15,7 @@ import pytest
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel.units import ServoMap
-from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.tools.hil import FirmwareLink, replay
 from servodyn.tools.native import NATIVE, run_native
@@ -40,7 +40,7 @@ def _run(args="", on_tick=None, realtime=False, reply_timeout=1.0):
     """The native loop against a fresh simulated arm whose every exchange is recorded (patient
     with the simulator: a pseudo-terminal on a loaded machine can hold bytes back over 100 ms)."""
     config = load_config("replica")
-    arm = SimulatedArm(config, small_time_step=SMALL_TIME_STEP)
+    arm = SimulatedRobot(config, small_time_step=SMALL_TIME_STEP).port()
     link = FirmwareLink(arm, on_tick)
     server = PtyServer(arm, "lockstep")
     server.start()

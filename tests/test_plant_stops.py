@@ -9,20 +9,19 @@ import numpy as np
 import pytest
 
 from servodyn.hal.config import load_config
-from servodyn.sim.arm import PUSHED, SimulatedArm
+from servodyn.sim.robot import PUSHED, SimulatedRobot
 from servodyn.sim.plant import STOP_TIME_CONSTANT
 from servodyn.sim.robot import SimulatedRobot
 
 HOST_MARGIN = 0.05      # rad past a limit the host's range check lets by (hal)
 
 
-@pytest.mark.parametrize("name, kind", [("replica", SimulatedArm), ("replica_can", SimulatedRobot),
-                                        ("replica_mixed", SimulatedRobot)])
-def test_an_arm_with_torque_off_hangs_on_its_stops(name, kind):
+@pytest.mark.parametrize("name", ["replica", "replica_can", "replica_mixed"])
+def test_an_arm_with_torque_off_hangs_on_its_stops(name):
     """3 s of gravity from the neutral pose (the elbow at full extension, its lower stop): no joint
     goes more than 20 mrad past a stop as a falling link lands on it (its speed over the spring's
     100 rad/s), and none rests more than 1 mrad past one (the spring's give under the weight)."""
-    arm = kind(load_config(name))
+    arm = SimulatedRobot(load_config(name))
     model = arm.model
     worst = 0.0
     while arm.time < 3.0:
@@ -37,7 +36,7 @@ def test_an_arm_with_torque_off_hangs_on_its_stops(name, kind):
 def test_a_stop_only_pushes_back():
     """Past the upper stop and moving in: the spring-damper pushes back. Past it and leaving
     fast: no torque at all (a damper alone would hold the joint on the stop); inside: none."""
-    arm = SimulatedArm(load_config("replica"))
+    arm = SimulatedRobot(load_config("replica")).port()
     plant, k = arm.plant, 3
     plant.q[:] = 0.5 * (plant.lower + plant.upper)
     plant.qd[:] = 0.0
@@ -55,7 +54,7 @@ def test_a_pushed_joint_stays_past_its_stop():
     """The "pushed" fault is a push past the stop, which gives: the joint is still beyond its
     configured limit a tick later, where the host sees it (the safe stop the fault is for)."""
     config = load_config("replica")
-    arm = SimulatedArm(config)
+    arm = SimulatedRobot(config).port()
     arm.inject_fault(4, "pushed")
     k = [s.id for s in arm.servos].index(4)
     arm.advance(config.control_period)

@@ -29,7 +29,7 @@ from servodyn.hal.errors import ConfigError
 from servodyn.model import ModelError, builtin_models, load_model
 from servodyn.model.modelfile import model_from_dict
 from servodyn.model.tree import Model
-from servodyn.model.urdf import write_urdf
+from servodyn.model.urdf_write import write_urdf
 from servodyn.sim.dynamixel import Servo, VirtualBus
 
 # every property: no deadline (the machine is shared and slow); the tmp_path fixture is reused

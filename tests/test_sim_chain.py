@@ -15,7 +15,7 @@ from servodyn.hal.dynamixel import BROADCAST_ID, ResetOption
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, SERVOS, TABLE_SIZE,
                                                   HardwareError, OperatingMode)
-from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.dynamixel import Mechanics, Servo, ServoChain, VirtualBus
 from servodyn.sim.plant import STOP_TIME_CONSTANT, Drives
 
@@ -259,7 +259,7 @@ def _trace(rng, arm):
 
 
 def _arms():
-    with_chain, without = SimulatedArm(CONFIG), SimulatedArm(CONFIG)
+    with_chain, without = SimulatedRobot(CONFIG).port(), SimulatedRobot(CONFIG).port()
     without.plant.chain = Drives(without.servos)          # the drives one by one
     without.bus.chain = ServoChain([])                   # covers no bus: the general path
     for arm in (with_chain, without):
@@ -309,7 +309,7 @@ def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
     reply = bus.handle(inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1, 63]).encode(), 0.0)
     blocks = [inst.FastReadBlock(i, 0, servos[i - 1].read(ADDR_PRESENT, PRESENT_LENGTH)) for i in (1, 63)]
     assert reply == inst.encode_fast_reply(blocks), "answered by the general path"
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     assert arm.bus.chain.covers(arm.servos) and arm.plant.chain is arm.bus.chain, "the replica's 7 servos are one"
 
 
@@ -337,7 +337,7 @@ def _stop_torque(plant):
 
 
 def test_the_stops_quick_check_gives_what_the_full_expressions_give():
-    plant = SimulatedArm(CONFIG).plant
+    plant = SimulatedRobot(CONFIG).port().plant
     rng = np.random.default_rng(5)
     for trial in range(3000):
         q = rng.uniform(plant.lower - 0.1, plant.upper + 0.1)

@@ -20,7 +20,7 @@ from servodyn.hal.config import load_config
 from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
-from servodyn.tools.swing import SIM_REPLY_TIMEOUT
+from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
 
 CLIENT = textwrap.dedent(r'''
     import json, struct, sys, time
@@ -59,7 +59,7 @@ CLIENT = textwrap.dedent(r'''
 @pytest.fixture
 def adapter():
     arm = SimulatedRobot(load_config("replica_can"))
-    server = SlcanServer(arm, mode="realtime", on_error=lambda m: None)
+    server = SlcanServer(arm.port(), mode="realtime", on_error=lambda m: None)
     server.start()
     yield arm, server
     server.stop()
@@ -90,7 +90,7 @@ def test_python_can_in_another_process_drives_the_simulated_motors(adapter):
 
 def test_the_can_backend_through_the_slcan_adapter():
     arm = SimulatedRobot(load_config("replica_can"))
-    with SlcanServer(arm, mode="lockstep") as server:
+    with SlcanServer(arm.port(), mode="lockstep") as server:
         # as patient as the swing with a simulated bus: 0.5 s was once too short on a loaded machine
         bus = make_bus(arm.config, port=server.path, reply_timeout=SIM_REPLY_TIMEOUT["can"])
         try:

@@ -14,7 +14,7 @@ from servodyn.hal.dynamixel.reader import Fault
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import WATCHDOG_UNIT
 from servodyn.control.timing import BUS_WATCHDOG
-from servodyn.sim.arm import SimulatedArm
+from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 
 pytest.importorskip("dynamixel_sdk")
@@ -37,7 +37,7 @@ def _statuses(data: bytes) -> list:
 
 
 def test_the_pty_server_times_the_bytes_on_the_wall_clock():
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     server = PtyServer(arm, "lockstep")
     try:
         assert arm.bus.wire_clock is time.monotonic and arm.bus.reader.byte_timeout == 1.5e-3, \
@@ -50,7 +50,7 @@ def test_a_truncated_frame_then_silence_is_dropped_not_joined_to_the_next():
     """The first 9 bytes of a read of servo 2, 10 ms of silence, then a ping of servo 1: one
     reply, the ping's, without error (the truncated frame used to swallow the ping's bytes and
     get a spurious CRC-error status from servo 2). Within 1 ms the bytes still join up."""
-    arm, clock = SimulatedArm(CONFIG), WireClock()
+    arm, clock = SimulatedRobot(CONFIG).port(), WireClock()
     arm.wire_clock(clock)
     assert arm.handle(inst.read(2, 132, 4).encode()[:9]) == b""
     clock.now += 0.010
@@ -65,7 +65,7 @@ def test_a_truncated_frame_then_silence_is_dropped_not_joined_to_the_next():
 def test_a_header_announcing_1000_bytes_that_never_come_swallows_nothing():
     """A header with LEN 1000 and then ten pings, each after 5 ms: ten replies, one per ping (the
     frame used to swallow the next 99 pings, then 101 stale replies came at once)."""
-    arm, clock = SimulatedArm(CONFIG), WireClock()
+    arm, clock = SimulatedRobot(CONFIG).port(), WireClock()
     arm.wire_clock(clock)
     assert arm.handle(bytes.fromhex("FFFFFD0001E803")) == b""
     answered = []
@@ -78,7 +78,7 @@ def test_a_header_announcing_1000_bytes_that_never_come_swallows_nothing():
 def test_a_whole_bus_stall_is_not_blamed_on_one_servo():
     """The simulator paused for 300 ms while the host reads (80 ms per try, 3 tries, then pings):
     BusStallError naming the bus, no ServoTimeoutError naming the first servo pinged."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     with PtyServer(arm, "lockstep") as server:
         bus = make_bus(CONFIG, port=server.path, reply_timeout=0.08)
         bus.open()
@@ -98,7 +98,7 @@ def test_a_whole_bus_stall_is_not_blamed_on_one_servo():
 def test_in_real_time_the_servos_clocks_are_the_wall_clock():
     """The plant may fall behind the wall clock on a loaded machine; the servos' own clocks (Bus
     Watchdog, Realtime Tick) do not wait for it."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     server = PtyServer(arm, "realtime")          # not started: the plant stands at 0
     try:
         before = arm.bus.clock()
@@ -112,7 +112,7 @@ def test_a_host_gone_quiet_finds_its_servos_limp():
     """A host that arms the Bus Watchdog, commands a current and then goes quiet (as if killed),
     the servos on the wall clock and the plant standing still: within the watchdog's time every
     servo has tripped it and dropped its Goal Current; the host's next read reports the stall."""
-    arm = SimulatedArm(CONFIG)
+    arm = SimulatedRobot(CONFIG).port()
     with PtyServer(arm, "lockstep") as server:
         arm.wall_clock()
         bus = make_bus(CONFIG, port=server.path, reply_timeout=0.25)

@@ -16,21 +16,35 @@ from servodyn.model import load_model
 from servodyn.sim.faults import CAN_ERR_PROT, CanWireFault, WireFault, _frames
 from servodyn.tools import soak
 from servodyn.loop import Overrun
-from servodyn.tools.swing import EXIT_CODES, exit_code
+from servodyn.errors import ExitCode, ServodynError, exit_code
+from servodyn.hal.errors import BusStallError, HalError
+from servodyn.loop import Interrupted
+from servodyn.validation import MotionRefused
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def test_swing_exit_codes_are_the_firmware_fault_codes():
+def test_exit_codes_are_the_firmware_fault_codes():
+    """One table of exit statuses (servodyn.errors.ExitCode), the firmware's enum fw_fault_ entry for
+    entry: a run stopped by the Python loop, the native loop or the firmware exits alike."""
     header = (ROOT / "firmware" / "app" / "fw_app.h").read_text()
-    codes = {name: int(v) for name, v in re.findall(r"FW_FAULT_(\w+) = (\d+)", header)}
-    expected = {TimeoutError: codes["TIMEOUT"], ServoHardwareError: codes["STATUS"],
-                ServoOperationError: codes["CORRUPT"], ControlFault: codes["NONFINITE"],
-                FloatingPointError: codes["NONFINITE"], Overrun: codes["OVERRUN"],
-                ServoLimitError: codes["RANGE"]}
-    assert EXIT_CODES == expected, "the swing's exit statuses are fw_app.h's FW_FAULT_* values"
-    assert exit_code(ServoTimeoutError("j", 3)) == codes["TIMEOUT"], "a servo timeout is a TimeoutError"
-    assert exit_code(None) == 0 and exit_code(RuntimeError("x")) == 2, "completed 0, anything else 2"
+    enum = header[header.index("enum fw_fault_"):]
+    enum = enum[:enum.index("};")]
+    codes = {name: int(v) for name, v in re.findall(r"FW_(?:FAULT_)?(\w+) = (\d+)", enum)}
+    python = {code.name: int(code) for code in ExitCode if code is not ExitCode.BAD_INPUT}
+    assert codes == python, f"fw_app.h's fault codes {codes} are servodyn.errors.ExitCode's {python}"
+    expected = {ServoTimeoutError("j", 3): ExitCode.TIMEOUT, BusStallError("arm"): ExitCode.TIMEOUT,
+                TimeoutError(): ExitCode.TIMEOUT, ServoHardwareError("j", 3, 1, ("overload",)): ExitCode.STATUS,
+                ServoOperationError("x"): ExitCode.CORRUPT, ControlFault("x"): ExitCode.NONFINITE,
+                FloatingPointError(): ExitCode.NONFINITE, Overrun("x"): ExitCode.OVERRUN,
+                ServoLimitError("j", 9.0, (-1.0, 1.0)): ExitCode.RANGE, MotionRefused("x"): ExitCode.BAD_INPUT,
+                Interrupted(15): 128 + 15, RuntimeError("x"): ExitCode.BAD_INPUT, None: ExitCode.OK}
+    for error, code in expected.items():
+        assert exit_code(error) == code, f"{type(error).__name__} stops a run with exit status {int(code)}"
+    for error in expected:
+        if error is not None and not isinstance(error, (TimeoutError, FloatingPointError, RuntimeError)) \
+                or isinstance(error, (Overrun, HalError)):
+            assert isinstance(error, ServodynError), f"{type(error).__name__} is in servodyn's exception tree"
 
 
 def test_controller_refuses_a_non_finite_state_as_a_control_fault():
@@ -151,6 +165,6 @@ def test_a_delayed_reply_and_a_stall_last_past_the_simulated_bus_patience():
     """Otherwise the swing rides through them and the soak's two classes cannot stop (a 0.3 s delay
     did, once the simulated bus's patience grew from 0.25 s to 1 s)."""
     from servodyn.sim import faults
-    from servodyn.tools.swing import SIM_REPLY_TIMEOUT
+    from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
     assert faults.DELAY > SIM_REPLY_TIMEOUT["dynamixel"] and faults.STALL > SIM_REPLY_TIMEOUT["dynamixel"], \
         (faults.DELAY, faults.STALL, SIM_REPLY_TIMEOUT)

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.hal.errors import ServoInitializationError
 from servodyn.tools.swing import run_swing
 
 QUIET = dict(say=lambda *a, **k: None)
@@ -132,7 +133,7 @@ def test_a_motion_the_validator_refuses_never_moves(tmp_path):
     """A configuration whose shoulder may turn only 1e-9 rad/s: the swing is refused before anything
     moves — one line naming the joint, no log — and --force plays it on the simulated bus."""
     from servodyn.hal.config import CONFIGS_DIR
-    from servodyn.tools.swing import MotionRefused
+    from servodyn.validation import MotionRefused
     config = tmp_path / "crawl.toml"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
         "velocity_limit = 3.1416          # 30 rpm", "velocity_limit = 1e-9", 1))
@@ -149,7 +150,7 @@ def test_any_motion_plays(tmp_path):
     plays as the built-in does, within the same tracking."""
     from servodyn.control.trajectory import write_trajectory_csv
     from servodyn.hal.config import load_config
-    from servodyn.tools.validate import motion_path
+    from servodyn.control.motion import motion_path
     model = load_config("replica").model
     path = tmp_path / "forehand.csv"
     write_trajectory_csv(path, motion_path("tennis_forehand", model).at_scale(1.0), model.dof_names)
@@ -181,13 +182,14 @@ def test_a_configurations_real_port_is_used(tmp_path):
     missing = tmp_path / "ttyUSB9"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
         'port = "auto"', f'port = "{missing}"', 1))
-    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
-    assert str(missing) in summary["error"] and "cannot open" in summary["error"], summary["error"]
-    assert summary["ticks"] == 0 and "torque_off" not in summary, "no simulated servos were started"
-    assert summary["clock"] == "realtime", "real servos are never driven as fast as the bus answers"
-    written = json.loads((tmp_path / "out" / "summary.json").read_text())
-    for key in ("tracking_rms_rad", "tracking_max_rad", "loop_hz", "jitter_p99_ms", "cpu_ms_per_tick"):
-        assert key in written and written[key] is None, f"{key}: there, and null, in a run without ticks"
+    said = []
+    with pytest.raises(ServoInitializationError) as refused:
+        run_swing(str(config), out=tmp_path / "out", say=said.append)
+    assert str(missing) in str(refused.value) and "cannot open" in str(refused.value), str(refused.value)
+    assert "No such file or directory" in str(refused.value), f"the OS's reason, once: {refused.value}"
+    assert said == [], f"a run that never started says nothing but its error: {said}"
+    for never in ("swing_log.csv", "summary.json"):
+        assert not (tmp_path / "out" / never).exists(), f"{never}: no log or summary of a run that never started"
 
 
 def test_each_bus_gets_its_port():

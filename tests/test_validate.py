@@ -14,7 +14,9 @@ import pytest
 
 from servodyn.hal.config import CONFIGS_DIR, config_from_dict, load_config
 from servodyn.hal.dynamixel.control_table import XM540_W270
-from servodyn.tools.validate import CHECKS, Limits, check, motion_path, validate
+from servodyn.control.motion import motion_path
+from servodyn.tools.validate import validate
+from servodyn.validation import CHECKS, Limits, check
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
@@ -213,8 +215,9 @@ def test_the_bus_is_checked_against_the_configurations_period(tmp_path):
 
 
 def test_a_csv_is_played_from_its_own_first_row(tmp_path):
-    """A CSV sampled every 0.5 ms from t = 5 s: played at 1 ms, tick k takes its sample 2k (the
-    nearest on the CSV's clock), not sample k, nor the last because t = 5 s lies beyond k = 0."""
+    """A CSV sampled every 0.5 ms from t = 5 s: played at 1 ms, tick k is its sample 2k (on the
+    CSV's clock from its first row), not sample k, nor the last because t = 5 s lies beyond k = 0;
+    the interpolant passes through every sample, so it differs from the row only by rounding."""
     names = load_config("replica").model.dof_names
     t = 5.0 + np.arange(401) * 0.5e-3
     q = np.zeros((len(t), 7))
@@ -222,7 +225,26 @@ def test_a_csv_is_played_from_its_own_first_row(tmp_path):
     played = motion_path(write_csv(tmp_path / "fine.csv", names, t, q, 0 * q, 0 * q),
                          load_config("replica").model).at_scale(1.0, 1e-3)
     assert len(played.t) == 201, f"0.2 s at 1 ms: {len(played.t)} samples"
-    assert np.array_equal(played.q[:, 3], q[::2, 3]), "every other row of the CSV, from its first"
+    assert np.allclose(played.q[:, 3], q[::2, 3], rtol=0, atol=1e-12), "every other row of the CSV, from its first"
+    assert np.allclose(played.qd, 0, atol=1e-6), "the CSV's own qd (zero here) at its samples, not the spline's"
+
+
+def test_a_coarse_csv_keeps_its_own_velocities(tmp_path):
+    """A CSV every 50 ms with its own qd and qdd of a known motion (q = 0.3 sin 2t): sampled at
+    1 ms, the quintic Hermite through its samples follows the motion between them to 1e-6 rad
+    (a spline of q alone is off by ~1e-4 rad and ignores the columns); and at the samples the
+    velocity is the file's, even where it is not the motion's (a column changed on purpose)."""
+    names = load_config("replica").model.dof_names
+    t = np.arange(21) * 0.05
+    q, qd, qdd = (np.zeros((len(t), 7)) for _ in range(3))
+    q[:, 3], qd[:, 3], qdd[:, 3] = 0.5 + 0.3 * np.sin(2 * t), 0.6 * np.cos(2 * t), -1.2 * np.sin(2 * t)
+    model = load_config("replica").model
+    played = motion_path(write_csv(tmp_path / "coarse.csv", names, t, q, qd, qdd), model).at_scale(1.0, 1e-3)
+    exact = 0.5 + 0.3 * np.sin(2 * played.t)
+    assert np.abs(played.q[:, 3] - exact).max() < 1e-6, np.abs(played.q[:, 3] - exact).max()
+    qd[10, 3] = 1.0
+    bent = motion_path(write_csv(tmp_path / "bent.csv", names, t, q, qd, qdd), model).at_scale(1.0, 1e-3)
+    assert bent.qd[500, 3] == pytest.approx(1.0, abs=1e-9), "the file's own velocity at its sample (t = 0.5 s)"
 
 
 def test_command_range_and_its_quantization():
@@ -353,4 +375,4 @@ def test_cli_csv_whose_spline_overflows(tmp_path):
     res = run("replica", path, "--out", tmp_path / "out")
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1, res.stderr
-    assert "huge.csv: the spline through q overflows" in lines[0], lines[0]
+    assert "huge.csv: the motion between the samples overflows" in lines[0], lines[0]

@@ -247,7 +247,8 @@ def test_view_command_bad_input_is_one_line(tmp_path, args, message):
 def test_a_trajectory_csv_plays_with_its_torques(tmp_path):
     """A trajectory CSV is played (not edited): its torques are the RNEA of the validator's
     sampling of it, and its share of the servos' limits the validator's torque-speed ratio."""
-    from servodyn.tools.validate import Limits, check, motion_path
+    from servodyn.control.motion import motion_path
+    from servodyn.validation import Limits, check
     config, model = load_subject("replica")
     csv = tmp_path / "reach.csv"
     rows = [f"{t},{0.5 * t},{0.2 * t},0,{0.3 + 0.4 * t},0,0,0" for t in (0.0, 0.5, 1.0)]

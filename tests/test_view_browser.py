@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from servodyn.tools.browser import SCREEN, Browser, settle, wait_for
+from browser import SCREEN, Browser, settle, wait_for
 from servodyn.tools.view import open_view
 
 CANVAS_RIGHT = 780       # px: the GUI panel covers the page right of about here

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import gc
 import math
+import os
 import re
 import signal
 import sys
 import time
+import warnings
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -18,6 +20,8 @@ from ..control.motion import check_limits
 from ..control.timing import OVERRUN_TOLERANCE
 from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
 from ..model import ModelError, builtin_models, load_model
+from ..readable import fixed
+from .argtypes import OneLineParser, count
 
 
 class CliError(Exception):
@@ -40,6 +44,51 @@ def cmd_models(args) -> None:
     for name in builtin_models():
         model = load_model(name)
         print(f"{name:<12} {model.nbody:>6} {model.nq:>5} {model.total_mass:>8.2f}  {', '.join(model.dof_names)}")
+
+
+def catalogue() -> dict:
+    """The built-in models, configurations and motions, with what a newcomer picks them by."""
+    from ..control.motion import builtin_motions
+    from ..hal.config import builtin_configs, load_config
+    from ..model.files import read_toml
+    models = []
+    for name in builtin_models():
+        model = load_model(name)
+        models.append({"name": name, "bodies": model.nbody, "dofs": model.nq, "mass_kg": round(model.total_mass, 3)})
+    configs = []
+    for name in builtin_configs():
+        config = load_config(name)
+        configs.append({"name": name, "model": config.model_ref,
+                        "buses": {bus.name: bus.kind for bus in config.buses.values()},
+                        "servos": sorted({j.servo.name for j in config.joints}),
+                        "control_period_s": config.control_period})
+    motions = []
+    for name, path in builtin_motions().items():
+        data = read_toml(path, CliError)
+        frames = data.get("keyframe", [])
+        times = [f.get("t") for f in frames if isinstance(f, dict)]
+        motions.append({"name": name, "model": data.get("model"), "keyframes": len(frames),
+                        "duration_s": float(times[-1] - times[0]) if len(times) > 1 else 0.0})
+    return {"models": models, "configurations": configs, "motions": motions}
+
+
+def cmd_list(args) -> None:
+    import json
+    found = catalogue()
+    if args.json:
+        print(json.dumps(found, indent=1))
+        return
+    print("models (servodyn torques/export/view MODEL):")
+    for m in found["models"]:
+        print(f"  {m['name']:<16} {m['bodies']:>3} bodies {m['dofs']:>3} dofs {m['mass_kg']:>7.2f} kg")
+    print("configurations (servodyn swing --config CONFIG, validate CONFIG MOTION, view CONFIG):")
+    for c in found["configurations"]:
+        buses = ", ".join(f"{name} ({kind})" for name, kind in c["buses"].items())
+        print(f"  {c['name']:<16} model {c['model']}, bus {buses}, {', '.join(c['servos'])}, "
+              f"{c['control_period_s'] * 1e3:g} ms period")
+    print("motions (--motion NAME; or a keyframe .toml or trajectory .csv file):")
+    for m in found["motions"]:
+        print(f"  {m['name']:<16} {m['keyframes']} keyframes, {m['duration_s']:g} s, for model {m['model']}")
 
 
 def cmd_torques(args) -> None:
@@ -68,7 +117,7 @@ def cmd_torques(args) -> None:
           f"{elapsed * 1e3:.2f} ms ({elapsed / len(traj.t) * 1e6:.2f} us per sample) -> {args.output}")
     peak = np.abs(tau).max(axis=0)
     for name, value in sorted(zip(model.dof_names, peak), key=lambda x: -x[1])[:args.top]:
-        print(f"  peak |tau| {name:<24} {value:9.3f} N·m")
+        print(f"  peak |tau| {name:<24} {fixed(value, 3):>9} N·m")
 
 
 def cmd_export(args) -> None:
@@ -97,7 +146,7 @@ def _overrun_tolerance(ms: float | None) -> float | None:
 
 def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
-    from ..sim.transport.pty import SimProcessError
+    from .simulator import SimProcessError
     from .hil import FirmwareError
     from .swing import run_swing
     viewer = feed = None
@@ -113,6 +162,8 @@ def cmd_swing(args) -> int | None:
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         if viewer is not None:
             viewer.close()
+        if args.verbose and getattr(err, "violations", None):      # the validator's refusal, in full
+            print("\n".join(f"  {line}" for line in err.violations), flush=True)
         raise CliError(str(err)) from None
     if viewer is not None and (summary.get("signal") or summary.get("error")):
         viewer.close()
@@ -129,92 +180,68 @@ def cmd_swing(args) -> int | None:
 
 
 def cmd_sim(args) -> None:
+    """The configuration's buses simulated, each on a pseudo-terminal (a CAN bus behind an SLCAN
+    adapter), one plant behind all of them (servodyn.tools.simulator.serve); lock-step advances the
+    plant when every bus has had its tick's commands."""
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
-    from ..sim.arm import SimulatedArm
-    from ..control.realtime import SIMULATOR_PRIORITY, realtime_priority
-    from ..sim.transport.pty import PtyServer
+    from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
+    from . import simulator
+    mode = "lockstep" if args.lockstep else "realtime"
     try:
         config = load_config(args.config)
-        if any(bus.kind == "can" for bus in config.buses.values()):
-            return _serve_robot(config, args)
-        arm = SimulatedArm(config)
+        served = simulator.serve(config, mode, process=False, can="slcan", start=False)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
-    server = PtyServer(arm, "lockstep" if args.lockstep else "realtime")
-    print(f"simulated Dynamixel bus of '{config.name}': {len(arm.servos)} servos "
-          f"(IDs {', '.join(str(s.id) for s in arm.servos)}) on {server.path}", flush=True)
-    print(f"connect with: servodyn swing --config {args.config} --port {server.path}{_paced(args)}   "
-          "(Ctrl-C stops)", flush=True)
+    robot, paths = served.robot, {name: options["port"] for name, options in served.buses.items()}
+    for name, bus in config.buses.items():
+        if bus.kind == "can":
+            devices = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in robot.port(name).motors)
+            print(f"simulated CAN bus '{name}' of '{config.name}' (SLCAN adapter, {bus.baud} bit/s): "
+                  f"{devices} on {paths[name]}", flush=True)
+        else:
+            ids = ", ".join(str(j.id) for j in config.joints_on(name))
+            print(f"simulated Dynamixel bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
+                  f"{paths[name]}", flush=True)
+
+    def swing(path_of):
+        return f"servodyn swing --config {args.config} " + " ".join(
+            f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
+    kinds = {bus.kind for bus in config.buses.values()}
+    if kinds == {"dynamixel"}:
+        print(f"connect with: {swing(paths.get)}{_paced(args)}   (Ctrl-C stops)", flush=True)
+    elif len(paths) == 1:
+        path, bus = next(iter(paths.values())), next(iter(config.buses.values()))
+        print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
+              + (f"  or  {swing(paths.get)}" if args.lockstep else "") + "   (Ctrl-C stops)", flush=True)
+    elif args.lockstep:
+        print(f"connect with: {swing(paths.get)}   (Ctrl-C stops)", flush=True)
+    if "can" in kinds and not args.lockstep:
+        # a swing paced by the wall clock cannot keep its period through an SLCAN pseudo-terminal
+        print(f"a swing: serve with --lockstep, then {swing(lambda name: 'PATH')} (an SLCAN pseudo-terminal carries a "
+              f"tick slower than the {config.control_period * 1e3:g} ms period; real time needs SocketCAN; "
+              "Ctrl-C stops)", flush=True)
     gc.freeze()        # the set-up's objects out of every later collection, as the swing's simulator
     try:
-        # in real time the servos answer ahead of everything else, as the swing's own simulator does
-        with nullcontext() if args.lockstep else realtime_priority(SIMULATOR_PRIORITY, "the simulated bus"):
-            server.serve_forever()      # in this thread, blocked on the pseudo-terminal
+        if len(served.servers) == 1 and kinds == {"dynamixel"}:
+            # in real time the servos answer ahead of everything else, as the swing's own simulator does
+            with nullcontext() if args.lockstep else realtime_priority(SIMULATOR_PRIORITY, "the simulated bus"):
+                next(iter(served.servers.values())).serve_forever()   # in this thread, blocked on the pty
+        else:
+            for server in served.servers.values():
+                server.start()
+            while True:
+                time.sleep(0.5)
     except KeyboardInterrupt:
-        print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
+        print(f"\nstopped after {robot.time:.2f} s of simulated time", flush=True)
     finally:
-        server.stop()
+        served.stop()
 
 
 def _paced(args) -> str:
     """The swing's option that matches the simulator's clock: a plant on the wall clock wants a
     loop paced by it (lock-step, one period per command, wants the loop as fast as it goes)."""
     return "" if args.lockstep else " --realtime"
-
-
-def _serve_robot(config, args) -> None:
-    """A configuration with CAN buses, alone or beside Dynamixel buses: one simulated plant, each CAN
-    bus behind an SLCAN adapter on a pseudo-terminal, each Dynamixel bus on a pseudo-terminal of its
-    own; lock-step advances the plant when every bus has had its tick's commands."""
-    import contextlib
-    import time as _time
-    from ..sim.robot import SimulatedRobot
-    from ..sim.transport.can import SlcanServer
-    from ..sim.transport.pty import PtyServer
-    arm = SimulatedRobot(config)
-    first = True
-    with contextlib.ExitStack() as stack:
-        paths = {}
-        for name, bus in config.buses.items():
-            # real time: the first bus's server runs the plant's clock, the others only answer
-            mode = "lockstep" if args.lockstep or not first else "realtime"
-            if bus.kind == "can":
-                server = stack.enter_context(SlcanServer(arm, bus=name, mode=mode))
-                devices = ", ".join(f"{m.can_id}->0x{m.feedback_id:X} {m.spec.name}" for m in arm.motors
-                                    if m in arm.networks[name].motors)
-                print(f"simulated CAN bus '{name}' of '{config.name}' (SLCAN adapter, {bus.baud} bit/s): "
-                      f"{devices} on {server.path}", flush=True)
-            else:
-                server = PtyServer(arm.dynamixel_port(name), mode)
-                server.start()
-                stack.callback(server.stop)
-                ids = ", ".join(str(j.id) for j in config.joints_on(name))
-                print(f"simulated Dynamixel bus '{name}' of '{config.name}': servos {ids} on {server.path}",
-                      flush=True)
-            paths[name], first = server.path, False
-        if not args.lockstep and len(config.buses) > 1:
-            arm.free_running()           # the first server's clock alone moves the plant
-        def swing(path_of):
-            return f"servodyn swing --config {args.config} " + " ".join(
-                f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
-        if len(paths) == 1:
-            path = next(iter(paths.values()))
-            bus = next(iter(config.buses.values()))
-            print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
-                  + (f"  or  {swing(paths.get)}" if args.lockstep else "") + "   (Ctrl-C stops)", flush=True)
-        elif args.lockstep:
-            print(f"connect with: {swing(paths.get)}   (Ctrl-C stops)", flush=True)
-        if not args.lockstep:
-            # a swing paced by the wall clock cannot keep its period through an SLCAN pseudo-terminal
-            print(f"a swing: serve with --lockstep, then {swing(lambda name: 'PATH')} (an SLCAN pseudo-terminal carries a "
-                  f"tick slower than the {config.control_period * 1e3:g} ms period; real time needs SocketCAN; "
-                  "Ctrl-C stops)", flush=True)
-        try:
-            while True:
-                _time.sleep(0.5)
-        except KeyboardInterrupt:
-            print(f"\nstopped after {arm.time:.2f} s of simulated time", flush=True)
 
 
 def cmd_codegen(args) -> None:
@@ -271,14 +298,43 @@ def cmd_demo(args) -> None:
     run_demo(args.model, Path(args.out))
 
 
+def _version() -> str:
+    """The installed package's version (its metadata), or the source tree's when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("servodyn")
+    except PackageNotFoundError:
+        from .. import __version__
+        return __version__
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse measures the subcommands' names one indent short of where it prints them, so a
+    name as long as 'experiment' pushed its help to a line of its own: measured where printed."""
+
+    def add_argument(self, action):
+        super().add_argument(action)
+        if isinstance(action, argparse._SubParsersAction) and action.choices:
+            longest = max(map(len, action.choices)) + self._current_indent + self._indent_increment
+            self._action_max_length = max(self._action_max_length, longest)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="servodyn",
+    parser = OneLineParser(
+        prog="servodyn", formatter_class=_Formatter,
         description="Closed-form inverse and direct dynamics for a servo-driven humanoid arm.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    p = sub.add_parser("models", help="list the built-in models")
+    p = sub.add_parser("list", help="list the built-in models, configurations and motions",
+                       description="List what servodyn ships: models, robot configurations and motions, "
+                       "each by the name the other commands take.")
+    p.add_argument("--json", action="store_true", help="as JSON, for scripts")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("models", help="list the built-in models with their bodies and dofs",
+                       description="List the built-in models: bodies, dofs, mass and dof names.")
     p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("torques", help="offline inverse dynamics of a trajectory CSV",
@@ -288,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="built-in model name, .urdf or .toml file")
     p.add_argument("trajectory", help="trajectory CSV")
     p.add_argument("-o", "--output", required=True, help="torque CSV to write (t, tau_<dof>)")
-    p.add_argument("--top", type=int, default=7, help="how many peak torques to print (default 7)")
+    p.add_argument("--top", type=count(0), default=7, help="how many peak torques to print (default 7)")
     p.add_argument("--max-velocity", type=float, default=None, metavar="RAD_S",
                    help="refuse a trajectory faster than this at any dof")
     p.add_argument("--max-acceleration", type=float, default=None, metavar="RAD_S2",
@@ -298,7 +354,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "--max-acceleration when given")
     p.set_defaults(func=cmd_torques)
 
-    p = sub.add_parser("export", help="write a model as URDF")
+    p = sub.add_parser("export", help="write a model as URDF",
+                       description="Write a model (built-in or file) as URDF, with its solids as visuals.")
     p.add_argument("model", help="built-in model name, .urdf or .toml file")
     p.add_argument("output", help="URDF file to write")
     p.set_defaults(func=cmd_export)
@@ -311,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default out/<name>)")
     p.set_defaults(func=cmd_experiment)
 
-    p = sub.add_parser("swing", help="the tennis swing, or any motion, on servos (the simulated bus by default)",
+    p = sub.add_parser("swing", help="play a motion on servos (the simulated bus by default)",
                        description="Validate the motion against the servos' limits, home the arm, play it "
                        "under closed-form control and log it. Without --port the simulated Dynamixel bus "
                        "is started and used. The log streams to OUT/swing_log.csv (on disk at least every "
@@ -342,6 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="built-in motion, keyframe file or trajectory CSV (default tennis_forehand)")
     p.add_argument("--force", action="store_true",
                    help="play a motion the validator refuses (on the simulated bus only)")
+    p.add_argument("--verbose", action="store_true",
+                   help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
     p.add_argument("--view", action="store_true",
@@ -350,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view-host", default="127.0.0.1", help="the page's address (default 127.0.0.1)")
     p.set_defaults(func=cmd_swing)
 
-    p = sub.add_parser("view", help="the arm in 3-D in a browser: play a motion or a logged run, shape keyframes",
+    p = sub.add_parser("view", help="the arm in 3-D in a browser: play, compare, shape keyframes",
                        description="Serve a page with the arm drawn from its solids: play, pause and scrub a "
                        "motion or a logged run (the planned arm as a ghost, the measured one solid, angle, "
                        "tracking error and torque plots, each joint coloured by its torque's share of the "
@@ -369,27 +428,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)
 
-    p = sub.add_parser("sim", help="serve the simulated bus on a pseudo-terminal (Dynamixel, or an SLCAN "
-                                              "adapter for a CAN configuration)")
+    p = sub.add_parser("sim", help="serve the simulated bus on a pseudo-terminal",
+                       description="Serve the simulated bus of a configuration on a pseudo-terminal: "
+                       "Dynamixel, or an SLCAN adapter for a CAN configuration.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.set_defaults(func=cmd_sim)
 
-    p = sub.add_parser("codegen", help="write a robot configuration and its swing as C for the firmware")
+    p = sub.add_parser("codegen", help="write a configuration and its motion as C for the firmware",
+                       description="Write a robot configuration and a keyframe motion as C source "
+                       "(servodyn_gen.h, servodyn_gen.c) for the firmware.")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--motion", default="tennis_forehand", help="motion (default tennis_forehand)")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.set_defaults(func=cmd_codegen)
 
-    p = sub.add_parser("firmware", help="run the firmware under QEMU against the simulated bus "
-                                        "(hardware in the loop)")
+    p = sub.add_parser("firmware", help="run the firmware under QEMU on the simulated bus (HIL)",
+                       description="Run the firmware under QEMU against the simulated bus "
+                       "(hardware in the loop).")
     p.add_argument("--board", default="an386", choices=("an386", "an500"),
                    help="QEMU board: an386 = Cortex-M4F (default), an500 = Cortex-M7")
     p.add_argument("--elf", default=None, help="firmware image (default build/fw/BOARD/servodyn-fw.elf; "
                                                "`make fw` builds it)")
     p.add_argument("--config", default="replica", help="robot configuration the image was generated for")
-    p.add_argument("--icount-shift", type=int, default=3,
+    p.add_argument("--icount-shift", type=count(0, 10, "QEMU takes shifts up to 10"), default=3,
                    help="QEMU -icount shift: 2^N ns of emulated time per instruction (default 3: "
                         "125 MIPS, a fast Cortex-M4; 7 for the budget figures)")
     p.add_argument("--out", default="out/firmware", help="output folder (default out/firmware)")
@@ -413,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="supply voltage (default: the configuration's)")
     p.add_argument("--margin", type=float, default=1.0, metavar="F",
                    help="fraction of each limit allowed (default 1.0; 0.8 keeps 20%% in reserve)")
-    p.add_argument("--repeat", type=int, default=1, metavar="N", help="plays in a row, for the heat (default 1)")
+    p.add_argument("--repeat", type=count(1, what="plays"), default=1, metavar="N", help="plays in a row, for the heat (default 1)")
     p.add_argument("--ambient", type=float, default=25.0, metavar="C", help="ambient temperature (default 25 °C)")
     p.add_argument("--fit", action="store_true", help="also find the smallest time scale at which every check passes")
     p.add_argument("--retime", action="store_true",
@@ -425,7 +488,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm")
+    p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
+                       description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
@@ -445,15 +509,33 @@ def _file_error(err: OSError, args) -> str:
     return f"{path}: {reason}" if path else reason
 
 
+# numpy's floating-point warnings: raised as errors in a command, so a result computed from an
+# overflow or a 0/0 is never printed beside a warning the user cannot act on
+NUMPY_WARNINGS = r"(overflow|invalid value|divide by zero) encountered"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "command", None) == "experiment" and args.out is None:
         args.out = f"out/{args.name}"
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=NUMPY_WARNINGS, category=RuntimeWarning)
+        return _run(args)
+
+
+def _run(args) -> int:
     try:
         return args.func(args) or 0
+    except RuntimeWarning as err:
+        print(f"servodyn: error: a computation left the range of double precision ({err}): an input "
+              "is far outside what the model and the servos allow", file=sys.stderr)
+        return 2
     except (CliError, ModelError, TrajectoryError, FloatingPointError) as err:
         print(f"servodyn: error: {err}", file=sys.stderr)
         return getattr(err, "code", 2)
+    except BrokenPipeError:        # `servodyn list | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as err:
         print(f"servodyn: error: {_file_error(err, args)}", file=sys.stderr)
         return 2

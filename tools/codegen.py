@@ -90,6 +90,9 @@ def _fields(fields: dict, names: list[str], integer: set[str], indent: str = "  
 
 def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[str, str]:
     """The generated files of a configuration: {file name: C source}."""
+    if str(motion_name).lower().endswith(".csv"):
+        raise ValueError(f"codegen: --motion takes keyframes, a built-in motion or a keyframe .toml file (the "
+                         f"firmware interpolates them itself, in flash), not a sampled trajectory: {motion_name}")
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
         raise ValueError(f"codegen: the firmware drives hinge joints only; '{config.model_ref}' has "
@@ -192,9 +195,10 @@ const fw_plan fw_plan_ = {{
 
 def write(config_name: str, out: Path, motion: str = "tennis_forehand") -> list[Path]:
     config = load_config(config_name)
+    files = generate(config, motion)          # a refusal leaves no folder behind
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, text in generate(config, motion).items():
+    for name, text in files.items():
         path = out / name
         if not path.exists() or path.read_text() != text:     # keep make's timestamps still
             path.write_text(text)

@@ -34,6 +34,7 @@ from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE,
 from ..hal.dynamixel.instructions import parse_sync_write
 from ..hal.dynamixel.units import ServoMap
 from ..loop import tick
+from ..sim.robot import SimulatedRobot
 
 BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,7 +59,7 @@ def default_elf(board: str) -> Path:
 
 
 class FirmwareLink:
-    """A SimulatedArm served on a socket, lock-stepped to the firmware's command transactions.
+    """A simulated robot's Dynamixel bus (SimulatedRobot.port) served on a socket, lock-stepped to the firmware's command transactions.
     Fault injection: on_tick(k, arm) runs after the k-th Goal Current write has moved the plant
     (what it does to the servos shows in the next read); tamper(reply) may change reply bytes."""
 
@@ -158,7 +159,6 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
              q0=None) -> tuple[dict, Record, object]:
     """Run the image against a fresh simulated arm; (report, record, arm)."""
-    from ..sim.arm import SimulatedArm
     if board not in BOARDS:
         raise FirmwareError(f"unknown board '{board}' (one of {', '.join(BOARDS)})")
     elf = Path(elf) if elf else default_elf(board)
@@ -167,7 +167,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     check_arm_elf(elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
-    arm = SimulatedArm(load_config(config), q0=q0)
+    arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
     port = _free_port()
     proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args), stdin=subprocess.DEVNULL,

@@ -3,12 +3,23 @@ joint torques (Fig. 6), torque curves (Fig. 8). matplotlib, off-screen."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 VIEWS = {"side": (0, 2, "x forward (m)", "z up (m)"), "top": (0, 1, "x forward (m)", "y left (m)"),
          "front": (1, 2, "y left (m)", "z up (m)")}
+
+
+TITLE_CHARS = 100        # a title or label longer than this is cut: matplotlib lays out every glyph, and
+                         # a 100 000-character configuration name took half a minute to draw
+
+
+def short(text: str, limit: int = TITLE_CHARS) -> str:
+    """`text` cut to `limit` characters, an ellipsis marking the cut."""
+    text = str(text)
+    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def _pyplot():
@@ -56,7 +67,7 @@ def posture_series(path: Path, model, qs, times, views=("side", "top"), title: s
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(times[0], times[-1]))
     fig.colorbar(sm, ax=axes.tolist(), label="time (s)", shrink=0.8)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -82,7 +93,7 @@ def snapshots(path: Path, model, qs, times, view: str = "front", title: str = ""
         ax.set_ylabel("")
         ax.tick_params(labelsize=7)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -94,7 +105,7 @@ def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for name, values in series.items():
-        ax.plot(t, values, label=name)
+        ax.plot(t, values, label=short(name, 40))
     for label, when in (marks or {}).items():
         ax.axvline(when, color="0.5", ls=":", lw=1)
         ax.text(when, ax.get_ylim()[1], label, rotation=90, va="top", ha="right", fontsize=8, color="0.4")
@@ -103,7 +114,7 @@ def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
-        ax.set_title(title)
+        ax.set_title(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -131,31 +142,81 @@ def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
     for ax in (ax0, ax1, ax2):
         ax.grid(alpha=0.3)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def tracking_figure(path: Path, t, q_d, q, tau, names, title: str) -> None:
-    """Angles (desired dotted), tracking errors and commanded torques of a run, one line per dof."""
+ERROR_SMOOTHING = 0.05    # s: the tracking error's moving average in the swing's figure
+
+
+def _moving_mean(x: np.ndarray, width: int) -> np.ndarray:
+    """The mean of `width` samples centred on each one (fewer at the ends), per column."""
+    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+    k = np.arange(len(x))
+    lo, hi = np.clip(k - width // 2, 0, len(x)), np.clip(k - width // 2 + width, 0, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def tracking_figure(path: Path, t, q_d, q, tau, names, title: str, torque_limits=None, encoder_steps=None) -> None:
+    """A run at a glance: the angles (desired dotted); each joint's tracking error in a panel of its
+    own, the raw error faint under its ERROR_SMOOTHING moving average, one encoder count at the joint
+    (`encoder_steps`, rad) shaded; and the commanded torques as a share of each joint's torque limit
+    (`torque_limits`, N m; without them in N m), the limit drawn at ±100 %."""
     plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    n = len(names)
+    cols = min(4, n)
+    rows = -(-n // cols)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    color = [colors[k % len(colors)] for k in range(n)]
+    fig = plt.figure(figsize=(12, 3.2 + 1.9 * rows + 3.2), layout="constrained")
+    grid = fig.add_gridspec(2 + rows, cols, height_ratios=[1.7] + [1.0] * rows + [1.7])
+    angles = fig.add_subplot(grid[0, :])
+    torques = fig.add_subplot(grid[-1, :], sharex=angles)
+    error = np.degrees(q_d - q)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1e-3
+    smooth = _moving_mean(error, max(1, int(round(ERROR_SMOOTHING / dt)))) if len(t) else error
+    first = None
     for k, name in enumerate(names):
-        line, = axes[0].plot(t, np.degrees(q[:, k]), label=name)
-        axes[0].plot(t, np.degrees(q_d[:, k]), ":", color=line.get_color())
-        axes[1].plot(t, np.degrees(q_d[:, k] - q[:, k]), label=name)
-        axes[2].plot(t, tau[:, k], label=name)
-    axes[0].set_ylabel("angle (deg), dotted: desired")
-    axes[1].set_ylabel("tracking error (deg)")
-    axes[2].set_ylabel("commanded torque (N m)")
-    axes[2].set_xlabel("time (s)")
-    axes[0].legend(fontsize=7, ncol=2)
-    for ax in axes:
+        angles.plot(t, np.degrees(q[:, k]), color=color[k], lw=1.2, label=short(name, 40))
+        angles.plot(t, np.degrees(q_d[:, k]), ":", color=color[k], lw=1.2)
+        ax = fig.add_subplot(grid[1 + k // cols, k % cols], sharex=angles, sharey=first)
+        first = first or ax
+        if encoder_steps is not None and encoder_steps[k]:
+            step = math.degrees(encoder_steps[k])
+            ax.axhspan(-step, step, color="0.88", lw=0, label="±1 encoder count")
+        ax.plot(t, error[:, k], color=color[k], lw=0.5, alpha=0.35, label="error")
+        ax.plot(t, smooth[:, k], color=color[k], lw=1.4, label=f"{ERROR_SMOOTHING * 1e3:g} ms mean")
+        rms = float(np.sqrt(np.mean(error[:, k] ** 2))) if len(t) else 0.0
+        peak = float(np.abs(error[:, k]).max()) if len(t) else 0.0
+        ax.set_title(f"{short(name, 28)}: rms {rms:.3f}°, max {peak:.3f}°", fontsize=8, color=color[k])
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    axes[0].set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+        if k % cols == 0:
+            ax.set_ylabel("error (deg)", fontsize=8)
+        if k == 0:
+            ax.legend(fontsize=6, loc="upper right")
+    if torque_limits is not None:
+        for k, name in enumerate(names):
+            torques.plot(t, 100 * tau[:, k] / torque_limits[k], color=color[k], lw=1,
+                         label=f"{short(name, 28)} (limit {torque_limits[k]:.2f} N m)")
+        for sign in (1, -1):
+            torques.axhline(100 * sign, color="tab:red", ls="--", lw=1.2,
+                            label="torque limit (current limit × torque constant × gear)" if sign > 0 else None)
+        torques.set_ylabel("commanded torque (% of limit)")
+    else:
+        for k, name in enumerate(names):
+            torques.plot(t, tau[:, k], color=color[k], lw=1, label=short(name, 28))
+        torques.set_ylabel("commanded torque (N m)")
+    angles.set_ylabel("angle (deg), dotted: desired")
+    torques.set_xlabel("time (s)")
+    angles.legend(fontsize=7, ncol=4, loc="best")
+    torques.legend(fontsize=7, ncol=2, loc="best")
+    for ax in (angles, torques):
+        ax.grid(alpha=0.3)
+    fig.suptitle(short(title))
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -184,7 +245,7 @@ def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
         ax.plot(result.qd[:, j], result.tau[:, j], color="tab:blue", lw=1, label="motion")
         if bad.any():
             ax.plot(result.qd[bad, j], result.tau[bad, j], ".", color="tab:red", ms=2, label="outside")
-        ax.set_title(dof, fontsize=9)
+        ax.set_title(short(dof, 40), fontsize=9)
         ax.set_xlabel("speed (rad/s)", fontsize=8)
         ax.set_ylabel("torque (N m)", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -192,7 +253,7 @@ def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(title)
+    fig.suptitle(short(title))
     fig.tight_layout()
     fig.savefig(file, dpi=100)
     plt.close(fig)
@@ -203,9 +264,9 @@ def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> 
     plt = _pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     for j, dof in enumerate(dof_names):
-        line, = top.plot(result.t, result.current[:, j], lw=1, label=dof)
+        line, = top.plot(result.t, result.current[:, j], lw=1, label=short(dof, 40))
         top.axhline(limits.current[j], color=line.get_color(), ls=":", lw=1)
-        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=dof)
+        bottom.plot(result.t, result.temperature[:, j], lw=1, color=line.get_color(), label=short(dof, 40))
     for limit in sorted(set(limits.temperature)):
         bottom.axhline(limit, color="tab:red", ls=":", lw=1)
     top.set_ylabel("current (A), dotted: limit")
@@ -214,7 +275,7 @@ def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> 
     top.legend(fontsize=7, ncol=2)
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
-    top.set_title(title)
+    top.set_title(short(title))
     fig.tight_layout()
     fig.savefig(file, dpi=100)
     plt.close(fig)

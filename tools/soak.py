@@ -6,7 +6,7 @@ reply delayed past the timeout, a reply from the wrong id, a NaN in the motion, 
 beyond its limit, the simulator paused past the host's patience (sim/faults.py STALL). Every run
 must end in a safe stop: torque off on every servo within two plant ticks of the fault (in lock-step the plant moves one tick per
 command, so this counts the commands sent after it), one line of error, the exit status of the
-fault's class (swing.EXIT_CODES, the firmware's fault codes), and a log with every tick up to the
+fault's class (servodyn.errors.ExitCode, the firmware's fault codes), and a log with every tick up to the
 stop and a complete last line. No run may hang or raise. A subset runs through the firmware
 under QEMU (the same faults, injected on the same simulated bus). Some runs play on the simulated
 CAN motors of `replica_can`, a few on `replica_mixed` (CAN and Dynamixel buses, one robot), with
@@ -23,7 +23,6 @@ early, so that hundreds of runs take minutes; the runs are spread over worker pr
 
 from __future__ import annotations
 
-import argparse
 import csv
 import multiprocessing
 import random
@@ -33,7 +32,13 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
+from ..control.timing import SMALL_TIME_STEP
+from ..errors import ExitCode
+from ..hal.config import load_config
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
+from .argtypes import OneLineParser, count
+from .hil import run_qemu
+from .swing import run_swing
 
 SMALL = 1e-3                 # s, the swing's small_time_step (checked against timing below); a
                              # configuration's [control] period replaces it (replica_can: 2.5 ms)
@@ -113,7 +118,6 @@ def plan(runs: int, seed: int, firmware: int, can: int = 0) -> list[dict]:
         servo = rng.randint(1, 7 if config == "replica_can" or on_dynamixel else 4)
         faults = on_can if config == "replica_can" or servo <= 4 else on_dynamixel
         if config not in periods:
-            from ..hal.config import load_config
             periods[config] = load_config(config).control_period
         ticks = int(round(MOTION_TIME / periods[config]))
         specs.append({"run": len(specs), "class": name, "fault": rng.choice(faults), "servo": servo,
@@ -131,8 +135,6 @@ def plan(runs: int, seed: int, firmware: int, can: int = 0) -> list[dict]:
 
 def run_host(spec: dict, folder: Path) -> dict:
     """One swing with its fault, checked; the checks that failed in 'problems'."""
-    from ..hal.config import load_config
-    from .swing import exit_code, run_swing
     config = load_config(spec["config"])
     can = spec["config"] != "replica"
     motion = folder / f"motion_{spec['run']}.toml"
@@ -156,7 +158,7 @@ def run_host(spec: dict, folder: Path) -> dict:
     late = round((summary.get("sim_time_at_stop_s", 0.0) - fault_t) / period)
     if stopped and late > STOP_TICKS:
         problems.append(f"torque off {late} plant ticks after the fault")
-    code = summary.get("exit_code", exit_code(None))
+    code = summary.get("exit_code", ExitCode.OK)
     if stopped and code not in expected:
         problems.append(f"exit status {code}, expected {' or '.join(map(str, sorted(expected)))} "
                         f"({summary.get('error_class')}: {error})")
@@ -185,7 +187,6 @@ def _check_log(path: Path, ticks: int, ndof: int, period: float = SMALL) -> list
 
 def run_firmware(spec: dict) -> dict:
     """The same fault through the firmware under QEMU: a fault report of the class, torque off."""
-    from .hil import run_qemu
     fault = spec["fault"]
     args = f"ticks={spec['tick'] + 60}"
 
@@ -231,16 +232,15 @@ def _where(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="soak", description=__doc__.split("\n\n")[1])
-    parser.add_argument("--runs", type=int, default=207, help="swings on the host (default 207: 23 per class)")
-    parser.add_argument("--firmware", type=int, default=14, help="runs through the firmware under QEMU "
+    parser = OneLineParser(prog="soak", description=__doc__.split("\n\n")[1])
+    parser.add_argument("--runs", type=count(0), default=207, help="swings on the host (default 207: 23 per class)")
+    parser.add_argument("--firmware", type=count(0), default=14, help="runs through the firmware under QEMU "
                         "(default 14: 2 per class that can run there; 0 for none)")
-    parser.add_argument("--can", type=int, default=48, help="swings on the simulated CAN motors (default 48: 6 "
+    parser.add_argument("--can", type=count(0), default=48, help="swings on the simulated CAN motors (default 48: 6 "
                         f"per class, every {MIXED_EVERY}th on replica_mixed; 0 for none)")
     parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument("--jobs", type=count(1, what="worker processes"), default=2, help="worker processes (default 2)")
     args = parser.parse_args(argv)
-    from ..control.timing import SMALL_TIME_STEP
     assert SMALL_TIME_STEP == SMALL, "the soak's tick is the swing's small_time_step"
     specs = plan(args.runs, args.seed, args.firmware, args.can)
     print(f"soak: {args.runs} swings on the simulated Dynamixel bus + {args.can} on simulated CAN motors + "

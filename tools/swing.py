@@ -13,6 +13,7 @@ at most that); a previous run's summary and figure are removed first, so none lo
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import threading
@@ -22,58 +23,23 @@ from pathlib import Path
 import numpy as np
 
 from ..control import ControlConfig, ControlFault, Controller
-from ..control.realtime import one_cpu
+from ..control.motion import motion_path
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
-from ..hal.robot import Robot
+from ..errors import exit_code
 from ..hal.config import RobotConfig, load_config
-from ..hal.errors import ServoError, ServoHardwareError, ServoLimitError, ServoOperationError
-from ..loop import Overrun, RunLog, follow, summarize
-from .validate import motion_path
+from ..hal.errors import ServoError
+from ..hal.robot import Robot
+from ..loop import Interrupted, Overrun, RunLog, follow, summarize
+from ..loop.realtime import one_cpu
+from ..validation import MotionRefused, judge
+from .native import BUILT_FOR, fault_message, run_native
+from .plots import tracking_figure
+from .simulator import SIM_REPLY_TIMEOUT, SimProcess, serve
 
 DEFAULT_MOTION = "tennis_forehand"
 
-# s to wait for replies from a simulated bus, per bus kind: a pseudo-terminal under CPU load can hold
-# bytes back for over 100 ms (measured here), far beyond a real bus's deadline (Dynamixel 34 ms
-# packet timeout, CAN 20 ms). Dynamixel: the simulator's own process; on a machine loaded 4x over
-# its cores a reply was seen to wait over 250 ms. CAN: the motors' server is a thread of this
-# process, and on a loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured).
-SIM_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
-
-# The exit status of `servodyn swing` after a safe stop names what stopped it, with the
-# firmware's fault codes (firmware/app/fw_app.h, FW_FAULT_*; tests/test_soak.py checks they
-# agree): 0 completed, 2 bad input or an unexpected error; summary.json's "error_class" too.
-EXIT_CODES = {
-    TimeoutError: 10,          # FW_FAULT_TIMEOUT: a servo, or the whole bus, did not answer
-    ServoHardwareError: 11,    # FW_FAULT_STATUS: a servo reported a hardware error
-    ServoOperationError: 12,   # FW_FAULT_CORRUPT: a corrupt or refused reply, a failed write
-    ControlFault: 13,          # FW_FAULT_NONFINITE: a non-finite desired or measured state,
-    FloatingPointError: 13,    # or a torque the controller could not compute finite
-    Overrun: 14,               # FW_FAULT_OVERRUN: the loop fell behind its period past its tolerance
-    ServoLimitError: 15,       # FW_FAULT_RANGE: a joint measured beyond its limits
-}
 MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
-
-
-def exit_code(error) -> int:
-    """The exit status for a run stopped by `error` (None: completed)."""
-    if error is None:
-        return 0
-    if isinstance(error, Interrupted):
-        return 128 + error.signum            # the shell's status for that signal
-    return next((code for kind, code in EXIT_CODES.items() if isinstance(error, kind)), 2)
-
-
-class MotionRefused(ValueError):
-    """The validator says the motion would leave a servo's limits: nothing moved."""
-
-
-class Interrupted(Exception):
-    """SIGINT or SIGTERM arrived during the run: it stops safely, as after a servo error."""
-
-    def __init__(self, signum: int):
-        self.signum = signum
-        super().__init__(f"interrupted by {signal.Signals(signum).name}")
 
 
 def _signals_stop_the_run(stopping: dict):
@@ -95,7 +61,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
               force: bool = False, native: bool = False, observer=None, home_duration: float = HOME_DURATION,
-              figure: bool = True, overrun_tolerance: float | None = None) -> dict:
+              figure: bool = True, overrun_tolerance: float | None = None, log: RunLog | None = None) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
     the forehand, else 1). Before anything moves the validator checks it against every servo
@@ -103,47 +69,53 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     simulated bus. fault_at = (time, servo id) or (time, servo id, fault): on the simulated bus,
     that servo stops answering then (fault "silent", the default), or raises Hardware Error Status
     bits ("overload", "overheating", ... or the bits as an int), or any other fault of
-    SimulatedArm.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
+    SimulatedRobot.inject_fault, or "nan_motion" (the motion's position of that joint becomes NaN
     from then on), to show the safe stop. native: the firmware's loop plays it as a Linux process
     (tools/native.py) instead of the Python loop, with the same summary. observer: called by the
     loop with every tick's state (servodyn.loop.follow), e.g. the browser view's. home_duration: s
     of the homing move (shorter for the soak, whose motions start where the simulated arm does);
     figure: write the tracking plot. overrun_tolerance: s the real-time loop may fall behind its
-    schedule before it stops (default OVERRUN_TOLERANCE)."""
-    from .validate import validate
+    schedule before it stops (default OVERRUN_TOLERANCE). log: the RunLog to fill (default a new
+    one), for a caller that reads the run's own states afterwards."""
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
     if time_scale is not None:
         scale = time_scale       # as given: 0 is refused by the validator, not replaced
     else:
         scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
-    verdict = validate(config, motion, time_scale=scale, say=lambda *a, **k: None)
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"--time-scale must be a positive number, got {scale}")
+    path = motion_path(motion, model)
+    verdict = judge(config, path, scale)
     ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
     simulated = not ports or bus_config.kind == "loopback"
-    if not verdict["passed"]:
-        first = verdict["violations"][0]["message"]
+    if not verdict.passed:
+        first = verdict.violations[0]["message"]
         if not (force and simulated):
-            raise MotionRefused(f"'{verdict['motion']}' at time scale {scale:g} would leave a servo's limits: {first}"
-                                f" (servodyn validate {config.name} {motion} --fit finds a time scale that passes"
-                                f"{'; --force plays it anyway on the simulated bus' if simulated else ''})")
+            found = [v["message"] for v in verdict.violations]
+            more = f"{len(found)} violations, --verbose lists them; " if len(found) > 1 else ""
+            raise MotionRefused(f"'{path.name}' at time scale {scale:g} would leave a servo's limits: {first}"
+                                f" ({more}servodyn validate {config.name} {motion} --fit finds a time scale that "
+                                f"passes{'; --force plays it anyway on the simulated bus' if simulated else ''})", found)
         say(f"forced past the validator: {first}")
     period = config.control_period
-    swing = motion_path(motion, model).at_scale(scale, period)
+    swing = path.at_scale(scale, period)
     mode = "feedforward_pd" if feedforward else "pd"
+    paced = None
     if native:
         _check_native(config, motion, scale, mode, fault_at)
     if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
         # lock-step means "as fast as the bus answers": on real servos that would play the motion
         # faster than it was validated for, so a real bus always keeps the period on the wall clock
         realtime = True
-        say(f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)")
+        paced = f"real servos: the loop keeps its {period * 1e3:g} ms period on the wall clock (real time)"
     out.mkdir(parents=True, exist_ok=True)    # an unusable output folder fails before anything moves
     for stale in ("summary.json", "swing_tracking.png"):
         (out / stale).unlink(missing_ok=True)
 
     # real time on the simulated Dynamixel bus: the loop, the simulator's process and the kernel's
-    # tty work that carries their bytes share one CPU for the run (control.realtime.one_cpu); the
+    # tty work that carries their bytes share one CPU for the run (loop.realtime.one_cpu); the
     # CAN buses are simulated in this process, with no tty between them and the loop
     placed = ExitStack()
     on_pty = simulated and all(b.kind == "dynamixel" for b in config.buses.values())
@@ -160,8 +132,16 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                                  realtime, out, say, overrun_tolerance, cpu)
         server, per_bus = buses()
         bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
+        try:
+            bus.open()        # a port that does not open ends here: nothing ran, so no log and no summary
+        except BaseException:
+            if server is not None:
+                server.stop()
+            raise
+        if paced:
+            say(paced)
         controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
-        log = RunLog(model.dof_names)
+        log = RunLog(model.dof_names) if log is None else log
         log.stream(out / "swing_log.csv")
         error = None
         swing_start = 0.0
@@ -169,14 +149,13 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         try:
-            bus.open()
             home, played = plan_run(model, swing, bus.read_state().q, home_duration)
             bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
             say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
             home_ticks = len(home.traj.t)
             # homing's deadlines are the run's too (the native loop's count has them)
             log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
-            say(f"{verdict['motion']}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
+            say(f"{path.name}: {swing.t[-1]:.1f} s (time scale {scale:g}, validated against the "
                 f"servos' limits), {mode.replace('_', ' + ')}, inverse dynamics every "
                 f"{TIME_STEP * 1e3:g} ms, {1 / period:g} Hz target")
             # the plant's time when the swing begins: in lock-step one period per homing tick (asking
@@ -205,13 +184,10 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             sim = server.status() if server is not None else None
             if server is not None:
                 server.stop()
-            for extra in per_bus.values():
-                if "can_bus" in extra:
-                    extra["can_bus"].shutdown()
             log.close()
         summary = summarize(log, len(swing.t), period, realtime, error)
         summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
-        summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
+        summary.update(motion=path.name, mode=mode, time_scale=scale, validated=verdict.passed,
                        loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=cpu)
         if isinstance(error, Interrupted):
             summary["signal"] = signal.Signals(error.signum).name
@@ -220,7 +196,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
             summary["torque_off"] = sim["torque_off"]
         try:
-            _write(out, log, summary, say, figure)
+            _write(out, log, summary, say, figure, config)
         finally:
             restore_signals()          # until the summary is written a signal is ignored, not fatal
         return summary
@@ -275,7 +251,6 @@ def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
 
 def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fault_at) -> None:
     """ValueError unless the native loop's generated tables are this run's."""
-    from .native import BUILT_FOR
     if config.name != BUILT_FOR or motion != DEFAULT_MOTION or scale != config.swing_time_scale:
         raise ValueError(f"--native plays what the firmware was generated for ('{BUILT_FOR}', {DEFAULT_MOTION}, "
                          f"its configuration's time scale): not '{config.name}', {motion} at {scale:g}")
@@ -286,8 +261,7 @@ def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fau
 def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say,
                   overrun_tolerance: float | None = None, cpu: int | None = None) -> dict:
     """The firmware's loop as a Linux process plays the swing on the port; the same summary (and
-    `cpu`: the one CPU of the real-time path, None when not placed, control.realtime.one_cpu)."""
-    from .native import fault_message, run_native
+    `cpu`: the one CPU of the real-time path, None when not placed, loop.realtime.one_cpu)."""
     say(f"native loop on {port} ({'real time' if realtime else 'lock-step'}) ...")
     try:
         tolerance = "" if overrun_tolerance is None else f"tolerance_us={round(overrun_tolerance * 1e6)}"
@@ -299,7 +273,7 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
             server.stop()
     error = fault_message(report)
     summary = summarize(log, len(swing.t), config.control_period, realtime, error)
-    summary.update(motion=verdict["motion"], mode=mode, time_scale=scale, validated=verdict["passed"],
+    summary.update(motion=verdict.path.name, mode=mode, time_scale=scale, validated=verdict.passed,
                    loop="native", bus={"reads": report.get("ticks"), "writes": report.get("ticks"),
                                        "reads_retried": 0, "limited_ticks": report.get("limited")},
                    native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
@@ -313,95 +287,23 @@ def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, o
     if error:
         say(f"{error} — torque off on every servo")
     log.write_csv(out / "swing_log.csv")
-    _write(out, log, summary, say)
+    _write(out, log, summary, say, config=config)
     return summary
 
 
-def _start_simulator(config: RobotConfig, realtime: bool):
-    """The simulated bus of the configuration in its own process (SimProcess), so the loop's
-    figures are its own; a configuration built in memory (no file to hand the child) is served
-    by a thread of this process instead."""
-    mode = "realtime" if realtime else "lockstep"
-    if config.path is not None:
-        from ..sim.transport.pty import SimProcess
-        return SimProcess(config.path, mode)
-    from ..sim.arm import SimulatedArm
-    from ..sim.transport.pty import PtyServer
-    arm = SimulatedArm(config)
-    server = PtyServer(arm, mode)
-    server.start()
-    return server
-
-
-class _Servers:
-    """The transports of a simulated robot's buses, started and stopped together."""
-
-    def __init__(self, robot, servers):
-        self.robot, self.servers = robot, servers
-
-    def inject_fault(self, device_id, fault="silent") -> None:
-        with self.robot.lock:
-            self.robot.inject_fault(device_id, fault)
-
-    def status(self) -> dict:
-        """The plant's time and whether each device's torque is off, as the simulators report them."""
-        with self.robot.lock:
-            drives = getattr(self.robot, "drives", None) or self.robot.servos
-            return {"time": self.robot.time,
-                    "torque_off": [not (d.torque_enabled if hasattr(d, "torque_enabled") else d.enabled)
-                                   for d in drives]}
-
-    def stop(self) -> None:
-        for server in self.servers:
-            server.stop()
-
-
 def _simulated_buses(config, realtime: bool, say):
-    """The configuration's buses simulated, and the options that point each bus's backend at its
-    simulated bus: one Dynamixel bus in a process of its own (`_start_simulator`); buses with CAN
-    in this process, one plant behind all of them (`_simulated_robot`)."""
-    if any(b.kind == "can" for b in config.buses.values()):
-        return _simulated_robot(config, realtime, say)
-    server = _start_simulator(config, realtime)
-    name = next(iter(config.buses))
-    say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {server.path} "
-        f"({'real time' if realtime else 'lock-step'}, its own process), the plant integrated by RK4 at "
-        f"{plant_step(config.control_period) * 1e3:g} ms")
-    return server, {name: {"port": server.path, "reply_timeout": SIM_REPLY_TIMEOUT["dynamixel"]}}
-
-
-def _simulated_robot(config, realtime: bool, say):
-    """A configuration with CAN buses simulated in this process: one plant, each CAN bus on
-    python-can's virtual interface, each Dynamixel bus on a pseudo-terminal; the options that point
-    each bus's backend at its simulated bus."""
-    from ..sim.robot import SimulatedRobot
-    from ..sim.transport.can import VirtualCanServer
-    from ..sim.transport.pty import PtyServer
-    mode = "realtime" if realtime else "lockstep"
-    robot = SimulatedRobot(config)
-    servers, per_bus = [], {}
-    for name, bus in config.buses.items():
-        if bus.kind == "can":
-            channel = f"servodyn-{id(robot):x}-{name}"
-            # lock-step: the motors answer in the loop's thread when it waits for them (no thread
-            # hand-over per frame); real time: from the server's thread
-            server = VirtualCanServer(robot, channel, bus=name, mode=mode if not servers else "lockstep",
-                                      threaded=realtime)
-            servers.append(server)
-            per_bus[name] = {"can_bus": server.host_bus()}
-            where = f"python-can's virtual channel {channel}"
-        else:
-            servers.append(PtyServer(robot.dynamixel_port(name), mode if not servers else "lockstep"))
-            per_bus[name] = {"port": servers[-1].path}
-            where = servers[-1].path
-        per_bus[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[bus.kind]
-        say(f"simulated {bus.kind} bus '{name}': {len(robot.config.joints_on(name))} devices of "
-            f"'{config.name}' on {where} ({'real time' if realtime else 'lock-step'})")
-    if realtime:
-        robot.free_running()         # the first server's clock alone moves the plant
-    for server in servers:
-        server.start()
-    return _Servers(robot, servers), per_bus
+    """The configuration's buses simulated (servodyn.tools.simulator.serve), and the options that
+    point each bus's backend at its simulated bus."""
+    server = serve(config, "realtime" if realtime else "lockstep")
+    clock = "real time" if realtime else "lock-step"
+    if isinstance(server, SimProcess):
+        say(f"simulated bus: {server.servos} virtual servos of '{config.name}' on {server.path} ({clock}, its own "
+            f"process), the plant integrated by RK4 at {plant_step(config.control_period) * 1e3:g} ms")
+    else:
+        for name, where in server.where.items():
+            say(f"simulated {config.buses[name].kind} bus '{name}': {len(config.joints_on(name))} devices of "
+                f"'{config.name}' on {where} ({clock})")
+    return server, server.buses
 
 
 def _fault_injector(server, fault_at, played, config):
@@ -423,7 +325,26 @@ def _fault_injector(server, fault_at, played, config):
     return inject
 
 
-def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> None:
+def encoder_step(joint) -> float | None:
+    """rad at the joint of one count of the position its servo reports: a Dynamixel's register
+    (ticks per horn turn), a CAN motor's 16-bit MIT position over ±p_max; None when not known."""
+    servo = joint.servo
+    if getattr(servo, "ticks_per_rev", None):
+        horn = 2 * np.pi / servo.ticks_per_rev
+    elif getattr(servo, "ranges", None) is not None:
+        horn = 2 * servo.ranges.p_max / 65535
+    else:
+        return None
+    return horn / joint.gear_ratio
+
+
+def _title(summary: dict, config: RobotConfig | None) -> str:
+    """The figure's title: what played, where, and under which control (PD only says so)."""
+    control = "PD only, no feed-forward" if summary.get("mode") == "pd" else "feed-forward + PD"
+    return f"{summary['motion']} on {config.name if config is not None else 'the servo bus'}: {control}"
+
+
+def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True, config: RobotConfig | None = None) -> None:
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if not log.t:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
@@ -441,7 +362,8 @@ def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True) -> N
     if not figure:
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
         return
-    from .plots import tracking_figure
+    limits = [j.torque_limit for j in config.joints] if config is not None else None
+    steps = [encoder_step(j) for j in config.joints] if config is not None else None
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
-                    np.array(log.tau), log.dof_names, f"{summary['motion']} on the servo bus")
+                    np.array(log.tau), log.dof_names, _title(summary, config), limits, steps)
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")

@@ -19,7 +19,6 @@ model file's frames). What the page shows:
 
 from __future__ import annotations
 
-import csv
 import errno
 import math
 import threading
@@ -29,12 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control.motion import Motion, builtin_motions, load_motion, save_motion
+from ..control.motion import Motion, builtin_motions, check_limits, load_motion, motion_path, save_motion
 from ..control.timing import SMALL_TIME_STEP
 from ..control.trajectory import TrajectoryError
+from ..hal.config import builtin_configs, load_config
+from ..hal.errors import ConfigError
+from ..loop.log import RunLogError, read_run_log
 from ..model import ModelError, builtin_models, load_model
+from ..model.files import read_toml
 from ..model.rotations import matrix_to_quat
 from ..model.shapes import solid_mesh
+from ..validation import Limits, check, describe, torque_speed_ratio, violations
 
 DEFAULT_MOTION = "tennis_forehand"
 PUBLISH_HZ = 30.0          # live view: frames a second drawn at most (a tick's state, decimated)
@@ -70,12 +74,9 @@ class Timeline:
 
 def load_subject(spec: str | None):
     """(config or None, model) from a configuration or a model, by name or file."""
-    from ..hal.config import builtin_configs, load_config
-    from ..hal.errors import ConfigError
     spec = spec or "replica"
     is_model = spec not in builtin_configs() and spec in builtin_models() or str(spec).lower().endswith(".urdf")
     if not is_model and str(spec).lower().endswith(".toml") and spec not in builtin_configs():
-        from ..model.files import read_toml
         try:
             is_model = "body" in read_toml(Path(spec), ModelError)
         except FileNotFoundError:
@@ -95,7 +96,6 @@ def load_subject(spec: str | None):
 def limits_of(config):
     if config is None:
         return None
-    from .validate import Limits
     return Limits.of(config, config.supply.voltage)
 
 
@@ -107,15 +107,12 @@ def _own_peak_share(tau: np.ndarray) -> np.ndarray:
 def motion_timeline(model, config, motion: Motion, time_scale: float):
     """The motion sampled every control period at the time scale, its torques (one batched RNEA)
     and, with a configuration, the validator's verdict: (timeline, result or None, limits)."""
-    from .validate import MotionPath
     period = SMALL_TIME_STEP if config is None else config.control_period
-    path = MotionPath(motion.name, motion.duration, motion.at)
-    return trajectory_timeline(model, config, path.at_scale(time_scale, period))
+    return trajectory_timeline(model, config, motion.path.at_scale(time_scale, period))
 
 
 def trajectory_timeline(model, config, traj):
     """(timeline, the validator's result or None, limits or None) of a sampled trajectory."""
-    from .validate import check
     limits = limits_of(config)
     if limits is None:
         tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
@@ -126,39 +123,17 @@ def trajectory_timeline(model, config, traj):
 
 def log_timeline(model, config, folder: Path) -> Timeline:
     """A logged run (DIR/swing_log.csv, as servodyn swing writes it)."""
-    file = Path(folder) / "swing_log.csv" if Path(folder).is_dir() else Path(folder)
     try:
-        with open(file, newline="") as f:
-            rows = list(csv.reader(f))
-    except OSError as err:
-        raise ViewError(f"{file}: cannot read the log ({err.strerror or err})") from None
-    names = model.dof_names
-    if not rows:
-        raise ViewError(f"{file}: empty")
-    header = rows[0]
-    try:
-        cols = {p: [header.index(f"{p}_{d}") for d in names] for p in ("q_d", "q", "qd", "tau")}
-        t_col = header.index("t")
-    except ValueError:
-        raise ViewError(f"{file}: not a swing log of model '{model.name}' (needs t and q_d_, q_, qd_, tau_ "
-                        f"columns of {', '.join(names)})") from None
-    try:
-        data = np.array([[float(x) for x in row] for row in rows[1:] if row], dtype=float)
-    except ValueError:
-        raise ViewError(f"{file}: a value that is not a number") from None
-    if data.ndim != 2 or len(data) < 2 or data.shape[1] != len(header) or not np.all(np.isfinite(data)):
-        raise ViewError(f"{file}: needs at least two complete rows of finite numbers")
-    t = data[:, t_col]
-    if np.any(np.diff(t) <= 0):
-        raise ViewError(f"{file}: time must increase")
-    tau, qd = data[:, cols["tau"]], data[:, cols["qd"]]
+        log = read_run_log(folder, model, need=("q_d", "q", "qd", "tau"))
+    except RunLogError as err:
+        raise ViewError(str(err)) from None
+    t, tau, qd = log.t, log.tau, log.qd
     limits = limits_of(config)
     if limits is None:
         share, share_of = _own_peak_share(tau), "the run's peak"
     else:
-        from .validate import torque_speed_ratio
         share, share_of = torque_speed_ratio(limits, tau, qd)[0], "the servo's torque-speed limit"
-    return Timeline(t, data[:, cols["q_d"]], tau, share, measured=data[:, cols["q"]], share_of=share_of)
+    return Timeline(t, log.q_d, tau, share, measured=log.q, share_of=share_of)
 
 
 def share_rgb(share: float) -> tuple[int, int, int]:
@@ -401,7 +376,7 @@ class Viewer:
                     self.plots[title] = self.server.gui.add_uplot(
                         data=data, series=specs, title=title, aspect=1.6,
                         scales={"x": uplot.Scale(time=False, auto=False, range=(0.0, PLOT_WINDOW))},
-                        legend=uplot.Legend(show=False))
+                        legend=uplot.Legend(show=True, live=False))
             else:
                 handle.data = data
         for title in list(self.plots):
@@ -518,7 +493,6 @@ class MotionEditor:
 
     def update(self) -> None:
         """Sample, RNEA (one batched call), validate; redraw."""
-        from .validate import describe, violations
         v = self.viewer
         try:
             timeline, result, limits = motion_timeline(self.model, v.config, self.motion, self.time_scale)
@@ -532,7 +506,6 @@ class MotionEditor:
                 f"({self.model.dof_names[worst]}); torques: "
                 + ", ".join(f"{p:.3f}" for p in peak) + " N·m")
         if result is None:
-            from ..control.motion import check_limits
             try:
                 check_limits(self.motion.sample(SMALL_TIME_STEP, self.time_scale), self.model, self.motion.name)
                 verdict = "within the joint limits (no configuration: no servo limits to validate against)"
@@ -603,11 +576,15 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
     if log is not None:
         timeline = log_timeline(model, config, Path(log))
     motion_obj = None
+    nothing_to_play = None             # why there is no Play panel
     if log is None and motion is None:
         try:                           # the forehand, where the model has its dofs
             motion_obj = load_motion(DEFAULT_MOTION, model)
-        except (TrajectoryError, ModelError):
-            pass
+        except (TrajectoryError, ModelError) as err:
+            nothing_to_play = (f"**No Play panel**: nothing to play. No --motion or --log was given, and the "
+                               f"default motion, {DEFAULT_MOTION}, does not fit model '{model.name}' "
+                               f"({str(err).split(': ', 1)[-1]}). Give `--motion` a keyframe file or a "
+                               f"trajectory CSV of this model's dofs, or `--log` a run's folder.")
     elif log is None:
         name = motion
         if str(name).lower().endswith(".csv"):
@@ -632,11 +609,12 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
         viewer.edit(motion_obj, time_scale, save_to or Path("out/view") / f"{motion_obj.name}.toml")
     elif timeline is not None:
         viewer.show_timeline(timeline, f"run {log}" if log else f"{motion} at time scale {time_scale:g}")
+    elif nothing_to_play:
+        viewer.readout.content = nothing_to_play
     return viewer
 
 
 def _csv_timeline(model, config, name: str, time_scale: float) -> Timeline:
-    from .validate import motion_path
     try:
         return trajectory_timeline(model, config, motion_path(name, model).at_scale(time_scale))[0]
     except (TrajectoryError, ValueError) as err:

@@ -22,6 +22,7 @@ kp_motor = kp/gear², kd_motor = kd/gear² (gear_ratio: a reduction after the mo
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -32,63 +33,16 @@ from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, 
 from . import frames
 from .dialects import (CTRL_MODES, DIALECTS, MIT_MODE, REG_CTRL_MODE, REG_PMAX, REG_TIMEOUT, REG_TMAX, REG_VMAX,
                        TIMEOUT_UNIT, UINT_REGISTERS)
-from .motors import MOTORS
 
-BITRATES = (125_000, 250_000, 500_000, 1_000_000)
-MAX_ID = 0x7FE                  # 11-bit ids; 0x7FF carries Damiao's register frames
 REPLY_TIMEOUT = 0.02            # s to collect a tick's replies (14 frames are ~2 ms at 1 Mbit/s)
 MOTOR_CAN_TIMEOUT = 0.1         # s without a command after which a motor goes limp by itself
 # s the stop keeps trying a motor's exit frame while sends fail: a controller that went bus-off
 # rejoins by itself after its restart time (Linux can: restart-ms, often 100 ms)
 STOP_PATIENCE = 0.25
-FRAME_BITS = (111, 135)         # an 8-byte standard data frame, without and with the worst stuffing
 
 
 class CanBus(ServoBus):
     kind = "can"
-    servos = MOTORS
-    bauds = BITRATES
-    default_baud = 1_000_000
-    max_id = MAX_ID
-    port_key, baud_key = "channel", "bitrate"
-    device_key = "motor"
-    bus_keys = frozenset({"interface"})
-    joint_keys = frozenset({"dialect", "feedback_id", "p_max", "v_max", "t_max", "kp_max", "kd_max"})
-
-    @classmethod
-    def bus_options(cls, checker) -> dict:
-        return {"interface": checker.get("interface", "str", "slcan")}
-
-    @classmethod
-    def joint_options(cls, checker, servo) -> dict:
-        dialect = checker.get("dialect", "str", servo.dialect)
-        if dialect not in DIALECTS:
-            checker.fail("dialect", f"must be one of {', '.join(DIALECTS)}, got {dialect!r}")
-        can_id = checker.get("id", "int")
-        feedback_id = checker.get("feedback_id", "int", DIALECTS[dialect].feedback_id(can_id))
-        if not 0 <= feedback_id <= MAX_ID or (dialect == "damiao" and feedback_id in (0, can_id)):
-            checker.fail("feedback_id", f"0x{feedback_id:X} cannot be a {dialect} motor's reply id "
-                                        f"(0..0x{MAX_ID:X}; Damiao: not 0, not the command id)")
-        default = servo.ranges
-        ranges = {}
-        for key in ("p_max", "v_max", "t_max", "kp_max", "kd_max"):
-            ranges[key] = checker.positive(key, getattr(default, key))
-            if not frames.RANGE_MIN <= ranges[key] <= frames.RANGE_MAX:
-                checker.fail(key, f"{ranges[key]:g} is outside the MIT frame codec's ranges "
-                                  f"({frames.RANGE_MIN:g} to {frames.RANGE_MAX:g})")
-        return {"dialect": dialect, "feedback_id": feedback_id, "ranges": frames.Ranges(**ranges)}
-
-    @classmethod
-    def wire_time(cls, joints, bus) -> tuple[float, str]:
-        """One command and one reply per motor, 8-byte frames at their worst bit stuffing."""
-        bits = 2 * len(joints) * FRAME_BITS[1]
-        return bits / bus.baud, f"{2 * len(joints)} frames x {FRAME_BITS[1]} bits at {bus.baud} bit/s"
-
-    @classmethod
-    def command_range(cls, joint) -> tuple[float, float]:
-        """The frame's torque field: ±t_max at the motor, 12 bits."""
-        ranges = joint.options["ranges"]
-        return ranges.t_max * joint.gear_ratio, ranges.torque_step * joint.gear_ratio
 
     def __init__(self, config, bus=None, *, port: str | None = None, interface: str | None = None,
                  can_bus=None, reply_timeout: float = REPLY_TIMEOUT, can_timeout: float = MOTOR_CAN_TIMEOUT,
@@ -132,7 +86,11 @@ class CanBus(ServoBus):
             try:
                 self.can = can.Bus(interface=self.interface, channel=self.channel, bitrate=int(self.bus.baud))
             except (can.CanError, OSError, ValueError, ImportError) as err:
-                raise ServoInitializationError(f"{self.interface} {self.channel}: cannot open ({err})") from None
+                # the OS's reason, on the error or under python-can's own
+                errno = next((e.errno for e in (err, err.__cause__, err.__context__)
+                              if isinstance(getattr(e, "errno", None), int)), None)
+                reason = os.strerror(errno) if errno is not None else err
+                raise ServoInitializationError(f"{self.interface} {self.channel}: cannot open ({reason})") from None
         try:
             self._torque_on = False
             self._pending: set[int] = set()

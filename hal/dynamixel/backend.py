@@ -37,13 +37,13 @@ from ..bus import JointCommand, JointState, ServoBus
 from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
-                            ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, BAUD_RATES,
-                            PRESENT_LENGTH, SERVOS, OperatingMode, hardware_faults, watchdog_units)
-from ... import _dxl
+                            ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
+                            PRESENT_LENGTH, OperatingMode, hardware_faults, watchdog_units)
+from . import _dxl
 from . import instructions
 from .instructions import fast_reply_blocks
-from .protocol import ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, Instruction, encode_frame
-from .units import ServoMap, current_unit
+from .protocol import ALERT_BIT, BROADCAST_ID, HEADER, Instruction, encode_frame
+from .units import ServoMap
 
 # a fast sync read reply's data block: Present Current (2), Velocity (4), Position (4)
 PRESENT = np.dtype([("current", "<i2"), ("velocity", "<i4"), ("position", "<i4")])
@@ -94,39 +94,6 @@ def _stuffing_packet_handler():
 
 class DynamixelBus(ServoBus):
     kind = "dynamixel"
-    servos = SERVOS
-    bauds = BAUD_RATES
-    default_baud = 4_000_000
-    protocols = (2.0,)
-    max_id = MAX_ID
-    joint_keys = frozenset({"current_unit"})
-
-    @classmethod
-    def joint_options(cls, checker, servo) -> dict:
-        return {"current_unit": checker.positive("current_unit", servo.current_unit)}
-
-    @classmethod
-    def max_current(cls, servo, options: dict) -> tuple[float, str]:
-        unit = options["current_unit"]
-        return servo.current_limit_max * unit, f"{servo.current_limit_max} x {unit:g} A"
-
-    @classmethod
-    def wire_time(cls, joints, bus) -> tuple[float, str]:
-        """The tick's fast sync read (instruction and reply) and Goal Current sync write, 10 bits
-        a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside."""
-        ids = [j.id for j in joints]
-        read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, ids).encode())
-        reply = instructions.fast_reply_size([PRESENT_LENGTH] * len(ids))
-        write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
-        total = read + reply + write
-        return total * 10 / bus.baud, f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
-
-    @classmethod
-    def command_range(cls, joint) -> tuple[float, float]:
-        """Goal Current is clamped to ±Current Limit(38), in whole current units."""
-        unit = current_unit(joint)
-        per_unit = unit * joint.torque_constant * joint.gear_ratio
-        return round(joint.current_limit / unit) * per_unit, per_unit
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
@@ -155,8 +122,9 @@ class DynamixelBus(ServoBus):
         self.port = _patient(sdk.PortHandler(self.port_name), self.reply_timeout)
         try:
             opened = self.port.openPort()
-        except Exception as err:      # pyserial raises its own kinds
-            raise ServoInitializationError(f"{self.port_name}: cannot open ({err})") from None
+        except Exception as err:      # pyserial raises its own kinds, most with the OS's errno
+            reason = os.strerror(err.errno) if isinstance(getattr(err, "errno", None), int) else err
+            raise ServoInitializationError(f"{self.port_name}: cannot open ({reason})") from None
         if not opened or not self.port.setBaudRate(int(self.bus.baud)):
             raise ServoInitializationError(f"{self.port_name}: cannot open at {self.bus.baud} baud")
         self.packets = _stuffing_packet_handler()
@@ -277,7 +245,7 @@ class DynamixelBus(ServoBus):
 
     def _fast_sync_read(self):
         """Send the fast sync read (built once, framed by servodyn's codec) on the SDK's port and
-        parse its one reply with the firmware's codec in C (servodyn._dxl): the packet CRC, each
+        parse its one reply with the firmware's codec in C (servodyn.hal.dynamixel._dxl): the packet CRC, each
         block's running CRC, its ID. Returns ((error bytes, data bytes) in joint order, "", None)
         or (None, what went wrong, the joint first missing)."""
         if self.port.is_using:

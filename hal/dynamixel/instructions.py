@@ -11,7 +11,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
-from ... import _dxl
+from . import _dxl
 from .protocol import (BROADCAST_ID, FRAME_OVERHEAD, HEADER, CrcMismatch, Instruction,
                        InstructionPacket, PacketError, StatusPacket, crc16, pack_field, unpack_field)
 
@@ -203,7 +203,7 @@ def fast_reply_frame(ids: Sequence[int], lengths: Sequence[int]) -> bytearray:
 def seal_fast_reply(frame: bytearray, lengths: Sequence[int]) -> None:
     """Write the running CRC of each of the first len(lengths) blocks of a fast read reply laid
     out in `frame`: the CRC of every byte before it, earlier blocks' CRCs included (the
-    firmware's codec in C, servodyn._dxl; ValueError if the blocks do not fit the frame)."""
+    firmware's codec in C, servodyn.hal.dynamixel._dxl; ValueError if the blocks do not fit the frame)."""
     _dxl.fast_reply_seal(frame, lengths)
 
 

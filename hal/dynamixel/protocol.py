@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
-from ... import _dxl
+from . import _dxl
 from ..errors import ProtocolError
 
 HEADER = b"\xFF\xFF\xFD\x00"
@@ -103,7 +103,7 @@ def unpack_field(data: bytes, signed: bool = False) -> int:
 
 
 # --- CRC-16 (poly 0x8005, init 0, MSB first, no reflection) ------------------------------------
-# One implementation: the firmware's (hal/dynamixel/c/dxl.c), through servodyn._dxl.
+# One implementation: the firmware's (hal/dynamixel/c/dxl.c), through servodyn.hal.dynamixel._dxl.
 
 def crc16(data: bytes, crc: int = 0) -> int:
     """CRC-16 of ``data``, continuing from ``crc``."""

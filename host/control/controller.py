@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _core, _core32
+from ..errors import ExitCode, ServodynError
 from ..model import INTEGRATORS
 from .timing import BANDWIDTH, SMALL_TIME_STEP, TIME_STEP
 from .trajectory import Trajectory
@@ -23,9 +24,10 @@ MODES = {
 DEFAULT_MODE = "feedforward_pd"
 
 
-class ControlFault(ValueError):
+class ControlFault(ServodynError, ValueError):
     """The controller refused a step: a desired or measured state that is not finite (the
     core's fault, SD_STATUS_NONFINITE). A loop stops on it, torque off."""
+    exit_code = ExitCode.NONFINITE
 
 
 @dataclass

@@ -13,9 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from ..model.files import read_toml
-from .timing import played_periods
-from .trajectory import Trajectory, TrajectoryError
+from ..model.files import read_toml, string_key
+from .trajectory import MotionPath, Trajectory, TrajectoryError, read_trajectory_csv
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
 
@@ -50,15 +49,21 @@ class Motion:
         """q, qd, qdd at a time or an array of times (s from the first keyframe)."""
         return self._trajectory.eval(np.asarray(t, dtype=float))
 
+    @property
+    def path(self) -> MotionPath:
+        return MotionPath(self.name, self.duration, self.at)
+
     def sample(self, dt: float, time_scale: float = 1.0) -> Trajectory:
-        """The motion every dt seconds; time_scale > 1 plays it slower (velocities / scale,
-        accelerations / scale²)."""
-        if not dt > 0:
-            raise ValueError("dt must be positive")
-        n = played_periods(self.duration, time_scale, dt)
-        t = np.arange(n + 1) * dt
-        q, qd, qdd = self.at(t / time_scale)
-        return Trajectory(t=t, q=q, qd=qd / time_scale, qdd=qdd / time_scale**2, derived=True)
+        """The motion every dt seconds; time_scale > 1 plays it slower (MotionPath.at_scale)."""
+        return self.path.at_scale(time_scale, dt)
+
+
+def motion_path(spec: str | Path, model) -> MotionPath:
+    """Any motion a command takes: a built-in motion by name, a keyframe file (.toml) or a
+    trajectory CSV (.csv), checked against the model's dofs (keyframes: and its limits)."""
+    if str(spec).lower().endswith(".csv"):
+        return MotionPath.of_trajectory(Path(spec).stem, read_trajectory_csv(spec, model.dof_names), str(spec))
+    return load_motion(spec, model).path
 
 
 def save_motion(motion: Motion, path: str | Path) -> None:
@@ -112,9 +117,12 @@ def load_motion(name_or_path: str | Path, model) -> Motion:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise TrajectoryError(f"{where}, dof '{name}': angle must be a finite number")
             q[k, j] = value
-    motion = Motion(name=str(data.get("name", path.stem)), model=str(data.get("model", model.name)),
-                    t=t, q=q, dof_names=names, phases=[str(f.get("phase", "")) for f in frames],
-                    description=str(data.get("description", "")), source=str(data.get("source", "")))
+    motion = Motion(name=string_key(data, "name", path.stem, TrajectoryError, str(path), empty=False),
+                    model=string_key(data, "model", model.name, TrajectoryError, str(path), empty=False),
+                    t=t, q=q, dof_names=names,
+                    phases=[string_key(f, "phase", "", TrajectoryError, f"{path}: keyframe {k + 1}") for k, f in enumerate(frames)],
+                    description=string_key(data, "description", "", TrajectoryError, str(path)),
+                    source=string_key(data, "source", "", TrajectoryError, str(path)))
     check_limits(motion.sample(1e-3), model, origin=str(path))
     return motion
 

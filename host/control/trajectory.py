@@ -1,14 +1,27 @@
-"""Joint trajectories as CSV: header `t`, then `q_<dof>` for every dof, optional `qd_<dof>` and
-`qdd_<dof>` (derived from a C2 cubic spline of q when absent). SI units: seconds, radians."""
+"""Joint trajectories and motion paths.
+
+A trajectory CSV has the header `t`, then `q_<dof>` for every dof, optional `qd_<dof>` and
+`qdd_<dof>` (derived from a C2 cubic spline of q when absent). SI units: seconds, radians. This
+module is the one reader of that file: `read_trajectory_csv` gives its samples, and
+`MotionPath.of_trajectory` the motion between them at any sampling, through the file's own `qd`
+and `qdd` (the quintic Hermite interpolant of q, qd and qdd at every sample: where qd and qdd were
+derived from the spline of q it is that spline itself).
+
+A `MotionPath` is any motion on its own (human-speed) clock; `at_scale(s, dt)` plays it `s` times
+slower, sampled every dt (the configuration's control period): the one place a motion is time
+scaled, for the controller, the validator, the view and the firmware's tables alike."""
 
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .timing import SMALL_TIME_STEP, played_periods
 
 
 class TrajectoryError(ValueError):
@@ -22,6 +35,51 @@ class Trajectory:
     qd: np.ndarray     # (N, nq)
     qdd: np.ndarray    # (N, nq)
     derived: bool      # qd and qdd came from the spline
+
+
+@dataclass(frozen=True)
+class MotionPath:
+    """A motion on its own clock: `evaluate(t)` gives q, qd, qdd at times t (s, from 0 to
+    `duration`; an array of times gives arrays with a leading axis)."""
+    name: str
+    duration: float                                   # s, as written (time scale 1)
+    evaluate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+    def at_scale(self, scale: float = 1.0, dt: float = SMALL_TIME_STEP) -> Trajectory:
+        """The motion played `scale` times slower, sampled every dt of the played clock from 0 to
+        its end (velocities / scale, accelerations / scale²); the last sample is held at the end
+        when the played duration is not a whole number of periods."""
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"the sampling period must be a positive number of seconds, got {dt}")
+        n = played_periods(self.duration, scale, dt)
+        t = np.arange(n + 1) * dt
+        q, qd, qdd = self.evaluate(np.minimum(t / scale, self.duration))
+        return Trajectory(t=t, q=q, qd=qd / scale, qdd=qdd / scale**2, derived=True)
+
+    @classmethod
+    def of_trajectory(cls, name: str, traj: Trajectory, origin: str | None = None) -> "MotionPath":
+        """The samples of a trajectory (a CSV's, `origin` its file) and between them the quintic
+        Hermite interpolant of their q, qd and qdd, on the trajectory's clock from its first sample."""
+        t = traj.t - traj.t[0]
+        if len(t) == 1:
+            def hold(times):
+                shape = np.shape(times)
+                return tuple(np.broadcast_to(v, shape + v.shape).copy() for v in (traj.q[0], traj.qd[0], traj.qdd[0]))
+            return cls(name, 0.0, hold)
+        from scipy.interpolate import BPoly
+        with np.errstate(all="ignore"):
+            try:
+                poly = BPoly.from_derivatives(t, np.stack([traj.q, traj.qd, traj.qdd], axis=1))
+            except ValueError:       # scipy refuses its own overflowed coefficients
+                poly = None
+        if poly is None or not np.all(np.isfinite(poly.c)):
+            raise TrajectoryError(f"{origin or name}: the motion between the samples overflows (values or time steps too "
+                                  "extreme)")
+        velocity, acceleration = poly.derivative(1), poly.derivative(2)
+
+        def evaluate(times):
+            return poly(times), velocity(times), acceleration(times)
+        return cls(name, float(t[-1]), evaluate)
 
 
 def spline_derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

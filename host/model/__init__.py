@@ -8,14 +8,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .files import BUILTIN_DIR, builtin_models
+from .modelfile import load_model_file
 from .tree import INTEGRATORS, Body, Dof, Model, ModelError
-
-BUILTIN_DIR = Path(__file__).parent / "builtin"
-
-
-def builtin_models() -> dict[str, Path]:
-    """Built-in model names and their files."""
-    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.toml"))}
+from .urdf import load_urdf
 
 
 def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
@@ -24,8 +20,6 @@ def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
     free_root: body 0 floats free (6 dofs; q starts with its origin and unit quaternion) instead
     of being fixed to the base. For a URDF the root link itself becomes that body.
     """
-    from .modelfile import load_model_file
-    from .urdf import load_urdf
     builtins = builtin_models()
     if str(name_or_path) in builtins:
         model = load_model_file(builtins[str(name_or_path)])

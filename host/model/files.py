@@ -27,3 +27,22 @@ def read_toml(path: str | Path, error: type[Exception], label: str | None = None
         raise error(f"{label}: not a text file (TOML is UTF-8 text)") from None
     except tomllib.TOMLDecodeError as err:
         raise error(f"{label}: not valid TOML ({err})") from None
+
+
+def string_key(table: dict, key: str, default: str, error: type[Exception], where: str, empty: bool = True) -> str:
+    """table[key], which must be a string (`default` when absent): `error` with one line naming
+    `where` and the key for another type (`name = false`, `description = []`), or for an empty
+    string unless `empty`."""
+    value = table.get(key, default)
+    if not isinstance(value, str) or not (empty or value):
+        kind = "a string" if empty else "a non-empty string"
+        raise error(f"{where}: '{key}' must be {kind}, got {value!r}"[:300])
+    return value
+
+
+BUILTIN_DIR = Path(__file__).parent / "builtin"
+
+
+def builtin_models() -> dict[str, Path]:
+    """Built-in model names and their files."""
+    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.toml"))}

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import _core
-from .files import read_toml
-from .tree import Body, Dof, Model, ModelError, Solid
+from .files import builtin_models, read_toml, string_key
+from .tree import Body, Dof, Model, ModelError, Solid, combine
 from .rotations import rpy_to_matrix
 from .shapes import BOX_FROM_ELLIPSOID
 
@@ -72,19 +72,6 @@ def _tables(value, where: str) -> list[dict]:
     if not isinstance(items, list):
         raise ModelError(f"{where} must be an array of tables, got {value!r}")
     return [_table(item, f"{where} #{k + 1}") for k, item in enumerate(items)]
-
-
-def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, com and inertia about the com of rigidly joined parts (mass, com, inertia about own com)."""
-    mass = sum(m for m, _, _ in parts)
-    if mass <= 0:
-        return 0.0, np.zeros(3), np.zeros((3, 3))
-    com = sum(m * c for m, c, _ in parts) / mass
-    inertia = np.zeros((3, 3))
-    for m, c, I in parts:
-        d = c - com
-        inertia += I + m * (d @ d * np.eye(3) - np.outer(d, d))
-    return mass, com, inertia
 
 
 def parts() -> dict[str, dict]:
@@ -186,7 +173,6 @@ def _finite(part: tuple[float, np.ndarray, np.ndarray], where: str) -> tuple[flo
 
 
 def _other_file(name, where: str, folder: Path | None) -> Path:
-    from . import builtin_models
     if not isinstance(name, str) or not name:
         raise ModelError(f"{where}: 'from' must name a model file, got {name!r}")
     builtins = builtin_models()
@@ -264,8 +250,9 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
                            dofs=dofs, mass=mass, com=com, inertia=inertia,
                            solids=[shape for _, shape in shaped]))
         index[name] = n
-    return Model(bodies, name=str(data.get("name", origin)), gravity=gravity,
-                 description=str(data.get("description", "")), source=str(data.get("source", "")))
+    return Model(bodies, name=string_key(data, "name", origin, ModelError, origin, empty=False), gravity=gravity,
+                 description=string_key(data, "description", "", ModelError, origin),
+                 source=string_key(data, "source", "", ModelError, origin))
 
 
 def load_model_file(path: str | Path) -> Model:

@@ -7,12 +7,28 @@ from __future__ import annotations
 
 import math
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .tree import Solid
 
 BOX_FROM_ELLIPSOID = math.sqrt(12.0 / 5.0)   # a box of sides s and an ellipsoid of semi-axes
 #                                              s·sqrt(5/12) have the same inertia for one mass
+
+
+@dataclass(frozen=True)
+class Solid:
+    """One of the paper's primitives as the body carries it, for drawing: `kind` and `dims` as in a
+    model file (cylinder (radius, length) and frustum (r0, r1, length) run from the solid's origin
+    along its +z; sphere (radius,) and ellipsoid (a, b, c) are centred on it), placed at `pos` with
+    rotation `rot` in the body's user frame."""
+    kind: str
+    dims: tuple[float, ...]
+    pos: np.ndarray
+    rot: np.ndarray
+    mass: float = 0.0
+    draw: str = ""            # "box": an ellipsoid that stands for a box of the same inertia (a servo)
+
 
 
 def box_sides(solid: Solid) -> np.ndarray:

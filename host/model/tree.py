@@ -20,7 +20,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import _core, _core32
-from .rotations import axis_angle, frame_with_z, rot_z
+from .rotations import axis_angle, frame_with_z, matrix_to_quat, quat_to_matrix, rot_z
+from .shapes import Solid
+from .urdf_write import write_urdf
 
 INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -40,18 +42,18 @@ class Dof:
     motor: str = ""           # the part (parts.toml) that drives it and brings its armature, if named
 
 
-@dataclass(frozen=True)
-class Solid:
-    """One of the paper's primitives as the body carries it, for drawing: `kind` and `dims` as in a
-    model file (cylinder (radius, length) and frustum (r0, r1, length) run from the solid's origin
-    along its +z; sphere (radius,) and ellipsoid (a, b, c) are centred on it), placed at `pos` with
-    rotation `rot` in the body's user frame."""
-    kind: str
-    dims: tuple[float, ...]
-    pos: np.ndarray
-    rot: np.ndarray
-    mass: float = 0.0
-    draw: str = ""            # "box": an ellipsoid that stands for a box of the same inertia (a servo)
+def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, com and inertia about the com of rigidly joined parts (mass, com, inertia about own com)."""
+    mass = sum(m for m, _, _ in parts)
+    if mass <= 0:
+        return 0.0, np.zeros(3), np.zeros((3, 3))
+    com = sum(m * c for m, c, _ in parts) / mass
+    inertia = np.zeros((3, 3))
+    for m, c, I in parts:
+        d = c - com
+        inertia += I + m * (d @ d * np.eye(3) - np.outer(d, d))
+    return mass, com, inertia
+
 
 
 @dataclass
@@ -238,7 +240,6 @@ class Model:
     def neutral_q(self) -> np.ndarray:
         """q with every hinge at 0, every ball joint at its joint frame and a free root at its
         described pose."""
-        from .rotations import matrix_to_quat
         q = np.zeros(self.nq)
         k = 0
         for body in self.bodies:
@@ -262,7 +263,6 @@ class Model:
 
     def q_from(self, other: "Model", q_other) -> np.ndarray:
         """This model's q for the pose other (the same bodies, hinges or ball joints) has at q_other."""
-        from .rotations import matrix_to_quat
         q_other = np.asarray(q_other, dtype=float)
         mine, theirs = self._coordinate_slices(), other._coordinate_slices()
         q = np.zeros(self.nq)
@@ -343,7 +343,6 @@ class Model:
         at = host.com if com is None else np.asarray(com, dtype=float)
         if at.shape != (3,) or not np.all(np.isfinite(at)):
             raise ModelError(f"payload position must be three finite numbers (m), got {com}")
-        from .modelfile import combine
         total, centre, inertia = combine([(host.mass, host.com, host.inertia), (mass, at, np.zeros((3, 3)))])
         bodies = list(self.bodies)
         bodies[k] = replace(host, mass=total, com=centre, inertia=inertia)
@@ -471,7 +470,6 @@ class Model:
     # ------------------------------------------------------------------ kinematics and energy
     def body_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (nbody, 3, 3) and origins (nbody, 3) of the core body frames at q."""
-        from .rotations import quat_to_matrix
         q = np.asarray(q, dtype=float)
         a = self._arrays
         R_world = np.zeros((self.nbody, 3, 3))
@@ -520,5 +518,4 @@ class Model:
     def to_urdf(self, path) -> None:
         """Write the model as URDF (one revolute joint per dof, massless links between the dofs
         of one joint), loadable by Pinocchio, MuJoCo and RViz."""
-        from .urdf import write_urdf
         write_urdf(self, path)

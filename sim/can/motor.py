@@ -28,6 +28,11 @@ COOL_MARGIN = 10.0             # K below the limit before an over-temperature fa
 class CanMotor:
     """One motor on a CAN bus; position and velocity at its output shaft (the plant's horn)."""
 
+    @property
+    def torque_enabled(self) -> bool:
+        """Whether the motor drives (MIT mode entered), as a servo's Torque Enable."""
+        return self.enabled
+
     def __init__(self, spec: MotorSpec, can_id: int, *, dialect: str | None = None, feedback_id: int | None = None,
                  ranges: frames.Ranges | None = None, supply_voltage: float | None = None):
         self.spec, self.can_id = spec, can_id

@@ -13,7 +13,7 @@ import math
 import struct
 
 from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
-from servodyn.hal.dynamixel.control_table import (GOAL_POSITION_SPAN, PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE,
+from servodyn.hal.dynamixel.control_table import (BAUD_RATES, GOAL_POSITION_SPAN, PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE,
                                                   TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item,
                                                   Model, OperatingMode)
 
@@ -41,7 +41,7 @@ class Servo:
 
     def __init__(self, model: Model = XM430_W350, servo_id: int = 1, *, position: float = 0.0,
                  zero_ticks: int = TICKS_PER_REV // 2, supply_voltage: float = 12.0,
-                 temperature: int = 30, mechanics: Mechanics | None = None):
+                 temperature: int = 30, mechanics: Mechanics | None = None, baud: int | None = None):
         if not 0 <= servo_id <= MAX_ID:
             raise ValueError(f"servo ID {servo_id}: 0..{MAX_ID}")
         if supply_voltage <= 0:
@@ -78,6 +78,10 @@ class Servo:
         self.silent = False            # a fault: the servo executes but never answers
         self._load_defaults(eeprom=True)
         self._set("id", servo_id)
+        if baud is not None:         # set up at this rate (its EEPROM); a new servo says 57600
+            if baud not in BAUD_RATES:
+                raise ValueError(f"baud rate {baud}: a Dynamixel X servo runs at {', '.join(map(str, BAUD_RATES))}")
+            self._set("baud_rate", BAUD_RATES.index(baud))
         self._set("present_input_voltage", round(supply_voltage * 10))
         self._set("present_temperature", temperature)
         self._power_up()

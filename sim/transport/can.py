@@ -28,20 +28,21 @@ MAX_LINE = 160                 # characters: a 64-byte FD frame is 138
 
 
 class _Server:
-    """What both transports share: the lock around the arm, the real-time clock, fault injection."""
+    """What both transports share: the lock around the robot, the real-time clock, fault injection.
+    `port`: the CAN bus of a simulated robot (SimulatedRobot.port)."""
 
-    def __init__(self, arm, bus: str | None, mode: str, control_period: float | None, on_error):
+    def __init__(self, port, mode: str, control_period: float | None, on_error):
         if mode not in ("lockstep", "realtime"):
             raise ValueError("mode must be 'lockstep' or 'realtime'")
-        self.arm, self.mode = arm, mode
-        self.bus = bus or next(iter(arm.networks))
+        self.arm, self.mode = port, mode
+        self.bus = port.name
         self._stop = threading.Event()
-        self._lock = getattr(arm, "lock", None) or threading.Lock()   # shared by every bus of one robot
+        self._lock = port.lock          # shared by every bus of one robot
         self.errors = 0
         self.on_error = on_error or (lambda message: print(message, file=sys.stderr, flush=True))
         self._threads = [threading.Thread(target=self._serve, name="servodyn-can-sim", daemon=True)]
         if mode == "lockstep":
-            arm.lockstep(control_period)
+            port.lockstep(control_period)
         else:
             self._threads.append(threading.Thread(target=self._clock, name="servodyn-plant", daemon=True))
 
@@ -69,7 +70,7 @@ class _Server:
     def _answer(self, arbitration_id: int, data: bytes) -> list[tuple[int, bytes]]:
         with self._lock:
             try:
-                return self.arm.handle(self.bus, arbitration_id, data)
+                return self.arm.handle(arbitration_id, data)
             except Exception as err:        # a serving thread that died would leave the bus deaf
                 self.errors += 1
                 self.on_error(f"simulated CAN bus: {type(err).__name__} while answering the host: {err}")
@@ -87,18 +88,18 @@ class _Server:
 
 
 class VirtualCanServer(_Server):
-    """The arm's bus on python-can's virtual interface, channel `channel`, in this process: the
+    """A simulated robot's CAN bus on python-can's virtual interface, channel `channel`, in this process: the
     motors answer from a thread, or (threaded=False) in the thread of whoever waits for them, through
     `host_bus()`: the frames still travel through python-can's virtual channel, but a lock-step run
     no longer pays two threads' hand-over of the interpreter lock for every frame."""
 
-    def __init__(self, arm, channel: str, bus: str | None = None, mode: str = "lockstep",
-                 control_period: float | None = None, on_error=None, threaded: bool = True):
+    def __init__(self, port, channel: str, mode: str = "lockstep", control_period: float | None = None,
+                 on_error=None, threaded: bool = True):
         import can
         self.channel = channel
         self.can = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self._message = can.Message
-        super().__init__(arm, bus, mode, control_period, on_error)
+        super().__init__(port, mode, control_period, on_error)
         if not threaded:
             self._threads = [t for t in self._threads if t.name != "servodyn-can-sim"]
 
@@ -131,7 +132,7 @@ class VirtualCanServer(_Server):
                 return super()._recv_internal(timeout)
 
             def send(self, msg, timeout=None):
-                network = server.arm.networks[server.bus]
+                network = server.arm.network
                 if network.bus_off():      # a bus-off fault: as python-can reports a failed send
                     raise can.CanOperationError("bus-off: the controller is off the bus after too many errors")
                 super().send(msg, timeout)
@@ -143,17 +144,17 @@ class VirtualCanServer(_Server):
 
 
 class SlcanServer(_Server):
-    """The arm's bus behind an SLCAN adapter on a pseudo-terminal (`path`)."""
+    """A simulated robot's CAN bus behind an SLCAN adapter on a pseudo-terminal (`path`)."""
 
-    def __init__(self, arm, bus: str | None = None, mode: str = "realtime", control_period: float | None = None,
-                 on_error=None, ack_frames: bool = True):
+    def __init__(self, port, mode: str = "realtime", control_period: float | None = None, on_error=None,
+                 ack_frames: bool = True):
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         tty.setraw(self.master)
         self.path = os.ttyname(self.slave)
         self.is_open, self.bitrate, self.ack_frames = False, None, ack_frames
         self.lines = self.refused = 0
-        super().__init__(arm, bus, mode, control_period, on_error)
+        super().__init__(port, mode, control_period, on_error)
 
     def _close(self) -> None:
         for fd in (self.master, self.slave):

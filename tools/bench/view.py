@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench_loop import ROOT, publish
-from .swing import run_swing
-from .view import PUBLISH_HZ, live_viewer
+from .loop import ROOT, publish
+from ..swing import run_swing
+from ..view import PUBLISH_HZ, live_viewer
 
 
 def measure(reps: int, realtime: bool) -> dict:
@@ -65,7 +65,7 @@ def table(rows: dict, realtime: bool) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench_view", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench.view", description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=3, help="runs with and without the view (default 3)")
     parser.add_argument("--realtime", action="store_true", help="pace the loop at 1 kHz (default lock-step)")
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")

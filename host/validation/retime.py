@@ -7,14 +7,15 @@ import time
 
 import numpy as np
 
-from ..control.timing import SMALL_TIME_STEP
-from ..control.trajectory import Trajectory
-from .validate import Limits, MotionPath, check
+from ..control.trajectory import MotionPath, Trajectory
+from .checks import check
+from .limits import Limits
 
 RETIME_GRID = 400             # path points toppra plans on
 RETIME_SPEED_SHARE = 0.5      # of the no-load speed given to speed, the rest of the envelope to torque
 RETIME_SHRINK = 0.93          # each retry plans on limits this much tighter
 RETIME_TRIES = 12
+TIMELESS = {"position": "the path leaves the joint limits", "bus": "one tick's transactions outlast the control period"}
 RETIME_TRIM = 1e-3            # s cut from each end of the path, where it is at rest
 
 
@@ -25,7 +26,8 @@ def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, 
     half its no-load speed at the supply voltage (and its velocity limit), and then needs at most
     half the stall torque to stay inside the driving line τ_s·(1 − |ω|/ω₀); its current limit
     bounds the torque too. Both are scaled by the margin. toppra sees servodyn's rigid-body RNEA
-    (gravity, any payload). Its result is then re-checked every small_time_step: between its grid
+    (gravity, any payload). Its result is then re-checked every control period of the
+    configuration (`limits.period`), the sampling the loop will play it at: between its grid
     points it can exceed its bounds, so a failing plan is tried again on bounds 7 % tighter.
     Where the path is at rest its speed along the path vanishes and toppra's controllable set at
     that end is undefined (it reports none); so its first and last millisecond are cut, which
@@ -55,7 +57,8 @@ def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, 
         spent["rnea"] += time.perf_counter() - start
         return tau
 
-    began, scale = time.perf_counter(), margin
+    began, scale, failing = time.perf_counter(), margin, {}
+    period = limits.period
     for tries in range(1, RETIME_TRIES + 1):
         vel = constraint.JointVelocityConstraint(np.column_stack([-scale * speed, scale * speed]))
         tau = constraint.JointTorqueConstraint(inverse_dynamics, np.column_stack([-scale * torque, scale * torque]),
@@ -67,7 +70,7 @@ def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, 
         spent["toppra"] += time.perf_counter() - start
         if planned is None:
             return None, None, f"toppra found no feasible timing (try {tries}: 'controllable set is empty')"
-        t = np.arange(int(np.floor(planned.duration / SMALL_TIME_STEP)) + 1) * SMALL_TIME_STEP
+        t = np.arange(int(np.floor(planned.duration / period)) + 1) * period
         t = np.append(t, planned.duration) if planned.duration - t[-1] > 1e-9 else t
         traj = Trajectory(t=t, q=planned(t), qd=planned(t, 1), qdd=planned(t, 2), derived=True)
         result = check(model, limits, traj, margin, repeat, ambient)
@@ -75,5 +78,13 @@ def retime(model, limits: Limits, path: MotionPath, margin: float, repeat: int, 
             return traj, result, {"duration_s": float(planned.duration), "tries": tries,
                                   "seconds": time.perf_counter() - began, "trimmed_rad": trimmed,
                                   "toppra_s": spent["toppra"] - spent["rnea"], "rnea_s": spent["rnea"]}
+        name, ratio = result.worst()
+        failing[name] = failing.get(name, 0) + 1
+        if name in TIMELESS:
+            return None, None, (f"the '{name}' check fails at {ratio:.3g} of its limit whatever the timing "
+                                f"({TIMELESS[name]}): no retiming passes")
         scale *= RETIME_SHRINK
-    return None, None, f"toppra's timings still failed the dense check after {RETIME_TRIES} tries"
+    return None, None, (f"toppra's timings still failed the dense check after {RETIME_TRIES} tries, each on bounds "
+                        f"{1 - RETIME_SHRINK:.0%} tighter than the last: the '{name}' check kept failing "
+                        f"({ratio:.3g} of its limit on the last try; failed tries by check: "
+                        f"{', '.join(f'{k} {v}' for k, v in sorted(failing.items()))})")

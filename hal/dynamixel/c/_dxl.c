@@ -117,7 +117,7 @@ static PyGetSetDef Reader_getset[] = {
 
 static PyTypeObject ReaderType = {
     PyVarObject_HEAD_INIT(NULL, 0)
-    .tp_name = "servodyn._dxl.Reader",
+    .tp_name = "servodyn.hal.dynamixel._dxl.Reader",
     .tp_basicsize = sizeof(ReaderObject),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_doc = "The firmware's Protocol 2.0 packet reader (hal/dynamixel/c/dxl.c).",

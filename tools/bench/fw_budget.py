@@ -37,7 +37,7 @@ from pathlib import Path
 
 from servodyn.tools.hil import BOARDS, FirmwareError, default_elf, run_qemu, summarize
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 BUDGET = 300.0                # s of wall clock per board
 CALIBRATION = (20, 400)       # ticks of the two timing runs: their difference is the per-tick cost
 MARGIN = 1.3                  # the whole run must fit the budget with this much to spare

@@ -4,26 +4,25 @@ A tick (`tick`) is what the host loop, the HIL replay of the firmware and the fi
 every small_time_step: new PD gains from the schedule every `update_ticks`, the controller step
 on the measured state (inverse dynamics every time_step, held, plus the PD). `follow` wraps it
 between one `read_state()` and one `write()` of a bus — ros2_control's read → update → write —
-for each sample of a planned segment, and logs it. `summarize` turns a log into the run's figures.
+for each sample of a planned segment, and logs it (`log.RunLog`, whose reader is beside its
+writer). `summarize` turns a log into the run's figures; `realtime` places a real-time loop (its
+priority, its CPU, the garbage collector paused).
 """
 
 from __future__ import annotations
 
-import csv
-import io
+import signal
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from .control.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
-from .control.schedule import Segment
-from .control.timing import OVERRUN_TOLERANCE
-from .hal.bus import JointCommand
-
-FLUSH_EVERY = 0.1      # s of wall-clock time between two writes of a streamed log to disk
+from ..control.schedule import Segment
+from ..control.timing import OVERRUN_TOLERANCE
+from ..hal.bus import JointCommand
+from ..errors import ExitCode, ServodynError
+from .log import RunLog, read_run_log
+from .realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 
 
 def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
@@ -34,137 +33,20 @@ def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
     return controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q, qd)
 
 
-class Overrun(RuntimeError):
+class Overrun(ServodynError, RuntimeError):
     """A real-time loop fell further behind its period schedule than its tolerance: it cannot
     hold its period, so it stops (the firmware's fault 14, overrun)."""
+    exit_code = ExitCode.OVERRUN
 
 
-@dataclass
-class RunLog:
-    """Per tick: time, desired and measured state, commanded torque, measured current, and when
-    the tick began and what CPU it took."""
-    dof_names: tuple[str, ...]
-    t: list = field(default_factory=list)
-    q_d: list = field(default_factory=list)
-    q: list = field(default_factory=list)
-    qd: list = field(default_factory=list)
-    tau: list = field(default_factory=list)
-    current: list = field(default_factory=list)
-    tick_seconds: list = field(default_factory=list)    # wall time of each tick's work
-    tick_start: list = field(default_factory=list)      # s (perf_counter) when each tick began
-    cpu_seconds: list = field(default_factory=list)     # CPU time of the loop's thread in each tick
-    process_cpu_seconds: list = field(default_factory=list)   # CPU time of the whole process in it
-    missed: int = 0             # ticks whose work ended after their period's end (real time)
+class Interrupted(ServodynError):
+    """SIGINT or SIGTERM arrived during a run: it stops safely, as after a servo error, and exits
+    with the shell's status for that signal."""
 
-    def add(self, t, q_d, state, tau, seconds, start, cpu, process_cpu) -> None:
-        # t last: a signal's exception (SIGINT, SIGTERM stop the swing) between two appends
-        # leaves a row that t does not count, which close() drops (_trim)
-        self.q_d.append(np.array(q_d))
-        self.q.append(state.q)
-        self.qd.append(state.qd)
-        self.tau.append(np.array(tau))
-        self.current.append(state.current)
-        self.tick_seconds.append(seconds)
-        self.tick_start.append(start)
-        self.cpu_seconds.append(cpu)
-        self.process_cpu_seconds.append(process_cpu)
-        self.t.append(t)
-        if getattr(self, "_file", None) is not None:
-            # the row is formatted now, a few µs each tick, so that a flush only writes: formatting
-            # 100 ms of rows at once took a real-time loop several periods
-            self._format_pending()
-            if time.monotonic() - self._flushed_at >= self._flush_every:
-                self.flush()
-
-    def write_csv(self, path: Path) -> None:
-        self._trim()
-        with open(path, "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(self._header())
-            self._write_rows(writer, 0)
-
-    def stream(self, path: Path, flush_every: float = FLUSH_EVERY) -> None:
-        """Write the log to `path` while it grows: the rows logged so far go to the file (and
-        to the operating system, which keeps them if the process is killed) whenever
-        `flush_every` s of wall-clock time have passed since the last time, and at close(). A
-        process killed outright (SIGKILL) loses at most the ticks of its last `flush_every` s,
-        and every line on disk is whole.
-
-        A signal's exception (SIGINT, SIGTERM stop the swing) may come between any two steps:
-        each row is formatted into a pending line by one list append, so it is pending once or
-        not yet; a write to the file is first recorded whole — where it goes, what it writes,
-        the state after it — by one assignment, and redone from that place if it was cut
-        short, so close() puts every row in the file exactly once."""
-        self._file = open(path, "wb")
-        self._line_buffer = io.StringIO(newline="")
-        self._line_writer = csv.writer(self._line_buffer)
-        self._stream = (0, [self._line(self._header())])      # (rows in the file, pending lines)
-        self._commit = None
-        self._flush_every = flush_every
-        self.flush()
-
-    def _line(self, fields) -> str:
-        """One CSV line, as csv.writer writes it."""
-        self._line_buffer.seek(0)
-        self._line_buffer.truncate()
-        self._line_writer.writerow(fields)
-        return self._line_buffer.getvalue()
-
-    def _format_pending(self) -> None:
-        """Every logged row not yet in the file nor pending, formatted into a pending line."""
-        self._redo()
-        in_file, lines = self._stream
-        header = 1        # the header's line comes first, counted as a row of the file
-        while in_file + len(lines) - header < len(self.t):
-            lines.append(self._line(self._row(in_file + len(lines) - header)))
-
-    def flush(self) -> None:
-        """The rows not yet on disk, to the file and the operating system (when streaming)."""
-        if getattr(self, "_file", None) is not None:
-            self._format_pending()
-            in_file, lines = self._stream
-            self._commit = (self._file.tell(), "".join(lines).encode(), (in_file + len(lines), []))
-            self._redo()
-            self._flushed_at = time.monotonic()
-
-    def _redo(self) -> None:
-        """The recorded write, from its place (again, if it was cut short), then its state."""
-        if self._commit is not None:
-            at, data, after = self._commit
-            self._file.seek(at)
-            self._file.truncate()
-            self._file.write(data)
-            self._file.flush()
-            self._stream = after
-            self._commit = None
-
-    def _trim(self) -> None:
-        """Every column as long as t: a row whose add() a signal cut short is dropped whole."""
-        for column in (self.q_d, self.q, self.qd, self.tau, self.current, self.tick_seconds, self.tick_start,
-                       self.cpu_seconds, self.process_cpu_seconds):
-            del column[len(self.t):]
-
-    def close(self) -> None:
-        self._trim()
-        if getattr(self, "_file", None) is not None:
-            self.flush()
-            self._file.close()
-            self._file = None
-
-    def _header(self) -> list[str]:
-        return ["t"] + [f"{p}_{d}" for p in ("q_d", "q", "qd", "tau", "current") for d in self.dof_names]
-
-    def _row(self, k: int) -> list[str]:
-        """Row k's fields, formatted (as Python floats: exactly the values, as numpy's scalars
-        format them, for less)."""
-        row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k], self.current[k]))
-        return [f"{v:.9g}" for v in row.tolist()]
-
-    def _write_rows(self, writer, start: int) -> int:
-        """The rows from `start` on; returns the number of rows then written in all."""
-        for k in range(start, len(self.t)):
-            writer.writerow(self._row(k))
-        return len(self.t)
+    def __init__(self, signum: int):
+        self.signum = signum
+        self.exit_code = 128 + signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
 
 
 def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,
@@ -180,7 +62,7 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
     once by the next (the loop catches up on its schedule); a tick that begins more than
     `tolerance` (default OVERRUN_TOLERANCE) behind its schedule raises Overrun before it reads:
     the caller stops the bus. The garbage collector waits for the end of the segment; in real
-    time the loop runs under SCHED_FIFO where it may (control.realtime)."""
+    time the loop runs under SCHED_FIFO where it may (loop.realtime)."""
     with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
         return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer)
 

@@ -6,7 +6,7 @@ with software WebGL (SwiftShader); the protocol's websocket is spoken with `webs
 itself depends on. Every wait polls for its condition with a deadline: nothing here depends on how
 fast the machine is.
 
-    python -m servodyn.tools.browser --screenshots DIR     the README's pictures of the page
+    python tests/browser.py --screenshots DIR     the README's pictures of the page
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+
+from servodyn.tools.view import open_view
 
 ROOT = Path(__file__).resolve().parents[1]
 SCREEN = (1200, 800)
@@ -174,7 +176,6 @@ def settle(browser: Browser, rounds: int = 2, deadline: float = DEADLINE) -> np.
 def screenshots(out: Path, log: Path | None) -> list[Path]:
     """The README's pictures: shaping the forehand on the replica, and a logged run replayed."""
     from PIL import Image
-    from .view import open_view
     out.mkdir(parents=True, exist_ok=True)
     written = []
     quiet = dict(say=lambda *a, **k: None)
@@ -200,7 +201,7 @@ def screenshots(out: Path, log: Path | None) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.browser", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python tests/browser.py", description=__doc__.splitlines()[0])
     parser.add_argument("--screenshots", required=True, metavar="DIR", help="write the README's screenshots here")
     parser.add_argument("--log", default=None, metavar="DIR", help="a run's folder to show replayed")
     args = parser.parse_args(argv)

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..hal.config import load_config
-from .bench_loop import publish
-from .retime import retime
-from .validate import Limits, check, motion_path
+from ...control.motion import motion_path
+from ...hal.config import load_config
+from ...validation import Limits, check, retime
+from .loop import publish
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GOALS = {"validate_ms": 50.0, "retime_s": 2.0}
 
 
@@ -33,7 +33,7 @@ def timed(fn, reps: int) -> tuple[float, object]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench_validate",
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench.validate",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=7, help="runs of each (default 7)")
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")

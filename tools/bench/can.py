@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..hal.bus import JointCommand, make_bus
-from ..hal.can.backend import FRAME_BITS
-from ..hal.config import load_config
-from ..sim.robot import SimulatedRobot
-from ..sim.transport.can import VirtualCanServer
+from ...hal.bus import JointCommand, make_bus
+from ...hal.can.spec import FRAME_BITS
+from ...hal.config import load_config
+from ...sim.robot import SimulatedRobot
+from ...sim.transport.can import VirtualCanServer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HOLD = JointCommand.position(np.full(7, 0.2), kp=3.0, kd=0.03)
 PATIENT = 2.0
 
@@ -55,7 +55,7 @@ def _ticks(bus, n: int) -> float:
 
 def _virtual(config, threaded: bool, n: int) -> float:
     robot = SimulatedRobot(config)
-    server = VirtualCanServer(robot, f"bench-{id(robot):x}", threaded=threaded)
+    server = VirtualCanServer(robot.port(), f"bench-{id(robot):x}", threaded=threaded)
     server.start()
     host = server.host_bus() if not threaded else __import__("can").Bus(interface="virtual", channel=server.channel)
     try:

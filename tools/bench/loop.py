@@ -9,7 +9,7 @@ here, in one run:
   (its own process, `servodyn sim --lockstep`'s server), which bounds what any loop can reach;
 - the simulator against a minimal responder (a canned fast sync read reply, nothing simulated)
   under the same raw client, and the simulator's CPU while it serves real time with nobody talking;
-- the simulator's own CPU per transaction in this process, no pseudo-terminal (SimulatedArm.handle
+- the simulator's own CPU per transaction in this process, no pseudo-terminal (SimulatedRobot.port().handle
   of the same sync write + fast sync read, the plant advancing one period), torque on in Current
   Control Mode as in the swing and torque off as the raw client leaves it;
 - real time at 1 kHz over the whole swing: the period's median, p99 and largest distance from
@@ -34,17 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control.timing import SMALL_TIME_STEP
-from ..hal.config import load_config
-from ..hal.dynamixel import instructions
-from ..hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
+from ...control.timing import SMALL_TIME_STEP
+from ...hal.config import load_config
+from ...hal.dynamixel import instructions
+from ...hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
                                            ADDR_TORQUE_ENABLE, PRESENT_LENGTH, OperatingMode)
-from ..hal.dynamixel.units import ServoMap
-from ..sim.arm import SimulatedArm
-from ..sim.transport.pty import SimProcess
-from .swing import run_swing
+from ...hal.dynamixel.units import ServoMap
+from ...sim.robot import SimulatedRobot
+from ..simulator import SimProcess
+from ..swing import run_swing
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RAW_TRANSACTIONS = 3000
 IDLE_SECONDS = 5.0
 IN_PROCESS = (15, 200)       # batches, transactions a batch: the best batch is the figure
@@ -110,12 +110,12 @@ def minimal_responder_rate(ids) -> dict:
 
 
 def simulator_in_process(config, torque: bool) -> float:
-    """µs of this thread's CPU per transaction of the simulator itself (SimulatedArm.handle in
+    """µs of this thread's CPU per transaction of the simulator itself (SimulatedRobot.port().handle in
     lock-step: a sync write of Goal Current, the plant one period on, a fast sync read of Present
     Current..Position of the 7 servos), the best of IN_PROCESS batches. With torque on every servo
     is in Current Control Mode holding the arm's weight at its start (Goal Current ±1 unit from
     tick to tick, so the write's bytes change as the loop's do)."""
-    arm = SimulatedArm(config)
+    arm = SimulatedRobot(config).port()
     arm.lockstep()
     ids = [j.id for j in arm.joints]
     hold = np.zeros(len(ids), dtype=np.int64)
@@ -237,7 +237,7 @@ def table(r: dict) -> str:
         lines.append(f"| {name.split()[0]} loop | {x['ticks']} | {_f(x['period_median_ms'])} | {_f(x['error_p99_ms'])} | "
                      f"{_f(x['error_max_ms'])} | {x['missed']} | {x['error'] or 'completed'} |")
     placed = {name.split()[0]: r[name].get("cpu") for name in ("python real time", "native real time")}
-    lines += ["", "real time, the loop, the simulator and the kernel's tty work on one CPU (control.realtime."
+    lines += ["", "real time, the loop, the simulator and the kernel's tty work on one CPU (loop.realtime."
               "one_cpu): " + ", ".join(f"{loop} on CPU {cpu}" if cpu is not None else f"{loop} not placed"
                                        for loop, cpu in placed.items()),
               "", f"simulator serving real time, nobody talking: {sim['realtime_idle_cores']:.2f} core",
@@ -250,7 +250,7 @@ def table(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench_loop", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench.loop", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(ROOT / "out" / "bench"), help="output folder")
     args = parser.parse_args(argv)
     print(f"servodyn control loop: the replica's swing on the simulated bus, {os.cpu_count()} cpus", flush=True)

@@ -25,9 +25,9 @@ import numpy as np
 import servodyn
 from servodyn.model.samples import random_model, serial_chain
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BUILD = ROOT / "build" / "bench"
-SOURCES = [ROOT / "tools" / "bench_native" / "bench.cpp", ROOT / "tools" / "bench_native" / "build.sh",
+SOURCES = [ROOT / "tools" / "bench" / "native" / "bench.cpp", ROOT / "tools" / "bench" / "native" / "build.sh",
            *sorted((ROOT / "firmware" / "core").rglob("*.[ch]"))]
 GOALS = {"rnea": 0.6, "forward": 0.8, "rk4": 0.8}
 # the ratio each goal is judged on: contest, library servodyn is timed against, label
@@ -59,7 +59,7 @@ def build_binary() -> Path:
     if not binary.exists() or binary.stat().st_mtime < newest:
         print("building the C++ benchmark (Pinocchio headers take about two minutes) ...", flush=True)
         BUILD.mkdir(parents=True, exist_ok=True)
-        res = subprocess.run(["bash", str(ROOT / "tools" / "bench_native" / "build.sh"), sys.executable, str(BUILD)],
+        res = subprocess.run(["bash", str(ROOT / "tools" / "bench" / "native" / "build.sh"), sys.executable, str(BUILD)],
                              capture_output=True, text=True)
         if res.returncode != 0:
             sys.exit(f"bench: the C++ benchmark did not build:\n{res.stderr.strip()}")
@@ -254,7 +254,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.bench.core", description=__doc__.splitlines()[0])
     parser.add_argument("--states", type=int, default=1000, help="states per model (default 1000)")
     parser.add_argument("--reps", type=int, default=31,
                         help="interleaved timed repetitions, in C++ and in Python (default 31)")

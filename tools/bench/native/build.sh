@@ -8,7 +8,7 @@ set -euo pipefail
 
 fail() { echo "build.sh: $*" >&2; exit 1; }
 
-[ $# -eq 2 ] || fail "usage: tools/bench_native/build.sh PYTHON OUTDIR"
+[ $# -eq 2 ] || fail "usage: tools/bench/native/build.sh PYTHON OUTDIR"
 command -v gcc >/dev/null && command -v g++ >/dev/null || fail "gcc and g++ are needed"
 python=$1
 out=$2
@@ -63,7 +63,7 @@ g++ -std=c++17 -O3 -DNDEBUG -Wall \
   -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
   -I"$root/firmware/core/include" -isystem "$eigen_dir" -isystem "$pin_prefix/include" \
   -isystem "$mj_dir/include" \
-  -c "$root/tools/bench_native/bench.cpp" -o "$out/obj/bench.o" || fail "bench.cpp does not compile"
+  -c "$root/tools/bench/native/bench.cpp" -o "$out/obj/bench.o" || fail "bench.cpp does not compile"
 
 # link; the rpath lets the binary find libmujoco without LD_LIBRARY_PATH
 g++ "$out/obj/bench.o" "${objs[@]}" "$mj_lib" -Wl,-rpath,"$mj_dir" -lm -o "$out/bench" ||

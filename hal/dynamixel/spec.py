@@ -1,0 +1,48 @@
+"""The Dynamixel X-series bus described (hal.backend): its servos, rates, ids, configuration keys,
+one tick's wire time and the torque range of Goal Current."""
+
+from __future__ import annotations
+
+from ..backend import Backend
+from . import instructions
+from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_LENGTH, SERVOS
+from .protocol import MAX_ID
+from .units import current_unit
+
+
+class Dynamixel(Backend):
+    kind = "dynamixel"
+    bus = "servodyn.hal.dynamixel.backend:DynamixelBus"
+    servos = SERVOS
+    bauds = BAUD_RATES
+    default_baud = 4_000_000
+    protocols = (2.0,)
+    max_id = MAX_ID
+    joint_keys = frozenset({"current_unit"})
+
+    @classmethod
+    def joint_options(cls, checker, servo) -> dict:
+        return {"current_unit": checker.positive("current_unit", servo.current_unit)}
+
+    @classmethod
+    def max_current(cls, servo, options: dict) -> tuple[float, str]:
+        unit = options["current_unit"]
+        return servo.current_limit_max * unit, f"{servo.current_limit_max} x {unit:g} A"
+
+    @classmethod
+    def wire_time(cls, joints, bus) -> tuple[float, str]:
+        """The tick's fast sync read (instruction and reply) and Goal Current sync write, 10 bits
+        a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside."""
+        ids = [j.id for j in joints]
+        read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, ids).encode())
+        reply = instructions.fast_reply_size([PRESENT_LENGTH] * len(ids))
+        write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
+        total = read + reply + write
+        return total * 10 / bus.baud, f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
+
+    @classmethod
+    def command_range(cls, joint) -> tuple[float, float]:
+        """Goal Current is clamped to ±Current Limit(38), in whole current units."""
+        unit = current_unit(joint)
+        per_unit = unit * joint.torque_constant * joint.gear_ratio
+        return round(joint.current_limit / unit) * per_unit, per_unit

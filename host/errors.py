@@ -1,0 +1,49 @@
+"""Every error servodyn raises, in one tree, and the exit status each one stops a run with.
+
+    ServodynError                       exit 2 unless a subclass says otherwise
+    ├── hal.errors.HalError             the HAL's tree (configurations, codecs, servos and buses)
+    ├── control.ControlFault            a non-finite desired or measured state        (13)
+    ├── validation.MotionRefused        the validator refused a motion before it moved (2)
+    ├── loop.Overrun                    a real-time loop fell behind its schedule       (14)
+    └── loop.Interrupted                SIGINT or SIGTERM stopped a run                 (128 + signal)
+
+`ExitCode` is the one table of exit statuses: the firmware's fault codes (firmware/app/fw_app.h,
+enum fw_fault_: FW_FAULT_<NAME> = ExitCode.<NAME>; tests/test_soak.py compares the two), so a
+run stopped by the Python loop, the native loop or the firmware under QEMU exits alike.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+
+class ExitCode(IntEnum):
+    OK = 0              # completed
+    BAD_INPUT = 2       # bad input, or an error without a code of its own
+    TIMEOUT = 10        # a servo, or the whole bus, did not answer
+    STATUS = 11         # a servo reported a hardware error
+    CORRUPT = 12        # a corrupt or refused reply, a failed write
+    NONFINITE = 13      # a non-finite desired or measured state, or torque
+    OVERRUN = 14        # the loop fell behind its period past its tolerance
+    RANGE = 15          # a joint measured beyond its limits
+    SETUP = 16          # a servo refused the set-up (wrong model, a write error)
+    OVERFLOW = 17       # finite measurements, a non-finite torque (the firmware's overflow)
+
+
+class ServodynError(Exception):
+    """Root of every error servodyn raises; `exit_code` is the status a run stopped by it ends with."""
+    exit_code: int = ExitCode.BAD_INPUT
+
+
+# errors of Python's own that a run can stop on, and their codes
+_BUILTIN_CODES = ((TimeoutError, ExitCode.TIMEOUT), (FloatingPointError, ExitCode.NONFINITE))
+
+
+def exit_code(error: BaseException | None) -> int:
+    """The exit status of a run that `error` stopped (None: it completed)."""
+    if error is None:
+        return ExitCode.OK
+    code = getattr(error, "exit_code", None)
+    if isinstance(code, int):
+        return int(code)
+    return int(next((c for kind, c in _BUILTIN_CODES if isinstance(error, kind)), ExitCode.BAD_INPUT))

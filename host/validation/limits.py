@@ -1,0 +1,59 @@
+"""Every limit of a robot configuration that the checks compare with, at one supply voltage."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..control.timing import SMALL_TIME_STEP
+from ..hal.backend import backend
+
+
+@dataclass
+class Limits:
+    """Every per-joint limit the checks compare with, at one supply voltage (arrays per joint)."""
+    lower: np.ndarray
+    upper: np.ndarray
+    speed: np.ndarray            # rad/s at the joint
+    stall_torque: np.ndarray     # N m at the horn, at the supply voltage
+    no_load_speed: np.ndarray    # rad/s at the horn, at the supply voltage
+    gear: np.ndarray             # horn turns per joint turn
+    torque_constant: np.ndarray  # N m / A at the horn
+    current: np.ndarray          # A
+    no_load_current: np.ndarray  # A
+    resistance: np.ndarray       # Ω at 25 °C
+    thermal_resistance: np.ndarray
+    thermal_time_constant: np.ndarray
+    temperature: np.ndarray      # °C
+    command: np.ndarray          # N m at the joint
+    command_step: np.ndarray     # N m
+    voltage: float
+    supply_current: float | None
+    wire: list = field(default_factory=list)   # (bus name, seconds per tick, description)
+    period: float = SMALL_TIME_STEP            # s: the configuration's control period, the sampling
+
+    @classmethod
+    def of(cls, config, voltage: float) -> "Limits":
+        joints = config.joints
+        servos = [j.servo for j in joints]
+        command = [backend(config.buses[j.bus].kind).command_range(j) for j in joints]
+        wire = []
+        for name, bus in config.buses.items():
+            seconds, what = backend(bus.kind).wire_time(config.joints_on(name), bus)
+            wire.append((name, seconds, what))
+        arr = lambda values: np.array(list(values), dtype=float)
+        gear = arr(j.gear_ratio for j in joints)
+        no_load = arr(s.no_load_speed_at(voltage) for s in servos)
+        return cls(lower=arr(j.position_limits[0] for j in joints), upper=arr(j.position_limits[1] for j in joints),
+                   speed=np.minimum(arr(j.velocity_limit for j in joints), no_load / gear),
+                   stall_torque=arr(s.stall_torque_at(voltage) for s in servos), no_load_speed=no_load, gear=gear,
+                   torque_constant=arr(j.torque_constant for j in joints), current=arr(j.current_limit for j in joints),
+                   no_load_current=arr(s.no_load_current for s in servos),
+                   resistance=arr(s.winding_resistance for s in servos),
+                   thermal_resistance=arr(s.thermal_resistance for s in servos),
+                   thermal_time_constant=arr(s.thermal_time_constant for s in servos),
+                   temperature=arr(s.temperature_limit for s in servos),
+                   command=arr(c[0] for c in command), command_step=arr(c[1] for c in command),
+                   voltage=voltage, supply_current=config.supply.current_limit if config.supply else None,
+                   wire=wire, period=config.control_period)

@@ -1,0 +1,258 @@
+"""The simulated robot served to a host, one way for every configuration and every caller (the
+swing, `servodyn sim`, the HIL replay, the soak and the benchmarks): `serve(config, mode)` puts each
+bus of the configuration's SimulatedRobot behind its transport — a Dynamixel bus on a
+pseudo-terminal (PtyServer), a CAN bus on python-can's virtual interface (VirtualCanServer) or an
+SLCAN adapter on a pseudo-terminal (SlcanServer) — and gives the options that point each bus's
+backend at it.
+
+A configuration of one Dynamixel bus read from a file is served by a child process of its own
+(`SimProcess`, `python -m servodyn.tools.simulator`), so the host loop's figures are its own: the
+child dies with its parent (PR_SET_PDEATHSIG, and the end of its control socket), and the parent
+injects faults and reads the plant's clock and the servos' torque through that socket, each request
+answered before the next packet is sent (deterministic). Any other configuration is served by
+threads of this process, one plant behind all of its buses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+from contextlib import nullcontext
+
+from ..hal.config import RobotConfig, load_config
+from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
+from ..sim.robot import SimulatedRobot
+from ..sim.transport.can import SlcanServer, VirtualCanServer
+from ..sim.transport.pty import PtyServer
+
+MODES = ("lockstep", "realtime")
+
+# s to wait for replies from a simulated bus, per bus kind: a pseudo-terminal under CPU load can hold
+# bytes back for over 100 ms (measured here), far beyond a real bus's deadline (Dynamixel 34 ms
+# packet timeout, CAN 20 ms). Dynamixel: the simulator's own process; on a machine loaded 4x over
+# its cores a reply was seen to wait over 250 ms. CAN: the motors' server is a thread of this
+# process, and on a loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured).
+SIM_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
+
+
+class Served:
+    """A simulated robot's buses served in this process, started and stopped together."""
+
+    def __init__(self, robot: SimulatedRobot, servers: dict, buses: dict, where: dict):
+        self.robot, self.servers, self.buses = robot, servers, buses
+        self.where = where          # bus -> where it is served, in words
+
+    def inject_fault(self, device_id, fault="silent") -> None:
+        """The fault is in place when this returns: the next packet or frame sees it."""
+        with self.robot.lock:
+            self.robot.inject_fault(device_id, fault)
+
+    def clear_faults(self) -> None:
+        with self.robot.lock:
+            self.robot.clear_faults()
+
+    def status(self) -> dict:
+        """The plant's time and whether each device's torque is off (SimulatedRobot.status)."""
+        with self.robot.lock:
+            return self.robot.status()
+
+    @property
+    def servos(self) -> int:
+        return len(self.robot.drives)
+
+    def stop(self) -> None:
+        for server in self.servers.values():
+            server.stop()
+        for options in self.buses.values():
+            if "can_bus" in options:
+                options["can_bus"].shutdown()
+
+    def __enter__(self) -> "Served":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
+          q0=None, start: bool = True):
+    """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
+    SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
+    else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
+    can="slcan" on an SLCAN adapter's pseudo-terminal). Either has `.buses` (bus -> the backend's
+    options), `status()`, `inject_fault(id, fault)`, `servos` and `stop()`."""
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    kinds = [bus.kind for bus in config.buses.values()]
+    if process is None:
+        process = kinds == ["dynamixel"] and config.path is not None and q0 is None
+    if process:
+        return SimProcess(config.path, mode)
+    robot = SimulatedRobot(config, q0=q0)
+    servers, buses, where = {}, {}, {}
+    for name, bus in config.buses.items():
+        # the first bus's server keeps the real-time clock; the others follow it
+        own = mode if not servers else "lockstep"
+        port = robot.port(name)
+        if bus.kind == "can" and can == "virtual":
+            channel = f"servodyn-{id(robot):x}-{name}"
+            # lock-step: the motors answer in the loop's thread when it waits for them (no thread
+            # hand-over per frame); real time: from the server's thread
+            servers[name] = VirtualCanServer(port, channel, mode=own, threaded=mode == "realtime")
+            buses[name] = {"can_bus": servers[name].host_bus()}
+            where[name] = f"python-can's virtual channel {channel}"
+        elif bus.kind == "can":
+            servers[name] = SlcanServer(port, mode=own)
+            buses[name] = {"port": servers[name].path, "interface": "slcan"}
+            where[name] = f"an SLCAN adapter on {servers[name].path}"
+        else:
+            servers[name] = PtyServer(port, own)
+            buses[name] = {"port": servers[name].path}
+            where[name] = servers[name].path
+        buses[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[bus.kind]
+    if mode == "realtime" and len(servers) > 1:
+        robot.free_running()         # the first server's clock alone moves the plant
+    served = Served(robot, servers, buses, where)
+    if start:
+        for server in servers.values():
+            server.start()
+    return served
+
+
+class SimProcessError(RuntimeError):
+    """The simulator's child process could not start or stopped answering its control socket."""
+
+
+class SimProcess:
+    """The simulated bus of a configuration file in a child process, on a pseudo-terminal."""
+
+    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0):
+        if mode not in ("lockstep", "realtime"):
+            raise ValueError("mode must be 'lockstep' or 'realtime'")
+        self._control, child = socket.socketpair()
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "servodyn.tools.simulator", "--config", str(config_path), "--mode", mode,
+             "--control-fd", str(child.fileno()), "--parent", str(os.getpid())],
+            pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL)
+        child.close()
+        self._control.settimeout(start_timeout)
+        self._buffer = b""
+        try:
+            hello = self._receive()
+        except SimProcessError:
+            self.stop()
+            raise
+        if not hello.get("ok"):
+            self.stop()
+            raise SimProcessError(f"simulated bus: {hello.get('error')}")
+        self.path, self.servos, self.bus = hello["path"], hello["servos"], hello["bus"]
+        self._control.settimeout(10.0)
+
+    def __enter__(self) -> "SimProcess":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _receive(self) -> dict:
+        while b"\n" not in self._buffer:
+            try:
+                data = self._control.recv(4096)
+            except (OSError, socket.timeout) as err:
+                raise SimProcessError(f"simulated bus: no answer from its process ({err})") from None
+            if not data:
+                raise SimProcessError(f"simulated bus: its process ended (exit status {self.process.poll()})")
+            self._buffer += data
+        line, self._buffer = self._buffer.split(b"\n", 1)
+        return json.loads(line)
+
+    def request(self, op: str, **args) -> dict:
+        try:
+            self._control.sendall((json.dumps({"op": op, **args}) + "\n").encode())
+        except OSError as err:
+            raise SimProcessError(f"simulated bus: its process is gone ({err})") from None
+        answer = self._receive()
+        if not answer.get("ok", False):
+            raise ValueError(answer.get("error", "refused"))
+        return answer
+
+    def inject_fault(self, servo_id: int, fault: str | int = "silent") -> None:
+        """The fault is in place when this returns: the next packet sees it."""
+        self.request("fault", id=servo_id, fault=fault)
+
+    def clear_faults(self) -> None:
+        self.request("clear")
+
+    def status(self) -> dict:
+        """The plant's time (s) and each servo's torque_off, as the simulator sees them now."""
+        return self.request("status")
+
+    @property
+    def buses(self) -> dict:
+        """The options that point the bus's backend at the simulated bus."""
+        return {self.bus: {"port": self.path, "reply_timeout": SIM_REPLY_TIMEOUT["dynamixel"]}}
+
+    def stop(self) -> None:
+        """Ask the child to end, and make sure it has."""
+        if self.process.poll() is None:
+            try:
+                self._control.sendall(b'{"op": "quit"}\n')
+            except OSError:
+                pass
+            try:
+                self.process.wait(timeout=2.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self._control.close()
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGTERM when the parent process ends (Linux prctl PR_SET_PDEATHSIG), and a check that it
+    has not ended already before the call."""
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)        # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        pass                                           # elsewhere: the control socket's end stops it
+    if os.getppid() != parent:
+        sys.exit(0)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.simulator",
+                                     description="the simulated bus in a child process (SimProcess)")
+    parser.add_argument("--config", required=True)
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
+    parser.add_argument("--control-fd", type=int, required=True)
+    parser.add_argument("--parent", type=int, required=True)
+    args = parser.parse_args(argv)
+    _die_with_parent(args.parent)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    control = socket.socket(fileno=args.control_fd)
+    try:
+        arm = SimulatedRobot(load_config(args.config)).port()
+    except Exception as err:     # reported to the parent as one line, never a traceback
+        control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())
+        return 2
+    server = PtyServer(arm, args.mode)
+    gc.freeze()      # the set-up's objects (model, tables, numpy) out of every later collection
+    control.sendall((json.dumps({"ok": True, "path": server.path, "servos": len(arm.servos), "bus": arm.name}) + "\n").encode())
+    try:
+        # in real time the simulated servos answer ahead of everything else, as hardware does
+        with realtime_priority(SIMULATOR_PRIORITY, "the simulated bus") if args.mode == "realtime" else nullcontext():
+            server.serve_forever(control)
+    finally:
+        server.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
