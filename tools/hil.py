@@ -10,11 +10,11 @@ firmware's SysTick figures are instruction counts: exact and repeatable (not cyc
 
 The emulated clock must not run while this side is slow to answer, or a reply late in wall time
 (a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose UART1
-is a sync line (a second `-serial` socket). After each chunk read from the firmware and answered,
-this side sends on it the bytes read and the bytes sent so far (two little-endian uint32); the
-firmware sleeps in WFI, executing nothing and with no timer to jump to, until its reply is there or
-these counts say that nothing more is coming, and only then counts its reply timeout
-(firmware/mcu/board_io.c). A silent servo still times out; a slow host never does.
+is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
+packet or is answered, this side sends on it the bytes read and the bytes sent so far (two
+little-endian uint32); the firmware sleeps in WFI, executing nothing and with no timer to jump to,
+until its reply is there or these counts say that nothing more is coming, and only then counts its
+reply timeout (firmware/mcu/board_io.c). A silent servo still times out; a slow host never does.
 
 Every exchange is recorded: what the servos reported and what the firmware commanded. `replay`
 recomputes each command with the host's double-precision controller from the same measured state
@@ -75,10 +75,12 @@ class FirmwareLink:
         self.arm, self.on_tick, self.tamper = arm, on_tick, tamper
         self.ids = [s.id for s in arm.servos]
         self.record = Record()
+        self.packets = 0                       # instruction packets heard (the sync line's cue)
         arm.lockstep()                         # each sync write moves the plant one period
         arm.bus.on_instruction = self._exchange
 
     def _exchange(self, exchange) -> None:
+        self.packets += 1
         request = exchange.request
         if request.instruction == Instruction.FAST_SYNC_READ and exchange.replies:
             try:
@@ -100,8 +102,10 @@ class FirmwareLink:
                 self.on_tick(len(self.record.goals) - 1, self.arm)
 
     def serve(self, sock: socket.socket, deadline: float, sync: socket.socket | None = None) -> None:
-        """Answer the firmware on `sock` until it closes; after each chunk, the counts of bytes read
-        and sent so far on `sync` (the firmware's sync line, a hardware-in-the-loop build's UART1)."""
+        """Answer the firmware on `sock` until it closes. With `sync` (the firmware's sync line, a
+        hardware-in-the-loop build's UART1): after each chunk that ended a packet or was answered, the
+        counts of bytes read and sent so far (not after a packet's first bytes: QEMU passes the
+        firmware's bytes on as they are written, and a record for each would flood the line)."""
         read = sent = 0
         while time.monotonic() < deadline:
             try:
@@ -113,13 +117,14 @@ class FirmwareLink:
             if not data:
                 return
             read += len(data)
+            packets = self.packets
             reply = self.arm.handle(data)
             if reply and self.tamper is not None:
                 reply = self.tamper(reply)
             if reply:
                 sock.sendall(reply)
                 sent += len(reply)
-            if sync is not None:
+            if sync is not None and (reply or self.packets != packets):
                 try:
                     sync.sendall(struct.pack("<II", read & 0xFFFFFFFF, sent & 0xFFFFFFFF))
                 except (BrokenPipeError, ConnectionResetError):     # QEMU has exited
