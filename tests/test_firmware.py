@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,13 @@ from servodyn.tools.swing import run_swing
 ROOT = Path(__file__).resolve().parent.parent
 WHOLE_SWING_TIMEOUT = 900.0   # s of wall clock for the 7,201-tick swing under QEMU
 FAULT_TICK = 100          # injections act after this tick's command: the next read sees them
+# A starved simulated bus (a loaded machine): the server sleeps before some replies. The long pauses
+# are several times the wall time the board's reply timeout (board_uart_wait's polls) lasts under
+# QEMU on an idle machine (about 0.35 s): a firmware whose clock ran while it waited took them for
+# a silent servo (a timeout fault at the first, with the images before the sync line).
+STARVED_PAUSE = 1.2       # s before the replies numbered in STARVED_AT
+STARVED_AT = (3, 120)     # a ping of the set-up, a fast sync read of the homing
+STARVED_EVERY = 10        # and 20 ms before every 10th reply
 
 
 @pytest.fixture(scope="session")
@@ -140,6 +148,54 @@ def test_silent_servo_stops_with_torque_off(images):
     _assert_safe_stop(report, record, arm, "timeout", 10)
     assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1, "servo 3, at the read after the injection"
     assert len(record.goals) == FAULT_TICK + 1          # no command after the silent read
+
+
+def _starve():
+    """A tamper hook that passes every reply on unchanged, some late: STARVED_PAUSE before those
+    numbered in STARVED_AT, 20 ms before every STARVED_EVERY-th."""
+    count = [0]
+
+    def late(reply):
+        count[0] += 1
+        if count[0] in STARVED_AT:
+            time.sleep(STARVED_PAUSE)
+        elif count[0] % STARVED_EVERY == 0:
+            time.sleep(0.02)
+        return reply
+    return late
+
+
+def test_a_starved_bus_changes_nothing(images):
+    """The simulated bus slow to answer (as on a machine whose cores are busy): the firmware sleeps
+    until the bus has answered, its emulated clock standing still (board_io.c's sync line), so the
+    run is the one an unstarved bus gives -- no timeout, every tick, the same commands."""
+    report, record, _ = _fault_run(images)
+    starved, starved_record, arm = _fault_run(images, tamper=_starve())
+    assert starved["result"] == "done" and starved["exit_code"] == 0, \
+        f"a reply late in wall time is not a silent servo (the guest's clock must not run meanwhile): {starved}"
+    assert starved["ticks"] == report["ticks"] == 300, \
+        f"every tick asked for (ticks=300), starved or not (tolerance 0: lock-step): {starved['ticks']}"
+    assert starved["missed"] == 0 and starved["lost"] == 0, \
+        f"no tick past its period: the waiting is outside the guest's clock: {starved}"
+    assert len(starved_record.reads) == len(record.reads) and all(
+        np.array_equal(a, b) for a, b in zip(starved_record.reads, record.reads)), \
+        "the same measured states (tolerance 0: the plant is lock-stepped to the commands, not to the wall clock)"
+    diff = np.abs(np.array(starved_record.goals) - np.array(record.goals)).max()
+    assert diff == 0, f"the same Goal Currents (tolerance 0 units: same states, same code), {diff} units apart"
+    assert starved_record.torque_off and not any(s.torque_enabled for s in arm.servos), \
+        "a servo left with torque on"
+
+
+def test_a_silent_servo_on_a_starved_bus_still_times_out(images):
+    """Slow is not silent, and silent is still silent: with the bus starved as above, servo 3 stops
+    answering after tick 100 and the firmware's own reply timeout trips at the next read."""
+    def silence(k, arm):
+        if k == FAULT_TICK:
+            arm.inject_fault(3, "silent")
+    report, record, arm = _fault_run(images, on_tick=silence, tamper=_starve())
+    _assert_safe_stop(report, record, arm, "timeout", 10)
+    assert report["servo"] == 3 and report["fault_tick"] == FAULT_TICK + 1, \
+        f"servo 3, at the read after the injection (tolerance 0 ticks: a late reply moves no tick): {report}"
 
 
 def test_hardware_error_stops_with_torque_off(images):

@@ -8,6 +8,14 @@ command transaction (its sync write), so the run is deterministic and faster tha
 `-icount shift=N,sleep=off` makes the emulated clock count instructions (2^N ns each), so the
 firmware's SysTick figures are instruction counts: exact and repeatable (not cycles).
 
+The emulated clock must not run while this side is slow to answer, or a reply late in wall time
+(a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose UART1
+is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
+packet or is answered, this side sends on it the bytes read and the bytes sent so far (two
+little-endian uint32); the firmware sleeps in WFI, executing nothing and with no timer to jump to,
+until its reply is there or these counts say that nothing more is coming, and only then counts its
+reply timeout (firmware/mcu/board_io.c). A silent servo still times out; a slow host never does.
+
 Every exchange is recorded: what the servos reported and what the firmware commanded. `replay`
 recomputes each command with the host's double-precision controller from the same measured state
 (`compare` asserts they agree within one servo unit), and the tracking error of the run.
@@ -18,6 +26,7 @@ from __future__ import annotations
 import json
 import shutil
 import socket
+import struct
 import subprocess
 import time
 from dataclasses import dataclass, field
@@ -67,10 +76,12 @@ class FirmwareLink:
         self.arm, self.on_tick, self.tamper = arm, on_tick, tamper
         self.ids = [s.id for s in arm.servos]
         self.record = Record()
+        self.packets = 0                       # instruction packets heard (the sync line's cue)
         arm.lockstep()                         # each sync write moves the plant one period
         arm.bus.on_instruction = self._exchange
 
     def _exchange(self, exchange) -> None:
+        self.packets += 1
         request = exchange.request
         if request.instruction == Instruction.FAST_SYNC_READ and exchange.replies:
             try:
@@ -91,7 +102,12 @@ class FirmwareLink:
             if address == ADDR_GOAL_CURRENT and self.on_tick is not None:
                 self.on_tick(len(self.record.goals) - 1, self.arm)
 
-    def serve(self, sock: socket.socket, deadline: float) -> None:
+    def serve(self, sock: socket.socket, deadline: float, sync: socket.socket | None = None) -> None:
+        """Answer the firmware on `sock` until it closes. With `sync` (the firmware's sync line, a
+        hardware-in-the-loop build's UART1): after each chunk that ended a packet or was answered, the
+        counts of bytes read and sent so far (not after a packet's first bytes: QEMU passes the
+        firmware's bytes on as they are written, and a record for each would flood the line)."""
+        read = sent = 0
         while time.monotonic() < deadline:
             try:
                 data = sock.recv(4096)
@@ -101,26 +117,60 @@ class FirmwareLink:
                 return
             if not data:
                 return
+            read += len(data)
+            packets = self.packets
             reply = self.arm.handle(data)
             if reply and self.tamper is not None:
                 reply = self.tamper(reply)
             if reply:
                 sock.sendall(reply)
+                sent += len(reply)
+            if sync is not None and (reply or self.packets != packets):
+                try:
+                    sync.sendall(struct.pack("<II", read & 0xFFFFFFFF, sent & 0xFFFFFFFF))
+                except (BrokenPipeError, ConnectionResetError):     # QEMU has exited
+                    return
         raise FirmwareError("the firmware run took too long (time-out)")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _free_ports(n: int) -> list[int]:
+    """n distinct free ports (held together while asked for, so no two are the same)."""
+    socks = [socket.socket() for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
 
 
-def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "") -> list[str]:
+def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "",
+                 sync_port: int | None = None) -> list[str]:
+    """QEMU's command line: UART0 (the bus) on `port`, UART1 (the sync line) on `sync_port`."""
     machine, _ = BOARDS[board]
     semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
+    serial = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
+    if sync_port is not None:
+        serial += ["-serial", f"tcp:127.0.0.1:{sync_port},server=on,wait=on,nodelay=on"]
     return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
             "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
-            "-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on", "-kernel", str(elf)]
+            *serial, "-kernel", str(elf)]
+
+
+def _connect(proc: subprocess.Popen, port: int, deadline: float) -> socket.socket:
+    """A connection to one of QEMU's serial sockets, once it listens."""
+    while True:
+        try:
+            sock = socket.create_connection(("127.0.0.1", port), timeout=1.0)
+        except OSError:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise FirmwareError(f"QEMU did not open its serial port: {proc.stderr.read().strip()}") from None
+            time.sleep(0.05)
+            continue
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(1.0)
+        return sock
 
 
 def parse_report(text: str) -> dict:
@@ -169,23 +219,14 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
-    port = _free_port()
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args), stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    port, sync_port = _free_ports(2)
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:
-        sock = None
-        while sock is None:
-            try:
-                sock = socket.create_connection(("127.0.0.1", port), timeout=1.0)
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    raise FirmwareError(f"QEMU did not open its serial port: {proc.stderr.read().strip()}")
-                time.sleep(0.05)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(1.0)
-        with sock:
-            link.serve(sock, deadline)
+        sock = _connect(proc, port, deadline)      # QEMU opens UART1's socket once UART0's is taken
+        with sock, _connect(proc, sync_port, deadline) as sync:
+            link.serve(sock, deadline, sync)
         out, err = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
     except subprocess.TimeoutExpired:
         raise FirmwareError("QEMU did not exit after the firmware's run") from None

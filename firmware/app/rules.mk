@@ -5,6 +5,10 @@
 # Dynamixel codec (hal/dynamixel/c) and the board code, for two boards QEMU models:
 #   mps2-an386  Cortex-M4F  build/fw/an386/servodyn-fw.elf
 #   mps2-an500  Cortex-M7   build/fw/an500/servodyn-fw.elf
+# Both are hardware-in-the-loop builds (BOARD_HIL, board_io.c): a reply is waited for until the
+# simulated bus says on its sync line (UART1) that nothing more is coming, so the emulated clock
+# cannot run while the host is slow. FW_HIL=0 (after make clean) builds a board's own reply
+# timeout alone.
 
 FW_CONFIG ?= replica
 FW_DIR := build/fw
@@ -14,9 +18,10 @@ FW_BOARDS := an386 an500
 FW_ARCH_an386 := -mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -mthumb
 FW_ARCH_an500 := -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard -mthumb
 FW_STACK := 4096
+FW_HIL ?= 1
 FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
   -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
-  -fcallgraph-info=su -DSD_SINGLE -include $(FW_GEN)/servodyn_gen.h \
+  -fcallgraph-info=su -DSD_SINGLE $(if $(filter 1,$(FW_HIL)),-DBOARD_HIL) -include $(FW_GEN)/servodyn_gen.h \
   -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
 FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(wildcard firmware/app/*.c) \
   hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c

@@ -55,6 +55,10 @@ size_t board_uart_take(uint8_t* out, size_t cap);
 size_t board_uart_available(void);
 // Wait until at least `want` bytes are there to take: 1, or 0 when the servos are taken for silent
 // (MPS2: after a fixed number of polls; Linux: a reply timeout, waiting in poll()).
+// A hardware-in-the-loop build (BOARD_HIL, the MPS2 images QEMU runs) first sleeps, executing
+// nothing, until the bytes are there or the simulated bus has said on its sync line (UART1) that it
+// has read everything sent and answered all it will; only then do the polls count. The emulated
+// clock cannot run while the host is slow to answer, so a late reply is never a timeout.
 int board_uart_wait(size_t want);
 // Drop whatever has been received and not taken.
 void board_uart_flush(void);

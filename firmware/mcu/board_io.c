@@ -1,4 +1,15 @@
 // board_io.c: SysTick control clock and UART0 driver for the MPS2 boards (CMSDK APB UART).
+//
+// Hardware in the loop (BOARD_HIL, the images QEMU runs against the simulated bus): QEMU's
+// -icount makes the emulated clock count instructions, so a board that polls its UART for a reply
+// runs its clock, and its reply timeout, on for as long as the host takes to answer in wall time;
+// a host slowed down by load then reads as a silent servo. There UART1 is a sync line from the
+// simulated bus: after each chunk of bytes it has read from UART0 and answered, the host sends a
+// record (two little-endian 32-bit counts: bytes read from the board, bytes sent to it since the
+// start). board_uart_wait sleeps (WFI, no timer running: the emulated clock stands still) until
+// the reply is there or the host has read all the board wrote and the board has received all the
+// host sent: then nothing more is coming, and the board's own timeout runs on a quiet line, the
+// same polls as on a board. A real board (no BOARD_HIL) has no sync line and its code is unchanged.
 #include "board.h"
 
 // SysTick (Armv7-M architecture reference manual, B3.3)
@@ -11,6 +22,7 @@
 
 // NVIC
 #define NVIC_ISER0 (*(volatile uint32_t*)0xE000E100u)
+#define NVIC_ICER0 (*(volatile uint32_t*)0xE000E180u)
 #define IRQ_UART0_RX 0
 
 // CMSDK APB UART0 on the MPS2 (AN385/AN386/AN500 memory map)
@@ -27,6 +39,23 @@
 #define UART_CTRL_RXINTEN 8u
 #define UART_INT_RX 2u
 #define UART_BAUDDIV_MIN 16u        // the CMSDK UART's smallest divider
+
+#ifdef BOARD_HIL
+// UART1 on the MPS2, the sync line from the simulated bus (receive only)
+#define UART1_BASE 0x40005000u
+#define UART1_DATA (*(volatile uint32_t*)(UART1_BASE + 0x00u))
+#define UART1_STATE (*(volatile uint32_t*)(UART1_BASE + 0x04u))
+#define UART1_CTRL (*(volatile uint32_t*)(UART1_BASE + 0x08u))
+#define UART1_INTCLEAR (*(volatile uint32_t*)(UART1_BASE + 0x0Cu))
+#define UART1_BAUDDIV (*(volatile uint32_t*)(UART1_BASE + 0x10u))
+#define IRQ_UART1_RX 2
+#define SYNC_RECORD 8u              // the host's record: bytes read, bytes sent (uint32 LE each)
+
+static volatile uint32_t g_hil_sent, g_hil_received;     // bytes written to UART0, arrived on it
+static volatile uint32_t g_host_read, g_host_sent;       // the host's last complete record
+static uint8_t g_sync[SYNC_RECORD];
+static uint32_t g_sync_got;
+#endif
 
 #define RX_SIZE 512u                // a power of two; more than the largest reply of a tick
 
@@ -82,6 +111,9 @@ void board_uart0_rx_isr(void) {
   UART_INTCLEAR = UART_INT_RX;
   while (UART_STATE & UART_STATE_RXFULL) {
     uint8_t byte = (uint8_t)UART_DATA;
+#ifdef BOARD_HIL
+    g_hil_received++;                // kept or lost to an overrun, the host sent it
+#endif
     uint32_t next = (g_rx_head + 1u) & (RX_SIZE - 1u);
     if (next == g_rx_tail) {
       g_rx_overruns++;
@@ -91,6 +123,49 @@ void board_uart0_rx_isr(void) {
     }
   }
 }
+
+#ifdef BOARD_HIL
+void board_uart1_rx_isr(void) {
+  UART1_INTCLEAR = UART_INT_RX;
+  while (UART1_STATE & UART_STATE_RXFULL) {
+    g_sync[g_sync_got++] = (uint8_t)UART1_DATA;
+    if (g_sync_got == SYNC_RECORD) {
+      g_sync_got = 0;
+      g_host_read = (uint32_t)g_sync[0] | (uint32_t)g_sync[1] << 8 | (uint32_t)g_sync[2] << 16 |
+                    (uint32_t)g_sync[3] << 24;
+      g_host_sent = (uint32_t)g_sync[4] | (uint32_t)g_sync[5] << 8 | (uint32_t)g_sync[6] << 16 |
+                    (uint32_t)g_sync[7] << 24;
+    }
+  }
+}
+
+static void sync_line_init(void) {
+  UART1_CTRL = 0;
+  UART1_BAUDDIV = UART_BAUDDIV_MIN;
+  UART1_CTRL = UART_CTRL_RXEN | UART_CTRL_RXINTEN;
+  (void)UART1_DATA;                 // as for UART0: QEMU asks its backend again on a read
+}
+
+// Sleep until `want` bytes are there to take, or the simulated bus is quiet: it has read every
+// byte written to it (so it has seen the whole request) and every byte it sent has arrived (so
+// none is still on its way through QEMU). The check and the WFI are one step with interrupts
+// masked: an interrupt that comes between them leaves WFI at once, then is taken when unmasked.
+// The sync line's interrupt is enabled only here, where the clock is held (bus_receive), so its
+// records cost no instructions of a tick; the records are cumulative, so reading them late is
+// reading them all.
+static void hil_wait(size_t want) {
+  NVIC_ISER0 = 1u << IRQ_UART1_RX;
+  for (;;) {
+    __asm__ volatile("cpsid i" ::: "memory");
+    int done = board_uart_available() >= want ||
+               (g_host_read == g_hil_sent && g_host_sent == g_hil_received);
+    if (!done) __asm__ volatile("dsb\n\twfi" ::: "memory");
+    if (done) NVIC_ICER0 = 1u << IRQ_UART1_RX;
+    __asm__ volatile("cpsie i" ::: "memory");
+    if (done) return;
+  }
+}
+#endif
 
 void board_uart_init(uint32_t baud) {
   uint32_t div = BOARD_CPU_HZ / baud;
@@ -102,6 +177,9 @@ void board_uart_init(uint32_t baud) {
   // register is read, and it stopped asking while the receiver was off
   (void)UART_DATA;
   NVIC_ISER0 = 1u << IRQ_UART0_RX;
+#ifdef BOARD_HIL
+  sync_line_init();
+#endif
 }
 
 void board_uart_write(const uint8_t* data, size_t n) {
@@ -110,6 +188,9 @@ void board_uart_write(const uint8_t* data, size_t n) {
     }
     UART_DATA = data[k];
   }
+#ifdef BOARD_HIL
+  g_hil_sent += (uint32_t)n;
+#endif
 }
 
 int board_uart_read(uint8_t* byte) {
@@ -138,6 +219,9 @@ size_t board_uart_available(void) {
 #define REPLY_POLLS 30000000u       // polls of the receive buffer before a servo is silent
 
 int board_uart_wait(size_t want) {
+#ifdef BOARD_HIL
+  hil_wait(want);                   // the host's reply is all there, or nothing more is coming
+#endif
   for (uint32_t polls = 0; polls < REPLY_POLLS; polls++)
     if (board_uart_available() >= want) return 1;
   return 0;

@@ -85,9 +85,10 @@ static void mcu_fault(void) {
 // interrupt handlers a program may define (board_io.c does); until then a stray one stops
 void board_systick_isr(void) __attribute__((weak, alias("mcu_fault")));
 void board_uart0_rx_isr(void) __attribute__((weak, alias("mcu_fault")));
+void board_uart1_rx_isr(void) __attribute__((weak, alias("mcu_fault")));   // the HIL sync line
 
 // the Cortex-M vector table: initial stack pointer, the system handlers, then the MPS2's
-// interrupts (0: UART0 receive, 1: UART0 transmit, ...; QEMU hw/arm/mps2.c)
+// interrupts (0: UART0 receive, 1: UART0 transmit, 2: UART1 receive, ...; QEMU hw/arm/mps2.c)
 __attribute__((section(".vectors"), used))
 static void (*const g_vectors[16 + 32])(void) = {
   (void (*)(void))(uintptr_t)__stack_top,
@@ -104,5 +105,7 @@ static void (*const g_vectors[16 + 32])(void) = {
   mcu_fault,    // PendSV
   board_systick_isr,     // SysTick
   board_uart0_rx_isr,    // IRQ 0: UART0 receive
-  [17 ... 47] = mcu_fault,
+  mcu_fault,             // IRQ 1: UART0 transmit
+  board_uart1_rx_isr,    // IRQ 2: UART1 receive (board_io.c's, in a hardware-in-the-loop build)
+  [19 ... 47] = mcu_fault,
 };
