@@ -299,6 +299,10 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
     missing = [d for d in model.dof_names if d not in joints]
     if missing:
         raise ConfigError(f"{origin}: 'joint' missing for dof '{missing[0]}' (every dof of '{model.name}' needs one)")
+    idle = [n for n in buses if not any(j.bus == n for j in joints.values())]
+    if idle:
+        raise ConfigError(f"{origin}: bus '{idle[0]}' has no joint (a [[joint]] with bus = \"{idle[0]}\"); remove the "
+                          "bus, or give it its joints")
     model = _geared_armature(model, joints)
     nominal = {j.servo.nominal_voltage for j in joints.values()}
     supply = SupplyConfig(voltage=max(nominal), current_limit=None)

@@ -20,6 +20,7 @@ import time
 from servodyn.hal.dynamixel import BROADCAST_ID, FastReadBlock, PacketError, StatusPacket, decode_frame
 from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START, encode_fast_reply
 from servodyn.hal.dynamixel.protocol import FRAME_OVERHEAD, frame_length
+from servodyn.hal.can.frames import CAN_ERR_BUSOFF, CAN_ERR_PROT
 
 WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
 # s the simulator pauses for a stall, and a delayed reply waits: past the patience a swing gives the
@@ -115,7 +116,6 @@ def _frames(data: bytes) -> list[bytes]:
 CAN_WIRE_FAULTS = ("garbage", "wrong_id", "error_frame", "bus_off")
 # an error frame among a network's answers: a negative arbitration id, minus its error class
 # (linux/can/error.h, which socketcan puts in an error frame's id)
-CAN_ERR_PROT, CAN_ERR_BUSOFF = 0x08, 0x40
 BUS_OFF = 0.05                 # s the host's controller stays off the bus
 
 

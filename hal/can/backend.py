@@ -74,6 +74,8 @@ class CanBus(ServoBus):
         self._scale, self._gear = scale, np.array([j.gear_ratio for j in self.joints], dtype=float)
         self._offset = np.array([j.zero_offset for j in self.joints], dtype=float)
         self.temperatures = np.zeros((self.n, 2))      # °C per motor as last reported (MOS/motor, coil)
+        self.warnings = 0           # error frames of a controller's warning or passive state alone
+        self.foreign = 0            # 29-bit, CAN FD and remote frames: no motor's reply, skipped
         self.sent = np.zeros((self.n, 5))              # the last command as sent, decoded (p, v, kp, kd, t)
 
     # ---------------------------------------------------------------- set-up
@@ -190,14 +192,33 @@ class CanBus(ServoBus):
             raise ServoOperationError(f"bus '{self.bus.name}': CAN send failed ({err})") from None
 
     def _recv(self, timeout: float):
-        try:
-            msg = self.can.recv(timeout)
-        except self._can.CanError as err:
-            raise ServoOperationError(f"bus '{self.bus.name}': CAN receive failed ({err})") from None
-        if msg is not None and msg.is_error_frame:
-            raise ServoOperationError(f"bus '{self.bus.name}': error frame on the bus "
-                                      f"(id 0x{msg.arbitration_id:X}, data {bytes(msg.data).hex()})")
-        return msg
+        """The next frame that can be a motor's reply, or None at the timeout. An error frame that
+        stops (no ACK, bus-off, a protocol violation, ...) is a ServoOperationError naming its
+        classes with what to check; a controller's warning or passive state is counted
+        (`warnings`); a 29-bit, CAN FD or remote frame is no motor's reply: counted (`foreign`)
+        and skipped. A line the adapter's driver cannot parse (python-can's ValueError on a
+        malformed SLCAN line) is a corrupt reply on this bus."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                msg = self.can.recv(max(0.0, deadline - time.monotonic()))
+            except self._can.CanError as err:
+                raise ServoOperationError(f"bus '{self.bus.name}': CAN receive failed ({err})") from None
+            except (ValueError, IndexError, UnicodeDecodeError) as err:
+                raise ServoOperationError(f"bus '{self.bus.name}': the adapter sent a line that is no frame "
+                                          f"({type(err).__name__}: {err}): a corrupt reply") from None
+            if msg is None:
+                return None
+            if msg.is_error_frame:
+                stops, text = frames.error_frame(msg.arbitration_id, bytes(msg.data))
+                if stops:
+                    raise ServoOperationError(f"bus '{self.bus.name}': error frame: {text}")
+                self.warnings += 1
+                continue
+            if msg.is_extended_id or msg.is_remote_frame or getattr(msg, "is_fd", False):
+                self.foreign += 1
+                continue
+            return msg
 
     def _flush(self) -> None:
         """Take the answers still owed, then drop whatever else waits (late replies of a tick that
@@ -237,7 +258,7 @@ class CanBus(ServoBus):
                                                              f"on id 0x{joint.options['feedback_id']:X}")
             data = bytes(msg.data)
             known = False
-            for dialect_name in {d.name for d in self.dialects} if data and not msg.is_remote_frame else ():
+            for dialect_name in {d.name for d in self.dialects} if data else ():
                 dialect = DIALECTS[dialect_name]
                 if len(data) not in dialect.reply_length:
                     continue
@@ -261,12 +282,12 @@ class CanBus(ServoBus):
                     joint = self.joints[k]
                     raise ServoHardwareError(joint.dof, joint.id, reply.status, faults)
                 break
-            if not known and msg.arbitration_id in self._reply_ids and not msg.is_extended_id:
+            if not known and msg.arbitration_id in self._reply_ids:
                 # on a reply id only the motors here speak: this is none of their frames
                 self._pending.clear()
                 raise ServoOperationError(
                     f"bus '{self.bus.name}': a frame on reply id 0x{msg.arbitration_id:X} that no motor here "
-                    f"sends ({'remote, ' if msg.is_remote_frame else ''}{len(data)} bytes {data.hex() or '-'}): "
+                    f"sends ({len(data)} bytes {data.hex() or '-'}): "
                     f"a corrupt reply, or another node on the id")
 
     # ---------------------------------------------------------------- the tick

@@ -230,3 +230,37 @@ def unpack_register(data: bytes) -> Register:
 def float_bits(x: float) -> int:
     """A float32 register value as the 4 bytes' integer."""
     return struct.unpack("<I", struct.pack("<f", x))[0]
+
+
+# Error frames as Linux SocketCAN reports them (linux/can/error.h): the classes in the frame's id,
+# the controller's state in data[1]. Each class with what to check; a warning or passive state
+# alone (the controller counting errors) is logged and counted, every other class stops a run.
+CAN_ERR_TX_TIMEOUT, CAN_ERR_LOSTARB, CAN_ERR_CRTL, CAN_ERR_PROT = 0x001, 0x002, 0x004, 0x008
+CAN_ERR_TRX, CAN_ERR_ACK, CAN_ERR_BUSOFF, CAN_ERR_BUSERROR, CAN_ERR_RESTARTED = 0x010, 0x020, 0x040, 0x080, 0x100
+ERROR_CLASSES = (
+    (CAN_ERR_TX_TIMEOUT, "tx timeout", "a frame could not be sent in time: is the adapter on a bus?"),
+    (CAN_ERR_LOSTARB, "lost arbitration", "another node sent on the same id at once: a second master?"),
+    (CAN_ERR_CRTL, "controller", "the adapter's controller reports a problem of its own"),
+    (CAN_ERR_PROT, "protocol violation", "a bit, form or stuff error: a bitrate that differs, or bad wiring"),
+    (CAN_ERR_TRX, "transceiver", "CAN_H or CAN_L shorted or open: check the wiring"),
+    (CAN_ERR_ACK, "no ACK", "no node acknowledged: the motors are unpowered, at another bitrate, or the bus lacks "
+                            "its 120 ohm terminators"),
+    (CAN_ERR_BUSOFF, "bus-off", "the controller left the bus after too many errors: check the bitrate, the "
+                                "wiring and the terminators"),
+    (CAN_ERR_BUSERROR, "bus error", "noise or a missing terminator"),
+    (CAN_ERR_RESTARTED, "restarted", "the controller came back after bus-off"),
+)
+CONTROLLER_STATES = ((0x01, "rx overflow"), (0x02, "tx overflow"), (0x04, "rx warning"), (0x08, "tx warning"),
+                     (0x10, "rx error-passive"), (0x20, "tx error-passive"), (0x40, "back to error-active"))
+
+
+def error_frame(arbitration_id: int, data: bytes) -> tuple[bool, str]:
+    """(whether it stops a run, one line naming each class with what to check) of an error frame."""
+    classes = [(name, hint) for bit, name, hint in ERROR_CLASSES if arbitration_id & bit]
+    states = [name for bit, name in CONTROLLER_STATES if len(data) > 1 and data[1] & bit]
+    benign = {"controller", "restarted"}
+    stops = any(name not in benign for name, _ in classes) or not classes
+    parts = [f"{name} ({hint})" for name, hint in classes if name != "controller"]
+    if states or any(name == "controller" for name, _ in classes):
+        parts.append(f"controller: {', '.join(states) or 'unspecified'}")
+    return stops, "; ".join(parts) or f"error class 0x{arbitration_id:X}"
