@@ -13,7 +13,8 @@ import pytest
 from servodyn.hal.bus import JointCommand, make_bus
 from servodyn.hal.can import frames
 from servodyn.hal.config import config_from_dict, load_config
-from servodyn.hal.errors import ConfigError, ServoOperationError
+from servodyn.hal.can.spec import interface_for
+from servodyn.hal.errors import ConfigError, ServoInitializationError, ServoOperationError
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import VirtualCanServer
 
@@ -93,3 +94,18 @@ def test_a_bus_without_joints_is_refused_at_load():
     data["bus"]["spare"] = {"kind": "can", "channel": "can1"}
     with pytest.raises(ConfigError, match=r"bus 'spare' has no joint"):
         config_from_dict(data, "spare.toml", base=config.path.parent)
+
+
+@pytest.mark.parametrize("channel, configured, expected", [
+    ("can0", "slcan", "socketcan"), ("vcan3", None, "socketcan"), ("/dev/ttyACM0", "socketcan", "slcan"),
+    ("PCAN_USBBUS1", "pcan", "pcan"), ("servodyn-x", "virtual", "virtual"), (None, None, "slcan")])
+def test_the_channel_names_its_interface(channel, configured, expected):
+    """`swing --config replica_can --port can0` opened a file named can0 (slcan won)."""
+    assert interface_for(channel, configured) == expected
+
+
+def test_port_can0_opens_socketcan_not_a_file():
+    bus = make_bus(load_config("replica_can"), port="can0")
+    assert bus.interface == "socketcan", bus.interface
+    with pytest.raises(ServoInitializationError, match=r"^socketcan can0: cannot open"):
+        bus.open()          # no can0 link on this machine: one line naming the interface and the link

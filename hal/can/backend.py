@@ -33,6 +33,7 @@ from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, 
 from . import frames
 from .dialects import (CTRL_MODES, DIALECTS, MIT_MODE, REG_CTRL_MODE, REG_PMAX, REG_TIMEOUT, REG_TMAX, REG_VMAX,
                        TIMEOUT_UNIT, UINT_REGISTERS)
+from .spec import interface_for
 
 REPLY_TIMEOUT = 0.02            # s to collect a tick's replies (14 frames are ~2 ms at 1 Mbit/s)
 MOTOR_CAN_TIMEOUT = 0.1         # s without a command after which a motor goes limp by itself
@@ -47,13 +48,14 @@ class CanBus(ServoBus):
     def __init__(self, config, bus=None, *, port: str | None = None, interface: str | None = None,
                  can_bus=None, reply_timeout: float = REPLY_TIMEOUT, can_timeout: float = MOTOR_CAN_TIMEOUT,
                  **kwargs):
-        """port: the channel (default the configuration's); interface: python-can's (default the
-        configuration's); can_bus: an open python-can bus to use instead (not shut down by close());
+        """port: the channel (default the configuration's); interface: python-can's (default: what
+        the channel names, spec.interface_for, else the configuration's); can_bus: an open python-can bus to use instead (not shut down by close());
         reply_timeout: s to wait for a tick's replies; can_timeout: s after which a motor with no
         command goes limp (Damiao's TIMEOUT register)."""
         super().__init__(config, bus, **kwargs)
         self.channel = port or self.bus.port
-        self.interface = interface or self.bus.options.get("interface", "slcan")
+        # --port can0 means SocketCAN, a /dev/tty* an SLCAN adapter, whatever the configuration's default
+        self.interface = interface or interface_for(self.channel, self.bus.options.get("interface"))
         if can_bus is None and self.channel in (None, "", "auto"):
             raise ServoInitializationError(f"bus '{self.bus.name}': no channel (channel = 'auto' means the "
                                            "simulated bus: start it with `servodyn sim`)")

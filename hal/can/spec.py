@@ -4,6 +4,8 @@ range of the frame's torque field."""
 
 from __future__ import annotations
 
+import re
+
 from ..backend import Backend
 from . import frames
 from .dialects import DIALECTS
@@ -12,6 +14,20 @@ from .motors import MOTORS
 BITRATES = (125_000, 250_000, 500_000, 1_000_000)
 MAX_ID = 0x7FE                  # 11-bit ids; 0x7FF carries Damiao's register frames
 FRAME_BITS = (111, 135)         # an 8-byte standard data frame, without and with the worst stuffing
+
+
+SOCKETCAN_NAME = re.compile(r"^v?can\d+$")     # a Linux network interface: can0, vcan0
+
+
+def interface_for(channel: str | None, configured: str | None) -> str:
+    """python-can's interface for a channel: a SocketCAN link's name (can0, vcan0) means socketcan and
+    a device path (/dev/ttyACM0) slcan, whatever the configuration's default; any other channel
+    (a gs_usb or PCAN channel, a virtual one) keeps the configured interface."""
+    if channel and SOCKETCAN_NAME.match(channel):
+        return "socketcan"
+    if channel and channel.startswith("/dev/"):
+        return "slcan"
+    return configured or "slcan"
 
 
 class Can(Backend):
