@@ -298,6 +298,55 @@ def cmd_demo(args) -> None:
     run_demo(args.model, Path(args.out))
 
 
+def _bringup(run):
+    """A bring-up command (tools/bringup.py): its one-line errors and exit status."""
+    from .bringup import BringUpError
+    try:
+        return run()
+    except BringUpError as err:
+        raise CliError(str(err), err.code) from None
+
+
+def cmd_scan(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.scan(args.port, args.baud, args.config, args.json))
+
+
+def cmd_setup(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.setup(args.config, args.joint, args.port, args.yes))
+
+
+def cmd_doctor(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.doctor(args.config, args.port, args.json))
+
+
+def cmd_monitor(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.monitor(args.config, args.port, args.count, args.rate))
+
+
+def cmd_calibrate(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.calibrate(args.config, args.port, args.joint, args.margin, args.yes, args.write))
+
+
+def cmd_reboot(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.reboot(args.config, args.port, args.yes))
+
+
+def cmd_clear_errors(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.clear_errors(args.config, args.port))
+
+
+def cmd_torque(args) -> int:
+    from . import bringup
+    return _bringup(lambda: bringup.torque_off(args.config, args.port))
+
+
 def _version() -> str:
     """The installed package's version (its metadata), or the source tree's when not installed."""
     from importlib.metadata import PackageNotFoundError, version
@@ -435,6 +484,94 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.set_defaults(func=cmd_sim)
+
+    # ---- bring-up: from a box of servos to an arm that moves (tools/bringup.py)
+    port_help = ("the bus's serial port or CAN channel (default: the configuration's); a configuration with "
+                 "several buses names each: --port shoulder=can0 --port wrist=/dev/ttyUSB0")
+    p = sub.add_parser("scan", help="find servos at every ID and baud rate (broadcast ping)",
+                       description="Protocol 2.0 broadcast ping at each baud rate (57600 first, a new servo's rate, "
+                       "then 4.5M down to 9600): each servo's ID, model, firmware and rate. With --config, what "
+                       "differs from it, each with its fix. Exit 0 found (and as configured), 1 nothing found or "
+                       "findings, 2 bad input.")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--baud", default="all", metavar="all|RATE,...", help="the rates to try (default all)")
+    p.add_argument("--config", default=None, help="robot configuration to compare with (and its ports)")
+    p.add_argument("--json", action="store_true",
+                   help="print a list of objects with id, model_number, model, firmware, baud")
+    p.set_defaults(func=cmd_scan)
+
+    p = sub.add_parser("setup", help="make one new servo a joint of the configuration",
+                       description="With only that servo connected: find it at any ID and baud rate, check its "
+                       "model, show what it will write (ID, Return Delay Time 0, Drive Mode reverse bit clear, "
+                       "Homing Offset 0, Current Limit, the bus's baud rate last), ask, write it to the EEPROM "
+                       "with torque off and find it again at its new ID and rate.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--joint", required=True, metavar="DOF", help="the joint this servo drives")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--yes", action="store_true", help="write without asking")
+    p.set_defaults(func=cmd_setup)
+
+    p = sub.add_parser("doctor", help="check the host, the port and every servo (read only)",
+                       description="Read only. The port (exists, permission, not held by another program, "
+                       "latency timer) and every servo: present at its ID and rate, model, firmware >= 45, Drive "
+                       "Mode, Homing Offset, Status Return Level, Current Limit against the configuration, input "
+                       "voltage against [supply], Hardware Error Status, the Bus Watchdog. One line per finding "
+                       "with its fix. Exit 0 all well, 1 findings, 2 bad input.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--json", action="store_true",
+                   help='print {"findings": [{"joint", "id", "check", "found", "expected", "fix"}, ...]}')
+    p.set_defaults(func=cmd_doctor)
+
+    p = sub.add_parser("monitor", help="torque off, every joint live in SI and raw units",
+                       description="Switch torque off on every servo, then show every joint's position, speed, "
+                       "current, temperature, voltage and error, in SI and in register units, refreshed in place "
+                       "until Ctrl-C.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="refreshes per second (default 10)")
+    p.add_argument("--count", type=count(1, what="refreshes"), default=None, metavar="N",
+                   help="stop after N refreshes (default: until Ctrl-C)")
+    p.set_defaults(func=cmd_monitor)
+
+    p = sub.add_parser("calibrate", help="find each joint's direction, zero and stops by hand",
+                       description="Torque off; for each joint you move it in its + direction (its `direction`), "
+                       "put it in its zero pose from both sides (`zero_offset`, their mean) and move it to both "
+                       "stops (`position_limits`, a margin inside). The configuration is then patched, its "
+                       "comments and layout kept, after the change is shown and confirmed; a built-in "
+                       "configuration's patched copy goes to ./NAME.toml.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--joint", action="append", default=None, metavar="DOF", help="only this joint (repeatable)")
+    p.add_argument("--margin", type=float, default=3.0, metavar="DEG",
+                   help="how far inside the stops the limits go (default 3 degrees)")
+    p.add_argument("--write", default=None, metavar="FILE",
+                   help="write the patched configuration here (default: the configuration itself)")
+    p.add_argument("--yes", action="store_true", help="write without asking")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("reboot", help="reboot every servo (clears a latched hardware error)",
+                       description="REBOOT every servo of the configuration (a latched hardware error, such as "
+                       "an overload, is cleared only so or by a power cycle), then read each one's error back.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.add_argument("--yes", action="store_true", help="reboot without asking")
+    p.set_defaults(func=cmd_reboot)
+
+    p = sub.add_parser("clear-errors", help="clear what can be cleared without a reboot, and say the rest",
+                       description="Clear a tripped Bus Watchdog on every servo (a CAN motor's error), then read "
+                       "each one's error back; a latched hardware error needs `servodyn reboot`.")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.set_defaults(func=cmd_clear_errors)
+
+    p = sub.add_parser("torque", help="torque off on every servo of every bus: the panic button",
+                       description="Torque off on every servo of every bus of the configuration (a broadcast, so "
+                       "a servo at an unexpected ID too), then read each one back.")
+    p.add_argument("state", choices=["off"], help="off")
+    p.add_argument("--config", required=True, help="robot configuration")
+    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    p.set_defaults(func=cmd_torque)
 
     p = sub.add_parser("codegen", help="write a configuration and its motion as C for the firmware",
                        description="Write a robot configuration and a keyframe motion as C source "

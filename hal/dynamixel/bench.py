@@ -1,0 +1,548 @@
+"""Dynamixel bring-up on a bench: find servos at any ID and baud rate, set one up for its joint,
+check every servo of a configuration, reboot, clear a tripped watchdog, switch torque off.
+
+Everything goes over `Link`: the serial port opened with pyserial at one rate, servodyn's own
+Protocol 2.0 codec (hal.dynamixel.protocol / reader) on the bytes, waits in select(). Unlike the
+SDK's transactions, a wait ends when the line has been quiet long enough for the rate and the
+adapter, so a scan of every rate over the whole ID range takes a fraction of a second instead of
+Wizard's minutes, and a corrupt reply (two servos answering at once) is seen as corrupt, not as
+silence.
+
+    with Link("/dev/ttyUSB0", 57600) as link:
+        result = scan(link, BAUD_RATES)            # every servo at every rate
+        findings = compare(config, "arm", result)  # what differs from the configuration
+
+The checks a run depends on (`table_findings`) are one function, used by `doctor` and at every
+open of the bus (hal.dynamixel.backend), so what doctor passes a run accepts.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+from ..bringup import WARNING, Finding, Found
+from ..config import CONFIGS_DIR
+from ..errors import ServoInitializationError, ServoOperationError
+from . import instructions
+from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
+from .protocol import BROADCAST_ID, MAX_ID, InstructionPacket, StatusPacket, pack_field, unpack_field
+from .reader import BadFrame, PacketReader
+
+MIN_FIRMWARE = 45          # fast sync read (0x8A), which every tick uses, needs X430/540 firmware 45
+FACTORY_ID, FACTORY_BAUD = ITEMS["id"].default, BAUD_RATES[ITEMS["baud_rate"].default]
+ADAPTER_LATENCY = 0.020    # s: a USB adapter holds bytes up to its latency timer (16 ms by default)
+STATUS_BYTES = 14          # a ping's status packet: header 4, ID, LEN 2, INST, ERR, model 2, firmware, CRC 2
+VOLTAGE_TOLERANCE = 0.10   # Present Input Voltage within ±10 % of the supply's
+SCAN_RATES = tuple(sorted(BAUD_RATES, key=lambda b: (b != FACTORY_BAUD, -b)))   # factory's first, then fastest
+
+
+def wire_time(nbytes: int, baud: int) -> float:
+    """Seconds `nbytes` take on the wire at `baud` (10 bits a byte)."""
+    return nbytes * 10 / baud
+
+
+def quiet_gap(baud: int) -> float:
+    """How long the line must stay quiet after a reply before no more will come: the adapter's
+    latency plus three status packets' time at the rate."""
+    return ADAPTER_LATENCY + 3 * wire_time(STATUS_BYTES, baud)
+
+
+# ---------------------------------------------------------------------------- the link
+
+class Link:
+    """A serial port at one baud rate with servodyn's Protocol 2.0 codec. `open_port` (tests,
+    or hal.host's lock) is how the port is opened: path, baud -> a pyserial Serial."""
+
+    def __init__(self, path: str, baud: int = FACTORY_BAUD, *, open_port: Callable | None = None):
+        self.path, self.baud = path, baud
+        self._open_port = open_port or _open_serial
+        self.serial = None
+
+    def __enter__(self) -> "Link":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> None:
+        if self.serial is None:
+            self.serial = self._open_port(self.path, self.baud)
+
+    def close(self) -> None:
+        if self.serial is not None:
+            try:
+                self.serial.close()
+            finally:
+                self.serial = None
+
+    def set_baud(self, baud: int) -> None:
+        if baud != self.baud:
+            self.serial.baudrate = baud
+            self.baud = baud
+        self.drain(0.0)
+
+    def drain(self, quiet: float = 0.005) -> int:
+        """Drop what arrives until the line is quiet for `quiet` s; the bytes dropped."""
+        dropped = 0
+        fd = self.serial.fileno()
+        while select.select([fd], [], [], quiet)[0]:
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                break
+            dropped += len(chunk)
+        return dropped
+
+    def send(self, packet: InstructionPacket) -> None:
+        frame = packet.encode()
+        fd = self.serial.fileno()
+        sent = 0
+        while sent < len(frame):
+            select.select([], [fd], [], 0.1)
+            sent += os.write(fd, frame[sent:])
+
+    def exchange(self, packet: InstructionPacket, *, expect: int | None = 1,
+                 first: float | None = None) -> tuple[list[StatusPacket], list[BadFrame]]:
+        """Send `packet`, collect the status packets and bad frames that come back. Waits `first`
+        s for a first byte (default: the adapter's latency plus the request's and a reply's wire
+        time), then until `expect` packets came or the line is quiet for `quiet_gap`."""
+        self.drain(0.0)
+        self.send(packet)
+        request = len(packet.encode())
+        wait = first if first is not None else ADAPTER_LATENCY + wire_time(request + STATUS_BYTES, self.baud) + 0.01
+        gap = quiet_gap(self.baud)
+        reader = PacketReader(None)
+        packets: list[StatusPacket] = []
+        bad: list[BadFrame] = []
+        fd = self.serial.fileno()
+        deadline = time.monotonic() + wait
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                break
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                break
+            for event in reader.feed(chunk):
+                if isinstance(event, StatusPacket):
+                    packets.append(event)
+                elif isinstance(event, BadFrame):
+                    bad.append(event)
+            if expect is not None and len(packets) >= expect and not reader.pending:
+                break
+            deadline = time.monotonic() + gap
+        bad += reader.expire()
+        return packets, bad
+
+    # --- one servo ----------------------------------------------------------------------------
+    def ping(self, servo_id: int) -> tuple[StatusPacket | None, list[BadFrame]]:
+        packets, bad = self.exchange(instructions.ping(servo_id))
+        return next((p for p in packets if p.id == servo_id), None), bad
+
+    def read_table(self, servo_id: int, start: int = 0, length: int = TABLE_SIZE) -> bytes:
+        """Bytes start..start+length of a servo's control table in one READ."""
+        packets, bad = self.exchange(instructions.read(servo_id, start, length))
+        reply = next((p for p in packets if p.id == servo_id), None)
+        if reply is None:
+            raise ServoOperationError(_silence(servo_id, self, bad, "a read"))
+        if reply.error_number:
+            raise ServoOperationError(f"id {servo_id} refused a read of {length} bytes at {start} "
+                                      f"(error {reply.error_number})")
+        if len(reply.params) != length:
+            raise ServoOperationError(f"id {servo_id}: a read of {length} bytes returned {len(reply.params)}")
+        return reply.params
+
+    def read(self, servo_id: int, name: str) -> int:
+        item = ITEMS[name]
+        return unpack_field(self.read_table(servo_id, item.address, item.size), item.signed)
+
+    def write(self, servo_id: int, name: str, value: int, *, answered: bool = True) -> None:
+        """Write one item; with `answered` wait for the status and raise on an error byte."""
+        item = ITEMS[name]
+        packet = instructions.write(servo_id, item.address, pack_field(value, item.size, item.signed))
+        if not answered or servo_id == BROADCAST_ID:
+            self.drain(0.0)
+            self.send(packet)
+            return
+        packets, bad = self.exchange(packet)
+        reply = next((p for p in packets if p.id == servo_id), None)
+        if reply is None:
+            raise ServoOperationError(_silence(servo_id, self, bad, f"the write of {name}"))
+        if reply.error_number:
+            raise ServoOperationError(f"id {servo_id} refused {name} = {value} (error {reply.error_number}: "
+                                      f"{_ERRORS.get(reply.error_number, 'unknown')})")
+
+    def reboot(self, servo_id: int) -> bool:
+        """REBOOT; True when the servo acknowledged it."""
+        packets, _ = self.exchange(instructions.reboot(servo_id))
+        return any(p.id == servo_id and not p.error_number for p in packets)
+
+
+_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
+           5: "data length error", 6: "data limit error", 7: "access error (EEPROM needs torque off)"}
+
+
+def _silence(servo_id: int, link: Link, bad: list, what: str) -> str:
+    if bad:
+        return f"id {servo_id} answered {what} with a corrupt packet at {link.baud} baud"
+    return f"id {servo_id} did not answer {what} at {link.baud} baud"
+
+
+def _open_serial(path: str, baud: int):
+    import serial
+    try:
+        return serial.Serial(path, baud, timeout=0, write_timeout=0.5, exclusive=True)
+    except (serial.SerialException, OSError, ValueError) as err:
+        reason = getattr(err, "strerror", None) or str(err)
+        raise ServoInitializationError(f"{path}: cannot open ({reason}); `servodyn ports` lists the adapters") from None
+
+
+# ---------------------------------------------------------------------------- scan
+
+@dataclass
+class ScanResult:
+    """What a scan found: the servos, and the rates at which replies collided (several servos at
+    one ID), with the IDs readable in the corrupt bytes."""
+    found: list[Found] = field(default_factory=list)
+    collisions: dict[int, set[int]] = field(default_factory=dict)     # baud -> IDs answering at once
+    corrupt: list[int] = field(default_factory=list)                  # bauds with unreadable replies
+    rates: tuple[int, ...] = ()
+    seconds: float = 0.0
+
+
+def _found(packet: StatusPacket, baud: int) -> Found:
+    number = unpack_field(packet.params[:2]) if len(packet.params) >= 2 else None
+    model = MODELS.get(number)
+    firmware = packet.params[2] if len(packet.params) >= 3 else None
+    return Found(id=packet.id, model_number=number, model=model.name if model else None, firmware=firmware,
+                 baud=baud)
+
+
+def scan(link: Link, rates: Iterable[int] = SCAN_RATES, progress: Callable[[int, int], None] | None = None) -> ScanResult:
+    """A broadcast ping at each rate (the whole ID range answers it), the replies collected until
+    the line is quiet. A corrupt reply whose ID is readable is pinged alone: corrupt again, it is
+    several servos at that ID."""
+    started = time.monotonic()
+    result = ScanResult(rates=tuple(rates))
+    for baud in result.rates:
+        link.set_baud(baud)
+        packets, bad = link.exchange(instructions.ping(BROADCAST_ID), expect=None)
+        seen = {p.id for p in packets}
+        for packet in packets:
+            if len(packet.params) == 3 and not packet.error_number:
+                result.found.append(_found(packet, baud))
+        suspects = {b.id for b in bad if b.id is not None and b.id <= MAX_ID} - seen
+        for servo_id in sorted(suspects):
+            alone, again = link.ping(servo_id)
+            if alone is not None:
+                result.found.append(_found(alone, baud))
+            elif again:
+                result.collisions.setdefault(baud, set()).add(servo_id)
+        if bad and not suspects and not packets:
+            result.corrupt.append(baud)
+        if progress is not None:
+            progress(baud, len(result.found))
+    result.seconds = time.monotonic() - started
+    return result
+
+
+def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
+    """What a scan found against the configuration's bus: each joint's servo at its ID, model and
+    the bus's rate; servos the configuration does not name; collisions."""
+    bus = config.buses[bus_name]
+    joints = config.joints_on(bus_name)
+    findings: list[Finding] = []
+    by_id: dict[int, list[Found]] = {}
+    for f in result.found:
+        by_id.setdefault(f.id, []).append(f)
+    cfg = _config_arg(config)
+    for baud, ids in sorted(result.collisions.items()):
+        for servo_id in sorted(ids):
+            findings.append(Finding(
+                "collision", f"several servos answering at ID {servo_id} ({baud} baud), their replies collide",
+                f"one servo per ID ({len(joints)} servos, IDs {', '.join(str(j.id) for j in joints)})",
+                f"connect one servo at a time and run `servodyn setup --config {cfg} --joint NAME` for each",
+                id=servo_id, bus=bus_name))
+    for baud in result.corrupt:
+        findings.append(Finding("corrupt replies", f"unreadable replies at {baud} baud", "clean status packets",
+                                "several servos at one ID, or a TTL/RS-485 mix-up: connect one servo at a time",
+                                bus=bus_name))
+    for joint in joints:
+        here = [f for f in by_id.get(joint.id, []) if f.baud == bus.baud]
+        elsewhere = [f for f in by_id.get(joint.id, []) if f.baud != bus.baud]
+        setup = f"servodyn setup --config {cfg} --joint {joint.dof}"
+        if here:
+            f = here[0]
+            if f.model_number != joint.servo.model_number:
+                findings.append(Finding("model", f.model or f"model number {f.model_number}", joint.servo.name,
+                                        f"mount a {joint.servo.name} at this joint, or change its `servo` in the "
+                                        "configuration", joint=joint.dof, id=joint.id, bus=bus_name))
+            continue
+        if elsewhere:
+            f = elsewhere[0]
+            findings.append(Finding("baud rate", f"{f.baud} baud", f"{bus.baud} baud",
+                                    f"`{setup}` writes the bus's rate", joint=joint.dof, id=joint.id, bus=bus_name))
+            continue
+        findings.append(Finding("present", "no servo", f"a {joint.servo.name} at ID {joint.id}, {bus.baud} baud",
+                                f"check its power and cable; a new servo answers at ID {FACTORY_ID}, {FACTORY_BAUD} "
+                                f"baud: connect it alone and run `{setup}`", joint=joint.dof, id=joint.id,
+                                bus=bus_name))
+    named = {j.id for j in joints}
+    for f in result.found:
+        if f.id not in named:
+            fresh = " (a new servo's ID and rate)" if (f.id, f.baud) == (FACTORY_ID, FACTORY_BAUD) else ""
+            findings.append(Finding("unexpected servo", f"{f.model or f.model_number} at ID {f.id}, {f.baud} baud{fresh}",
+                                    "only the configuration's IDs", f"connect it alone and run "
+                                    f"`servodyn setup --config {cfg} --joint NAME` for the joint it drives",
+                                    id=f.id, bus=bus_name, severity=WARNING))
+    return findings
+
+
+def _config_arg(config) -> str:
+    """How the commands' hints name the configuration: its built-in name, or its file."""
+    path = config.path
+    if path is None or path.parent == CONFIGS_DIR:
+        return config.name
+    return str(path)
+
+
+# ---------------------------------------------------------------------------- checks
+
+def decode_table(data: bytes, start: int = 0) -> dict[str, int]:
+    """Every item inside `data` (the table from `start`), by name."""
+    out = {}
+    for name, item in ITEMS.items():
+        lo = item.address - start
+        if 0 <= lo and lo + item.size <= len(data):
+            out[name] = unpack_field(data[lo:lo + item.size], item.signed)
+    return out
+
+
+def table_findings(joint, table: dict[str, int], supply_voltage: float | None = None,
+                   bus: str | None = None) -> list[Finding]:
+    """What in a servo's control table a run cannot accept (errors) or a user should know
+    (warnings), each with its fix: model, firmware, Drive Mode, Homing Offset, Status Return
+    Level, Current Limit, input voltage, Hardware Error Status, a tripped Bus Watchdog."""
+    where = dict(joint=joint.dof, id=joint.id, bus=bus)
+    out: list[Finding] = []
+    model = MODELS.get(table["model_number"])
+    if table["model_number"] != joint.servo.model_number:
+        out.append(Finding("model", model.name if model else f"model number {table['model_number']}",
+                           joint.servo.name, "mount the configured servo, or change the joint's `servo`", **where))
+        return out
+    if table["firmware_version"] < MIN_FIRMWARE:
+        out.append(Finding("firmware", table["firmware_version"], f">= {MIN_FIRMWARE} (fast sync read)",
+                           "update it with Dynamixel Wizard 2.0 (Tools > Firmware Update)", **where))
+    if table["drive_mode"] & 0x01:
+        out.append(Finding("drive mode", f"0x{table['drive_mode']:02X} (reverse bit set)", "bit 0 clear",
+                           "servodyn sets the direction itself (`direction` in the configuration): "
+                           "`servodyn setup` clears the bit", **where))
+    if table["homing_offset"] != 0:
+        out.append(Finding("homing offset", f"{table['homing_offset']} ticks", "0",
+                           "servodyn's zero is `zero_offset` in the configuration: `servodyn setup` writes 0 "
+                           "(then `servodyn calibrate`)", **where))
+    if table.get("status_return_level", 2) != 2:
+        out.append(Finding("status return level", table["status_return_level"], "2 (every instruction answered)",
+                           "power-cycle or `servodyn reboot` (it is RAM and comes back as 2)", **where))
+    if "current_limit" in table:
+        unit = joint.options.get("current_unit", joint.servo.current_unit)
+        amps = table["current_limit"] * unit
+        if amps + unit / 2 < joint.current_limit:
+            out.append(Finding("current limit", f"{amps:.3g} A ({table['current_limit']} units)",
+                               f">= {joint.current_limit:g} A (the configuration's)",
+                               "the servo would clamp the feed-forward silently: `servodyn setup` writes the "
+                               "servo's maximum, or lower `current_limit` in the configuration", **where))
+    if supply_voltage and table.get("present_input_voltage"):
+        volts = table["present_input_voltage"] / 10
+        if abs(volts - supply_voltage) > VOLTAGE_TOLERANCE * supply_voltage:
+            out.append(Finding("input voltage", f"{volts:.1f} V", f"{supply_voltage:g} V ±{VOLTAGE_TOLERANCE:.0%} "
+                               "([supply] voltage)", "check the power supply and its cable, or the configuration's "
+                               "[supply] voltage", **where))
+    if table.get("hardware_error_status"):
+        names = ", ".join(hardware_faults(table["hardware_error_status"])) or "unknown bits"
+        out.append(Finding("hardware error", f"0x{table['hardware_error_status']:02X} ({names})", "0",
+                           "find the cause (load, supply, heat), then `servodyn reboot` (only a REBOOT or a power "
+                           "cycle clears it)", **where))
+    if table.get("bus_watchdog", 0) == -1:
+        out.append(Finding("bus watchdog", "tripped (-1)", "0 or armed", "`servodyn clear-errors` (or the next "
+                           "run's open) writes 0", severity=WARNING, **where))
+    if table.get("return_delay_time", 0) != 0:
+        out.append(Finding("return delay time", f"{table['return_delay_time'] * 2} us", "0",
+                           "every open writes 0; `servodyn setup` stores it", severity=WARNING, **where))
+    return out
+
+
+def servo_table(link: Link, servo_id: int) -> dict[str, int]:
+    """A servo's whole control table in one read, by item name."""
+    return decode_table(link.read_table(servo_id, 0, TABLE_SIZE))
+
+
+def doctor(config, bus_name: str, link: Link) -> list[Finding]:
+    """Read-only: each joint's servo present at its ID and the bus's rate, and its table checked
+    (table_findings). A joint that does not answer is looked for at its ID at the other rates."""
+    supply = config.supply.voltage if config.supply else None
+    bus = config.buses[bus_name]
+    findings: list[Finding] = []
+    missing = []
+    link.set_baud(bus.baud)
+    for joint in config.joints_on(bus_name):
+        reply, bad = link.ping(joint.id)
+        if reply is None:
+            missing.append((joint, bad))
+            continue
+        try:
+            table = servo_table(link, joint.id)
+        except ServoOperationError:        # answers a ping, not a read: Status Return Level 0
+            findings.append(Finding("status return level", "0 (answers pings only)", "2",
+                                    "power-cycle or `servodyn reboot` (it is RAM and comes back as 2)",
+                                    joint=joint.dof, id=joint.id, bus=bus_name))
+            continue
+        findings += table_findings(joint, table, supply, bus_name)
+    if missing:
+        others = scan(link, [b for b in SCAN_RATES if b != bus.baud]) if missing else ScanResult()
+        link.set_baud(bus.baud)
+        cfg = _config_arg(config)
+        for joint, bad in missing:
+            setup = f"servodyn setup --config {cfg} --joint {joint.dof}"
+            there = [f for f in others.found if f.id == joint.id]
+            if bad:
+                findings.append(Finding("present", f"corrupt replies at ID {joint.id}", "one servo answering",
+                                        "two servos share this ID: connect one at a time and run "
+                                        f"`{setup}`", joint=joint.dof, id=joint.id, bus=bus_name))
+            elif there:
+                findings.append(Finding("baud rate", f"{there[0].baud} baud", f"{bus.baud} baud",
+                                        f"`{setup}` writes the bus's rate", joint=joint.dof, id=joint.id, bus=bus_name))
+            else:
+                findings.append(Finding("present", "no answer", f"a {joint.servo.name} at ID {joint.id}, "
+                                        f"{bus.baud} baud", f"check its power (the LED blinks once at power-up) "
+                                        f"and cable; `servodyn scan --port {link.path} --config {cfg}` looks at "
+                                        "every ID and rate", joint=joint.dof, id=joint.id, bus=bus_name))
+    return findings
+
+
+# ---------------------------------------------------------------------------- set-up
+
+@dataclass(frozen=True)
+class Step:
+    """One write of a set-up: the item, its value now and the value it gets."""
+    name: str
+    old: int
+    new: int
+
+    def line(self) -> str:
+        label = ITEMS[self.name].name.replace("_", " ")
+        if self.name == "baud_rate":
+            return f"{label}: {BAUD_RATES[self.old]} -> {BAUD_RATES[self.new]} baud"
+        return f"{label}: {self.old} -> {self.new}"
+
+
+def find_alone(link: Link, rates: Sequence[int] = SCAN_RATES) -> Found:
+    """The one servo on the line, at any ID and rate; one line naming what is wrong otherwise."""
+    result = scan(link, rates)
+    if result.collisions or result.corrupt:
+        raise ServoInitializationError(f"{link.path}: several servos answer at once (collisions at "
+                                       f"{', '.join(map(str, sorted(result.collisions) or result.corrupt))} baud): "
+                                       "connect only the one to set up")
+    if not result.found:
+        raise ServoInitializationError(f"{link.path}: no servo answered at any rate ({', '.join(map(str, rates))} "
+                                       "baud): check its power and the cable (TTL 3-pin or RS-485 4-pin as the "
+                                       "adapter's switch)")
+    if len(result.found) > 1:
+        seen = ", ".join(f"ID {f.id} at {f.baud}" for f in result.found)
+        raise ServoInitializationError(f"{link.path}: {len(result.found)} servos answer ({seen}): connect only the "
+                                       "one to set up")
+    return result.found[0]
+
+
+def setup_plan(link: Link, found: Found, joint, bus) -> list[Step]:
+    """The writes that make the servo `found` the joint's: ID, Return Delay Time 0, Drive Mode
+    reverse bit clear, Homing Offset 0, Current Limit at least the configuration's, then the
+    bus's baud rate last (the servo answers that write at the old rate, then changes)."""
+    if found.model_number != joint.servo.model_number:
+        raise ServoInitializationError(f"joint '{joint.dof}' wants a {joint.servo.name}; the servo found is "
+                                       f"{found.model or f'model number {found.model_number}'}")
+    link.set_baud(found.baud)
+    table = servo_table(link, found.id)
+    steps = []
+    unit = joint.options.get("current_unit", joint.servo.current_unit)
+    wanted = {"id": joint.id, "return_delay_time": 0, "drive_mode": table["drive_mode"] & ~0x01,
+              "homing_offset": 0,
+              "current_limit": max(table["current_limit"], min(joint.servo.current_limit_max,
+                                                              int(round(joint.current_limit / unit)))),
+              "baud_rate": BAUD_RATES.index(bus.baud)}
+    for name in ("return_delay_time", "drive_mode", "homing_offset", "current_limit", "id", "baud_rate"):
+        if table[name] != wanted[name]:
+            steps.append(Step(name, table[name], wanted[name]))
+    return steps
+
+
+def apply_setup(link: Link, found: Found, steps: Sequence[Step], bus_baud: int) -> Found:
+    """Torque off, the steps in order, then the servo pinged at its new ID and rate."""
+    servo_id = found.id
+    link.set_baud(found.baud)
+    link.write(servo_id, "torque_enable", 0)
+    for step in steps:
+        link.write(servo_id, step.name, step.new)
+        if step.name == "id":
+            servo_id = step.new
+        elif step.name == "baud_rate":
+            time.sleep(0.01)            # the servo changes rate after its status packet
+            link.set_baud(BAUD_RATES[step.new])
+    link.set_baud(bus_baud)
+    reply, bad = link.ping(servo_id)
+    if reply is None:
+        raise ServoOperationError(f"after the set-up the servo does not answer at ID {servo_id}, {bus_baud} baud"
+                                  + (" (corrupt replies)" if bad else "") + ": run `servodyn scan` to find it")
+    return _found(reply, bus_baud)
+
+
+# ---------------------------------------------------------------------------- recovery
+
+def torque_off(link: Link, ids: Iterable[int]) -> dict[int, int | None]:
+    """Torque Enable 0 by broadcast (every servo at this rate, whatever its ID), then each ID read
+    back: ID -> Torque Enable (None: did not answer)."""
+    link.write(BROADCAST_ID, "torque_enable", 0)
+    return _read_each(link, ids, "torque_enable")
+
+
+def reboot(link: Link, ids: Iterable[int]) -> dict[int, int | None]:
+    """REBOOT each servo, then its Hardware Error Status read back once it is up (None: silent)."""
+    ids = list(ids)
+    for servo_id in ids:
+        link.reboot(servo_id)
+    time.sleep(0.1)                       # a servo takes a moment to boot
+    return _read_each(link, ids, "hardware_error_status")
+
+
+def clear_watchdog(link: Link, ids: Iterable[int]) -> dict[int, int | None]:
+    """A tripped Bus Watchdog (-1) written 0 (goals are refused until then); the value read back."""
+    out = {}
+    for servo_id in ids:
+        try:
+            if link.read(servo_id, "bus_watchdog") == -1:
+                link.write(servo_id, "bus_watchdog", 0)
+            out[servo_id] = link.read(servo_id, "bus_watchdog")
+        except ServoOperationError:
+            out[servo_id] = None
+    return out
+
+
+def _read_each(link: Link, ids, name: str) -> dict[int, int | None]:
+    out = {}
+    for servo_id in ids:
+        try:
+            out[servo_id] = link.read(servo_id, name)
+        except ServoOperationError:
+            out[servo_id] = None
+    return out
+
+
+def horn_angles(link: Link, ids: Sequence[int]) -> dict[int, float]:
+    """Each servo's Present Position as a horn angle (rad; 0 at tick 0), for a calibration."""
+    return {i: link.read(i, "present_position") * 2 * math.pi / TICKS_PER_REV for i in ids}
+

@@ -1,0 +1,108 @@
+"""Changes to a user's robot configuration, written the way a careful person would: the file's
+comments, order and layout kept (tomlkit), the change shown before it is written, and never without
+a confirmation. A built-in configuration is part of the installed package: its patched copy goes to
+a file of the user's.
+
+    patch = ConfigPatch.of(config)                   # the file behind a loaded configuration
+    patch.set_joint("r_elbow_flexion", zero_offset=2.113, direction=-1)
+    print("\n".join(patch.changes()))                # what would change, one line per value
+    patch.write()                                    # to patch.target
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import tomlkit
+
+from ..hal.config import CONFIGS_DIR, load_config
+from ..hal.errors import ConfigError
+
+
+def _plain(value):
+    """A TOML value as plain Python, for comparing and printing."""
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value.unwrap() if hasattr(value, "unwrap") else value
+
+
+def _shown(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_shown(v) for v in value) + "]"
+    return str(value)
+
+
+class ConfigPatch:
+    """Edits to one configuration file, applied to its text as TOML (comments kept)."""
+
+    def __init__(self, source: Path, target: Path):
+        self.source, self.target = Path(source), Path(target)
+        self.document = tomlkit.parse(self.source.read_text())
+        self._changes: list[tuple[str, str, object, object]] = []     # (where, key, old, new)
+
+    @classmethod
+    def of(cls, config, target: str | Path | None = None) -> "ConfigPatch":
+        """The patch of a loaded configuration's file; a built-in one is copied to `target`
+        (default ./<name>.toml), since the package's own file is not the user's to change."""
+        if config.path is None:
+            raise ConfigError(f"'{config.name}' was not loaded from a file: nothing to patch")
+        builtin = Path(config.path).resolve().parent == CONFIGS_DIR.resolve()
+        if target is None:
+            target = Path(f"{config.name}.toml") if builtin else config.path
+        return cls(config.path, Path(target))
+
+    @property
+    def copies(self) -> bool:
+        return self.source.resolve() != self.target.resolve()
+
+    def set_joint(self, dof: str, **values) -> None:
+        """Set keys of the [[joint]] table whose dof is `dof` (added at its end when absent)."""
+        tables = [t for t in self.document.get("joint", []) if t.get("dof") == dof]
+        if not tables:
+            raise ConfigError(f"{self.source}: no [[joint]] with dof = \"{dof}\"")
+        table = tables[0]
+        for key, new in values.items():
+            if isinstance(new, float):
+                new = float(f"{new:.6g}") if math.isfinite(new) else new
+            if isinstance(new, tuple):
+                new = [float(f"{v:.6g}") for v in new]
+            old = _plain(table.get(key)) if key in table else None
+            if old == new:
+                continue
+            if isinstance(new, list):
+                array = tomlkit.array()
+                array.extend(new)
+                table[key] = array
+            else:
+                table[key] = new
+            self._changes.append((f"joint '{dof}'", key, old, new))
+
+    def changes(self) -> list[str]:
+        """One line per value that changes: where, key, old -> new."""
+        return [f"{where}: {key} {'(unset)' if old is None else _shown(old)} -> {_shown(new)}"
+                for where, key, old, new in self._changes]
+
+    def text(self) -> str:
+        return tomlkit.dumps(self.document)
+
+    def write(self) -> Path:
+        """Write the patched text to the target (atomically: a temporary file renamed over it), after
+        checking that it still loads as a configuration."""
+        text = self.text()
+        folder = self.target.resolve().parent
+        fd, tmp = tempfile.mkstemp(prefix=".servodyn-", suffix=".toml", dir=folder)
+        try:
+            with os.fdopen(fd, "w") as out:
+                out.write(text)
+            load_config(tmp)           # a patch that breaks the file is refused, the file untouched
+            os.replace(tmp, self.target)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return self.target
