@@ -148,7 +148,7 @@ def cmd_swing(args) -> int | None:
     from ..hal.errors import ConfigError, ServoError
     from .simulator import SimProcessError
     from .hil import FirmwareError
-    from .swing import run_swing
+    from .swing import Declined, run_swing
     viewer = feed = None
     try:
         if args.view:
@@ -158,7 +158,12 @@ def cmd_swing(args) -> int | None:
                             feedforward=not args.no_feedforward, time_scale=args.time_scale,
                             realtime=args.realtime, motion=args.motion, force=args.force, native=args.native,
                             observer=feed.observe if feed else None,
-                            overrun_tolerance=_overrun_tolerance(args.overrun_tolerance))
+                            overrun_tolerance=_overrun_tolerance(args.overrun_tolerance),
+                            confirm=None if args.yes else _confirm, hold=args.hold, dry_run=args.dry_run)
+    except Declined as err:
+        if viewer is not None:
+            viewer.close()
+        raise CliError(str(err), err.exit_code) from None
     except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
         if viewer is not None:
             viewer.close()
@@ -177,6 +182,12 @@ def cmd_swing(args) -> int | None:
     if viewer is not None:
         from .view import replay_after_live
         replay_after_live(viewer, feed, Path(args.out))
+
+
+def _confirm(question: str) -> bool:
+    """A yes/no question before a real arm moves (tools/bringup.ask)."""
+    from .bringup import ask
+    return ask(question, False)
 
 
 def cmd_sim(args) -> None:
@@ -452,6 +463,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
+    p.add_argument("--yes", action="store_true",
+                   help="on a real port, move without asking (the homing distances are still printed)")
+    p.add_argument("--hold", type=float, default=None, metavar="S",
+                   help="instead of the motion, hold the pose the arm is in for S seconds under the controller, "
+                        "and log it")
+    p.add_argument("--dry-run", action="store_true",
+                   help="torque off: read the arm and log the planned homing with the torques the controller "
+                        "would send, sending none")
     p.add_argument("--view", action="store_true",
                    help="show the arm live in a browser page (servodyn view), then the logged run")
     p.add_argument("--view-port", type=int, default=8080, metavar="N", help="the page's port (default 8080)")

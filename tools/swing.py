@@ -26,7 +26,8 @@ from ..control import ControlConfig, ControlFault, Controller
 from ..control.motion import motion_path
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
-from ..errors import exit_code
+from ..control.trajectory import MotionPath, Trajectory
+from ..errors import ServodynError, exit_code
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
 from ..hal.robot import Robot
@@ -61,7 +62,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
               feedforward: bool = True, time_scale: float | None = None, realtime: bool = False,
               say=print, fault_at: tuple | None = None, motion: str = DEFAULT_MOTION,
               force: bool = False, native: bool = False, observer=None, home_duration: float = HOME_DURATION,
-              figure: bool = True, overrun_tolerance: float | None = None, log: RunLog | None = None) -> dict:
+              figure: bool = True, overrun_tolerance: float | None = None, log: RunLog | None = None,
+              confirm=None, hold: float | None = None, dry_run: bool = False) -> dict:
     """Validate, home, play, log; returns the summary. `motion` is a built-in motion, a keyframe
     file or a trajectory CSV, played `time_scale` times slower (default: the configuration's for
     the forehand, else 1). Before anything moves the validator checks it against every servo
@@ -76,7 +78,14 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     of the homing move (shorter for the soak, whose motions start where the simulated arm does);
     figure: write the tracking plot. overrun_tolerance: s the real-time loop may fall behind its
     schedule before it stops (default OVERRUN_TOLERANCE). log: the RunLog to fill (default a new
-    one), for a caller that reads the run's own states afterwards."""
+    one), for a caller that reads the run's own states afterwards.
+
+    A first motion a person can trust: confirm(lines) is asked, with each joint's homing distance,
+    before torque goes on (None: not asked; the CLI asks on a real port unless --yes), and a False
+    answer ends the run before anything moved (Declined). hold: s to hold the pose the arm is in
+    under the controller (validated there), instead of the motion. dry_run: read the arm with
+    torque off and log the planned homing with the torques the controller would send, sending
+    none."""
     config = config_name if isinstance(config_name, RobotConfig) else load_config(config_name)
     model = config.model
     if time_scale is not None:
@@ -86,11 +95,13 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     if not (math.isfinite(scale) and scale > 0):
         raise ValueError(f"--time-scale must be a positive number, got {scale}")
     path = motion_path(motion, model)
-    verdict = judge(config, path, scale)
+    verdict = judge(config, path, scale) if hold is None else None
     ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
     simulated = not ports or bus_config.kind == "loopback"
-    if not verdict.passed:
+    if hold is not None and not (math.isfinite(hold) and hold > 0):
+        raise ValueError(f"--hold must be a positive number of seconds, got {hold:g}")
+    if verdict is not None and not verdict.passed:
         first = verdict.violations[0]["message"]
         if not (force and simulated):
             found = [v["message"] for v in verdict.violations]
@@ -104,6 +115,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     mode = "feedforward_pd" if feedforward else "pd"
     paced = None
     if native:
+        if hold is not None or dry_run:
+            raise ValueError("--hold and --dry-run run in the Python loop, not with --native")
         _check_native(config, motion, scale, mode, fault_at)
     if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
         # lock-step means "as fast as the bus answers": on real servos that would play the motion
@@ -140,18 +153,37 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             raise
         if paced:
             say(paced)
+        try:
+            start_pose = bus.read_state().q
+            if hold is not None:
+                swing, verdict, path = _hold_motion(config, start_pose, hold, period)
+                home_duration = 2 * period
+            if confirm is not None or dry_run or not simulated:
+                _homing_distances(config, start_pose, swing.q[0], say, None if simulated else confirm, dry_run)
+        except BaseException:
+            bus.stop()
+            if server is not None:
+                server.stop()
+            raise
         controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
         log = RunLog(model.dof_names) if log is None else log
         log.stream(out / "swing_log.csv")
         error = None
+        planned_ticks = len(swing.t)
         swing_start = 0.0
         home_ticks = 0
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         try:
             home, played = plan_run(model, swing, bus.read_state().q, home_duration)
+            if dry_run:
+                say(f"dry run: torque off; the homing's {home.traj.t[-1]:g} s read and logged with the torques "
+                    "the controller would send (none is sent)")
+                follow(DryRun(bus), controller, home, log, realtime, observer=observer, tolerance=overrun_tolerance)
+                planned_ticks = len(home.traj.t)
+                raise _DryRunDone
             bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
-            say(f"homing to the swing's start pose over {HOME_DURATION:g} s ...")
+            say(f"homing to the swing's start pose over {home.traj.t[-1]:g} s ...")
             home_ticks = len(home.traj.t)
             # homing's deadlines are the run's too (the native loop's count has them)
             log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=overrun_tolerance)
@@ -167,6 +199,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
                    observer=observer, tolerance=overrun_tolerance,
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                                   f"largest error {np.degrees(err):6.3f} deg"))
+        except _DryRunDone:
+            stopping["now"] = True
         except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
             stopping["now"] = True
             error = err
@@ -185,10 +219,11 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if server is not None:
                 server.stop()
             log.close()
-        summary = summarize(log, len(swing.t), period, realtime, error)
+        summary = summarize(log, planned_ticks, period, realtime, error)
         summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
         summary.update(motion=path.name, mode=mode, time_scale=scale, validated=verdict.passed,
-                       loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=cpu)
+                       loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=cpu,
+                       dry_run=dry_run, hold_s=hold)
         if isinstance(error, Interrupted):
             summary["signal"] = signal.Signals(error.signum).name
         if sim is not None:
@@ -203,6 +238,62 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
 
     finally:
         placed.close()
+
+class Declined(ServodynError):
+    """The person at the arm said no before it moved."""
+    exit_code = 1
+
+
+class _DryRunDone(Exception):
+    """The dry run's homing is logged: the run ends there (not an error)."""
+
+
+class DryRun:
+    """A bus that reads and never drives: torque stays off and every write is dropped (the log
+    keeps the torques the controller asked for)."""
+
+    def __init__(self, bus):
+        self._bus = bus
+        self.dropped = 0
+
+    def read_state(self):
+        return self._bus.read_state()
+
+    def write(self, command) -> None:
+        self.dropped += 1
+
+    def enable_torque(self, on: bool) -> None:
+        pass
+
+
+def _hold_motion(config, q, seconds: float, period: float):
+    """Hold pose q for `seconds`: the trajectory, its validator's verdict (gravity at that pose),
+    and its path."""
+    n = max(2, int(round(seconds / period)) + 1)
+    q = np.asarray(q, dtype=float)
+    traj = Trajectory(t=np.arange(n) * period, q=np.tile(q, (n, 1)), qd=np.zeros((n, len(q))),
+                      qdd=np.zeros((n, len(q))), derived=False)
+    path = MotionPath.of_trajectory("hold", traj)
+    verdict = judge(config, path, 1.0)
+    if not verdict.passed:
+        raise MotionRefused(f"holding the present pose would leave a servo's limits: "
+                            f"{verdict.violations[0]['message']}", [v["message"] for v in verdict.violations])
+    return path.at_scale(1.0, period), verdict, path
+
+
+def _homing_distances(config, q_now, q_start, say, confirm, dry_run: bool) -> None:
+    """Say how far each joint will move to the start pose; ask `confirm` (None: do not ask)."""
+    delta = np.degrees(np.asarray(q_start) - np.asarray(q_now))
+    lines = [f"  {name:<24} {np.degrees(a):8.1f}° -> {np.degrees(b):8.1f}°  ({d:+7.1f}°)"
+             for name, a, b, d in zip(config.model.dof_names, q_now, q_start, delta)]
+    largest = int(np.argmax(np.abs(delta)))
+    say(f"homing moves each joint from where it is to the start pose (largest: "
+        f"{config.model.dof_names[largest]}, {abs(delta[largest]):.1f}°):")
+    for line in lines:
+        say(line)
+    if confirm is not None and not dry_run and not confirm("torque on and move the arm?"):
+        raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
+
 
 def is_pseudo_terminal(path: str) -> bool:
     """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
