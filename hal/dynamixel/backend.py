@@ -36,7 +36,10 @@ from ...control.timing import BUS_WATCHDOG
 from ..bus import JointCommand, JointState, ServoBus
 from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
-from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
+from ..bringup import ERROR
+from ..config import CONFIGS_DIR
+from . import bench
+from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
                             PRESENT_LENGTH, OperatingMode, hardware_faults, watchdog_units)
 from . import _dxl
@@ -136,11 +139,7 @@ class DynamixelBus(ServoBus):
                 self.port.packet_timeout = max(self.port.packet_timeout, self.reply_timeout * 1e3)
             self.port.setPacketTimeout = patient
         for joint in self.joints:
-            number = self._read_item(joint, ADDR_MODEL_NUMBER, 2)
-            if number != joint.servo.model_number:
-                raise ServoInitializationError(f"joint '{joint.dof}': servo {joint.id} is model {number}, "
-                                               f"the configuration says {joint.servo.name}")
-            self._check_hardware(joint)
+            self._check_servo(joint)
             self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)      # EEPROM writes need torque off
             self._write_item(joint, ADDR_RETURN_DELAY, 1, 0)
             self._write_item(joint, ADDR_OPERATING_MODE, 1, OperatingMode.CURRENT)
@@ -440,10 +439,32 @@ class DynamixelBus(ServoBus):
                                 f"Watchdog of {self.watchdog * 1e3:.0f} ms: servos {', '.join(map(str, tripped))} "
                                 "tripped it and stopped")
 
-    def _check_hardware(self, joint) -> None:
-        status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
-        if status:
+    def _check_servo(self, joint) -> None:
+        """At open: the servo answers, and its control table is one a run can accept (the checks
+        `servodyn doctor` makes, hal.dynamixel.bench.table_findings): the first that is not ends the
+        open in one line with its fix. A latched hardware error is a ServoHardwareError."""
+        data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)
+        for _ in range(self.retries):
+            if result == self._sdk.COMM_SUCCESS:
+                break
+            data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)
+        if result != self._sdk.COMM_SUCCESS:
+            config = self.config.name if self.config.path is None or self.config.path.parent == CONFIGS_DIR \
+                else self.config.path
+            raise ServoInitializationError(
+                f"joint '{joint.dof}' (id {joint.id}) did not answer at {self.bus.baud} baud on {self.port_name} "
+                f"({self.packets.getTxRxResult(result)}): check its power and cable, and that it was set up "
+                f"(ID {joint.id}, {self.bus.baud} baud); `servodyn scan --port {self.port_name} --config {config}` "
+                "looks at every ID and rate")
+        table = bench.decode_table(bytes(data))
+        if table["hardware_error_status"] and table["model_number"] == joint.servo.model_number:
+            status = table["hardware_error_status"]
             raise ServoHardwareError(joint.dof, joint.id, status, hardware_faults(status))
+        supply = self.config.supply.voltage if self.config.supply else None
+        refused = [f for f in bench.table_findings(joint, table, supply, self.bus.name) if f.severity == ERROR]
+        if refused:
+            more = f" (and {len(refused) - 1} more: `servodyn doctor` lists them)" if len(refused) > 1 else ""
+            raise ServoInitializationError(refused[0].line() + more)
 
     def _read_item(self, joint, address: int, size: int) -> int:
         read = {1: self.packets.read1ByteTxRx, 2: self.packets.read2ByteTxRx,
