@@ -46,6 +46,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.view
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
 	@$(VENV)/bin/python -m servodyn.tools.bench.can
+	@$(VENV)/bin/python -m servodyn.tools.bench.bringup
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench.fw_budget
 
