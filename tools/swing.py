@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import threading
 from contextlib import ExitStack
@@ -29,6 +28,7 @@ from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..errors import exit_code
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
+from ..hal.host import is_pseudo_terminal
 from ..hal.robot import Robot
 from ..loop import Interrupted, Overrun, RunLog, follow, summarize
 from ..loop.realtime import one_cpu
@@ -203,12 +203,6 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
 
     finally:
         placed.close()
-
-def is_pseudo_terminal(path: str) -> bool:
-    """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
-    tty of its own (/dev/ttyUSB*, /dev/ttyACM*), a SocketCAN channel no device file at all."""
-    return os.path.realpath(path).startswith("/dev/pts/")
-
 
 def _real_bus(bus, path: str, say) -> dict:
     """The options of a bus on `path`: a pseudo-terminal is `servodyn sim` in another process (no
