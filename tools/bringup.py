@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..hal import host
+from ..loop.realtime import LOOP_PRIORITY
 from ..hal.bringup import ERROR, Finding
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel import bench as dxl
@@ -190,17 +192,13 @@ def setup(config_name: str, joint_name: str, port, yes: bool, say=print) -> int:
 # ---------------------------------------------------------------------------- doctor
 
 def host_findings(path: str) -> list[Finding]:
-    """The host's side of a port (hal.host), where that module is installed."""
-    try:
-        from ..hal import host
-    except ImportError:
-        return []
-    return list(host.port_findings(path)) if hasattr(host, "port_findings") else []
+    """The host's side of a port: exists, permission, held by another process, latency timer."""
+    return list(host.port_findings(path))
 
 
 def doctor(config_name: str, port, as_json: bool, say=print) -> int:
     config, ports = config_and_ports(config_name, port)
-    findings: list[Finding] = []
+    findings: list[Finding] = list(host.realtime_findings(priority=LOOP_PRIORITY))
     started = time.monotonic()
     for bus, path in ports.items():
         _kind(config, bus)

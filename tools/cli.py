@@ -249,6 +249,11 @@ def cmd_sim(args) -> None:
         served.stop()
 
 
+def cmd_ports(args) -> int:
+    from .bringup_host import run_ports
+    return run_ports(args.root, as_json=args.json)
+
+
 def _paced(args) -> str:
     """The swing's option that matches the simulator's clock: a plant on the wall clock wants a
     loop paced by it (lock-step, one period per command, wants the loop as fast as it goes)."""
@@ -503,6 +508,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.set_defaults(func=cmd_sim)
+
+    p = sub.add_parser("ports", help="list the serial adapters and SocketCAN links, and what is in their way",
+                       description="The USB serial adapters (device, stable by-id name, VID:PID, product, the "
+                       "adapter recognised, FTDI latency timer, the process holding it) and SocketCAN links "
+                       "(state, bit rate), each port's problems with their fixes. Changes nothing.")
+    p.add_argument("--json", action="store_true", help="as JSON, for scripts")
+    p.add_argument("--root", type=Path, default=Path("/"), help=argparse.SUPPRESS)   # a stand-in /dev, /sys, /proc
+    p.set_defaults(func=cmd_ports)
 
     # ---- bring-up: from a box of servos to an arm that moves (tools/bringup.py)
     port_help = ("the bus's serial port or CAN channel (default: the configuration's); a configuration with "

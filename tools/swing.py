@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import threading
 from contextlib import ExitStack
@@ -30,6 +29,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError, exit_code
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
+from ..hal.host import is_pseudo_terminal
 from ..hal.robot import Robot
 from ..loop import Interrupted, Overrun, RunLog, follow, summarize
 from ..loop.realtime import one_cpu
@@ -293,12 +293,6 @@ def _homing_distances(config, q_now, q_start, say, confirm, dry_run: bool) -> No
         say(line)
     if confirm is not None and not dry_run and not confirm("torque on and move the arm?"):
         raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
-
-
-def is_pseudo_terminal(path: str) -> bool:
-    """True for a pseudo-terminal (what `servodyn sim` serves); a USB serial or SLCAN adapter is a
-    tty of its own (/dev/ttyUSB*, /dev/ttyACM*), a SocketCAN channel no device file at all."""
-    return os.path.realpath(path).startswith("/dev/pts/")
 
 
 def _real_bus(bus, path: str, say) -> dict:

@@ -38,6 +38,7 @@ from ..errors import (BusStallError, ServoHardwareError, ServoInitializationErro
                       ServoTimeoutError)
 from ..bringup import ERROR
 from ..config import CONFIGS_DIR
+from ..host import claim_port, is_pseudo_terminal, open_failure
 from . import bench
 from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
@@ -99,12 +100,15 @@ class DynamixelBus(ServoBus):
     kind = "dynamixel"
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
-                 watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, **kwargs):
+                 watchdog: float = BUS_WATCHDOG, reply_timeout: float | None = None, realtime: bool = True,
+                 **kwargs):
         """retries: tries after the first before a read fails; watchdog: s of bus silence after
         which the servos stop; reply_timeout: s to wait for the fast sync read reply, and at least
         that for any other reply (None: the SDK's packet timeout, wire time + 2 x 16 ms USB
-        latency + 2 ms)."""
+        latency + 2 ms); realtime: the bus carries a real-time loop, so an adapter whose latency
+        timer stays above 1 ms is refused at open (False: bring-up commands, which only ask)."""
         super().__init__(config, bus, **kwargs)
+        self.realtime = realtime
         self.port_name = port or self.bus.port
         if self.port_name in (None, "", "auto"):
             raise ServoInitializationError(f"bus '{self.bus.name}': no serial port (port = 'auto' means "
@@ -126,10 +130,16 @@ class DynamixelBus(ServoBus):
         try:
             opened = self.port.openPort()
         except Exception as err:      # pyserial raises its own kinds, most with the OS's errno
-            reason = os.strerror(err.errno) if isinstance(getattr(err, "errno", None), int) else err
-            raise ServoInitializationError(f"{self.port_name}: cannot open ({reason})") from None
+            reason = err.errno if isinstance(getattr(err, "errno", None), int) else err
+            raise ServoInitializationError(open_failure(self.port_name, reason)) from None
         if not opened or not self.port.setBaudRate(int(self.bus.baud)):
             raise ServoInitializationError(f"{self.port_name}: cannot open at {self.bus.baud} baud")
+        if not is_pseudo_terminal(self.port_name):      # a real adapter (the simulator's is a pty)
+            try:                                        # ours alone, its latency timer at 1 ms
+                claim_port(self.port.ser.fileno(), self.port_name, realtime=self.realtime)
+            except ServoInitializationError:
+                self.port.closePort()
+                raise
         self.packets = _stuffing_packet_handler()
         if self.reply_timeout is not None:      # the SDK's own transactions are as patient
             sdk_timeout = self.port.setPacketTimeout

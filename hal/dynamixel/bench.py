@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from ..bringup import WARNING, Finding, Found
 from ..config import CONFIGS_DIR
 from ..errors import ServoInitializationError, ServoOperationError
+from ..host import claim_port, is_pseudo_terminal, open_failure
 from . import instructions
 from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
 from .protocol import BROADCAST_ID, MAX_ID, InstructionPacket, StatusPacket, pack_field, unpack_field
@@ -194,12 +195,20 @@ def _silence(servo_id: int, link: Link, bad: list, what: str) -> str:
 
 
 def _open_serial(path: str, baud: int):
+    """pyserial's port; on a real adapter ours alone and its latency timer asked down (hal.host)."""
     import serial
     try:
-        return serial.Serial(path, baud, timeout=0, write_timeout=0.5, exclusive=True)
+        port = serial.Serial(path, baud, timeout=0, write_timeout=0.5)
     except (serial.SerialException, OSError, ValueError) as err:
-        reason = getattr(err, "strerror", None) or str(err)
-        raise ServoInitializationError(f"{path}: cannot open ({reason}); `servodyn ports` lists the adapters") from None
+        reason = err.errno if isinstance(getattr(err, "errno", None), int) else (getattr(err, "strerror", None) or err)
+        raise ServoInitializationError(open_failure(path, reason)) from None
+    if not is_pseudo_terminal(path):
+        try:
+            claim_port(port.fileno(), path, realtime=False)
+        except ServoInitializationError:
+            port.close()
+            raise
+    return port
 
 
 # ---------------------------------------------------------------------------- scan

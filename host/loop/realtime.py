@@ -23,6 +23,8 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from ..hal.host import REALTIME_FIX
+
 LOOP_PRIORITY = 80       # SCHED_FIFO priority of a real-time control loop (firmware/posix: the same)
 SIMULATOR_PRIORITY = 81  # the simulated servos answer ahead of the loop, as hardware does
 # the CPUs the kernel's unbound work queues may run on: their workers carry a serial port's bytes
@@ -49,7 +51,8 @@ def realtime_priority(priority: int, who: str = "the loop"):
         before = os.sched_getscheduler(0), os.sched_getparam(0)
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except OSError as err:
-        _say_once(f"servodyn: SCHED_FIFO not allowed ({err.strerror}): {who} runs at normal priority")
+        _say_once(f"servodyn: SCHED_FIFO not allowed ({err.strerror}): {who} runs at normal priority; "
+                  f"to allow it, {REALTIME_FIX}")
         yield False
         return
     try:
