@@ -22,7 +22,6 @@ kp_motor = kp/gear², kd_motor = kd/gear² (gear_ratio: a reduction after the mo
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -31,8 +30,9 @@ from ..bus import JointCommand, JointState, ServoBus
 from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
 from . import frames
-from .dialects import (CTRL_MODES, DIALECTS, MIT_MODE, REG_CTRL_MODE, REG_PMAX, REG_TIMEOUT, REG_TMAX, REG_VMAX,
-                       TIMEOUT_UNIT, UINT_REGISTERS)
+from .dialects import (CTRL_MODES, DIALECTS, MIT_MODE, RANGE_REGISTERS, REG_CTRL_MODE, REG_TIMEOUT, TIMEOUT_UNIT,
+                       range_matches, register_bits, register_value)
+from .link import CanLink, open_bus
 from .spec import interface_for
 
 REPLY_TIMEOUT = 0.02            # s to collect a tick's replies (14 frames are ~2 ms at 1 Mbit/s)
@@ -76,25 +76,13 @@ class CanBus(ServoBus):
         self._scale, self._gear = scale, np.array([j.gear_ratio for j in self.joints], dtype=float)
         self._offset = np.array([j.zero_offset for j in self.joints], dtype=float)
         self.temperatures = np.zeros((self.n, 2))      # °C per motor as last reported (MOS/motor, coil)
-        self.warnings = 0           # error frames of a controller's warning or passive state alone
-        self.foreign = 0            # 29-bit, CAN FD and remote frames: no motor's reply, skipped
+        self.link = CanLink(self.bus.name, timeout=reply_timeout)
         self.sent = np.zeros((self.n, 5))              # the last command as sent, decoded (p, v, kp, kd, t)
 
     # ---------------------------------------------------------------- set-up
     def _open(self) -> None:
-        import can
-        self._can = can
-        if self._given is not None:
-            self.can = self._given
-        else:
-            try:
-                self.can = can.Bus(interface=self.interface, channel=self.channel, bitrate=int(self.bus.baud))
-            except (can.CanError, OSError, ValueError, ImportError) as err:
-                # the OS's reason, on the error or under python-can's own
-                errno = next((e.errno for e in (err, err.__cause__, err.__context__)
-                              if isinstance(getattr(e, "errno", None), int)), None)
-                reason = os.strerror(errno) if errno is not None else err
-                raise ServoInitializationError(f"{self.interface} {self.channel}: cannot open ({reason})") from None
+        self.can = self._given if self._given is not None else open_bus(self.channel, self.interface, self.bus.baud)
+        self.link.can = self.can
         try:
             self._torque_on = False
             self._pending: set[int] = set()
@@ -115,7 +103,17 @@ class CanBus(ServoBus):
                 self.can.shutdown()
             except Exception:
                 pass
-        self.can = None
+        self.can = self.link.can = None
+
+    @property
+    def warnings(self) -> int:
+        """Error frames of a controller's warning or passive state alone (the run went on)."""
+        return self.link.warnings
+
+    @property
+    def foreign(self) -> int:
+        """29-bit, CAN FD and remote frames seen: no motor's reply, skipped."""
+        return self.link.foreign
 
     def _check_registers(self, k: int) -> None:
         joint, ranges = self.joints[k], self.ranges[k]
@@ -124,9 +122,9 @@ class CanBus(ServoBus):
             raise ServoInitializationError(
                 f"joint '{joint.dof}': motor {joint.id} is in {CTRL_MODES.get(mode, f'mode {mode}')} mode "
                 f"(CTRL_MODE = {mode}); in any mode but MIT (1) it ignores MIT frames without a word")
-        for rid, name in ((REG_PMAX, "p_max"), (REG_VMAX, "v_max"), (REG_TMAX, "t_max")):
+        for rid, name in RANGE_REGISTERS.items():
             value = self.read_register(joint.dof, rid)
-            if abs(value - getattr(ranges, name)) > 1e-4 * max(1.0, abs(value)):
+            if not range_matches(value, getattr(ranges, name)):
                 raise ServoInitializationError(
                     f"joint '{joint.dof}': motor {joint.id} has {name.upper().replace('_', '')} = {value:g} "
                     f"(register {rid}), the configuration says {getattr(ranges, name):g}: every frame would "
@@ -144,26 +142,18 @@ class CanBus(ServoBus):
         joint = self.joints[k]
         if not self.dialects[k].registers:
             raise ServoOperationError(f"joint '{joint.dof}': a {self.dialects[k].name} motor has no registers")
-        self._send(frames.REGISTER_ID, frames.pack_register(frames.Register(joint.id, cmd, rid, value)))
-        deadline = time.monotonic() + self.reply_timeout
-        while (left := deadline - time.monotonic()) > 0:
-            msg = self._recv(left)
-            if msg is None or msg.arbitration_id != joint.options["feedback_id"] or len(msg.data) != 8:
-                continue
-            data = bytes(msg.data)
-            if data[0] | (data[1] << 8) == joint.id and data[2] == cmd and data[3] == rid:
-                return frames.unpack_register(data)
+        answer = self.link.register(joint.id, cmd, rid, value, reply_ids={joint.options["feedback_id"]})
+        if answer is not None:
+            return answer[0]
         raise ServoTimeoutError(joint.dof, joint.id, f"no answer to register {rid} "
                                                      f"({'read' if cmd == frames.REG_READ else 'write'})")
 
     def read_register(self, dof: str, rid: int) -> float:
         """A Damiao register (uint32 or float32 by its number)."""
-        g = self._register(self._joint(dof), frames.REG_READ, rid)
-        return g.value if rid in UINT_REGISTERS else g.as_float
+        return register_value(rid, self._register(self._joint(dof), frames.REG_READ, rid))
 
     def write_register(self, dof: str, rid: int, value: float) -> None:
-        bits = int(value) if rid in UINT_REGISTERS else frames.float_bits(float(value))
-        self._register(self._joint(dof), frames.REG_WRITE, rid, bits)
+        self._register(self._joint(dof), frames.REG_WRITE, rid, register_bits(rid, value))
 
     def set_zero(self, dof: str) -> None:
         """Calibration: the motor's present position becomes its zero. Never called implicitly;
@@ -187,40 +177,10 @@ class CanBus(ServoBus):
 
     # ---------------------------------------------------------------- the wire
     def _send(self, arbitration_id: int, data: bytes) -> None:
-        try:
-            self.can.send(self._can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
-                          timeout=self.reply_timeout)
-        except self._can.CanError as err:
-            raise ServoOperationError(f"bus '{self.bus.name}': CAN send failed ({err})") from None
+        self.link.send(arbitration_id, data)
 
     def _recv(self, timeout: float):
-        """The next frame that can be a motor's reply, or None at the timeout. An error frame that
-        stops (no ACK, bus-off, a protocol violation, ...) is a ServoOperationError naming its
-        classes with what to check; a controller's warning or passive state is counted
-        (`warnings`); a 29-bit, CAN FD or remote frame is no motor's reply: counted (`foreign`)
-        and skipped. A line the adapter's driver cannot parse (python-can's ValueError on a
-        malformed SLCAN line) is a corrupt reply on this bus."""
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                msg = self.can.recv(max(0.0, deadline - time.monotonic()))
-            except self._can.CanError as err:
-                raise ServoOperationError(f"bus '{self.bus.name}': CAN receive failed ({err})") from None
-            except (ValueError, IndexError, UnicodeDecodeError) as err:
-                raise ServoOperationError(f"bus '{self.bus.name}': the adapter sent a line that is no frame "
-                                          f"({type(err).__name__}: {err}): a corrupt reply") from None
-            if msg is None:
-                return None
-            if msg.is_error_frame:
-                stops, text = frames.error_frame(msg.arbitration_id, bytes(msg.data))
-                if stops:
-                    raise ServoOperationError(f"bus '{self.bus.name}': error frame: {text}")
-                self.warnings += 1
-                continue
-            if msg.is_extended_id or msg.is_remote_frame or getattr(msg, "is_fd", False):
-                self.foreign += 1
-                continue
-            return msg
+        return self.link.recv(timeout)
 
     def _flush(self) -> None:
         """Take the answers still owed, then drop whatever else waits (late replies of a tick that

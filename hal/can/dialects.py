@@ -28,13 +28,43 @@ CUBEMARS_ERRORS = {
     5: "encoder fault", 6: "phase current unbalance",
 }
 
-# Damiao registers (number, name, float32?)
+# Damiao registers (number, name, float32?): DM_CAN.py's DM_variable, openarm_can's RID (dm_motor_constants.hpp)
 REG_OT, REG_MST_ID, REG_ESC_ID, REG_TIMEOUT, REG_CTRL_MODE = 2, 7, 8, 9, 10
+REG_GR = 20               # Gr, the gear ratio, read-only: names the model (10 a J4310, 40 a J4340)
 REG_PMAX, REG_VMAX, REG_TMAX = 21, 22, 23
 UINT_REGISTERS = frozenset({7, 8, 9, 10, 13, 14, 15, 16, 35, 36})
 CTRL_MODES = {1: "MIT", 2: "position-velocity", 3: "velocity", 4: "force-position"}
 MIT_MODE = 1
 TIMEOUT_UNIT = 50e-6      # s per TIMEOUT register unit
+# A Damiao motor as it leaves the factory answers commands on CAN ID 1 and sends every frame on
+# Master ID 0: damiao-motor (its README and every CLI command address a motor as motor_id 0x01,
+# feedback_id 0x00), openarm_can's discovery listens on id + 0x10 and on 0x00, DM_CAN.py routes a
+# register reply on id 0 by the CAN ID in its bytes ("in case someone set MasterID to 0"). The
+# vendor's advice is Master ID = CAN ID + 0x10, never 0 (Seeed's Damiao wiki).
+FACTORY_CAN_ID, FACTORY_MASTER_ID = 1, 0
+# Register writes (0x55) change RAM only; 0xAA stores them all to flash, which the vendor's tools
+# do only after a disable frame (DM_CAN.save_motor_param: "before save disable the motor";
+# openarm_can change_motor_id_commands.cpp: "Disable motor (Required before saving to Flash)"),
+# with a warning of about 10,000 write cycles (openarm_can).
+FLASH_CYCLES = 10_000
+
+
+def register_bits(rid: int, value: float) -> int:
+    """A register value as its frame's 4 bytes (uint32 registers as integers, the rest float32)."""
+    return int(value) if rid in UINT_REGISTERS else frames.float_bits(float(value))
+
+
+def range_matches(value: float, expected: float) -> bool:
+    """Whether a PMAX/VMAX/TMAX register holds the configuration's range (float32 rounding aside)."""
+    return abs(value - expected) <= 1e-4 * max(1.0, abs(value))
+
+
+RANGE_REGISTERS = {REG_PMAX: "p_max", REG_VMAX: "v_max", REG_TMAX: "t_max"}   # register -> frames.Ranges field
+
+
+def register_value(rid: int, g: frames.Register) -> float:
+    """A register frame's value, by its number's type."""
+    return g.value if rid in UINT_REGISTERS else g.as_float
 
 
 @dataclass(frozen=True)

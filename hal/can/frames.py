@@ -254,9 +254,14 @@ CONTROLLER_STATES = ((0x01, "rx overflow"), (0x02, "tx overflow"), (0x04, "rx wa
                      (0x10, "rx error-passive"), (0x20, "tx error-passive"), (0x40, "back to error-active"))
 
 
+def error_classes(arbitration_id: int) -> list[tuple[str, str]]:
+    """(name, what to check) of each class an error frame's id carries."""
+    return [(name, hint) for bit, name, hint in ERROR_CLASSES if arbitration_id & bit]
+
+
 def error_frame(arbitration_id: int, data: bytes) -> tuple[bool, str]:
     """(whether it stops a run, one line naming each class with what to check) of an error frame."""
-    classes = [(name, hint) for bit, name, hint in ERROR_CLASSES if arbitration_id & bit]
+    classes = error_classes(arbitration_id)
     states = [name for bit, name in CONTROLLER_STATES if len(data) > 1 and data[1] & bit]
     benign = {"controller", "restarted"}
     stops = any(name not in benign for name, _ in classes) or not classes

@@ -9,6 +9,15 @@ applies is the same. Current I = τ/Kt heats the winding, C·dT/dt = I²R − (T
 the motor's temperature limit it faults (Damiao status C, CubeMars error 1) and goes limp. A motor
 that gets no command for its CAN timeout goes limp (Damiao status D). Friction: viscous plus a
 smoothed Coulomb term at the output.
+
+Its memory, as a Damiao motor's (hal/can/dialects.py has the sources): register writes (0x55)
+change RAM; 0xAA stores every register to flash, only while the motor is disabled (the vendor's
+tools disable first; a save while enabled is modelled as ignored without an answer, which no
+document confirms), and is echoed; the zero (FE, "SaveZero" in the vendor's debugging tool,
+Seeed's Damiao wiki) is kept by the motor itself. A power cycle loses RAM: the motor comes back
+disabled, without a latched fault, with its flash's registers. `factory_fresh` is a motor as it
+leaves the factory (CAN ID 1, Master ID 0); `nonvolatile`/`restore` carry what survives a power
+cycle (JSON-able), for a bench that keeps its devices between runs.
 """
 
 from __future__ import annotations
@@ -35,16 +44,18 @@ class CanMotor:
 
     def __init__(self, spec: MotorSpec, can_id: int, *, dialect: str | None = None, feedback_id: int | None = None,
                  ranges: frames.Ranges | None = None, supply_voltage: float | None = None):
-        self.spec, self.can_id = spec, can_id
+        """A motor set up as a configuration says (its ids, ranges and MIT mode already in flash)."""
+        self.spec = spec
         self.dialect = DIALECTS[dialect or spec.dialect]
+        # RAM: the registers (ESC_ID is `can_id`, MST_ID `feedback_id`; PMAX/VMAX/TMAX are `ranges`)
+        self.registers = {dialects.REG_CTRL_MODE: dialects.MIT_MODE, dialects.REG_OT: spec.temperature_limit,
+                          dialects.REG_TIMEOUT: 0, dialects.REG_GR: spec.gear_ratio}
+        self.can_id = can_id
         self.feedback_id = self.dialect.feedback_id(can_id) if feedback_id is None else feedback_id
         self.ranges = ranges or spec.ranges
         self.voltage = supply_voltage or spec.nominal_voltage
         self.peak_torque = spec.stall_torque_at(self.voltage)       # N m at stall, this supply
         self.no_load_speed = spec.no_load_speed_at(self.voltage)    # rad/s, this supply
-        self.registers = {dialects.REG_CTRL_MODE: dialects.MIT_MODE, dialects.REG_MST_ID: self.feedback_id,
-                          dialects.REG_ESC_ID: can_id, dialects.REG_OT: spec.temperature_limit,
-                          dialects.REG_TIMEOUT: 0}
         self.position = self.velocity = self.current = 0.0
         self.zero = 0.0                      # output angle the motor calls 0 (set by SET_ZERO)
         self.enabled = False
@@ -59,6 +70,68 @@ class CanMotor:
         # friction at the output (estimates: no vendor figures), a Coulomb step smoothed over
         # FRICTION_VELOCITY so the plant's explicit 1 ms step stays stable on the light wrist links
         self.viscous, self.coulomb = 0.001 * peak, 0.005 * peak   # N m s/rad, N m
+        self.flash = self._ram()             # the registers a power cycle comes back with
+        self.saves = 0                       # flash writes (0xAA acted on)
+
+    @property
+    def can_id(self) -> int:
+        """CAN ID (ESC_ID, register 8): the id it takes commands on."""
+        return self.registers[dialects.REG_ESC_ID]
+
+    @can_id.setter
+    def can_id(self, value: int) -> None:
+        self.registers[dialects.REG_ESC_ID] = value
+
+    @property
+    def feedback_id(self) -> int:
+        """Master ID (MST_ID, register 7): the id of every frame it sends."""
+        return self.registers[dialects.REG_MST_ID]
+
+    @feedback_id.setter
+    def feedback_id(self, value: int) -> None:
+        self.registers[dialects.REG_MST_ID] = value
+
+    # ---------------------------------------------------------------- memory (the device protocol)
+    @classmethod
+    def factory_fresh(cls, spec: MotorSpec, *, can_id: int = dialects.FACTORY_CAN_ID,
+                      ctrl_mode: int = dialects.MIT_MODE, supply_voltage: float | None = None) -> "CanMotor":
+        """A motor as it leaves the factory: CAN ID 1, Master ID 0 (a Damiao motor; other dialects
+        answer on their own fixed id), the data sheet's MIT ranges, no CAN timeout. ctrl_mode: the
+        mode it was shipped in (MIT by default; no vendor document states it, so test others)."""
+        fresh = cls(spec, can_id, ranges=spec.ranges, supply_voltage=supply_voltage,
+                    feedback_id=dialects.FACTORY_MASTER_ID if DIALECTS[spec.dialect].registers else None)
+        fresh.registers[dialects.REG_CTRL_MODE] = ctrl_mode
+        fresh.flash = fresh._ram()
+        return fresh
+
+    def nonvolatile(self) -> dict:
+        """What survives a power cycle, JSON-able: the registers in flash (by number) and the zero."""
+        return {"registers": {str(rid): value for rid, value in sorted(self.flash.items())}, "zero": self.zero}
+
+    def restore(self, state: dict) -> None:
+        """Flash and zero from `nonvolatile()`'s dict; the motor then powers up with them."""
+        self.flash = {int(rid): value for rid, value in state["registers"].items()}
+        self.zero = float(state["zero"])
+        self.power_cycle()
+
+    def power_cycle(self) -> None:
+        """Power off and on: RAM from flash, disabled, no latched fault, no command; the zero and
+        the flash are kept (and the plant's position, which is the shaft's)."""
+        self._load(self.flash)
+        self.enabled = False
+        self.fault = 0
+        self.command = frames.Command(0.0, 0.0, 0.0, 0.0, 0.0)
+        self.last_command = None
+
+    _RANGES = dialects.RANGE_REGISTERS
+
+    def _ram(self) -> dict:
+        return {**self.registers, **{rid: getattr(self.ranges, name) for rid, name in self._RANGES.items()}}
+
+    def _load(self, registers: dict) -> None:
+        self.registers = {rid: value for rid, value in registers.items() if rid not in self._RANGES}
+        self.ranges = frames.Ranges(**{**self.ranges.__dict__,
+                                       **{name: registers[rid] for rid, name in self._RANGES.items() if rid in registers}})
 
     # ---------------------------------------------------------------- physics (plant Drive)
     @property
@@ -176,18 +249,31 @@ class CanMotor:
             return []
         if g.cmd == frames.REG_REFRESH:
             return [self.reply()]
+        if g.cmd == frames.REG_STORE:
+            if self.enabled:
+                return []                    # stored only when disabled: ignored, no answer
+            self.flash = self._ram()
+            self.saves += 1
+            return [(self.feedback_id, frames.pack_register(frames.Register(self.can_id, g.cmd, g.rid)))]
         if g.cmd == frames.REG_WRITE:
-            value = g.value if g.rid in dialects.UINT_REGISTERS else g.as_float
-            self.registers[g.rid] = value
-            ranges = {dialects.REG_PMAX: "p_max", dialects.REG_VMAX: "v_max", dialects.REG_TMAX: "t_max"}
-            if g.rid in ranges and frames.RANGE_MIN <= value <= frames.RANGE_MAX:   # else kept, as a motor would
-                self.ranges = frames.Ranges(**{**self.ranges.__dict__, ranges[g.rid]: value})
+            self._write(g.rid, dialects.register_value(g.rid, g))
         if g.cmd in (frames.REG_READ, frames.REG_WRITE):
-            value = self._register_value(g.rid)
-            return [(self.feedback_id, frames.pack_register(frames.Register(self.can_id, g.cmd, g.rid, value)))]
+            # the echo names the CAN ID it was addressed to, on the (new) Master ID: which id a real
+            # motor names after a write of ESC_ID is not documented (the host accepts either)
+            value = dialects.register_bits(g.rid, self._ram().get(g.rid, 0))
+            return [(self.feedback_id, frames.pack_register(frames.Register(g.can_id, g.cmd, g.rid, value)))]
         return []
 
-    def _register_value(self, rid: int) -> int:
-        value = {dialects.REG_PMAX: self.ranges.p_max, dialects.REG_VMAX: self.ranges.v_max,
-                 dialects.REG_TMAX: self.ranges.t_max}.get(rid, self.registers.get(rid, 0))
-        return int(value) if rid in dialects.UINT_REGISTERS else frames.float_bits(float(value))
+    def _write(self, rid: int, value) -> None:
+        """A register write to RAM; a value out of the register's range is kept out, as a motor would."""
+        if rid in self._RANGES:
+            if frames.RANGE_MIN <= value <= frames.RANGE_MAX:
+                self.ranges = frames.Ranges(**{**self.ranges.__dict__, self._RANGES[rid]: value})
+        elif rid in (dialects.REG_ESC_ID, dialects.REG_MST_ID):
+            if 0 <= value <= frames.REGISTER_ID:
+                self.registers[rid] = value
+        elif rid == dialects.REG_CTRL_MODE:
+            if value in dialects.CTRL_MODES:
+                self.registers[rid] = value
+        elif rid != dialects.REG_GR:         # read-only
+            self.registers[rid] = value

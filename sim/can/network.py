@@ -1,5 +1,6 @@
 """The simulated CAN bus: every motor sees every frame (CAN is a broadcast medium) and answers
-the ones for it. In lock-step the plant advances one control period once every motor has had its
+the ones for it (a factory-fresh Damiao motor answers on id 0, two motors on one CAN ID both
+answer: on a real bus their frames would collide). In lock-step the plant advances one control period once every motor has had its
 command frame for the tick. A fault of the wire (sim/faults.py, CanWireFault) acts on one motor's
 answers, or on the host's controller (bus-off)."""
 
@@ -35,6 +36,12 @@ class CanNetwork:
     def bus_off(self) -> bool:
         """Whether the host's controller is off the bus now (its sends fail)."""
         return time.monotonic() < self.bus_off_until
+
+    def power_cycle(self) -> None:
+        """The bus's power off and on: every motor loses its RAM (CanMotor.power_cycle)."""
+        for motor in self.motors:
+            motor.power_cycle()
+        self._commanded.clear()
 
     def motor(self, can_id: int) -> CanMotor:
         for m in self.motors:
