@@ -208,3 +208,26 @@ def test_refusals_are_one_line_with_their_fix(capsys, tmp_path):
         assert code == 2, (argv, out, err)
         lines = err.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0], (argv, err)
+
+
+def test_can_bus_scan_doctor_and_torque_off_through_the_cli(capsys):
+    """The same commands on the replica's CAN bus, behind the simulated SLCAN adapter: every
+    motor found at its CAN ID with its Master ID, doctor clean, torque off confirmed by each."""
+    config = load_config("replica_can")
+    served = serve(config, "lockstep", process=False, can="slcan")
+    try:
+        port = served.buses["arm"]["port"]
+        code, out, _ = run(capsys, "scan", "--config", "replica_can", "--port", port, "--json")
+        found = json.loads(out)
+        assert code == 0
+        assert [(f["id"], f["master_id"]) for f in found] == [(k, 0x10 + k) for k in range(1, 8)]
+        code, out, _ = run(capsys, "doctor", "--config", "replica_can", "--port", port, "--json")
+        assert code == 0 and json.loads(out)["findings"] == [], out
+        with served.robot.lock:
+            for motor in served.robot.motors:
+                motor.enabled = True
+        code, out, _ = run(capsys, "torque", "off", "--config", "replica_can", "--port", port)
+        assert code == 0 and out.count("disabled") == 7, out
+        assert not any(m.enabled for m in served.robot.motors)
+    finally:
+        served.stop()

@@ -14,13 +14,16 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
 from ..hal import host
 from ..loop.realtime import LOOP_PRIORITY
 from ..hal.bringup import ERROR, Finding
+from ..hal.can import bench as can_bench
+from ..hal.can.dialects import CTRL_MODES, DAMIAO_DISABLED, DAMIAO_ENABLED, DAMIAO_STATUS
+from ..hal.can.link import open_bus
+from ..hal.can.spec import SOCKETCAN_NAME, Can, interface_for
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel import bench as dxl
 from ..hal.dynamixel.control_table import BAUD_RATES, ITEMS, TABLE_SIZE
@@ -84,9 +87,39 @@ def _link(path: str, baud: int) -> dxl.Link:
 
 def _kind(config: RobotConfig, bus: str) -> str:
     kind = config.buses[bus].kind
-    if kind not in ("dynamixel",):
-        raise BringUpError(f"bus '{bus}' is a {kind} bus: this command speaks Dynamixel here")
+    if kind not in ("dynamixel", "can"):
+        raise BringUpError(f"bus '{bus}' is a {kind} bus: bring-up speaks Dynamixel and CAN")
     return kind
+
+
+class _CanPort:
+    """A CAN bus of the configuration opened with python-can: the interface its channel names
+    (can0: SocketCAN, a /dev path: an SLCAN adapter), at the configured bit rate."""
+
+    def __init__(self, config: RobotConfig, bus: str, channel: str):
+        self.config, self.name, self.channel = config, bus, channel
+        spec = config.buses[bus]
+        self.interface = interface_for(channel, spec.options.get("interface"))
+        self.bitrate = spec.baud
+        self.joints = config.joints_on(bus)
+        self.bus = None
+
+    def __enter__(self):
+        try:
+            self.bus = open_bus(self.channel, self.interface, self.bitrate)
+        except ServoError as err:
+            raise BringUpError(str(err)) from None
+        return self.bus
+
+    def __exit__(self, *exc):
+        if self.bus is not None:
+            self.bus.shutdown()
+
+
+def _can_state(reply) -> str:
+    if reply is None:
+        return "did not answer"
+    return f"{DAMIAO_STATUS.get(reply.status, f'status 0x{reply.status:X}')}, at {math.degrees(reply.p):.1f}°"
 
 
 def _print_findings(findings: list[Finding], say=print) -> None:
@@ -124,6 +157,11 @@ def scan(port: str | None, bauds: str | None, config_name: str | None, as_json: 
     rates = parse_bauds(bauds)
     everything, findings = [], []
     for bus, path in buses.items():
+        if (config is not None and config.buses[bus].kind == "can") or (config is None and SOCKETCAN_NAME.match(path)):
+            found, more = _scan_can(config, bus, path, as_json, say)
+            everything += found
+            findings += more
+            continue
         if not as_json:
             say(f"scanning {path} at {', '.join(map(str, rates))} baud, IDs 0-{dxl.MAX_ID} (broadcast ping) ...")
         with _link(path, rates[0]) as link:
@@ -147,10 +185,38 @@ def scan(port: str | None, bauds: str | None, config_name: str | None, as_json: 
             say(f"against '{config.name}':")
             _print_findings(findings, say)
         else:
-            say(f"every servo of '{config.name}' is where the configuration says")
+            say(f"every servo and motor of '{config.name}' is where the configuration says")
     if any(f.severity == ERROR for f in findings):
         return 1
     return 0 if everything or config is not None else 1
+
+
+def _scan_can(config, bus, path, as_json, say):
+    """A CAN bus: register reads to every id (no torque), replies heard on every id."""
+    if config is None:
+        port = _CanPort.__new__(_CanPort)
+        port.channel, port.interface, port.bitrate, port.bus = path, interface_for(path, None), Can.default_baud, None
+    else:
+        port = _CanPort(config, bus, path)
+    heard: list[str] = []
+    if not as_json:
+        say(f"scanning {path} ({port.interface}, {port.bitrate} bit/s), CAN IDs 1-{can_bench.MAX_ID} "
+            "(register reads: no torque) ...")
+    started = time.monotonic()
+    with port as can_bus:
+        found = can_bench.scan(can_bus, bitrate=port.bitrate, heard=heard)
+    findings = can_bench.compare(config, bus, found) if config is not None else []
+    if not as_json:
+        if found:
+            say(f"  {'CAN ID':>6}  {'model':<10} {'master':>6} {'mode':<18} status")
+            for f in found:
+                x = f.extra
+                say(f"  {f.id:>6}  {f.model or '?':<10} {'0x%X' % x['master_id'] if x.get('master_id') is not None else '?':>6} "
+                    f"{CTRL_MODES.get(x.get('ctrl_mode'), str(x.get('ctrl_mode'))):<18} {x.get('status', '?')}")
+        for line in heard:
+            say(f"  {line}")
+        say(f"{len(found)} motor{'s' * (len(found) != 1)} in {time.monotonic() - started:.2f} s")
+    return found, findings
 
 
 # ---------------------------------------------------------------------------- setup
@@ -161,9 +227,18 @@ def setup(config_name: str, joint_name: str, port, yes: bool, say=print) -> int:
     if joint is None:
         raise BringUpError(f"'{config.name}' has no joint '{joint_name}' (joints: "
                            f"{', '.join(j.dof for j in config.joints)})")
-    _kind(config, joint.bus)
     bus = config.buses[joint.bus]
     path = ports[joint.bus]
+    if _kind(config, joint.bus) == "can":
+        say(f"looking for the one motor on {path} (every CAN ID) ...")
+        with _CanPort(config, joint.bus, path) as can_bus:
+            try:
+                lines = can_bench.setup(can_bus, joint, confirm=lambda what: ask(what, yes, say))
+            except ServoError as err:
+                raise BringUpError(str(err)) from None
+        for line in lines:
+            say(f"  {line}")
+        return 0
     say(f"looking for the one servo on {path} (every rate, every ID) ...")
     with _link(path, dxl.FACTORY_BAUD) as link:
         try:
@@ -201,7 +276,10 @@ def doctor(config_name: str, port, as_json: bool, say=print) -> int:
     findings: list[Finding] = list(host.realtime_findings(priority=LOOP_PRIORITY))
     started = time.monotonic()
     for bus, path in ports.items():
-        _kind(config, bus)
+        if _kind(config, bus) == "can":
+            with _CanPort(config, bus, path) as can_bus:
+                findings += can_bench.doctor(config, bus, can_bus)
+            continue
         here = host_findings(path)
         findings += here
         if any(f.severity == ERROR and f.check in ("exists", "permission") for f in here):
@@ -225,15 +303,42 @@ def doctor(config_name: str, port, as_json: bool, say=print) -> int:
 
 # ---------------------------------------------------------------------------- recovery
 
-def _each_bus(config_name, port, what: str, say, act) -> int:
+def _each_bus(config_name, port, what: str, say, act, can_act=None) -> int:
+    """`act(link, joints, bus)` on each Dynamixel bus, `can_act(can_bus, joints, bus)` on each CAN
+    bus (default: each motor's state after clearing its errors); the count of joints that failed."""
     config, ports = config_and_ports(config_name, port)
     failed = 0
     for bus, path in ports.items():
-        _kind(config, bus)
         joints = config.joints_on(bus)
+        if _kind(config, bus) == "can":
+            with _CanPort(config, bus, path) as can_bus:
+                failed += (can_act or _can_clear)(can_bus, joints, bus, say)
+            continue
         with _link(path, config.buses[bus].baud) as link:
             failed += act(link, joints, bus)
     return 1 if failed else 0
+
+
+def _report_can(states, joints, say, good) -> int:
+    bad = 0
+    for joint in joints:
+        reply = states.get(joint.dof)
+        ok = reply is not None and good(reply)
+        bad += not ok
+        say(f"  {joint.dof:<24} id {joint.id:>3}: {_can_state(reply)}")
+    return bad
+
+
+def _can_clear(can_bus, joints, bus, say) -> int:
+    say(f"bus '{bus}': each motor's latched error cleared (a CAN motor has no reboot; an over-temperature "
+        "stays until it has cooled)")
+    return _report_can(can_bench.clear_errors(can_bus, joints), joints, say,
+                       lambda r: r.status in (DAMIAO_DISABLED, DAMIAO_ENABLED))
+
+
+def _can_torque_off(can_bus, joints, bus, say) -> int:
+    say(f"bus '{bus}': torque off, each motor out of motor mode")
+    return _report_can(can_bench.torque_off(can_bus, joints), joints, say, lambda r: r.status != DAMIAO_ENABLED)
 
 
 def torque_off(config_name: str, port, say=print) -> int:
@@ -247,7 +352,7 @@ def torque_off(config_name: str, port, say=print) -> int:
             say(f"  {joint.dof:<24} id {joint.id:>3}: " + ("torque off" if value == 0 else
                 "did not answer: switch its power off" if value is None else "still on: switch its power off"))
         return bad
-    return _each_bus(config_name, port, "torque off", say, act)
+    return _each_bus(config_name, port, "torque off", say, act, _can_torque_off)
 
 
 def reboot(config_name: str, port, yes: bool, say=print) -> int:
@@ -305,7 +410,13 @@ def monitor(config_name: str, port, count: int | None, rate: float, say=print) -
     links = {}
     try:
         for bus, path in ports.items():
-            _kind(config, bus)
+            if _kind(config, bus) == "can":
+                port_ = _CanPort(config, bus, path)
+                links[bus] = port_
+                port_.__enter__()
+                say(f"bus '{bus}' ({path}): torque off on every motor (support the arm), then read only")
+                can_bench.torque_off(port_.bus, config.joints_on(bus))
+                continue
             links[bus] = _link(path, config.buses[bus].baud)
             say(f"bus '{bus}' ({path}): torque off on every servo (support the arm), then read only")
             dxl.torque_off(links[bus], [j.id for j in config.joints_on(bus)])
@@ -321,7 +432,7 @@ def monitor(config_name: str, port, count: int | None, rate: float, say=print) -
         say("")
     finally:
         for link in links.values():
-            link.close()
+            link.__exit__(None, None, None) if isinstance(link, _CanPort) else link.close()
     return 0
 
 
@@ -357,6 +468,19 @@ def _monitor_table(config, links):
         table.add_column(head, justify="left" if head == "joint" else "right")
     for bus, link in links.items():
         joints = config.joints_on(bus)
+        if isinstance(link, _CanPort):
+            states = can_bench.states(link.bus, joints)
+            for joint in joints:
+                r = states.get(joint.dof)
+                if r is None:
+                    table.add_row(joint.dof, str(joint.id), *["-"] * 8, "no answer")
+                    continue
+                q = (r.p - joint.zero_offset) / (joint.direction * joint.gear_ratio)
+                qd = r.v / (joint.direction * joint.gear_ratio)
+                table.add_row(joint.dof, str(joint.id), f"{math.degrees(q):8.2f}", f"{r.p:.4f} rad", f"{qd:7.3f}",
+                              f"{r.v:.3f}", f"{r.t:6.3f} N·m", "-", f"{r.temperature}/{r.temperature2}", "-",
+                              DAMIAO_STATUS.get(r.status, f"0x{r.status:X}"))
+            continue
         units = ServoMap.from_joints(joints)
         for k, joint in enumerate(joints):
             try:
@@ -401,15 +525,20 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
     results = {}
     try:
         for bus, path in ports.items():
-            _kind(config, bus)
+            if _kind(config, bus) == "can":
+                links[bus] = port_ = _CanPort(config, bus, path)
+                port_.__enter__()
+                say(f"bus '{bus}' ({path}): torque off on every motor: move the joints by hand")
+                can_bench.torque_off(port_.bus, config.joints_on(bus))
+                continue
             links[bus] = _link(path, config.buses[bus].baud)
             say(f"bus '{bus}' ({path}): torque off on every servo: move the joints by hand")
             dxl.torque_off(links[bus], [j.id for j in config.joints_on(bus)])
         for joint in chosen:
-            results[joint.dof] = _calibrate_joint(joint, links[joint.bus], config, margin, say)
+            results[joint.dof] = _calibrate_joint(joint, _horn_reader(joint, links[joint.bus]), config, margin, say)
     finally:
         for link in links.values():
-            link.close()
+            link.__exit__(None, None, None) if isinstance(link, _CanPort) else link.close()
     for dof, values in results.items():
         patch.set_joint(dof, **values)
     changes = patch.changes()
@@ -430,13 +559,23 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
     return 0
 
 
-def _calibrate_joint(joint, link: dxl.Link, config, margin: float, say) -> dict:
+def _horn_reader(joint, link) -> Callable[[], float]:
+    """The joint's horn (motor output) angle now, rad: a servo's Present Position, a CAN motor's
+    reported position (its own zero kept: the configuration's zero_offset takes the pose)."""
     def horn() -> float:
         try:
+            if isinstance(link, _CanPort):
+                reply = can_bench.states(link.bus, [joint]).get(joint.dof)
+                if reply is None:
+                    raise BringUpError(f"joint '{joint.dof}' (motor {joint.id}) did not answer")
+                return reply.p
             return dxl.horn_angles(link, [joint.id])[joint.id]
         except ServoError as err:
             raise BringUpError(f"joint '{joint.dof}': {err}") from None
+    return horn
 
+
+def _calibrate_joint(joint, horn: Callable[[], float], config, margin: float, say) -> dict:
     name = f"joint '{joint.dof}' (id {joint.id})"
     for _ in range(3):
         before = horn()

@@ -388,6 +388,11 @@ def torque_off(bus, joints, *, timeout: float = REPLY_TIMEOUT) -> dict[str, fram
     return _states(link, joints)
 
 
+def states(bus, joints, *, timeout: float = REPLY_TIMEOUT) -> dict[str, frames.Reply]:
+    """Each joint's state as its motor reports it now, changing nothing (monitor, calibrate)."""
+    return _states(CanLink(_name(bus), bus, timeout=timeout), joints)
+
+
 def _states(link: CanLink, joints) -> dict[str, frames.Reply]:
     """Each joint's state as its motor reports it now: a Damiao motor's answer to a status request
     (0xCC, which changes nothing), another dialect's to exit motor mode (its only question)."""
