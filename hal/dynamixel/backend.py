@@ -19,7 +19,10 @@ so data that contains FF FF FD arrives intact. The fast reply is read from the p
 by the codec: packet CRC, each block's running CRC, ID and error byte.
 A missing or short reply is retried; then each servo is pinged to name the one that is silent
 (ServoTimeoutError) — the silent ones twice, so a bus that went quiet as a whole and came back
-while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. An error byte with the alert bit set makes the backend read that servo's
+while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. With
+torque on, a bus silent for longer than the servos' Bus Watchdog across a failed try is a stall
+at once: the servos have let go by themselves, and retrying would take a late reply for the
+retry's. An error byte with the alert bit set makes the backend read that servo's
 Hardware Error Status and raise ServoHardwareError with its bits.
 """
 
@@ -114,6 +117,9 @@ class DynamixelBus(ServoBus):
         self._last: JointState | None = None
         self._armed = False              # the servos' Bus Watchdog is set (torque on)
         self._last_packet = None         # time.monotonic() of the tick's last instruction packet
+        self._heard = None               # time.monotonic() when the bus last answered (any bytes)
+        self._got = 0                    # bytes the last fast sync read's try received
+        self._late_at = None             # time.monotonic() of the first byte _drain dropped
 
     # ---------------------------------------------------------------- set-up
     def _open(self) -> None:
@@ -179,6 +185,7 @@ class DynamixelBus(ServoBus):
             for joint in self.joints:
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
         self._armed, self._last_packet = on, time.monotonic()
+        self._heard = self._last_packet         # every write above was answered
 
     def _stop(self) -> bool:
         """Torque off on every servo that answers, each with its retries; True if all did. A
@@ -202,20 +209,32 @@ class DynamixelBus(ServoBus):
         backend read that servo's Hardware Error Status and raise ServoHardwareError. After a
         silence of over half the Bus Watchdog (the servos' clocks and this one's are not the same)
         the servos may have stopped themselves: they are asked, and a tripped watchdog is a
-        BusStallError (their goals are refused until it is cleared)."""
+        BusStallError (their goals are refused until it is cleared). With torque on, a bus that
+        said nothing for longer than the Bus Watchdog across a failed try is a BusStallError too
+        (_check_silence): the servos have let go by themselves, and a reply that comes after such
+        a silence may be an earlier request's, held back with it."""
         if self._armed and self._last_packet is not None and time.monotonic() - self._last_packet > self.watchdog / 2:
             self._check_watchdog(time.monotonic() - self._last_packet)
+        retried = False
         for _ in range(self.retries + 1):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
                 break
+            retried = True
             self.stats.reads_retried += 1
+            if self._got:                   # cut or corrupt, but the bus spoke
+                self._heard = time.monotonic()
             late = self._drain()
             if late and failure == NO_REPLY:
                 # nothing in time, then the reply after its time-out: the whole bus held back
                 # (a stall, or a chain waiting on a slow servo); retrying would take late replies
+                silent = "" if self._heard is None else \
+                    f" (the bus silent for {(self._late_at - self._heard) * 1e3:.0f} ms before them)"
                 raise BusStallError(self.bus.name, f"{NO_REPLY} in time; {late} bytes came after the "
-                                                   "time-out and were dropped")
+                                                   f"time-out and were dropped{silent}")
+            if late:
+                self._heard = self._late_at
+            self._check_silence(time.monotonic())
         else:
             raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
         errors, data = blocks
@@ -232,7 +251,10 @@ class DynamixelBus(ServoBus):
         self._fault = None
         rows = np.frombuffer(data, dtype=PRESENT)
         q, qd, current, tau = self.units.state_from_units(rows["position"], rows["velocity"], rows["current"])
-        self._last_packet = now = time.monotonic()
+        now = time.monotonic()
+        if retried:             # the retry's reply, after a silence the servos may not have outlived
+            self._check_silence(now)
+        self._last_packet = self._heard = now
         state = JointState(t=now, q=q, qd=qd, current=current, tau=tau)
         self._last = state
         return state
@@ -251,6 +273,7 @@ class DynamixelBus(ServoBus):
         if self.port.is_using:
             return None, self.packets.getTxRxResult(self._sdk.COMM_PORT_BUSY), None
         self.port.is_using = True
+        self._got = 0
         try:
             self.port.clearPort()
             if self._send(self._read_frame) != len(self._read_frame):
@@ -258,6 +281,7 @@ class DynamixelBus(ServoBus):
             if self.reply_timeout is None:      # the SDK's timeout, else _receive's own
                 self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
             raw, failure = self._receive()
+            self._got = len(raw)
         finally:
             self.port.is_using = False
         if raw is not None and failure is None:
@@ -334,7 +358,8 @@ class DynamixelBus(ServoBus):
     def _drain(self) -> int:
         """After a failed read, drop what still arrives until the line has been quiet for a reply
         timeout: a reply that comes after its time-out must not be taken for the retry's (it
-        would be a tick old, and every later one too). Returns the bytes dropped."""
+        would be a tick old, and every later one too). Returns the bytes dropped (the first came
+        at self._late_at)."""
         quiet = max(1e-3, self.reply_timeout if self.reply_timeout is not None else self.port.packet_timeout * 1e-3)
         deadline = time.monotonic() + 4 * quiet
         dropped = 0
@@ -344,6 +369,8 @@ class DynamixelBus(ServoBus):
                 if not ready:
                     return dropped
             chunk = self.port.readPort(4096)
+            if chunk and not dropped:
+                self._late_at = time.monotonic()      # when the bus spoke again
             dropped += len(chunk)
             if not chunk and self._fileno is None:
                 time.sleep(quiet)
@@ -439,6 +466,19 @@ class DynamixelBus(ServoBus):
             raise BusStallError(self.bus.name, f"{silence * 1e3:.0f} ms without a packet, over the servos' Bus "
                                 f"Watchdog of {self.watchdog * 1e3:.0f} ms: servos {', '.join(map(str, tripped))} "
                                 "tripped it and stopped")
+        self._heard = time.monotonic()          # every servo answered
+
+    def _check_silence(self, now: float) -> None:
+        """With torque on, raise BusStallError once the bus has said nothing for longer than the
+        servos' Bus Watchdog: on real servos it has tripped (torque off, goals refused), whether
+        or not they can be asked now, so the run cannot go on; and a reply that ends such a
+        silence may be the answer to an earlier try, held back with the bus, not the retry's. A
+        short hiccup (a lost packet retried within the watchdog) goes on as a retry."""
+        if not self._armed or self._heard is None or now - self._heard <= self.watchdog:
+            return
+        raise BusStallError(self.bus.name, f"silent for {(now - self._heard) * 1e3:.0f} ms, longer than the "
+                                           f"servos' Bus Watchdog of {self.watchdog * 1e3:.0f} ms: they have "
+                                           "switched their torque off by themselves")
 
     def _check_hardware(self, joint) -> None:
         status = self._read_item(joint, ADDR_HARDWARE_ERROR, 1)
