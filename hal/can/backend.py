@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from ..bus import JointCommand, JointState, ServoBus
+from ..bus import JointCommand, JointState, ServoBus, port_gone
 from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
 from . import frames
@@ -191,6 +191,7 @@ class CanBus(ServoBus):
             self.can.send(self._can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
                           timeout=self.reply_timeout)
         except self._can.CanError as err:
+            self.lost = self.lost or port_gone(err)
             raise ServoOperationError(f"bus '{self.bus.name}': CAN send failed ({err})") from None
 
     def _recv(self, timeout: float):
@@ -205,6 +206,7 @@ class CanBus(ServoBus):
             try:
                 msg = self.can.recv(max(0.0, deadline - time.monotonic()))
             except self._can.CanError as err:
+                self.lost = self.lost or port_gone(err)
                 raise ServoOperationError(f"bus '{self.bus.name}': CAN receive failed ({err})") from None
             except (ValueError, IndexError, UnicodeDecodeError) as err:
                 raise ServoOperationError(f"bus '{self.bus.name}': the adapter sent a line that is no frame "
@@ -302,9 +304,11 @@ class CanBus(ServoBus):
         self._torque_on = on
 
     def _stop(self) -> bool:
-        """Exit motor mode on every motor: each is sent its frame even if another's send fails."""
+        """Exit motor mode on every motor: each is sent its frame even if another's send fails. On
+        a port known gone (its adapter unplugged, its simulator ended) one send each, no waiting."""
         self._torque_on = False
-        self._flush()
+        if not self.lost:
+            self._flush()
         sent = True
         deadline = time.monotonic() + STOP_PATIENCE
         for k, joint in enumerate(self.joints):
@@ -314,6 +318,8 @@ class CanBus(ServoBus):
                     self._pending.add(k)
                     break
                 except ServoError:
+                    if self.lost:
+                        return False
                     if time.monotonic() >= deadline:
                         sent = False
                         break

@@ -36,9 +36,9 @@ from collections.abc import Mapping
 import numpy as np
 
 from ...control.timing import BUS_WATCHDOG
-from ..bus import JointCommand, JointState, ServoBus
-from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
-                      ServoTimeoutError)
+from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
+from ..errors import (BusStallError, ServoError, ServoHardwareError, ServoInitializationError,
+                      ServoOperationError, ServoTimeoutError)
 from .control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR, ADDR_MODEL_NUMBER,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
                             PRESENT_LENGTH, OperatingMode, hardware_faults, watchdog_units)
@@ -188,21 +188,43 @@ class DynamixelBus(ServoBus):
         self._heard = self._last_packet         # every write above was answered
 
     def _stop(self) -> bool:
-        """Torque off on every servo that answers, each with its retries; True if all did. A
+        """Torque off on every servo that answers, each with its retries (one try once the port is
+        known gone); True if all did. A port that fails ends it at once: no servo can be told. A
         transaction cut short (a signal in the middle of one) must not leave the port busy."""
         self.port.is_using = False
         ok = True
+        tries = 1 if self.lost else self.retries + 1
         for joint in self.joints:
-            for _ in range(self.retries + 1):
-                result, error = self.packets.write1ByteTxRx(self.port, joint.id, ADDR_TORQUE_ENABLE, 0)
+            for _ in range(tries):
+                try:
+                    result, error = self.packets.write1ByteTxRx(self.port, joint.id, ADDR_TORQUE_ENABLE, 0)
+                except PORT_ERRORS as err:
+                    self.lost = self.lost or port_gone(err) or str(err)
+                    return False
                 if result == self._sdk.COMM_SUCCESS:
                     break
             else:
                 ok = False
         return ok
 
+    def _gone(self, err: Exception) -> ServoOperationError:
+        """The one-line error of a port that failed under a read or a write (pyserial's or the OS's
+        error would end the run in a traceback); marks the bus lost when the port is gone."""
+        reason = port_gone(err)
+        self.lost = self.lost or reason
+        return ServoOperationError(f"bus '{self.bus.name}': the port {self.port_name} "
+                                   f"{'is gone' if reason else 'failed'} ({reason or err})")
+
     # ---------------------------------------------------------------- one tick
     def _read(self) -> JointState:
+        try:
+            return self._read_present()
+        except ServoError:             # a TimeoutError, so an OSError too: the read's own verdict
+            raise
+        except PORT_ERRORS as err:     # the port itself failed: no retry or ping can reach a servo
+            raise self._gone(err) from None
+
+    def _read_present(self) -> JointState:
         """One fast sync read of Present Current, Velocity and Position of every servo. A missing,
         short or corrupt reply is retried; after the last retry each servo is pinged and the one
         that does not answer is named. A block whose error byte carries the alert bit makes the
@@ -306,7 +328,8 @@ class DynamixelBus(ServoBus):
         except BlockingIOError:
             select.select([], [self._fileno], [], 0.1)
             return sent + self._send(frame[sent:]) if sent < len(frame) else sent
-        except OSError:
+        except OSError as err:
+            self.lost = self.lost or port_gone(err)
             return sent
         return sent
 
@@ -404,8 +427,8 @@ class DynamixelBus(ServoBus):
         sent = 0 if self.port.is_using else self._send(frame)
         self._last_packet = time.monotonic()
         if sent != len(frame):
-            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port "
-                                      f"{'is busy' if self.port.is_using else 'took part of it'})")
+            why = f"is gone: {self.lost}" if self.lost else "is busy" if self.port.is_using else "took part of it"
+            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port {why})")
 
     def sync_write(self, address: int, data_by_id: Mapping[int, bytes]) -> None:
         """One sync write of equal-length table bytes at ``address``, by servo ID, framed and stuffed
