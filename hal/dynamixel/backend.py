@@ -237,12 +237,11 @@ class DynamixelBus(ServoBus):
         a silence may be an earlier request's, held back with it."""
         if self._armed and self._last_packet is not None and time.monotonic() - self._last_packet > self.watchdog / 2:
             self._check_watchdog(time.monotonic() - self._last_packet)
-        retried = False
+        silent = False                      # a try to which nothing at all came back
         for _ in range(self.retries + 1):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
                 break
-            retried = True
             self.stats.reads_retried += 1
             if self._got:                   # cut or corrupt, but the bus spoke
                 self._heard = time.monotonic()
@@ -256,7 +255,9 @@ class DynamixelBus(ServoBus):
                                                    f"time-out and were dropped{silent}")
             if late:
                 self._heard = self._late_at
-            self._check_silence(time.monotonic())
+            elif not self._got:             # only a wholly silent try counts: a drain is quiet by design
+                silent = True
+                self._check_silence(time.monotonic())
         else:
             raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
         errors, data = blocks
@@ -274,7 +275,7 @@ class DynamixelBus(ServoBus):
         rows = np.frombuffer(data, dtype=PRESENT)
         q, qd, current, tau = self.units.state_from_units(rows["position"], rows["velocity"], rows["current"])
         now = time.monotonic()
-        if retried:             # the retry's reply, after a silence the servos may not have outlived
+        if silent:              # the retry's reply, after a silence the servos may not have outlived
             self._check_silence(now)
         self._last_packet = self._heard = now
         state = JointState(t=now, q=q, qd=qd, current=current, tau=tau)
