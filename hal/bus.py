@@ -20,6 +20,8 @@ sheets, rates, ids, configuration keys, wire time) is described apart, in hal.ba
 
 from __future__ import annotations
 
+import errno
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
@@ -124,6 +126,31 @@ class BusStats:
 
 # ---------------------------------------------------------------------------- the bus
 
+# what the OS says of a port that is gone (unplugged, or the simulator serving it ended)
+_GONE = frozenset({errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF})
+try:
+    import termios
+    PORT_ERRORS = (OSError, termios.error)     # a serial port's calls raise either (termios: tcflush)
+except ImportError:
+    PORT_ERRORS = (OSError,)
+
+
+def port_gone(err: BaseException) -> str | None:
+    """Why the port itself is gone, if `err` (or the error it was raised from) says so: the OS's
+    EIO, ENXIO, ENODEV or EBADF, or pyserial's "device disconnected"; None for what a port comes
+    back from (a timeout, a controller's bus-off)."""
+    for cause in (err, err.__cause__, err.__context__):
+        if cause is None or type(cause).__name__ == "SerialTimeoutException":
+            continue
+        code = cause.errno if isinstance(cause, OSError) else cause.args[0] if \
+            isinstance(cause, PORT_ERRORS) and cause.args else None
+        if code in _GONE:
+            return os.strerror(code)
+        if type(cause).__name__ == "SerialException":       # pyserial's, its errno in its words
+            return str(cause)
+    return None
+
+
 class ServoBus(ABC):
     """The joints of one bus of a robot configuration, in the model's dof order."""
 
@@ -150,6 +177,7 @@ class ServoBus(ABC):
         self.position_margin = position_margin    # rad beyond a limit before read_state raises
         self.stats = BusStats(limited=np.zeros(len(self.joints), dtype=np.int64))
         self.is_open = False
+        self.lost: str | None = None          # why the port is known to be gone: stop() is then brief
 
     @property
     def n(self) -> int:

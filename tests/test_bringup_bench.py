@@ -107,7 +107,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
         steps = []
         for k, dof in enumerate(DOFS):
             lower, upper = CONFIG.model.lower[k], CONFIG.model.upper[k]
-            steps += [(dof, 0.25), (dof, -0.003), (dof, 0.003), (dof, lower - 0.05), (dof, upper + 0.05), (dof, 0.0)]
+            steps += [(dof, 0.25), (dof, -0.003), (dof, 0.003), (dof, lower - 0.05), (dof, upper + 0.05)]
         moves = iter(steps)
         proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "calibrate", "--config", "replica",
                                  "--port", port, "--write", str(target), "--margin", "1"],

@@ -232,6 +232,52 @@ def test_a_reply_later_than_its_timeout_is_dropped_not_taken_for_the_retry(sim):
     assert bus.read_state().q.shape == (7,), "prompt replies again: the next read succeeds"
 
 
+def _lose_fast_reads(sim, count: int) -> None:
+    """The next `count` fast sync reads never reach the servos (a packet lost on the wire)."""
+    request = inst.fast_sync_read(*PRESENT, IDS).encode()
+    handle, left = sim.arm.handle, [count]
+
+    def losing(data: bytes) -> bytes:
+        if left[0] and request in data:
+            left[0] -= 1
+            return handle(data.replace(request, b""))
+        return handle(data)
+    sim.arm.handle = losing
+
+
+def test_a_lost_request_within_the_watchdog_is_retried(sim):
+    """With torque on, one fast sync read lost: nothing comes back, the try times out (0.25 s),
+    the line is drained (0.25 s) and the retry is answered. The bus was silent ~0.5 s, within a
+    Bus Watchdog of 2 s (servos and host alike), so it is a hiccup: the read succeeds."""
+    bus = sim.bus
+    bus.watchdog = 2.0          # the servos' too (armed by enable_torque), as long as a servo allows
+    bus.enable_torque(True)
+    bus.read_state()
+    bus.write(JointCommand.torque(np.zeros(7)))
+    _lose_fast_reads(sim, 1)
+    state = bus.read_state()
+    assert state.q.shape == (7,) and bus.stats.reads_retried == 1, "one try lost, the retry answered"
+
+
+def test_a_silence_longer_than_the_watchdog_is_a_stall(sim):
+    """With torque on and the servos' 100 ms Bus Watchdog armed, every fast sync read lost: after
+    the first try and its drain (0.25 s each) the bus has been silent longer than the watchdog, so
+    the servos have let go (on real ones): BusStallError at once, naming the silence, no retry
+    and no pings (three tries and seven servos' pings took seconds before, on a dead bus)."""
+    bus = sim.bus
+    bus.enable_torque(True)
+    bus.read_state()
+    bus.write(JointCommand.torque(np.zeros(7)))
+    _lose_fast_reads(sim, 3)
+    began = time.monotonic()
+    with pytest.raises(BusStallError, match=r"silent for \d+ ms, longer than the servos' Bus Watchdog of 100 ms"):
+        bus.read_state()
+    assert bus.stats.reads_retried == 1, "stopped after the first failed try"
+    # one try and one drain of 0.25 s each; 0.5 s more of slack for a loaded machine, far below
+    # the ~3 s of three tries, three drains and the pings
+    assert time.monotonic() - began < 1.5
+
+
 # --- byte stuffing -------------------------------------------------------------------------------
 
 def test_values_that_need_stuffing_arrive_intact_through_the_hal(sim):

@@ -1,8 +1,9 @@
 """The simulated CAN motors behind an SLCAN adapter on a pseudo-terminal (sim/transport/can.py),
 driven from another process by python-can's own slcan interface, as a user's program would: the
 open handshake, frames both ways (enable, an MIT command, a register read), the adapter's
-version, garbage lines refused with BEL while the adapter keeps working; and the CAN backend
-through the same adapter."""
+version, garbage lines refused with BEL while the adapter keeps working; a host that writes without
+reading (the adapter drops what does not fit and goes on); and the CAN backend through the same
+adapter."""
 
 import json
 import re
@@ -56,6 +57,29 @@ CLIENT = textwrap.dedent(r'''
 ''')
 
 
+FLOOD = textwrap.dedent(r'''
+    import json, sys, time
+    import can
+    path, frames = sys.argv[1], int(sys.argv[2])
+    bus = can.Bus(interface="slcan", channel=path, bitrate=1000000)
+    enable = bytes([0xFF] * 7 + [0xFC])
+    for _ in range(frames):              # python-can's send blocks while the adapter does not read
+        bus.send(can.Message(arbitration_id=1, data=enable, is_extended_id=False))
+    stale, begun = 0, time.monotonic()
+    while bus.recv(0.25) is not None and time.monotonic() - begun < 30:
+        stale += 1                       # what the adapter kept for us while we did not read
+    sent = time.monotonic()
+    bus.send(can.Message(arbitration_id=7, data=enable, is_extended_id=False))
+    reply = None
+    while reply is None and time.monotonic() - sent < 10:
+        msg = bus.recv(0.5)
+        if msg is not None and msg.arbitration_id == 0x17:
+            reply = time.monotonic() - sent
+    bus.shutdown()
+    print(json.dumps({"stale": stale, "reply_s": reply}))
+''')
+
+
 @pytest.fixture
 def adapter():
     arm = SimulatedRobot(load_config("replica_can"))
@@ -86,6 +110,31 @@ def test_python_can_in_another_process_drives_the_simulated_motors(adapter):
     assert out["after"].startswith("\rz\rt011"), f"open again, the adapter acks and motor 1 answers: {out['after']!r}"
     assert not arm.motor(1).enabled, "motor 1 took the exit frame sent as a raw line"
     assert server.refused >= 4 and server.errors == 0
+
+
+def test_a_host_that_does_not_read_never_stops_the_adapter(adapter):
+    """5,000 frames written without reading (~1,500 filled the pseudo-terminal, and the adapter,
+    blocked on its write, stopped reading: the client's send hung for ever). Now what does not fit
+    is dropped and counted as a real adapter's overflow, and once the client reads again a new
+    frame is answered at once."""
+    arm, server = adapter
+    frames_sent = 5000
+    try:
+        done = subprocess.run([sys.executable, "-c", FLOOD, server.path, str(frames_sent)], capture_output=True,
+                              text=True, timeout=60)      # the flood takes ~0.1 s here, unloaded
+    except subprocess.TimeoutExpired:
+        pytest.fail("the client hung: the adapter stopped reading while its answers went unread")
+    assert done.returncode == 0, f"the python-can client failed:\n{done.stderr[-2000:]}"
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    # 10 s of patience for a reply that takes under 1 ms here: only a deaf adapter misses it
+    assert out["reply_s"] is not None, f"no answer to a fresh frame once the client read again: {out}"
+    assert server.lines >= frames_sent + 1, f"the adapter read every line: {server.lines}"
+    # each answer is ~24 bytes: the pseudo-terminal and OUT_QUEUE hold a few hundred of 5,000
+    assert server.dropped > frames_sent // 2, f"most of the unread answers dropped: {server.dropped}"
+    assert out["stale"] + server.dropped == frames_sent, \
+        f"every motor frame either kept for the client or counted as dropped: {out['stale']} + {server.dropped}"
+    assert server.line(b"F") == b"F08\r" and server.line(b"F") == b"F00\r", "a data overrun, reported once"
+    assert server.errors == 0
 
 
 def test_the_can_backend_through_the_slcan_adapter():

@@ -189,6 +189,11 @@ class SimProcess:
     def clear_faults(self) -> None:
         self.request("clear")
 
+    def pause(self, seconds: float) -> None:
+        """Freeze the simulator for `seconds` from now (PtyServer.pause), as a stalled bus: its answer
+        comes first, then nothing moves; a request meanwhile waits for the end of the pause."""
+        self.request("pause", seconds=seconds)
+
     def status(self) -> dict:
         """The plant's time (s) and each servo's torque_off, as the simulator sees them now."""
         return self.request("status")

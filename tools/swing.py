@@ -158,8 +158,12 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if hold is not None:
                 swing, verdict, path = _hold_motion(config, start_pose, hold, period)
                 home_duration = 2 * period
-            if confirm is not None or dry_run or not simulated:
-                _homing_distances(config, start_pose, swing.q[0], say, None if simulated else confirm, dry_run)
+            # a person at a real arm is asked (the simulator's pseudo-terminals are no real port)
+            real = not simulated and any(not is_pseudo_terminal(p) for p in ports.values())
+            if real or dry_run:
+                _homing_distances(config, start_pose, swing.q[0], say, confirm if real else None, dry_run)
+                if real:
+                    start_pose = None      # a person took their time: where the arm is now, read again
         except BaseException:
             bus.stop()
             if server is not None:
@@ -175,7 +179,8 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         try:
-            home, played = plan_run(model, swing, bus.read_state().q, home_duration)
+            home, played = plan_run(model, swing, bus.read_state().q if start_pose is None else start_pose,
+                                    home_duration)
             if dry_run:
                 say(f"dry run: torque off; the homing's {home.traj.t[-1]:g} s read and logged with the torques "
                     "the controller would send (none is sent)")

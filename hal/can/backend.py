@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from ..bus import JointCommand, JointState, ServoBus
+from ..bus import JointCommand, JointState, ServoBus, port_gone
 from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
 from . import frames
@@ -177,10 +177,16 @@ class CanBus(ServoBus):
 
     # ---------------------------------------------------------------- the wire
     def _send(self, arbitration_id: int, data: bytes) -> None:
-        self.link.send(arbitration_id, data)
+        try:
+            self.link.send(arbitration_id, data)
+        finally:
+            self.lost = self.lost or self.link.lost
 
     def _recv(self, timeout: float):
-        return self.link.recv(timeout)
+        try:
+            return self.link.recv(timeout)
+        finally:
+            self.lost = self.lost or self.link.lost
 
     def _flush(self) -> None:
         """Take the answers still owed, then drop whatever else waits (late replies of a tick that
@@ -262,9 +268,11 @@ class CanBus(ServoBus):
         self._torque_on = on
 
     def _stop(self) -> bool:
-        """Exit motor mode on every motor: each is sent its frame even if another's send fails."""
+        """Exit motor mode on every motor: each is sent its frame even if another's send fails. On
+        a port known gone (its adapter unplugged, its simulator ended) one send each, no waiting."""
         self._torque_on = False
-        self._flush()
+        if not self.lost:
+            self._flush()
         sent = True
         deadline = time.monotonic() + STOP_PATIENCE
         for k, joint in enumerate(self.joints):
@@ -274,6 +282,8 @@ class CanBus(ServoBus):
                     self._pending.add(k)
                     break
                 except ServoError:
+                    if self.lost:
+                        return False
                     if time.monotonic() >= deadline:
                         sent = False
                         break

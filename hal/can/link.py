@@ -11,6 +11,7 @@ import time
 
 import can
 
+from ..bus import port_gone
 from ..errors import ServoInitializationError, ServoOperationError
 from . import frames
 
@@ -38,12 +39,14 @@ class CanLink:
         self.name, self.can, self.timeout, self.errors = name, can_bus, timeout, errors
         self.warnings = 0           # error frames of a controller's warning or passive state alone
         self.foreign = 0            # 29-bit, CAN FD and remote frames: no motor's reply, skipped
+        self.lost = None            # why the port itself is gone (hal.bus.port_gone), once it is
 
     def send(self, arbitration_id: int, data: bytes) -> None:
         try:
             self.can.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False),
                           timeout=self.timeout)
         except can.CanError as err:
+            self.lost = self.lost or port_gone(err)
             raise ServoOperationError(f"bus '{self.name}': CAN send failed ({err})") from None
 
     def recv(self, timeout: float):
@@ -58,6 +61,7 @@ class CanLink:
             try:
                 msg = self.can.recv(max(0.0, deadline - time.monotonic()))
             except can.CanError as err:
+                self.lost = self.lost or port_gone(err)
                 raise ServoOperationError(f"bus '{self.name}': CAN receive failed ({err})") from None
             except (ValueError, IndexError, UnicodeDecodeError) as err:
                 raise ServoOperationError(f"bus '{self.name}': the adapter sent a line that is no frame "

@@ -19,7 +19,10 @@ so data that contains FF FF FD arrives intact. The fast reply is read from the p
 by the codec: packet CRC, each block's running CRC, ID and error byte.
 A missing or short reply is retried; then each servo is pinged to name the one that is silent
 (ServoTimeoutError) — the silent ones twice, so a bus that went quiet as a whole and came back
-while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. An error byte with the alert bit set makes the backend read that servo's
+while it was being pinged is a stall of the bus (BusStallError), not blamed on one servo. With
+torque on, a bus silent for longer than the servos' Bus Watchdog across a failed try is a stall
+at once: the servos have let go by themselves, and retrying would take a late reply for the
+retry's. An error byte with the alert bit set makes the backend read that servo's
 Hardware Error Status and raise ServoHardwareError with its bits.
 """
 
@@ -33,11 +36,11 @@ from collections.abc import Mapping
 import numpy as np
 
 from ...control.timing import BUS_WATCHDOG
-from ..bus import JointCommand, JointState, ServoBus
-from ..errors import (BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError,
-                      ServoTimeoutError)
 from ..bringup import ERROR
+from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
 from ..config import CONFIGS_DIR
+from ..errors import (BusStallError, ServoError, ServoHardwareError, ServoInitializationError,
+                      ServoOperationError, ServoTimeoutError)
 from ..host import claim_port, is_pseudo_terminal, open_failure
 from . import bench
 from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR,
@@ -121,6 +124,9 @@ class DynamixelBus(ServoBus):
         self._last: JointState | None = None
         self._armed = False              # the servos' Bus Watchdog is set (torque on)
         self._last_packet = None         # time.monotonic() of the tick's last instruction packet
+        self._heard = None               # time.monotonic() when the bus last answered (any bytes)
+        self._got = 0                    # bytes the last fast sync read's try received
+        self._late_at = None             # time.monotonic() of the first byte _drain dropped
 
     # ---------------------------------------------------------------- set-up
     def _open(self) -> None:
@@ -188,43 +194,79 @@ class DynamixelBus(ServoBus):
             for joint in self.joints:
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, units)
         self._armed, self._last_packet = on, time.monotonic()
+        self._heard = self._last_packet         # every write above was answered
 
     def _stop(self) -> bool:
-        """Torque off on every servo that answers, each with its retries; True if all did. A
+        """Torque off on every servo that answers, each with its retries (one try once the port is
+        known gone); True if all did. A port that fails ends it at once: no servo can be told. A
         transaction cut short (a signal in the middle of one) must not leave the port busy."""
         self.port.is_using = False
         ok = True
+        tries = 1 if self.lost else self.retries + 1
         for joint in self.joints:
-            for _ in range(self.retries + 1):
-                result, error = self.packets.write1ByteTxRx(self.port, joint.id, ADDR_TORQUE_ENABLE, 0)
+            for _ in range(tries):
+                try:
+                    result, error = self.packets.write1ByteTxRx(self.port, joint.id, ADDR_TORQUE_ENABLE, 0)
+                except PORT_ERRORS as err:
+                    self.lost = self.lost or port_gone(err) or str(err)
+                    return False
                 if result == self._sdk.COMM_SUCCESS:
                     break
             else:
                 ok = False
         return ok
 
+    def _gone(self, err: Exception) -> ServoOperationError:
+        """The one-line error of a port that failed under a read or a write (pyserial's or the OS's
+        error would end the run in a traceback); marks the bus lost when the port is gone."""
+        reason = port_gone(err)
+        self.lost = self.lost or reason
+        return ServoOperationError(f"bus '{self.bus.name}': the port {self.port_name} "
+                                   f"{'is gone' if reason else 'failed'} ({reason or err})")
+
     # ---------------------------------------------------------------- one tick
     def _read(self) -> JointState:
+        try:
+            return self._read_present()
+        except ServoError:             # a TimeoutError, so an OSError too: the read's own verdict
+            raise
+        except PORT_ERRORS as err:     # the port itself failed: no retry or ping can reach a servo
+            raise self._gone(err) from None
+
+    def _read_present(self) -> JointState:
         """One fast sync read of Present Current, Velocity and Position of every servo. A missing,
         short or corrupt reply is retried; after the last retry each servo is pinged and the one
         that does not answer is named. A block whose error byte carries the alert bit makes the
         backend read that servo's Hardware Error Status and raise ServoHardwareError. After a
         silence of over half the Bus Watchdog (the servos' clocks and this one's are not the same)
         the servos may have stopped themselves: they are asked, and a tripped watchdog is a
-        BusStallError (their goals are refused until it is cleared)."""
+        BusStallError (their goals are refused until it is cleared). With torque on, a bus that
+        said nothing for longer than the Bus Watchdog across a failed try is a BusStallError too
+        (_check_silence): the servos have let go by themselves, and a reply that comes after such
+        a silence may be an earlier request's, held back with it."""
         if self._armed and self._last_packet is not None and time.monotonic() - self._last_packet > self.watchdog / 2:
             self._check_watchdog(time.monotonic() - self._last_packet)
+        silent = False                      # a try to which nothing at all came back
         for _ in range(self.retries + 1):
             blocks, failure, suspect = self._fast_sync_read()
             if blocks is not None:
                 break
             self.stats.reads_retried += 1
+            if self._got:                   # cut or corrupt, but the bus spoke
+                self._heard = time.monotonic()
             late = self._drain()
             if late and failure == NO_REPLY:
                 # nothing in time, then the reply after its time-out: the whole bus held back
                 # (a stall, or a chain waiting on a slow servo); retrying would take late replies
+                silent = "" if self._heard is None else \
+                    f" (the bus silent for {(self._late_at - self._heard) * 1e3:.0f} ms before them)"
                 raise BusStallError(self.bus.name, f"{NO_REPLY} in time; {late} bytes came after the "
-                                                   "time-out and were dropped")
+                                                   f"time-out and were dropped{silent}")
+            if late:
+                self._heard = self._late_at
+            elif not self._got:             # only a wholly silent try counts: a drain is quiet by design
+                silent = True
+                self._check_silence(time.monotonic())
         else:
             raise self._corrupt_line(failure) or self._diagnose(failure, suspect)
         errors, data = blocks
@@ -241,7 +283,10 @@ class DynamixelBus(ServoBus):
         self._fault = None
         rows = np.frombuffer(data, dtype=PRESENT)
         q, qd, current, tau = self.units.state_from_units(rows["position"], rows["velocity"], rows["current"])
-        self._last_packet = now = time.monotonic()
+        now = time.monotonic()
+        if silent:              # the retry's reply, after a silence the servos may not have outlived
+            self._check_silence(now)
+        self._last_packet = self._heard = now
         state = JointState(t=now, q=q, qd=qd, current=current, tau=tau)
         self._last = state
         return state
@@ -260,6 +305,7 @@ class DynamixelBus(ServoBus):
         if self.port.is_using:
             return None, self.packets.getTxRxResult(self._sdk.COMM_PORT_BUSY), None
         self.port.is_using = True
+        self._got = 0
         try:
             self.port.clearPort()
             if self._send(self._read_frame) != len(self._read_frame):
@@ -267,6 +313,7 @@ class DynamixelBus(ServoBus):
             if self.reply_timeout is None:      # the SDK's timeout, else _receive's own
                 self.port.setPacketTimeout((11 + PRESENT_LENGTH) * len(self.ids))    # as the SDK's syncReadTx
             raw, failure = self._receive()
+            self._got = len(raw)
         finally:
             self.port.is_using = False
         if raw is not None and failure is None:
@@ -291,7 +338,8 @@ class DynamixelBus(ServoBus):
         except BlockingIOError:
             select.select([], [self._fileno], [], 0.1)
             return sent + self._send(frame[sent:]) if sent < len(frame) else sent
-        except OSError:
+        except OSError as err:
+            self.lost = self.lost or port_gone(err)
             return sent
         return sent
 
@@ -343,7 +391,8 @@ class DynamixelBus(ServoBus):
     def _drain(self) -> int:
         """After a failed read, drop what still arrives until the line has been quiet for a reply
         timeout: a reply that comes after its time-out must not be taken for the retry's (it
-        would be a tick old, and every later one too). Returns the bytes dropped."""
+        would be a tick old, and every later one too). Returns the bytes dropped (the first came
+        at self._late_at)."""
         quiet = max(1e-3, self.reply_timeout if self.reply_timeout is not None else self.port.packet_timeout * 1e-3)
         deadline = time.monotonic() + 4 * quiet
         dropped = 0
@@ -353,6 +402,8 @@ class DynamixelBus(ServoBus):
                 if not ready:
                     return dropped
             chunk = self.port.readPort(4096)
+            if chunk and not dropped:
+                self._late_at = time.monotonic()      # when the bus spoke again
             dropped += len(chunk)
             if not chunk and self._fileno is None:
                 time.sleep(quiet)
@@ -386,8 +437,8 @@ class DynamixelBus(ServoBus):
         sent = 0 if self.port.is_using else self._send(frame)
         self._last_packet = time.monotonic()
         if sent != len(frame):
-            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port "
-                                      f"{'is busy' if self.port.is_using else 'took part of it'})")
+            why = f"is gone: {self.lost}" if self.lost else "is busy" if self.port.is_using else "took part of it"
+            raise ServoOperationError(f"bus '{self.bus.name}': goal write failed (the port {why})")
 
     def sync_write(self, address: int, data_by_id: Mapping[int, bytes]) -> None:
         """One sync write of equal-length table bytes at ``address``, by servo ID, framed and stuffed
@@ -448,6 +499,19 @@ class DynamixelBus(ServoBus):
             raise BusStallError(self.bus.name, f"{silence * 1e3:.0f} ms without a packet, over the servos' Bus "
                                 f"Watchdog of {self.watchdog * 1e3:.0f} ms: servos {', '.join(map(str, tripped))} "
                                 "tripped it and stopped")
+        self._heard = time.monotonic()          # every servo answered
+
+    def _check_silence(self, now: float) -> None:
+        """With torque on, raise BusStallError once the bus has said nothing for longer than the
+        servos' Bus Watchdog: on real servos it has tripped (torque off, goals refused), whether
+        or not they can be asked now, so the run cannot go on; and a reply that ends such a
+        silence may be the answer to an earlier try, held back with the bus, not the retry's. A
+        short hiccup (a lost packet retried within the watchdog) goes on as a retry."""
+        if not self._armed or self._heard is None or now - self._heard <= self.watchdog:
+            return
+        raise BusStallError(self.bus.name, f"silent for {(now - self._heard) * 1e3:.0f} ms, longer than the "
+                                           f"servos' Bus Watchdog of {self.watchdog * 1e3:.0f} ms: they have "
+                                           "switched their torque off by themselves")
 
     def _check_servo(self, joint) -> None:
         """At open: the servo answers, and its control table is one a run can accept (the checks

@@ -9,6 +9,13 @@ frames `tIIIL<data>` and `TIIIIIIIIL<data>` (acknowledged `z`/`Z` CR, as Lawicel
 remote `r`/`R`, CAN FD `d`/`D`/`b`/`B` (hex length code); an empty line is acknowledged too (python-can
 sends one at open). The motors' frames go back as `t` lines. In real time a second thread advances
 the plant by the wall clock; in lock-step the motors' command rounds do.
+
+Like a real adapter, it never waits for its host: a host that writes without reading fills the
+pseudo-terminal and then the adapter's own buffer (OUT_QUEUE bytes); what does not fit then is
+dropped, each motor's frame counted (`dropped`) and `F` reports a data overrun (bit 3) once. The
+adapter goes on reading and answering meanwhile, so a host that reads again gets the answers to its
+new frames (a blocking write had stopped the adapter after ~1,500 unread frames, and the host's
+blocking send with it).
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ BITRATE_CODES = {"0": 10_000, "1": 20_000, "2": 50_000, "3": 100_000, "4": 125_0
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 OK, BELL = b"\r", b"\a"
 MAX_LINE = 160                 # characters: a 64-byte FD frame is 138
+OUT_QUEUE = 4096               # bytes of answers the adapter holds for a host that is not reading
+DATA_OVERRUN = 0x08            # bit 3 of the status flags (`F`): frames were lost, the host did not read
 
 
 class _Server:
@@ -152,8 +161,12 @@ class SlcanServer(_Server):
         tty.setraw(self.slave)
         tty.setraw(self.master)
         self.path = os.ttyname(self.slave)
+        os.set_blocking(self.master, False)     # the adapter never waits for its host
         self.is_open, self.bitrate, self.ack_frames = False, None, ack_frames
         self.lines = self.refused = 0
+        self.dropped = 0                        # the motors' frames lost: the host was not reading
+        self._out = bytearray()                 # answers the pseudo-terminal had no room for yet
+        self._overrun = False                   # a frame dropped since the host last asked `F`
         super().__init__(port, mode, control_period, on_error)
 
     def _close(self) -> None:
@@ -167,25 +180,46 @@ class SlcanServer(_Server):
         pending = b""
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self.master], [], [], 0.05)
+                ready, writable, _ = select.select([self.master], [self.master] if self._out else [], [], 0.05)
+                if writable and not self._flush():
+                    return
                 if not ready:
                     continue
                 pending += os.read(self.master, 4096)
+            except BlockingIOError:
+                continue
             except OSError:
                 return
-            out = []
             *lines, pending = pending.replace(b"\n", b"").split(b"\r")
             if len(pending) > MAX_LINE:          # no CR in sight: garbage, dropped
                 pending = b""
                 self.refused += 1
-                out.append(BELL)
+                self._queue(BELL)
             for line in lines:
-                out.append(self.line(line))
-            if out:
-                try:
-                    os.write(self.master, b"".join(out))
-                except OSError:
-                    return
+                self._queue(self.line(line))
+            if self._out and not self._flush():
+                return
+
+    def _queue(self, answer: bytes) -> None:
+        """An answer for the host, whole or not at all: one that would overflow the adapter's
+        buffer is dropped, its frames counted (the host sees lines, never a part of one)."""
+        if len(self._out) + len(answer) <= OUT_QUEUE:
+            self._out += answer
+            return
+        lost = sum(1 for line in answer.split(OK) if line[:1] in (b"t", b"T"))
+        self.dropped += lost
+        self._overrun = self._overrun or bool(lost)
+
+    def _flush(self) -> bool:
+        """As much of the buffered answers as the pseudo-terminal takes now; False when it is gone."""
+        try:
+            sent = os.write(self.master, self._out)
+        except BlockingIOError:
+            return True
+        except OSError:
+            return False
+        del self._out[:sent]
+        return True
 
     def line(self, raw: bytes) -> bytes:
         """One Lawicel command line (without its CR) in, the adapter's answer out."""
@@ -224,7 +258,8 @@ class SlcanServer(_Server):
         if head == "N" and not rest:
             return b"NSDYN\r"
         if head == "F" and not rest:
-            return b"F00\r"
+            flags, self._overrun = DATA_OVERRUN if self._overrun else 0, False
+            return b"F%02X\r" % flags
         if head == "Z" and rest in ("0", "1"):
             return OK
         if head in "tTrRdDbB":

@@ -13,7 +13,7 @@ thread (`serve_forever()`).
 
 A control socket (`serve_forever(control)`) takes requests between two packets, so a server in
 another process (servodyn.tools.simulator.SimProcess) injects faults and reads the plant's clock
-and the servos' torque deterministically.
+and the servos' torque deterministically, or pauses it.
 """
 
 from __future__ import annotations
@@ -190,13 +190,16 @@ class PtyServer:
             pass
 
     def _request(self, request: dict) -> dict:
-        """One request of the control socket: fault, clear, status or quit."""
+        """One request of the control socket: fault, clear, pause (answered, then the freeze),
+        status or quit."""
         op = request.get("op")
         try:
             if op == "fault":
                 self.inject_fault(request["id"], request.get("fault", "silent"))
             elif op == "clear":
                 self.clear_faults()
+            elif op == "pause":
+                self.pause(float(request["seconds"]))
             elif op == "quit":
                 self._stop.set()
             elif op != "status":
