@@ -371,7 +371,8 @@ def table_findings(joint, table: dict[str, int], supply_voltage: float | None = 
         if abs(volts - supply_voltage) > VOLTAGE_TOLERANCE * supply_voltage:
             out.append(Finding("input voltage", f"{volts:.1f} V", f"{supply_voltage:g} V ±{VOLTAGE_TOLERANCE:.0%} "
                                "([supply] voltage)", "check the power supply and its cable, or the configuration's "
-                               "[supply] voltage", **where))
+                               "[supply] voltage (on a robot whose buses have supplies of their own, the servos' own)",
+                               severity=WARNING, **where))
     if table.get("hardware_error_status"):
         names = ", ".join(hardware_faults(table["hardware_error_status"])) or "unknown bits"
         out.append(Finding("hardware error", f"0x{table['hardware_error_status']:02X} ({names})", "0",
