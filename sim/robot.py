@@ -11,7 +11,9 @@ servos' per-tick work in C where their tables allow), or a network of CAN motors
     robot.inject_fault(4, "silent")                 # device 4 stops answering (or "overload", ...)
 
 Each simulated servo starts as the configuration sets it up (its ID, its bus's baud rate in its
-Baud Rate register). Two clocks, chosen by whoever serves the robot (sim/transport): `lockstep()`
+Baud Rate register), unless a bench (sim/bench.py: `SimulatedRobot(config, bench=Bench(...))`)
+says otherwise: factory-fresh devices, some of them not wired, memories kept in a store file, horns
+mounted otherwise than the configuration says. `power_cycle()` switches every device off and on. Two clocks, chosen by whoever serves the robot (sim/transport): `lockstep()`
 advances the plant by one control period once every bus has had the tick's commands (each CAN
 network its full round of command frames, each Dynamixel chain its sync write; the last one moves
 the plant), so a run is deterministic and as fast as the host can go; otherwise the server advances
@@ -23,6 +25,7 @@ bytes is dropped). Every transport serving the robot takes `robot.lock` around i
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time as _time
 
@@ -31,6 +34,7 @@ from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 
+from .bench import Bench, require
 from .can import CanMotor, CanNetwork
 from .dynamixel import Servo, ServoChain, VirtualBus
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
@@ -45,7 +49,7 @@ class SimulatedRobot(PlantView):
     """Every device and the plant of a robot configuration; q in the model's dof order."""
 
     def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
-                 integrator: str = "rk4"):
+                 integrator: str = "rk4", bench: Bench | None = None):
         kinds = {bus.kind for bus in config.buses.values()}
         if not kinds <= {"can", "dynamixel"}:
             raise ValueError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
@@ -53,20 +57,26 @@ class SimulatedRobot(PlantView):
         self.config, self.model = config, config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         voltage = config.supply.voltage if config.supply else None
-        self.drives = [self._device(j, config.buses[j.bus], voltage) for j in self.joints]
+        self.bench = bench.set_up(config, self.joints) if bench is not None else None
+        self.drives = [self._device(j, config.buses[j.bus], voltage, self.bench) for j in self.joints]
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
         self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
-        on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name]
+        wired = lambda j: self.bench is None or j.dof in self.bench.connected
+        on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name and wired(j)]
         # the fast chain: the plant's drives and a bus's servos at once, when one bus holds them all
         chain = ServoChain.of(self.drives) if len(self.servos) == len(self.drives) else None
         small_time_step = small_time_step or plant_step(config.control_period)   # RK4 step
-        self.plant = Plant(self.model, self.joints, self.drives, small_time_step=small_time_step, q0=q0,
+        # the plant turns each horn as it is mounted: the bench's mounting, else the configuration's
+        mounted = self.joints if self.bench is None else [
+            dataclasses.replace(j, direction=self.bench.mounting[j.dof].direction,
+                                zero_offset=self.bench.mounting[j.dof].zero_offset) for j in self.joints]
+        self.plant = Plant(self.model, mounted, self.drives, small_time_step=small_time_step, q0=q0,
                            integrator=integrator, chain=chain if chain is not None and chain.covers(self.drives)
                            else None)
         # the servos' clock is the plant's until wall_clock(); no byte timeout until a port's wire_clock()
         self._servo_clock = lambda: self.plant.time
         self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
-                                        chain=chain if chain is not None and len(config.buses) == 1 else None)
+                                        chain=chain if chain is not None and chain.covers(on_bus(name)) else None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
         self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
         self.wire: dict[str, WireFault | None] = {name: None for name in self.chains}   # a Dynamixel wire's fault
@@ -74,15 +84,33 @@ class SimulatedRobot(PlantView):
         self.period = config.control_period      # s: one tick of the host (lock-step)
         self.lock = threading.RLock()
         self._round: set[str] = set()
+        if self.bench is not None:
+            self.bench.attach({j.dof: d for j, d in zip(self.joints, self.drives)},
+                              {j.dof: config.buses[j.bus].kind for j in self.joints})
 
     @staticmethod
-    def _device(joint, bus, voltage):
-        """A joint's device, set up as the configuration says (its id; a servo's bus baud rate)."""
+    def _device(joint, bus, voltage, bench=None):
+        """A joint's device, set up as the configuration says (its id; a servo's bus baud rate),
+        or as the bench has it (factory-fresh, or the store's memory)."""
         if bus.kind == "can":
-            return CanMotor(joint.servo, joint.id, dialect=joint.options["dialect"],
-                            feedback_id=joint.options["feedback_id"], ranges=joint.options["ranges"],
-                            supply_voltage=voltage)
-        return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud)
+            def configured():
+                return CanMotor(joint.servo, joint.id, dialect=joint.options["dialect"],
+                                feedback_id=joint.options["feedback_id"], ranges=joint.options["ranges"],
+                                supply_voltage=voltage)
+
+            def fresh():
+                return CanMotor.factory_fresh(joint.servo, dialect=joint.options["dialect"], supply_voltage=voltage)
+            kind, what = CanMotor, "CAN motors"
+        else:
+            def configured():
+                return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud)
+
+            def fresh():
+                return Servo.factory_fresh(joint.servo, position=0.0, zero_ticks=0)
+            kind, what = Servo, "Dynamixel servos"
+        if bench is None:
+            return configured()
+        return bench.device(joint.dof, bus.kind, what, fresh, configured, kind)
 
     # --- the buses --------------------------------------------------------------------------------
 
@@ -138,6 +166,25 @@ class SimulatedRobot(PlantView):
     def status(self) -> dict:
         """The plant's time (s) and whether each device's torque is off, in the model's dof order."""
         return {"time": self.time, "torque_off": [not d.torque_enabled for d in self.drives]}
+
+    def power_cycle(self) -> None:
+        """Every device switched off and on (the bench's Device.power_cycle: volatile state to its
+        defaults, torque off, the non-volatile memory kept); a frame a receiver was taking in is
+        lost. The plant goes on: the arm falls limp. ValueError (one line) for a kind of device
+        that cannot."""
+        for drive in self.drives:
+            require(type(drive), "CAN motors" if isinstance(drive, CanMotor) else type(drive).__name__)
+        for drive in self.drives:
+            drive.power_cycle()
+        for chain in self.chains.values():
+            chain.reader.expire()
+
+    def device(self, dof: str):
+        """The device in `dof`'s slot (wired to its bus or not)."""
+        for joint, drive in zip(self.joints, self.drives):
+            if joint.dof == dof:
+                return drive
+        raise KeyError(f"'{self.config.name}' has no dof {dof!r}")
 
     # --- the devices --------------------------------------------------------------------------------
 
@@ -240,6 +287,16 @@ class DynamixelPort(_Port):
 
     def servo(self, servo_id: int) -> Servo:
         return self.robot.servo(servo_id, self.name)
+
+    @property
+    def baud(self) -> int:
+        """The bus's speed as the configuration gives it (bit/s)."""
+        return self.robot.config.buses[self.name].baud
+
+    def hear_at(self, speed: int | None) -> None:
+        """The host's bytes come at `speed` (bit/s) from now on: only the servos listening at it hear
+        them (VirtualBus.line_speed; None: every servo)."""
+        self.bus.line_speed = speed
 
     def handle(self, data: bytes) -> bytes:
         reply = self.bus.handle(data)

@@ -36,24 +36,9 @@ def cli(*argv, stdin=None, timeout=120):
 
 @contextmanager
 def sim(store: Path, *extra):
-    """`servodyn sim` on the bench in `store`: a power-up of the servos connected."""
-    proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica",
-                             "--bench", str(store), *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    try:
-        path = None
-        lines = []
-        while path is None:
-            line = proc.stdout.readline()
-            if not line:
-                raise AssertionError("servodyn sim ended before serving:\n" + "".join(lines))
-            lines.append(line)
-            found = re.search(r"/dev/pts/\d+", line)
-            path = found.group(0) if found else None
-        yield path
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+    """`servodyn sim --config replica` on the bench in `store`: a power-up of the servos connected."""
+    with sim_of("replica", store, *extra) as port:
+        yield port
 
 
 @pytest.fixture(scope="module")
@@ -148,3 +133,50 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
     # the replica's swing tracks within 0.2 degrees on a plant its configuration describes (README);
     # here the zeros are the calibration's, within two ticks (0.18 degrees) of the truth
     assert math.degrees(summary["tracking_max_rad"]) < 1.0, summary["tracking_max_rad"]
+
+
+@contextmanager
+def sim_can(store: Path, *extra):
+    """`servodyn sim --config replica_can` on the bench in `store`, lock-step, behind its SLCAN adapter."""
+    with sim_of("replica_can", store, "--lockstep", *extra) as port:
+        yield port
+
+
+@contextmanager
+def sim_of(config: str, store: Path, *extra):
+    """`servodyn sim` of `config` on the bench in `store`, in its own process; its pseudo-terminal."""
+    proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", config,
+                             "--bench", str(store), *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        path, lines = None, []
+        while path is None:
+            line = proc.stdout.readline()
+            if not line:
+                raise AssertionError("servodyn sim ended before serving:\n" + "".join(lines))
+            lines.append(line)
+            found = re.search(r"/dev/pts/\d+", line)
+            path = found.group(0) if found else None
+        yield path
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def test_fresh_damiao_motors_found_on_master_id_0_then_set_up(tmp_path):
+    """Fresh Damiao motors all answer at CAN ID 1 on Master ID 0, which looks like no motor to a
+    host listening on the configured ids: scan reports them with the fix; setup gives one its ids,
+    MIT mode and ranges, saved to flash after a yes; after a power-up from the store it answers
+    where the configuration says."""
+    store = tmp_path / "bench.json"
+    with sim_can(store, "--factory") as port:
+        scan = cli("scan", "--config", "replica_can", "--port", port)
+    assert scan.returncode == 1, scan.stdout + scan.stderr
+    assert "Master ID 0" in scan.stdout and "servodyn setup" in scan.stdout, scan.stdout
+    with sim_can(store, "--factory", "--connect", "r_elbow_flexion") as port:
+        setup = cli("setup", "--config", "replica_can", "--joint", "r_elbow_flexion", "--port", port, "--yes")
+    assert setup.returncode == 0, setup.stdout + setup.stderr
+    with sim_can(store, "--connect", "r_elbow_flexion") as port:        # a power-up: flash only
+        scan = cli("scan", "--config", "replica_can", "--port", port, "--json")
+    found = json.loads(scan.stdout)
+    assert [(f["id"], f["master_id"], f["model"]) for f in found] == [(4, 0x14, "DM-J4340")], found

@@ -267,7 +267,10 @@ def setup(config_name: str, joint_name: str, port, yes: bool, say=print) -> int:
 # ---------------------------------------------------------------------------- doctor
 
 def host_findings(path: str) -> list[Finding]:
-    """The host's side of a port: exists, permission, held by another process, latency timer."""
+    """The host's side of a port: exists, permission, held by another process, latency timer. A
+    pseudo-terminal is the simulator's, which holds its other end: none of these apply."""
+    if host.is_pseudo_terminal(path):
+        return []
     return list(host.port_findings(path))
 
 

@@ -27,6 +27,7 @@ from contextlib import nullcontext
 
 from ..hal.config import RobotConfig, load_config
 from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
+from ..sim.bench import Bench
 from ..sim.robot import SimulatedRobot
 from ..sim.transport.can import SlcanServer, VirtualCanServer
 from ..sim.transport.pty import PtyServer
@@ -62,6 +63,11 @@ class Served:
         with self.robot.lock:
             return self.robot.status()
 
+    def power_cycle(self) -> None:
+        """Every device off and on (SimulatedRobot.power_cycle), between two packets or frames."""
+        with self.robot.lock:
+            self.robot.power_cycle()
+
     @property
     def servos(self) -> int:
         return len(self.robot.drives)
@@ -81,20 +87,21 @@ class Served:
 
 
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
-          q0=None, start: bool = True):
+          q0=None, start: bool = True, bench: Bench | None = None):
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
     SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
     else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
     can="slcan" on an SLCAN adapter's pseudo-terminal). Either has `.buses` (bus -> the backend's
-    options), `status()`, `inject_fault(id, fault)`, `servos` and `stop()`."""
+    options), `status()`, `inject_fault(id, fault)`, `power_cycle()`, `servos` and `stop()`.
+    `bench`: the robot on a bench (sim/bench.py), in the child process too."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     kinds = [bus.kind for bus in config.buses.values()]
     if process is None:
         process = kinds == ["dynamixel"] and config.path is not None and q0 is None
     if process:
-        return SimProcess(config.path, mode)
-    robot = SimulatedRobot(config, q0=q0)
+        return SimProcess(config.path, mode, bench=bench)
+    robot = SimulatedRobot(config, q0=q0, bench=bench)
     servers, buses, where = {}, {}, {}
     for name, bus in config.buses.items():
         # the first bus's server keeps the real-time clock; the others follow it
@@ -132,13 +139,14 @@ class SimProcessError(RuntimeError):
 class SimProcess:
     """The simulated bus of a configuration file in a child process, on a pseudo-terminal."""
 
-    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0):
+    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, bench: Bench | None = None):
         if mode not in ("lockstep", "realtime"):
             raise ValueError("mode must be 'lockstep' or 'realtime'")
         self._control, child = socket.socketpair()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "servodyn.tools.simulator", "--config", str(config_path), "--mode", mode,
-             "--control-fd", str(child.fileno()), "--parent", str(os.getpid())],
+             "--control-fd", str(child.fileno()), "--parent", str(os.getpid()),
+             *(["--bench", bench.to_json()] if bench is not None else [])],
             pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL)
         child.close()
         self._control.settimeout(start_timeout)
@@ -198,6 +206,10 @@ class SimProcess:
         """The plant's time (s) and each servo's torque_off, as the simulator sees them now."""
         return self.request("status")
 
+    def power_cycle(self) -> None:
+        """Every servo off and on (SimulatedRobot.power_cycle) before the next packet."""
+        self.request("power_cycle")
+
     @property
     def buses(self) -> dict:
         """The options that point the bus's backend at the simulated bus."""
@@ -238,12 +250,14 @@ def main(argv=None) -> int:
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--control-fd", type=int, required=True)
     parser.add_argument("--parent", type=int, required=True)
+    parser.add_argument("--bench", default=None, help="the bench, as Bench.to_json gives it")
     args = parser.parse_args(argv)
     _die_with_parent(args.parent)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     control = socket.socket(fileno=args.control_fd)
     try:
-        arm = SimulatedRobot(load_config(args.config)).port()
+        bench = Bench.from_json(args.bench) if args.bench is not None else None
+        arm = SimulatedRobot(load_config(args.config), bench=bench).port()
     except Exception as err:     # reported to the parent as one line, never a traceback
         control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())
         return 2

@@ -23,6 +23,8 @@ GOAL_POSITION_SPAN = 1_048_575  # ±256 rev: Goal Position range outside Positio
 WATCHDOG_UNIT = 0.020          # s per Bus Watchdog(98) unit
 RETURN_DELAY_UNIT = 2e-6       # s per Return Delay Time(9) unit
 BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)  # Baud Rate(8) 0..7
+FAST_READ_FIRMWARE = 45        # Firmware Version(6) from which X430/540 take FAST SYNC/BULK READ (0x8A, 0x9A)
+DRIVE_MODE_REVERSE = 0x01      # Drive Mode(10) bit 0: Present/Goal Position counted the other way
 
 
 class OperatingMode(IntEnum):
@@ -96,7 +98,7 @@ class Model(ServoSpec):
     current_unit: float = 2.69e-3   # A per Goal / Present Current unit
     ticks_per_rev: int = TICKS_PER_REV   # Goal / Present Position units per horn turn
     velocity_unit: float = 0.229     # rpm per Goal / Present Velocity unit
-    firmware: int = 46          # fast sync/bulk read need X430/540 firmware 45 or later
+    firmware: int = 46          # fast sync/bulk read need FAST_READ_FIRMWARE or later
 
     @property
     def max_current(self) -> float:

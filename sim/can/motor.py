@@ -71,6 +71,7 @@ class CanMotor:
         # FRICTION_VELOCITY so the plant's explicit 1 ms step stays stable on the light wrist links
         self.viscous, self.coulomb = 0.001 * peak, 0.005 * peak   # N m s/rad, N m
         self.flash = self._ram()             # the registers a power cycle comes back with
+        self.on_nonvolatile = None           # a bench's: told after the flash or the zero changed
         self.saves = 0                       # flash writes (0xAA acted on)
 
     @property
@@ -93,16 +94,21 @@ class CanMotor:
 
     # ---------------------------------------------------------------- memory (the device protocol)
     @classmethod
-    def factory_fresh(cls, spec: MotorSpec, *, can_id: int = dialects.FACTORY_CAN_ID,
+    def factory_fresh(cls, spec: MotorSpec, *, can_id: int = dialects.FACTORY_CAN_ID, dialect: str | None = None,
                       ctrl_mode: int = dialects.MIT_MODE, supply_voltage: float | None = None) -> "CanMotor":
         """A motor as it leaves the factory: CAN ID 1, Master ID 0 (a Damiao motor; other dialects
         answer on their own fixed id), the data sheet's MIT ranges, no CAN timeout. ctrl_mode: the
         mode it was shipped in (MIT by default; no vendor document states it, so test others)."""
-        fresh = cls(spec, can_id, ranges=spec.ranges, supply_voltage=supply_voltage,
-                    feedback_id=dialects.FACTORY_MASTER_ID if DIALECTS[spec.dialect].registers else None)
+        dialect = dialect or spec.dialect
+        fresh = cls(spec, can_id, dialect=dialect, ranges=spec.ranges, supply_voltage=supply_voltage,
+                    feedback_id=dialects.FACTORY_MASTER_ID if DIALECTS[dialect].registers else None)
         fresh.registers[dialects.REG_CTRL_MODE] = ctrl_mode
         fresh.flash = fresh._ram()
         return fresh
+
+    def _saved(self) -> None:
+        if self.on_nonvolatile is not None:
+            self.on_nonvolatile(self)
 
     def nonvolatile(self) -> dict:
         """What survives a power cycle, JSON-able: the registers in flash (by number) and the zero."""
@@ -234,6 +240,7 @@ class CanMotor:
             self.command = frames.Command(0.0, 0.0, 0.0, 0.0, 0.0)
         elif code == frames.SET_ZERO:
             self.zero = self.position
+            self._saved()
         elif code == frames.CLEAR_ERROR:
             if self.fault in (0xC, 1) and self.temperature > self.spec.temperature_limit - COOL_MARGIN:
                 return                       # still too hot
@@ -253,6 +260,7 @@ class CanMotor:
             if self.enabled:
                 return []                    # stored only when disabled: ignored, no answer
             self.flash = self._ram()
+            self._saved()
             self.saves += 1
             return [(self.feedback_id, frames.pack_register(frames.Register(self.can_id, g.cmd, g.rid)))]
         if g.cmd == frames.REG_WRITE:

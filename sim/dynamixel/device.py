@@ -4,6 +4,21 @@
 included) and returns the status bytes the servos put on the wire. Replies follow Status Return
 Level (0: ping only, 1: ping and reads, 2: all); broadcast instructions other than ping and the
 sync/bulk reads get none. Return Delay Time is reported in each ``Reply`` but never waited for.
+
+Line speed: with ``line_speed`` set (bit/s, the speed the host's port runs at; a PtyServer sets it
+from its pseudo-terminal) a servo hears only the bytes sent at its own speed (``Servo.baud``, its
+Baud Rate register's) and answers at it; bytes no servo listens at are dropped and counted by
+speed in ``unheard``, and a frame cut by a change of speed is dropped as a truncated one. None:
+every servo hears everything (a bus driven in-process).
+
+Collisions: several servos that answer one instruction at once — the same ID twice on the bus
+(factory-fresh servos all say ID 1), or a fast read that an old firmware refuses while the others
+answer — talk over each other on the half-duplex wire. The host receives one packet: the bitwise
+AND of their bytes, each aligned at its first byte (a low bit wins on the line; past the end of the
+shorter the line idles high), and never one that checks: where the AND would still be a good packet
+(identical replies, as seven fresh servos' pings are) its CRC's last byte is inverted, since two
+servos' UARTs never start on the same bit (`collide`). Replies at different IDs to a broadcast
+ping do not collide: each servo waits its turn by ID, as on the real bus.
 """
 
 from __future__ import annotations
@@ -17,6 +32,7 @@ from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParame
                                     Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
+from servodyn.hal.dynamixel.control_table import FAST_READ_FIRMWARE
 from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_reply
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.errors import ProtocolError
@@ -70,6 +86,32 @@ def _answers(silent: bool, level: int, instruction: int) -> bool:
     return level == 2 or (level == 1 and instruction in READS)
 
 
+def collide(packets: list[bytes]) -> bytes:
+    """What the host receives when servos send `packets` at once (the module's docstring): their
+    bytes ANDed, and the packet the result announces never checks."""
+    size = max(len(p) for p in packets)
+    wire = -1
+    for packet in packets:
+        wire &= int.from_bytes(bytes(packet).ljust(size, b"\xFF"), "big")
+    out = bytearray(wire.to_bytes(size, "big"))
+    if size >= 7:
+        end = 7 + (out[5] | out[6] << 8)
+        if 9 <= end <= size and crc16(bytes(out[:end - 2])) == out[end - 2] | out[end - 1] << 8:
+            out[end - 1] ^= 0xFF
+    return bytes(out)
+
+
+def _collided(replies: list[Reply]) -> list[Reply]:
+    """The replies of one instruction with those of one ID (several servos holding it) collided."""
+    by_id: dict[int, list[Reply]] = {}
+    for reply in replies:
+        by_id.setdefault(reply.servo_id, []).append(reply)
+    if len(by_id) == len(replies):
+        return replies
+    return [group[0] if len(group) == 1 else Reply(servo_id, collide([r.data for r in group]), group[0].delay)
+            for servo_id, group in by_id.items()]
+
+
 def _parsed(parser: Callable, params: bytes):
     try:
         return parser(params)
@@ -100,6 +142,14 @@ class VirtualBus:
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
         self.unanswerable = 0          # instructions whose answer cannot be encoded
+        self.line_speed: int | None = None   # bit/s of the host's bytes; None: every servo hears them
+        self.unheard: Counter[int] = Counter()   # bytes no servo listened at, by their speed
+        self._heard_speed: int | None = None  # the line speed of the last bytes fed to the reader
+        # who listens at what, cached until a servo's ID, Baud Rate or EEPROM changes (_rewire)
+        self._wiring: tuple | None = None
+        self._speed: int | None = None   # the one speed every servo listens at (None: several)
+        self._shared = False             # two servos hold one ID
+        self._plain = True               # no ID shared, every firmware takes fast reads
         self._fast_frames: dict[tuple, tuple] = {}   # request -> reply laid out
         self._command: tuple[bytes, int] | None = None   # the last whole SYNC WRITE chunk's shape and size
         self._sync_request: tuple = (None, None)          # the last SYNC READ packet and its requests
@@ -132,10 +182,53 @@ class VirtualBus:
             if servo.clocked_at != now:
                 servo.clock(now)
 
+    def _rewire(self) -> None:
+        """Who listens at which speed, whether an ID is shared, whether every firmware takes fast
+        reads: as the servos stand now (each servo's speed its Baud Rate register's: a write's
+        status went out at the old one)."""
+        speeds = {servo.listen() for servo in self.servos}
+        ids = [servo.id for servo in self.servos]
+        self._speed = speeds.pop() if len(speeds) == 1 else None
+        self._shared = len(set(ids)) != len(ids)
+        self._plain = not self._shared and all(s.get("firmware_version") >= FAST_READ_FIRMWARE for s in self.servos)
+        self._wiring = (Servo.wiring, len(self.servos))
+
     def handle(self, data: bytes, time: float | None = None) -> bytes:
         """Bytes from the host in, the servos' status bytes out."""
         now = self.clock() if time is None else time
         self.tick(now)
+        if self._wiring != (Servo.wiring, len(self.servos)):
+            self._rewire()
+        speed, everyone = self.line_speed, self.servos
+        try:
+            if speed is None or speed == self._speed:     # every servo hears: the swing's path
+                if speed != self._heard_speed:
+                    self._speed_changed(speed)
+                return self._handle(data, now, everyone)
+            return self._handle_at(data, now, speed, everyone)
+        finally:
+            self.servos = everyone     # _handle_at and a rewiring in the chunk narrow it
+
+    def _speed_changed(self, speed: int | None) -> None:
+        """A frame that was arriving at another speed is lost (its end is garbage to the receivers)."""
+        self._heard_speed = speed
+        for event in self.reader.expire():
+            if isinstance(event, BadFrame):
+                self.faults[event.fault] += 1
+
+    def _handle_at(self, data: bytes, now: float, speed: int, everyone: list[Servo]) -> bytes:
+        """`data` sent at `speed`, which not every servo listens at: the servos that do hear and
+        answer it (self.servos, for the call, is them), the bytes nobody hears are counted."""
+        self.servos = [servo for servo in everyone if servo.baud == speed]
+        if not self.servos:
+            self.unheard[speed] += len(data)
+            return b""
+        if speed != self._heard_speed:
+            self._speed_changed(speed)
+        return self._handle(data, now, everyone)
+
+    def _handle(self, data: bytes, now: float, everyone: list[Servo]) -> bytes:
+        """handle()'s work on the servos that hear `data` (self.servos; `everyone`: the whole bus)."""
         out = []
         events = self._repeated_command(data)
         if events is None:
@@ -147,7 +240,8 @@ class VirtualBus:
             if isinstance(event, BadFrame):
                 self.faults[event.fault] += 1
                 if event.fault is Fault.CRC:
-                    out += self._crc_error(event)
+                    replies = self._crc_error(event)
+                    out += _collided(replies) if len(replies) > 1 else replies
             elif isinstance(event, InstructionPacket):
                 try:
                     replies = self._execute(event, now)
@@ -156,12 +250,24 @@ class VirtualBus:
                     # real chain garbles it; here nobody answers, and it is counted
                     self.unanswerable += 1
                     replies = []
+                if self._shared and len(replies) > 1:
+                    replies = _collided(replies)
                 out += replies
+                if Servo.wiring != self._wiring[0]:
+                    self._rewired_in_chunk(everyone)
                 if self.on_command is not None and event.instruction in COMMANDS:
                     self.on_command()
                 if self.on_instruction is not None:
                     self.on_instruction(Exchange(event, tuple(replies), now))
         return b"".join(reply.data for reply in out)
+
+    def _rewired_in_chunk(self, everyone: list[Servo]) -> None:
+        """An instruction changed an ID or a Baud Rate (its status already sent, at the old speed):
+        the rest of the chunk is heard as the servos now stand."""
+        self.servos = everyone
+        self._rewire()
+        if self.line_speed is not None and self.line_speed != self._speed:
+            self.servos = [servo for servo in everyone if servo.baud == self.line_speed]
 
     def _repeated_command(self, data: bytes) -> list[InstructionPacket] | None:
         """A chunk that is one broadcast SYNC WRITE frame of the last whole one's shape (its first
@@ -227,10 +333,19 @@ class VirtualBus:
         return replies
 
     def _crc_error(self, frame: BadFrame) -> list[Reply]:
-        servo = self._primary(frame.id) if frame.id != BROADCAST_ID else None
-        if servo is None:
+        if frame.id == BROADCAST_ID:
             return []
-        return self._status(_Policy(servo), servo.id, frame.instruction, ErrorNumber.CRC)
+        replies = []
+        for servo in self._holders(frame.id):
+            replies += self._status(_Policy(servo), servo.id, frame.instruction, ErrorNumber.CRC)
+        return replies
+
+    def _holders(self, servo_id: int) -> list[Servo]:
+        """The servos at `servo_id` (one at most unless an ID is shared)."""
+        if not self._shared:
+            servo = self._primary(servo_id)
+            return [] if servo is None else [servo]
+        return [servo for servo in self.servos if servo.id == servo_id]
 
     # --- single-servo instructions -----------------------------------------------------------------
 
@@ -308,15 +423,15 @@ class VirtualBus:
             return self._fast_reads(instruction, requests)
         replies = []
         for servo_id, address, length in requests:
-            servo = self._primary(servo_id)
-            policy = _Policy(servo) if servo is not None else None
-            if policy is None or not policy.answers(instruction):
-                continue
-            try:
-                data, error = servo.read(address, length), 0
-            except StatusError as refused:
-                data, error = b"", refused.error
-            replies += self._status(policy, servo_id, instruction, error, data)
+            for servo in self._holders(servo_id):
+                policy = _Policy(servo)
+                if not policy.answers(instruction):
+                    continue
+                try:
+                    data, error = servo.read(address, length), 0
+                except StatusError as refused:
+                    data, error = b"", refused.error
+                replies += self._status(policy, servo_id, instruction, error, data)
         return replies
 
     def _fast_reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
@@ -327,6 +442,8 @@ class VirtualBus:
         silent). The reply is filled in place in a frame laid out once per request, by the chain
         when it is one span of every servo's."""
         frame, starts, ids, span, lengths = self._fast_frame(requests)
+        if not self._plain:
+            return self._fast_reads_apart(instruction, requests, frame, starts)
         if span is not None and self.chain.covers(self.servos):
             filled = self.chain.fast_read(ids, *span, frame, starts)
             if filled != -2:
@@ -346,18 +463,39 @@ class VirtualBus:
             answering.append(servo)
         if not answering:
             return []
-        for servo, (_, address, length), start in zip(answering, requests, starts):
-            alert = ALERT_BIT if servo.alert else 0
-            try:
-                servo.read_into(frame, start + 2, address, length)
-                error = 0
-            except StatusError as refused:
-                frame[start + 2:start + 2 + length] = bytes(length)
-                error = refused.error
-            frame[start] = error | alert
-        seal_fast_reply(frame, [length for _, _, length in requests[:len(answering)]])
-        end = starts[len(answering)]          # the whole frame, or where the silent servo's block begins
-        return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:end]), answering[0].return_delay)]
+        return [Reply(BROADCAST_ID, _fill_fast_reply(frame, starts, answering, requests), answering[0].return_delay)]
+
+    def _fast_reads_apart(self, instruction: int, requests: list[tuple[int, int, int]], frame: bytearray,
+                          starts: list[int]) -> list[Reply]:
+        """_fast_reads on a bus where an ID is shared or a firmware predates fast reads. A servo of
+        Firmware Version below FAST_READ_FIRMWARE does not know the instruction: it answers an
+        Instruction Error status of its own (Status Return Level permitting), and for the chain it
+        is a silent servo (the fast reply is cut where its block would begin). The holders of a
+        shared ID each fill its block (one version of the reply per holder). Whatever goes out at
+        once collides (`collide`)."""
+        holders = [[s for s in self.servos if s.id == servo_id] for servo_id, _, _ in requests]
+        refusals = [servo for group in holders for servo in group
+                    if servo.get("firmware_version") < FAST_READ_FIRMWARE and not servo.silent
+                    and _answers(False, servo.status_return_level, instruction)]
+        sent = [StatusPacket(servo.id, ErrorNumber.INSTRUCTION | (ALERT_BIT if servo.alert else 0)).encode()
+                for servo in refusals]
+        answering: list[list[Servo]] = []
+        for group in holders:
+            if any(s.silent or s.get("firmware_version") < FAST_READ_FIRMWARE for s in group):
+                break
+            if not group or not all(_answers(False, s.status_return_level, instruction) for s in group):
+                answering = []
+                break
+            answering.append(group)
+        if answering:
+            versions = max(len(group) for group in answering)
+            sent += [_fill_fast_reply(frame, starts, [group[min(v, len(group) - 1)] for group in answering], requests)
+                     for v in range(versions)]
+        if not sent:
+            return []
+        first = answering[0][0] if answering else refusals[0]
+        servo_id = BROADCAST_ID if answering else refusals[0].id
+        return [Reply(servo_id, sent[0] if len(sent) == 1 else collide(sent), first.return_delay)]
 
     def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int], bytes, tuple | None,
                                                                       list[int]]:
@@ -386,7 +524,7 @@ class VirtualBus:
         if packet.id != BROADCAST_ID:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
         params = packet.params
-        if len(params) >= 4 and self.chain.covers(self.servos) and self.chain.write(
+        if len(params) >= 4 and not self._shared and self.chain.covers(self.servos) and self.chain.write(
                 params[0] | params[1] << 8, params[2] | params[3] << 8, params):
             return []
         try:
@@ -419,6 +557,23 @@ class VirtualBus:
                     servo.write(address, data)
                 except StatusError:
                     pass
+
+
+def _fill_fast_reply(frame: bytearray, starts: list[int], answering: list[Servo],
+                     requests: list[tuple[int, int, int]]) -> bytes:
+    """The fast read reply laid out in `frame` filled by `answering`, the servos of the first
+    requests in order: the whole frame, or up to where the next one's block would begin."""
+    for servo, (_, address, length), start in zip(answering, requests, starts):
+        alert = ALERT_BIT if servo.alert else 0
+        try:
+            servo.read_into(frame, start + 2, address, length)
+            error = 0
+        except StatusError as refused:
+            frame[start + 2:start + 2 + length] = bytes(length)
+            error = refused.error
+        frame[start] = error | alert
+    seal_fast_reply(frame, [length for _, _, length in requests[:len(answering)]])
+    return bytes(memoryview(frame)[:starts[len(answering)]])
 
 
 def _raise(number: ErrorNumber):

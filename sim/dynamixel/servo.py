@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 
 from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
-from servodyn.hal.dynamixel.control_table import (BAUD_RATES, GOAL_POSITION_SPAN, PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE,
-                                                  TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item,
-                                                  Model, OperatingMode)
+from servodyn.hal.dynamixel.control_table import (BAUD_RATES, DRIVE_MODE_REVERSE, EEPROM_END, GOAL_POSITION_SPAN,
+                                                  PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE, TICKS_PER_REV,
+                                                  VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item, Model,
+                                                  OperatingMode)
 
 from .drive import Mechanics, PositionPid
 
@@ -37,11 +39,22 @@ def _fail(number: ErrorNumber) -> StatusError:
 
 class Servo:
     """One simulated servo. ``zero_ticks`` is the encoder reading at the plant's zero angle (2048,
-    half a turn, so that a joint at zero can move both ways inside Position Control Mode's 0..4095)."""
+    half a turn, so that a joint at zero can move both ways inside Position Control Mode's 0..4095).
+
+    On a bench (sim/bench.py) a servo is a device of its protocol: ``factory_fresh`` makes one as it
+    leaves the factory, ``nonvolatile`` and ``restore`` are its EEPROM (addresses below 64) as a
+    JSON-able dict, ``power_cycle`` switches it off and on, and ``on_nonvolatile(servo)``, when set,
+    is told after every write that reached its EEPROM. ``baud`` is the speed (bit/s) it listens and
+    answers at: its Baud Rate register's as it powered up or last answered (a written Baud Rate
+    takes effect once the write's status is sent, as on the real servo; `listen`)."""
+
+    wiring = 0      # counts changes of any servo's ID, Baud Rate or EEPROM: a bus's cached view of
+                    # who listens at which speed is stale when this moved (VirtualBus._rewire)
 
     def __init__(self, model: Model = XM430_W350, servo_id: int = 1, *, position: float = 0.0,
                  zero_ticks: int = TICKS_PER_REV // 2, supply_voltage: float = 12.0,
-                 temperature: int = 30, mechanics: Mechanics | None = None, baud: int | None = None):
+                 temperature: int = 30, mechanics: Mechanics | None = None, baud: int | None = None,
+                 firmware: int | None = None):
         if not 0 <= servo_id <= MAX_ID:
             raise ValueError(f"servo ID {servo_id}: 0..{MAX_ID}")
         if supply_voltage <= 0:
@@ -57,7 +70,7 @@ class Servo:
         # the addresses the per-packet and per-step paths read directly (one-byte items, or a Struct)
         self._at = {name: self.items[name].address for name in
                     ("id", "drive_mode", "torque_enable", "status_return_level", "hardware_error_status",
-                     "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm",
+                     "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm", "baud_rate",
                      "pwm_limit", "goal_current", "current_limit", "present_input_voltage", "homing_offset",
                      "moving_threshold", "moving")}
         self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
@@ -76,15 +89,82 @@ class Servo:
         self._heard_at: float | None = None
         self.clocked_at: float | None = None     # the time of the last clock()
         self.silent = False            # a fault: the servo executes but never answers
+        self.on_nonvolatile: Callable[[Servo], None] | None = None   # told after an EEPROM write
         self._load_defaults(eeprom=True)
         self._set("id", servo_id)
         if baud is not None:         # set up at this rate (its EEPROM); a new servo says 57600
             if baud not in BAUD_RATES:
                 raise ValueError(f"baud rate {baud}: a Dynamixel X servo runs at {', '.join(map(str, BAUD_RATES))}")
             self._set("baud_rate", BAUD_RATES.index(baud))
+        if firmware is not None:
+            self._set("firmware_version", self._checked("firmware_version", firmware))
+        self.baud = BAUD_RATES[self.get("baud_rate")]
         self._set("present_input_voltage", round(supply_voltage * 10))
         self._set("present_temperature", temperature)
         self._power_up()
+
+    # --- a device of the bench (sim/bench.py) -----------------------------------------------------
+
+    @classmethod
+    def factory_fresh(cls, model: Model = XM430_W350, **hardware) -> "Servo":
+        """A servo as it leaves the factory: every EEPROM item at its control-table default (ID,
+        Baud Rate, Return Delay Time, Operating Mode, ...). `hardware`: the constructor's
+        keywords for what is not its memory (position, zero_ticks, supply_voltage, firmware, ...)."""
+        return cls(model, next(item.default for item in model.items() if item.name == "id"), **hardware)
+
+    def nonvolatile(self) -> dict[str, int]:
+        """The EEPROM, item by item (name -> value): what a power cycle keeps."""
+        return {name: self.get(name) for name, item in self.items.items() if item.eeprom}
+
+    def restore(self, state: dict) -> None:
+        """Put `state` (nonvolatile()'s, or any part of it) in the EEPROM, then power up with it
+        (RAM at its defaults, torque off). ValueError, before anything changes, for an item that
+        is not in the EEPROM, a value out of its range, or another model's memory."""
+        values = {}
+        for name, value in state.items():
+            item = self.items.get(name)
+            if item is None or not item.eeprom:
+                raise ValueError(f"{self.model.name}: {name!r} is not an item of its EEPROM")
+            values[name] = self._checked(name, value)
+        if values.get("model_number", self.model.model_number) != self.model.model_number:
+            raise ValueError(f"a memory of model number {values['model_number']} does not fit a {self.model.name} "
+                             f"(model number {self.model.model_number})")
+        for name, value in values.items():
+            self._set(name, value)
+        self.power_cycle()
+
+    def power_cycle(self) -> None:
+        """Off and on: RAM back to its defaults (torque off, hardware errors cleared), the EEPROM
+        kept, listening at its Baud Rate register's speed. A fault (`silent`) stays: it is the
+        bench's, not the servo's memory."""
+        self._power_up()
+        self.listen()
+        Servo.wiring += 1
+
+    def listen(self) -> int:
+        """Listen (and answer) at the Baud Rate register's speed from now on; that speed."""
+        self.baud = BAUD_RATES[self._table[self._at["baud_rate"]]]
+        return self.baud
+
+    def _checked(self, name: str, value) -> int:
+        """`value` for item `name` as the bench sets it (any item, read-only ones too): an int in the
+        item's range and field, or ValueError."""
+        item = self.items[name]
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{self.model.name} {name}: {value!r} is not an integer")
+        bits = 8 * item.size
+        low, high = (-(1 << bits - 1), (1 << bits - 1) - 1) if item.signed else (0, (1 << bits) - 1)
+        if (not low <= value <= high or (item.low is not None and not item.low <= value <= item.high)
+                or (item.choices is not None and value not in item.choices)
+                or (item.mask is not None and value & ~item.mask)):
+            raise ValueError(f"{self.model.name} {name}: {value} is out of its range")
+        return value
+
+    def _nonvolatile_written(self) -> None:
+        """A write reached the EEPROM (ID, Baud Rate, ...): buses see it, the bench is told."""
+        Servo.wiring += 1
+        if self.on_nonvolatile is not None:
+            self.on_nonvolatile(self)
 
     # --- table access --------------------------------------------------------------------------
 
@@ -151,6 +231,8 @@ class Servo:
     def write(self, address: int, data: bytes) -> None:
         """Write whole items, all or nothing."""
         self._apply(self._check_write(address, data))
+        if address < EEPROM_END:
+            self._nonvolatile_written()
 
     def reg_write(self, address: int, data: bytes) -> None:
         """Check now, apply on ACTION."""
@@ -174,12 +256,13 @@ class Servo:
         if option not in set(ResetOption):
             raise _fail(ErrorNumber.DATA_RANGE)
         kept = {"id": self.get("id"), "baud_rate": self.get("baud_rate")}
-        self._load_defaults(eeprom=True)
+        self._load_defaults(eeprom=True, writable_only=True)     # Model Number, Firmware Version stay
         if option != ResetOption.ALL:
             self._set("id", kept["id"])
         if option == ResetOption.EXCEPT_ID_AND_BAUD:
             self._set("baud_rate", kept["baud_rate"])
         self.reboot()
+        self._nonvolatile_written()
 
     def clear_multi_turn(self) -> None:
         """Present Position back within one turn; refused while moving."""
@@ -276,9 +359,9 @@ class Servo:
         if mode == OperatingMode.POSITION:
             self._reset_turns()
 
-    def _load_defaults(self, eeprom: bool) -> None:
+    def _load_defaults(self, eeprom: bool, writable_only: bool = False) -> None:
         for item in self.items.values():
-            if item.default is not None and item.eeprom == eeprom:
+            if item.default is not None and item.eeprom == eeprom and (item.writable or not writable_only):
                 self._set(item.name, item.default)
 
     def _power_up(self) -> None:
@@ -333,7 +416,7 @@ class Servo:
 
     @property
     def _sign(self) -> int:
-        return -1 if self._table[self._at["drive_mode"]] & 0x01 else 1
+        return -1 if self._table[self._at["drive_mode"]] & DRIVE_MODE_REVERSE else 1
 
     def _encoder(self, position: float) -> float:
         return self.zero_ticks + self._sign * position * TICKS_PER_REV / (2 * math.pi)
@@ -357,7 +440,7 @@ class Servo:
         self._stale = False
         position, velocity, current = self._shaft
         table, at = self._table, self._at
-        sign = -1 if table[at["drive_mode"]] & 0x01 else 1
+        sign = -1 if table[at["drive_mode"]] & DRIVE_MODE_REVERSE else 1
         (_, pack_p, at_p, bound_p), (_, pack_v, at_v, bound_v), (_, pack_c, at_c, bound_c) = self._present
         ticks = (self.zero_ticks + sign * position * TICKS_PER_REV / (2 * math.pi)      # _position_ticks
                  - TICKS_PER_REV * self._turns + _I32.unpack_from(table, at["homing_offset"])[0])

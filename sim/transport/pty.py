@@ -12,21 +12,75 @@ a background thread (`start()`, for tests and tools that share the process) or i
 thread (`serve_forever()`).
 
 A control socket (`serve_forever(control)`) takes requests between two packets, so a server in
-another process (servodyn.tools.simulator.SimProcess) injects faults and reads the plant's clock
-and the servos' torque deterministically, or pauses it.
+another process (servodyn.tools.simulator.SimProcess) injects faults, power-cycles the robot,
+reads the plant's clock and the servos' torque deterministically, or pauses it.
+
+Line speed. The servos hear only bytes sent at their own speed, so the server learns the speed
+the host set on its end of the pseudo-terminal and tells the arm (`hear_at`). Checked on Linux
+with pyserial 3.5 and dynamixel-sdk 4.1.0's PortHandler: a pty master's termios *is* its slave's
+(the kernel's TCGETS on a master reads the slave side), and it stays set after the host closes its
+port while this server holds the slave open. `termios.tcgetattr(master)` gives only the
+B-constant: pyserial's 57600, 1 M and 4 M read back as B57600 (4097), B1000000 (4104) and
+B4000000 (4111); 4.5 M, which pyserial sets through TCSETS2 with BOTHER, reads back as BOTHER
+(4096), no speed at all. The TCGETS2 ioctl gives the speed in c_ispeed/c_ospeed for each of them:
+57600, 1000000, 4000000 and 4500000 (the kernel fills them for a B-constant too).
+dynamixel-sdk's setBaudRate takes 57600, 1 M and 4 M (it reopens the port at that speed) and
+refuses 4.5 M (not among its 17 rates: it returns False and the port keeps its speed). A fresh
+pseudo-terminal runs at 38400 (B38400): the server sets it to the bus's configured speed at start,
+so a host that opens the path without setting a speed talks at the bus's.
+
+The server reads the speed with TCGETS2 each time it reads the host's bytes: about 1 µs a call
+alone, 1 to 4 µs in the serving loop (measured), against some 70 to 100 µs of the server's CPU a
+transaction of the swing. Being told instead was tried and dropped: with the master in packet mode
+(TIOCPKT) and EXTPROC in the slave's lflag, each change of the slave's termios does reach the
+master as a status read (TIOCPKT_IOCTL, 0x40; the SDK's setBaudRate 0x41, with a flush), but so
+does every tcflush: dynamixel-sdk's clearPort (reset_input_buffer) before each packet woke the
+server with a TIOCPKT_FLUSHREAD status 1.9 times a transaction, an extra wake-up and read dearer
+than the ioctl. The speed is the one set when the server reads: a host changes speed between
+exchanges (the SDK reopens its port to do it), not with bytes of the old speed unread.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import select
+import struct
 import sys
+import termios
 import threading
 import time
 import tty
 
 REALTIME_WAKE = 0.02     # s: a real-time plant is brought up to the wall clock at least this often
+
+# Linux's struct termios2 (asm-generic/termbits.h): c_iflag, c_oflag, c_cflag, c_lflag (4 bytes
+# each), c_line, c_cc[19], c_ispeed, c_ospeed; TCGETS2 / TCSETS2 = _IOR / _IOW('T', 0x2A / 0x2B,
+# struct termios2); BOTHER in c_cflag's CBAUD bits: "the speed is in c_ispeed / c_ospeed"
+TERMIOS2 = struct.Struct("<4I B 19s 2I")
+TCGETS2 = 0x80000000 | TERMIOS2.size << 16 | ord("T") << 8 | 0x2A     # 0x802C542A on x86-64 and arm64
+TCSETS2 = 0x40000000 | TERMIOS2.size << 16 | ord("T") << 8 | 0x2B
+BOTHER = 0o010000
+_OSPEED = TERMIOS2.size - 4
+_U32 = struct.Struct("<I")
+
+
+def line_speed(fd: int, buffer: bytearray | None = None) -> int:
+    """The speed (bit/s) a serial line's termios holds (a pty master: its slave's); `buffer`, of
+    TERMIOS2.size bytes, saves an allocation a call."""
+    buffer = bytearray(TERMIOS2.size) if buffer is None else buffer
+    fcntl.ioctl(fd, TCGETS2, buffer, True)
+    return _U32.unpack_from(buffer, _OSPEED)[0]
+
+
+def set_line_speed(fd: int, speed: int) -> None:
+    """Set a serial line's speed in and out (BOTHER: any speed, as pyserial does for 4.5 M)."""
+    buffer = bytearray(TERMIOS2.size)
+    fcntl.ioctl(fd, TCGETS2, buffer, True)
+    iflag, oflag, cflag, lflag, line, cc, _, _ = TERMIOS2.unpack(buffer)
+    cflag = (cflag & ~termios.CBAUD) | BOTHER
+    fcntl.ioctl(fd, TCSETS2, TERMIOS2.pack(iflag, oflag, cflag, lflag, line, cc, speed, speed))
 
 
 class PtyServer:
@@ -42,6 +96,13 @@ class PtyServer:
         tty.setraw(self.slave)                 # bytes pass untouched: no echo, no line editing
         tty.setraw(self.master)
         self.path = os.ttyname(self.slave)
+        # the host's line speed, told to the arm when it changes (an arm without hear_at: not at all;
+        # the module's docstring)
+        self._hear_at = getattr(arm, "hear_at", None)
+        self._termios = bytearray(TERMIOS2.size)
+        self._speed: int | None = None
+        if self._hear_at is not None and getattr(arm, "baud", None):
+            set_line_speed(self.slave, arm.baud)
         self._stop = threading.Event()
         self._wake_r, self._wake_w = os.pipe()  # stop() wakes the blocked loop through it
         self._lock = arm.lock                   # shared by every bus of one robot
@@ -167,10 +228,14 @@ class PtyServer:
         """Read what the host sent and answer it; False when the pseudo-terminal is gone."""
         try:
             data = os.read(self.master, 4096)
+            speed = line_speed(self.master, self._termios) if self._hear_at is not None else None
         except OSError:
             return False
         with self._lock:
             try:
+                if speed != self._speed:
+                    self._speed = speed
+                    self._hear_at(speed)
                 reply = self.arm.handle(data)
             except Exception as err:       # a serving loop that died would leave the bus deaf
                 self.errors += 1
@@ -189,9 +254,14 @@ class PtyServer:
         while select.select([self.master], [], [], quiet)[0] and self._answer():
             pass
 
+    def power_cycle(self) -> None:
+        """SimulatedRobot.power_cycle between two transactions."""
+        with self._lock:
+            self.arm.power_cycle()
+
     def _request(self, request: dict) -> dict:
         """One request of the control socket: fault, clear, pause (answered, then the freeze),
-        status or quit."""
+        power_cycle, status or quit."""
         op = request.get("op")
         try:
             if op == "fault":
@@ -200,6 +270,8 @@ class PtyServer:
                 self.clear_faults()
             elif op == "pause":
                 self.pause(float(request["seconds"]))
+            elif op == "power_cycle":
+                self.power_cycle()
             elif op == "quit":
                 self._stop.set()
             elif op != "status":
