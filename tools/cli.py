@@ -548,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "over to the next run")
     p.set_defaults(func=cmd_sim)
 
-    p = sub.add_parser("ports", help="list the serial adapters and SocketCAN links, and what is in their way",
+    p = sub.add_parser("ports", help="list serial adapters and CAN links, and what is in their way",
                        description="The USB serial adapters (device, stable by-id name, VID:PID, product, the "
                        "adapter recognised, FTDI latency timer, the process holding it) and SocketCAN links "
                        "(state, bit rate), each port's problems with their fixes. Changes nothing.")
