@@ -63,8 +63,8 @@ def ask(question: str, yes: bool, say: Callable = print) -> bool:
         return True
     say(f"{question} [y/N] ", end="", flush=True)
     answer = sys.stdin.readline()
-    if not answer:
-        say("")
+    if not sys.stdin.isatty():         # a piped answer is not echoed: the transcript shows it
+        say(answer.strip())
     return answer.strip().lower() in ("y", "yes")
 
 

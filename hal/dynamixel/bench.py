@@ -297,6 +297,8 @@ def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
             findings.append(Finding("baud rate", f"{f.baud} baud", f"{bus.baud} baud",
                                     f"`{setup}` writes the bus's rate", joint=joint.dof, id=joint.id, bus=bus_name))
             continue
+        if result.collisions:           # the servos are there, sharing an ID: the collision says what to do
+            continue
         findings.append(Finding("present", "no servo", f"a {joint.servo.name} at ID {joint.id}, {bus.baud} baud",
                                 f"check its power and cable; a new servo answers at ID {FACTORY_ID}, {FACTORY_BAUD} "
                                 f"baud: connect it alone and run `{setup}`", joint=joint.dof, id=joint.id,
