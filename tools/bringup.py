@@ -407,22 +407,29 @@ def clear_errors(config_name: str, port, say=print) -> int:
 MONITOR_START = ITEMS["torque_enable"].address          # Torque Enable .. Present Temperature in one read
 
 
+def _open_limp(config, ports: dict, links: dict, then: str, say) -> None:
+    """Open every bus into `links` (a Dynamixel Link or a _CanPort, by bus), torque off on each, said
+    first with what comes `then`."""
+    for bus, path in ports.items():
+        what = "motor" if _kind(config, bus) == "can" else "servo"
+        if what == "motor":
+            links[bus] = port_ = _CanPort(config, bus, path)
+            port_.__enter__()
+        else:
+            links[bus] = _link(path, config.buses[bus].baud)
+        say(f"bus '{bus}' ({path}): torque off on every {what} {then}".replace(" :", ":"))
+        if what == "motor":
+            can_bench.torque_off(links[bus].bus, config.joints_on(bus))
+        else:
+            dxl.torque_off(links[bus], [j.id for j in config.joints_on(bus)])
+
+
 def monitor(config_name: str, port, count: int | None, rate: float, say=print) -> int:
     """Torque off, then every joint's state, SI and raw, refreshed in place until Ctrl-C."""
     config, ports = config_and_ports(config_name, port)
     links = {}
     try:
-        for bus, path in ports.items():
-            if _kind(config, bus) == "can":
-                port_ = _CanPort(config, bus, path)
-                links[bus] = port_
-                port_.__enter__()
-                say(f"bus '{bus}' ({path}): torque off on every motor (support the arm), then read only")
-                can_bench.torque_off(port_.bus, config.joints_on(bus))
-                continue
-            links[bus] = _link(path, config.buses[bus].baud)
-            say(f"bus '{bus}' ({path}): torque off on every servo (support the arm), then read only")
-            dxl.torque_off(links[bus], [j.id for j in config.joints_on(bus)])
+        _open_limp(config, ports, links, "(support the arm), then read only", say)
         live = _live_table() if sys.stdout.isatty() and count is None else None
         shown = 0
         with live or _Plain(say) as out:
@@ -527,16 +534,7 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
     links = {}
     results = {}
     try:
-        for bus, path in ports.items():
-            if _kind(config, bus) == "can":
-                links[bus] = port_ = _CanPort(config, bus, path)
-                port_.__enter__()
-                say(f"bus '{bus}' ({path}): torque off on every motor: move the joints by hand")
-                can_bench.torque_off(port_.bus, config.joints_on(bus))
-                continue
-            links[bus] = _link(path, config.buses[bus].baud)
-            say(f"bus '{bus}' ({path}): torque off on every servo: move the joints by hand")
-            dxl.torque_off(links[bus], [j.id for j in config.joints_on(bus)])
+        _open_limp(config, ports, links, ": move the joints by hand", say)
         for joint in chosen:
             results[joint.dof] = _calibrate_joint(joint, _horn_reader(joint, links[joint.bus]), config, margin, say)
     finally:
