@@ -97,6 +97,16 @@ class RobotConfig:
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
 
+    @property
+    def builtin(self) -> bool:
+        """Shipped with servodyn (hal/configs): part of the package, not the user's file."""
+        return self.path is not None and Path(self.path).resolve().parent == CONFIGS_DIR.resolve()
+
+    @property
+    def argument(self) -> str:
+        """How a command line names it: its built-in name, or its file."""
+        return self.name if self.path is None or self.builtin else str(self.path)
+
 
 class _Checker:
     """Typed look-ups in one TOML table; every failure names `where` and the key."""

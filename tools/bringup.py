@@ -15,7 +15,6 @@ import sys
 import time
 from collections.abc import Callable
 
-import numpy as np
 
 from ..hal import host
 from ..loop.realtime import LOOP_PRIORITY
@@ -96,12 +95,13 @@ class _CanPort:
     """A CAN bus of the configuration opened with python-can: the interface its channel names
     (can0: SocketCAN, a /dev path: an SLCAN adapter), at the configured bit rate."""
 
-    def __init__(self, config: RobotConfig, bus: str, channel: str):
-        self.config, self.name, self.channel = config, bus, channel
-        spec = config.buses[bus]
-        self.interface = interface_for(channel, spec.options.get("interface"))
-        self.bitrate = spec.baud
-        self.joints = config.joints_on(bus)
+    def __init__(self, config: RobotConfig | None, bus: str | None, channel: str):
+        """Without a configuration (a scan of a bare channel): the channel's interface, the CAN
+        backend's default bit rate."""
+        spec = config.buses[bus] if config is not None else None
+        self.channel = channel
+        self.interface = interface_for(channel, spec.options.get("interface") if spec else None)
+        self.bitrate = spec.baud if spec else Can.default_baud
         self.bus = None
 
     def __enter__(self):
@@ -193,11 +193,7 @@ def scan(port: str | None, bauds: str | None, config_name: str | None, as_json: 
 
 def _scan_can(config, bus, path, as_json, say):
     """A CAN bus: register reads to every id (no torque), replies heard on every id."""
-    if config is None:
-        port = _CanPort.__new__(_CanPort)
-        port.channel, port.interface, port.bitrate, port.bus = path, interface_for(path, None), Can.default_baud, None
-    else:
-        port = _CanPort(config, bus, path)
+    port = _CanPort(config, bus, path)
     heard: list[str] = []
     if not as_json:
         say(f"scanning {path} ({port.interface}, {port.bitrate} bit/s), CAN IDs 1-{can_bench.MAX_ID} "
@@ -491,17 +487,16 @@ def _monitor_table(config, links):
                               f"{r.v:.3f}", f"{r.t:6.3f} N·m", "-", f"{r.temperature}/{r.temperature2}", "-",
                               DAMIAO_STATUS.get(r.status, f"0x{r.status:X}"))
             continue
-        units = ServoMap.from_joints(joints)
-        for k, joint in enumerate(joints):
+        for joint in joints:
+            units = ServoMap.from_joints([joint])
             try:
                 raw = dxl.decode_table(link.read_table(joint.id, MONITOR_START, TABLE_SIZE - MONITOR_START), MONITOR_START)
             except ServoError:
                 table.add_row(joint.dof, str(joint.id), *["-"] * 8, "no answer")
                 continue
             ticks, vel, cur = raw["present_position"], raw["present_velocity"], raw["present_current"]
-            q = units.from_ticks(np.full(units.n, ticks))[k]
-            qd = units.from_velocity_units(np.full(units.n, vel))[k]
-            amps = units.current_from_units(np.full(units.n, cur))[k]
+            q, qd, amps = (float(units.from_ticks(ticks)[0]), float(units.from_velocity_units(vel)[0]),
+                           float(units.current_from_units(cur)[0]))
             status = raw["hardware_error_status"]
             table.add_row(joint.dof, str(joint.id), f"{math.degrees(q):8.2f}", str(ticks), f"{qd:7.3f}", str(vel),
                           f"{amps:6.3f}", str(cur), str(raw["present_temperature"]),

@@ -559,6 +559,11 @@ def build_parser() -> argparse.ArgumentParser:
     # ---- bring-up: from a box of servos to an arm that moves (tools/bringup.py)
     port_help = ("the bus's serial port or CAN channel (default: the configuration's); a configuration with "
                  "several buses names each: --port shoulder=can0 --port wrist=/dev/ttyUSB0")
+
+    def bus_options(p):
+        """--config and --port, as every bring-up command on a configuration's buses takes them."""
+        p.add_argument("--config", required=True, help="robot configuration")
+        p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
     p = sub.add_parser("scan", help="find servos at every ID and baud rate (broadcast ping)",
                        description="Protocol 2.0 broadcast ping at each baud rate (57600 first, a new servo's rate, "
                        "then 4.5M down to 9600): each servo's ID, model, firmware and rate. With --config, what "
@@ -576,9 +581,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "model, show what it will write (ID, Return Delay Time 0, Drive Mode reverse bit clear, "
                        "Homing Offset 0, Current Limit, the bus's baud rate last), ask, write it to the EEPROM "
                        "with torque off and find it again at its new ID and rate.")
-    p.add_argument("--config", required=True, help="robot configuration")
+    bus_options(p)
     p.add_argument("--joint", required=True, metavar="DOF", help="the joint this servo drives")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
     p.add_argument("--yes", action="store_true", help="write without asking")
     p.set_defaults(func=cmd_setup)
 
@@ -588,8 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "Mode, Homing Offset, Status Return Level, Current Limit against the configuration, input "
                        "voltage against [supply], Hardware Error Status, the Bus Watchdog. One line per finding "
                        "with its fix. Exit 0 all well, 1 findings, 2 bad input.")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.add_argument("--json", action="store_true",
                    help='print {"findings": [{"joint", "id", "check", "found", "expected", "fix"}, ...]}')
     p.set_defaults(func=cmd_doctor)
@@ -598,8 +601,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Switch torque off on every servo, then show every joint's position, speed, "
                        "current, temperature, voltage and error, in SI and in register units, refreshed in place "
                        "until Ctrl-C.")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="refreshes per second (default 10)")
     p.add_argument("--count", type=count(1, what="refreshes"), default=None, metavar="N",
                    help="stop after N refreshes (default: until Ctrl-C)")
@@ -611,8 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "stops (`position_limits`, a margin inside). The configuration is then patched, its "
                        "comments and layout kept, after the change is shown and confirmed; a built-in "
                        "configuration's patched copy goes to ./NAME.toml.")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.add_argument("--joint", action="append", default=None, metavar="DOF", help="only this joint (repeatable)")
     p.add_argument("--margin", type=float, default=3.0, metavar="DEG",
                    help="how far inside the stops the limits go (default 3 degrees)")
@@ -624,24 +625,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reboot", help="reboot every servo (clears a latched hardware error)",
                        description="REBOOT every servo of the configuration (a latched hardware error, such as "
                        "an overload, is cleared only so or by a power cycle), then read each one's error back.")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.add_argument("--yes", action="store_true", help="reboot without asking")
     p.set_defaults(func=cmd_reboot)
 
     p = sub.add_parser("clear-errors", help="clear what can be cleared without a reboot, and say the rest",
                        description="Clear a tripped Bus Watchdog on every servo (a CAN motor's error), then read "
                        "each one's error back; a latched hardware error needs `servodyn reboot`.")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.set_defaults(func=cmd_clear_errors)
 
     p = sub.add_parser("torque", help="torque off on every servo of every bus: the panic button",
                        description="Torque off on every servo of every bus of the configuration (a broadcast, so "
                        "a servo at an unexpected ID too), then read each one back.")
     p.add_argument("state", choices=["off"], help="off")
-    p.add_argument("--config", required=True, help="robot configuration")
-    p.add_argument("--port", action="append", default=None, metavar="PATH|BUS=PATH", help=port_help)
+    bus_options(p)
     p.set_defaults(func=cmd_torque)
 
     p = sub.add_parser("codegen", help="write a configuration and its motion as C for the firmware",

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import tomlkit
 
-from ..hal.config import CONFIGS_DIR, load_config
+from ..hal.config import load_config
 from ..hal.errors import ConfigError
 
 
@@ -51,9 +51,8 @@ class ConfigPatch:
         (default ./<name>.toml), since the package's own file is not the user's to change."""
         if config.path is None:
             raise ConfigError(f"'{config.name}' was not loaded from a file: nothing to patch")
-        builtin = Path(config.path).resolve().parent == CONFIGS_DIR.resolve()
         if target is None:
-            target = Path(f"{config.name}.toml") if builtin else config.path
+            target = Path(f"{config.name}.toml") if config.builtin else config.path
         return cls(config.path, Path(target))
 
     @property

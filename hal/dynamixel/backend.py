@@ -38,7 +38,6 @@ import numpy as np
 from ...control.timing import BUS_WATCHDOG
 from ..bringup import ERROR
 from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
-from ..config import CONFIGS_DIR
 from ..errors import (BusStallError, ServoError, ServoHardwareError, ServoInitializationError,
                       ServoOperationError, ServoTimeoutError)
 from ..host import claim_port, is_pseudo_terminal, open_failure
@@ -517,19 +516,16 @@ class DynamixelBus(ServoBus):
         """At open: the servo answers, and its control table is one a run can accept (the checks
         `servodyn doctor` makes, hal.dynamixel.bench.table_findings): the first that is not ends the
         open in one line with its fix. A latched hardware error is a ServoHardwareError."""
-        data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)
-        for _ in range(self.retries):
+        for _ in range(self.retries + 1):
+            data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)
             if result == self._sdk.COMM_SUCCESS:
                 break
-            data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)
         if result != self._sdk.COMM_SUCCESS:
-            config = self.config.name if self.config.path is None or self.config.path.parent == CONFIGS_DIR \
-                else self.config.path
             raise ServoInitializationError(
                 f"joint '{joint.dof}' (id {joint.id}) did not answer at {self.bus.baud} baud on {self.port_name} "
                 f"({self.packets.getTxRxResult(result)}): check its power and cable, and that it was set up "
-                f"(ID {joint.id}, {self.bus.baud} baud); `servodyn scan --port {self.port_name} --config {config}` "
-                "looks at every ID and rate")
+                f"(ID {joint.id}, {self.bus.baud} baud); `servodyn scan --port {self.port_name} --config "
+                f"{self.config.argument}` looks at every ID and rate")
         table = bench.decode_table(bytes(data))
         if table["hardware_error_status"] and table["model_number"] == joint.servo.model_number:
             status = table["hardware_error_status"]

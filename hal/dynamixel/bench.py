@@ -26,7 +26,6 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from ..bringup import WARNING, Finding, Found
-from ..config import CONFIGS_DIR
 from ..errors import ServoInitializationError, ServoOperationError
 from ..host import claim_port, is_pseudo_terminal, open_failure
 from . import instructions
@@ -269,7 +268,7 @@ def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
     by_id: dict[int, list[Found]] = {}
     for f in result.found:
         by_id.setdefault(f.id, []).append(f)
-    cfg = _config_arg(config)
+    cfg = config.argument
     for baud, ids in sorted(result.collisions.items()):
         for servo_id in sorted(ids):
             findings.append(Finding(
@@ -312,14 +311,6 @@ def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
                                     f"`servodyn setup --config {cfg} --joint NAME` for the joint it drives",
                                     id=f.id, bus=bus_name, severity=WARNING))
     return findings
-
-
-def _config_arg(config) -> str:
-    """How the commands' hints name the configuration: its built-in name, or its file."""
-    path = config.path
-    if path is None or path.parent == CONFIGS_DIR:
-        return config.name
-    return str(path)
 
 
 # ---------------------------------------------------------------------------- checks
@@ -418,7 +409,7 @@ def doctor(config, bus_name: str, link: Link) -> list[Finding]:
     if missing:
         others = scan(link, [b for b in SCAN_RATES if b != bus.baud]) if missing else ScanResult()
         link.set_baud(bus.baud)
-        cfg = _config_arg(config)
+        cfg = config.argument
         for joint, bad in missing:
             setup = f"servodyn setup --config {cfg} --joint {joint.dof}"
             there = [f for f in others.found if f.id == joint.id]
