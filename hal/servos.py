@@ -36,6 +36,13 @@ class ServoSpec:
     # the data sheet's rows at other supply voltages: (V, stall torque N m, stall current A,
     # no-load speed rpm); the nominal row above counts as one of them
     ratings: tuple[tuple[float, float, float, float], ...] = ()
+    # what the backend needs of it to drive it as it drives the others: a torque (current)
+    # command. A servo without one (a position-only servo) is in the catalogue for sizing's
+    # report but never chosen or accepted as a joint.
+    current_control: bool = True
+    # V: the supply range the data sheet allows (min, max); a supply outside it burns or browns
+    # out the servo. None: not published (then only the nominal voltage is known safe).
+    supply_range: tuple[float, float] | None = None
 
     @property
     def torque_constant(self) -> float:
