@@ -23,9 +23,9 @@ CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h sim/dynamixel/c/*.c)
 
 .DEFAULT_GOAL := test
-.PHONY: test demo docs bench soak venv toolchain browser test-c test-mcu test-python clean distclean
+.PHONY: test demo docs bench soak venv toolchain browser mocap-clips test-c test-mcu test-python clean distclean
 
-test: venv toolchain browser
+test: venv toolchain browser mocap-clips
 	@$(MAKE) --no-print-directory test-c test-mcu test-fuzz test-python
 
 demo: venv
@@ -47,6 +47,8 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
 	@$(VENV)/bin/python -m servodyn.tools.bench.can
 	@$(VENV)/bin/python -m servodyn.tools.bench.bringup
+	@$(MAKE) --no-print-directory mocap-clips
+	@$(VENV)/bin/python -m servodyn.tools.bench.mocap
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench.fw_budget
 
@@ -78,6 +80,10 @@ toolchain:
 # Debian's chromium for the browser tests of servodyn view
 browser:
 	@scripts/install/install-browser.sh
+
+# Debian's assimp-testmodels: the public BVH clips the motion-capture tests retarget
+mocap-clips:
+	@scripts/install/install-mocap-clips.sh
 
 #---------------------------------- tests --------------------------------------------------------
 

@@ -1,0 +1,376 @@
+"""Captured arm motion onto a model's arm: segment orientations, split along the model's own axes.
+
+The captured arm is read as the orientation of each segment relative to the thorax, never as raw
+channels (which wrap and whose order and rest differ from file to file):
+
+    F_S = A · (R_thoraxᵀ R_S) · Aᵀ · F_rest,S
+
+A turns the file's axes into servodyn's (skeleton.guess_axes); F_rest,S is the smallest rotation
+from the model's segment at q = 0 (the hanging arm) to the file's rest bone (the child's OFFSET),
+then a twist about the bone that BVH does not carry: the elbow-axis calibration fits it from the
+motion (`calibrate`). The arm must be spherical-revolute-spherical as the built-in arms are: three
+dofs at the shoulder, elbow flexion and pronation at the elbow (pronation along the forearm), two
+at the wrist (`ArmTarget`). Then, with the model's dof axes at q = 0 (w1..w7, world frame):
+
+- shoulder: F_upper = Rot(w1,q1) Rot(w2,q2) Rot(w3,q3), split exactly (angles.split3); of its two
+  branches each frame takes the one with fewer limit hits, then the one nearest the frame before;
+- elbow: the forearm direction u in the upper arm gives q4 (its part off the hinge plane is the
+  elbow residual, which the calibration drives to zero);
+- pronation and wrist: Rot(w4,q4)ᵀ F_upperᵀ F_hand = Rot(w5,q5) Rot(w6,q6) Rot(w7,q7), split the
+  same way, whichever segment of the file stores the forearm's twist.
+
+Then (`smooth`): outliers out (a Hampel-style pass on the residual from a local quadratic),
+soft limits SOFT_MARGIN inside the hard ones, a zero-phase Butterworth low-pass at CUTOFF_HZ,
+one C2 spline for q, qd, qdd, and a C2 lead-in from rest. Noise in the angles is amplified twice
+by differentiation: 0.2° of channel noise is some 470 N·m of torque error through q̈ unfiltered,
+2–3 N·m after this (docs: motion-capture notes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..control.trajectory import Trajectory, spline_derivatives
+from ..model.rotations import unit
+from .angles import about, angle_about, smallest_rotation, split3
+from .bvh import Clip
+from .skeleton import ArmChain, Axes, rest_frame, segment_rotations
+
+SOFT_MARGIN = math.radians(2.0)     # clamping exactly at a limit fails the validator's dense check
+CUTOFF_HZ = 8.0                     # Winter's 6 Hz blunts a swing; 8-10 Hz keeps it
+FILTER_ORDER = 4
+OUTLIER_SIGMAS = 4.0                # a sample this many robust deviations off the local quadratic
+OUTLIER_FLOOR = math.radians(2.0)   # ... and at least this far off it is an outlier (a glitch, not noise)
+CALIBRATION_FLEXION = math.radians(30.0)   # frames with the elbow bent this far fit its hinge
+CALIBRATION_FRAMES = 10
+LEAD_IN_SPEED = 1.0                 # rad/s, the lead-in's mean speed on its largest move
+LEAD_IN_MIN = 1.0                   # s
+FLIP = math.radians(30.0)           # a step this large between frames is a flip, not motion
+
+
+class RetargetError(ValueError):
+    """A model or clip the retargeting cannot use: one line."""
+
+
+@dataclass
+class ArmTarget:
+    """A model's arm as the retargeting sees it: the dofs' world axes at q = 0 (the product of
+    exponentials: R(q) = Rot(w1,q1)···Rot(wk,qk) R(0) for the body after dof k), its joint
+    centres and the hand's centre of mass at q = 0, and its limits."""
+    model: object
+    axes: np.ndarray                # (7, 3)
+    shoulder: np.ndarray
+    elbow: np.ndarray
+    wrist: np.ndarray
+    hand: np.ndarray                # the last body's centre of mass
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @classmethod
+    def of(cls, model) -> "ArmTarget":
+        if model.free_root or any(b.ball for b in model.bodies):
+            raise RetargetError(f"model '{model.name}': retargeting needs a fixed base and 1-dof axes (no free root "
+                                "or ball joints)")
+        q0 = np.zeros(model.nq)
+        R0, p0 = model.body_poses(q0)
+        body_of = [i for i, b in enumerate(model.bodies) for _ in b.dofs]
+        groups: list[list[int]] = []
+        for k, i in enumerate(body_of):
+            if groups and np.allclose(p0[body_of[groups[-1][0]]], p0[i], atol=1e-9):
+                groups[-1].append(k)
+            else:
+                groups.append([k])
+        sizes = [len(g) for g in groups]
+        if sizes != [3, 2, 2]:
+            raise RetargetError(f"model '{model.name}': retargeting needs a spherical-revolute-spherical arm: 3 dofs "
+                                f"at the shoulder, 2 at the elbow (flexion, pronation), 2 at the wrist; its dofs "
+                                f"meet in groups of {sizes}")
+        axes = np.zeros((7, 3))
+        eps = 1e-6
+        for k in range(7):
+            dq = np.zeros(model.nq)
+            dq[k] = eps
+            Rp, Rm = model.body_poses(dq)[0][body_of[k]], model.body_poses(-dq)[0][body_of[k]]
+            W = (Rp - Rm) @ R0[body_of[k]].T / (2 * eps)
+            axes[k] = unit([W[2, 1] - W[1, 2], W[0, 2] - W[2, 0], W[1, 0] - W[0, 1]])
+        shoulder, elbow, wrist = (p0[body_of[g[0]]] for g in groups)
+        hand = model.com_positions(q0)[body_of[6]]
+        target = cls(model, axes, shoulder, elbow, wrist, hand, model.lower.copy(), model.upper.copy())
+        if abs(axes[4] @ target.fore_dir) < 1 - 1e-6:
+            raise RetargetError(f"model '{model.name}': its fifth dof ({model.dof_names[4]}) must turn about the "
+                                "forearm (pronation)")
+        if abs(axes[3] @ target.fore_dir) > 1e-6:
+            raise RetargetError(f"model '{model.name}': its elbow axis ({model.dof_names[3]}) must be across the "
+                                "forearm")
+        return target
+
+    @property
+    def upper_dir(self) -> np.ndarray:
+        return unit(self.elbow - self.shoulder)
+
+    @property
+    def fore_dir(self) -> np.ndarray:
+        return unit(self.wrist - self.elbow)
+
+    @property
+    def lengths(self) -> tuple[float, float]:
+        return float(np.linalg.norm(self.elbow - self.shoulder)), float(np.linalg.norm(self.wrist - self.elbow))
+
+    def rotations(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(F, 3, 3) world rotations of the upper arm, forearm and hand relative to q = 0."""
+        P = about(self.axes[0], q[:, 0])
+        out = []
+        for k in range(1, 7):
+            P = P @ about(self.axes[k], q[:, k])
+            if k in (2, 4, 6):
+                out.append(P)
+        return tuple(out)
+
+    def points(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(F, 3) positions of the elbow, the wrist and the hand's centre of mass."""
+        F_upper, F_fore, F_hand = self.rotations(q)
+        elbow = self.shoulder + F_upper @ (self.elbow - self.shoulder)
+        wrist = elbow + F_fore @ (self.wrist - self.elbow)
+        return elbow, wrist, wrist + F_hand @ (self.hand - self.wrist)
+
+    def soft_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        margin = np.minimum(SOFT_MARGIN, (self.upper - self.lower) / 4)
+        return self.lower + margin, self.upper - margin
+
+
+@dataclass
+class Capture:
+    """The captured arm on servodyn's axes: segment rotations relative to the model's rest."""
+    t: np.ndarray                   # (F,) s, from the first frame used
+    F_upper: np.ndarray             # (F, 3, 3)
+    F_hand: np.ndarray
+    forearm: np.ndarray             # (F, 3) unit forearm direction
+    twist: float                    # rad, the calibrated twist about the upper arm
+    calibration: dict = field(default_factory=dict)
+
+
+def _conjugate(A, R):
+    return np.einsum("ij,fjk,lk->fil", A, R, A)
+
+
+def capture(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: slice = slice(None),
+            twist: float | None = None) -> Capture:
+    """The arm's segments relative to the thorax for `frames`, with the elbow axis calibrated (or
+    the given twist, rad)."""
+    rot = segment_rotations(clip, chain, frames)
+    A = axes.A
+    for role, child in (("upper_arm", chain.forearm), ("forearm", chain.hand)):
+        if np.linalg.norm(clip.joints[child].offset) < 1e-12:
+            raise RetargetError(f"{clip.source}: joint '{clip.joints[child].name}' sits on its parent "
+                                f"('{clip.joints[getattr(chain, role)].name}' has no length to point along)")
+    o_upper = A @ unit(clip.joints[chain.forearm].offset)
+    o_fore = A @ unit(clip.joints[chain.hand].offset)
+    S_upper = smallest_rotation(target.upper_dir, o_upper)
+    S_fore = smallest_rotation(target.fore_dir, o_fore)
+    M_upper, M_hand = _conjugate(A, rot["upper_arm"]), _conjugate(A, rot["hand"])
+    u = np.einsum("fij,j->fi", _conjugate(A, rot["forearm"]), o_fore)
+    G = M_upper @ S_upper
+    u_local = np.einsum("fji,fj->fi", G, u)
+    calibration = calibrate(u_local, target) if twist is None else {"twist_deg": math.degrees(twist),
+                                                                    "fitted": False, "why": "given"}
+    psi = math.radians(calibration["twist_deg"])
+    F_upper = G @ about(target.upper_dir, [psi])[0]
+    F_hand = M_hand @ S_fore @ about(target.fore_dir, [psi])[0]
+    t = np.arange(len(u)) * clip.frame_time
+    return Capture(t, F_upper, F_hand, u, psi, calibration)
+
+
+def _hinge_frame(target: ArmTarget) -> tuple[np.ndarray, np.ndarray]:
+    """(f, h): where elbow flexion moves the forearm from rest, and the hinge axis."""
+    h = target.axes[3]
+    return unit(np.cross(h, target.fore_dir)), h
+
+
+def calibrate(u_local: np.ndarray, target: ArmTarget) -> dict:
+    """The twist about the upper arm that puts the captured elbow's hinge on the model's: over the
+    frames with the elbow flexed past CALIBRATION_FLEXION, the forearm direction in the upper arm
+    sweeps a plane through the bone; its normal is the hinge (the smallest direction of the
+    scatter of u across the bone)."""
+    f, h = _hinge_frame(target)
+    flexion = np.arccos(np.clip(u_local @ target.fore_dir, -1, 1))
+    bent = flexion > CALIBRATION_FLEXION
+    if bent.sum() < CALIBRATION_FRAMES:
+        return {"twist_deg": 0.0, "fitted": False, "frames": int(bent.sum()),
+                "why": f"the elbow bends past {math.degrees(CALIBRATION_FLEXION):.0f}° in {int(bent.sum())} frames "
+                       f"(fewer than {CALIBRATION_FRAMES}): not calibrated"}
+    xy = np.stack([u_local[bent] @ f, u_local[bent] @ h], axis=1)
+    _, vectors = np.linalg.eigh(xy.T @ xy)
+    m = vectors[:, 1]                                 # the direction the forearm sweeps
+    if (xy @ m).mean() < 0:
+        m = -m
+    psi = math.atan2(m[1], m[0])                      # from f towards h, about the bone
+    before = np.degrees(np.arcsin(np.clip(xy[:, 1] / np.linalg.norm(xy, axis=1), -1, 1)))
+    c, s = math.cos(psi), math.sin(psi)
+    after = np.degrees(np.arcsin(np.clip((-s * xy[:, 0] + c * xy[:, 1]) / np.linalg.norm(xy, axis=1), -1, 1)))
+    return {"twist_deg": math.degrees(psi), "fitted": True, "frames": int(bent.sum()),
+            "residual_p95_deg_before": float(np.percentile(np.abs(before), 95)),
+            "residual_p95_deg": float(np.percentile(np.abs(after), 95)),
+            "residual_max_deg": float(np.abs(after).max())}
+
+
+def _wrap_into(angles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Each angle moved by whole turns to the middle of its limits' turn."""
+    mid = np.where(np.isfinite(lo + hi), (lo + hi) / 2, 0.0)
+    return angles + 2 * np.pi * np.round((mid - angles) / (2 * np.pi))
+
+
+def _choose(sets: tuple[np.ndarray, np.ndarray], lo, hi) -> tuple[np.ndarray, int]:
+    """Per frame the branch with fewer limit hits, then the one nearest the frame before;
+    (F, 3) angles and how many frames the naive principal branch would have flipped."""
+    a, b = (_wrap_into(s, lo, hi) for s in sets)
+    hits = [((s < lo) | (s > hi)).sum(axis=1) for s in (a, b)]
+    out = np.empty_like(a)
+    previous = None
+    for i in range(len(a)):
+        if hits[0][i] != hits[1][i]:
+            pick = a[i] if hits[0][i] < hits[1][i] else b[i]
+        elif previous is None:
+            pick = a[i] if np.abs(a[i]).sum() <= np.abs(b[i]).sum() else b[i]
+        else:
+            pick = a[i] if np.abs(a[i] - previous).sum() <= np.abs(b[i] - previous).sum() else b[i]
+        out[i] = previous = pick
+    naive = np.where((np.abs(sets[0][:, 1]) <= np.abs(sets[1][:, 1]))[:, None], sets[0], sets[1])
+    return out, _flips(naive) - _flips(out)
+
+
+def _flips(q: np.ndarray) -> int:
+    return int((np.abs(np.diff(q, axis=0)).max(axis=1, initial=0.0) > FLIP).sum()) if len(q) > 1 else 0
+
+
+def decompose(cap: Capture, target: ArmTarget) -> tuple[np.ndarray, dict]:
+    """The model's angles (F, 7) that put its segments on the captured ones, exactly where the
+    captured elbow is a hinge, and what it took."""
+    w = target.axes
+    lo, hi = target.lower, target.upper
+    shoulder, flips_shoulder = _choose(split3(cap.F_upper, w[0], w[1], w[2]), lo[:3], hi[:3])
+    v = np.einsum("fji,fj->fi", cap.F_upper, cap.forearm)
+    elbow = angle_about(w[3], np.broadcast_to(target.fore_dir, v.shape), v)
+    elbow = _wrap_into(elbow[:, None], lo[3:4], hi[3:4])[:, 0]
+    off_hinge = np.degrees(np.arcsin(np.clip(v @ w[3], -1, 1)))
+    N = np.einsum("fji,fjk->fik", about(w[3], elbow), np.einsum("fji,fjk->fik", cap.F_upper, cap.F_hand))
+    wrist, flips_wrist = _choose(split3(N, w[4], w[5], w[6]), lo[4:], hi[4:])
+    q = np.concatenate([shoulder, elbow[:, None], wrist], axis=1)
+    return q, {"flips_avoided": max(0, flips_shoulder) + max(0, flips_wrist),
+               "elbow_residual_p95_deg": float(np.percentile(np.abs(off_hinge), 95)),
+               "elbow_residual_max_deg": float(np.abs(off_hinge).max())}
+
+
+# ---------------------------------------------------------------------------- smoothing
+
+def remove_outliers(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Single-frame glitches out: a sample more than OUTLIER_SIGMAS robust deviations (and
+    OUTLIER_FLOOR) off the quadratic through its 7-frame neighbourhood is replaced by the line
+    through the good samples beside it. (F, n) angles and the (F, n) mask of those replaced."""
+    if len(q) < 7:
+        return q.copy(), np.zeros(q.shape, dtype=bool)
+    from scipy.signal import savgol_filter
+    residual = q - savgol_filter(q, 7, 2, axis=0, mode="interp")
+    spread = 1.4826 * np.median(np.abs(residual - np.median(residual, axis=0)), axis=0)
+    bad = np.abs(residual) > np.maximum(OUTLIER_SIGMAS * spread, OUTLIER_FLOOR)
+    out = q.copy()
+    frames = np.arange(len(q))
+    for j in range(q.shape[1]):
+        if bad[:, j].any() and (~bad[:, j]).sum() >= 2:
+            out[bad[:, j], j] = np.interp(frames[bad[:, j]], frames[~bad[:, j]], q[~bad[:, j], j])
+    return out, bad
+
+
+def low_pass(q: np.ndarray, rate: float, cutoff: float = CUTOFF_HZ) -> np.ndarray:
+    """Zero-phase Butterworth (order FILTER_ORDER, forwards and backwards) at `cutoff` Hz."""
+    if cutoff >= rate / 2 or len(q) < 4:
+        return q.copy()
+    from scipy.signal import butter, sosfiltfilt
+    sos = butter(FILTER_ORDER, cutoff / (rate / 2), output="sos")
+    return sosfiltfilt(sos, q, axis=0, padlen=min(3 * (2 * len(sos) + 1), len(q) - 1))
+
+
+def lead_in(start: np.ndarray, q0: np.ndarray, qd0: np.ndarray, qdd0: np.ndarray, dt: float):
+    """A C2 quintic from rest at `start` (no speed, no acceleration) to the motion's first sample,
+    sampled every dt (the last sample, the motion's first, left out): t, q, qd, qdd."""
+    from scipy.interpolate import BPoly
+    duration = max(LEAD_IN_MIN, 1.875 * float(np.abs(q0 - start).max()) / LEAD_IN_SPEED)
+    n = max(2, int(math.ceil(duration / dt)))
+    duration = n * dt
+    zero = np.zeros_like(start)
+    poly = BPoly.from_derivatives([0.0, duration], np.array([[start, zero, zero], [q0, qd0, qdd0]]))
+    t = np.arange(n) * dt
+    return t, poly(t), poly.derivative(1)(t), poly.derivative(2)(t)
+
+
+@dataclass
+class Retargeted:
+    trajectory: Trajectory          # the motion to play: lead-in, then the clip
+    lead_in_s: float
+    q_raw: np.ndarray               # (F, 7) the decomposition, before any smoothing
+    q: np.ndarray                   # (F, 7) smoothed, at the clip's frames
+    capture: Capture
+    report: dict
+
+
+def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: slice | None = None,
+             twist: float | None = None, smooth: bool = True, with_lead_in: bool = True) -> Retargeted:
+    """The clip's arm on the model: the decomposition, then (smooth) outliers, soft limits,
+    low-pass and spline, then (with_lead_in) the lead-in from rest. `frames` None takes the
+    whole clip without its rest frame (frame 0 when it is a T-pose)."""
+    dropped = False
+    if frames is None:
+        dropped = rest_frame(clip, chain)[0]
+        frames = slice(1 if dropped else 0, None)
+    cap = capture(clip, chain, axes, target, frames, twist)
+    if len(cap.t) < 2:
+        raise RetargetError(f"{clip.source}: {len(cap.t)} frame{'s' if len(cap.t) != 1 else ''} selected: a "
+                            "motion needs at least two")
+    q_raw, info = decompose(cap, target)
+    soft_lo, soft_hi = target.soft_limits()
+    names = target.model.dof_names
+    outside = (q_raw < soft_lo) | (q_raw > soft_hi)
+    replaced = np.zeros(q_raw.shape, dtype=bool)
+    q = q_raw
+    if smooth:
+        q, replaced = remove_outliers(q_raw)
+        q = np.clip(q, soft_lo, soft_hi)
+        q = np.clip(low_pass(q, clip.rate), soft_lo, soft_hi)
+    qd, qdd = spline_derivatives(cap.t, q)
+    t, Q, QD, QDD, lead = cap.t, q, qd, qdd, 0.0
+    if with_lead_in:
+        rest = np.clip(np.zeros(7), soft_lo, soft_hi)
+        tl, ql, qdl, qddl = lead_in(rest, q[0], qd[0], qdd[0], clip.frame_time)
+        lead = float(len(tl) * clip.frame_time)
+        t = np.concatenate([tl, cap.t + lead])
+        Q, QD, QDD = (np.concatenate(pair) for pair in ((ql, q), (qdl, qd), (qddl, qdd)))
+    elbow_c = target.shoulder + cap.F_upper @ (target.elbow - target.shoulder)
+    hand_c = elbow_c + target.lengths[1] * cap.forearm + cap.F_hand @ (target.hand - target.wrist)
+    elbow_m, _, hand_m = target.points(q)
+    errors = {}
+    for what, a, b in (("elbow", elbow_c, elbow_m), ("hand", hand_c, hand_m)):
+        d = np.linalg.norm(a - b, axis=1) * 1e3
+        errors[what] = {"p95_mm": float(np.percentile(d, 95)), "max_mm": float(d.max()),
+                        "rms_mm": float(np.sqrt(np.mean(d ** 2)))}
+    first = frames.start or 0
+    report = {
+        "frames": {"first": int(first), "count": int(len(cap.t)), "rest_frame_dropped": dropped,
+                   "rate_hz": clip.rate, "duration_s": float(cap.t[-1])},
+        "calibration": cap.calibration,
+        "lead_in_s": lead,
+        "flips_avoided": info["flips_avoided"],
+        "elbow_residual_p95_deg": info["elbow_residual_p95_deg"],
+        "elbow_residual_max_deg": info["elbow_residual_max_deg"],
+        "limit_hits": {d: {"frames": int(outside[:, j].sum()),
+                           "worst_deg": float(np.degrees(max(soft_lo[j] - q_raw[:, j].min(),
+                                                             q_raw[:, j].max() - soft_hi[j], 0.0)))}
+                       for j, d in enumerate(names) if outside[:, j].any()},
+        "soft_limit_margin_deg": math.degrees(SOFT_MARGIN),
+        "outliers_removed": {d: int(replaced[:, j].sum()) for j, d in enumerate(names) if replaced[:, j].any()},
+        "filter": {"cutoff_hz": CUTOFF_HZ, "order": FILTER_ORDER, "zero_phase": True} if smooth else None,
+        "cartesian_error": errors,
+    }
+    return Retargeted(Trajectory(t=t, q=Q, qd=QD, qdd=QDD, derived=False), lead, q_raw, q, cap, report)
+
