@@ -19,9 +19,13 @@ import numpy as np
 from ..control.motion import check_limits
 from ..control.timing import OVERRUN_TOLERANCE
 from ..control.trajectory import TrajectoryError, read_trajectory_csv, write_columns_csv
+from ..mocap.skeleton import UNITS as _UNITS
 from ..model import ModelError, builtin_models, load_model
 from ..readable import fixed
 from .argtypes import OneLineParser, count
+
+
+UNIT_NAMES = tuple(_UNITS)
 
 
 class CliError(Exception):
@@ -335,6 +339,44 @@ def cmd_view(args) -> None:
     except ViewError as err:
         raise CliError(str(err)) from None
     serve_forever(viewer)
+
+
+def _mocap(run):
+    """Run a mocap command; its bad input (a file, a name map, a model that is no arm) is one line."""
+    from ..control.trajectory import TrajectoryError as _TrajectoryError
+    from ..hal.errors import ConfigError
+    from ..mocap import BvhError, RetargetError, SkeletonError
+    from .mocap import MocapError
+    try:
+        return run()
+    except (BvhError, SkeletonError, RetargetError, MocapError, ConfigError, _TrajectoryError) as err:
+        raise CliError(str(err)) from None
+
+
+def cmd_mocap_info(args) -> None:
+    from .mocap import mocap_info
+    _mocap(lambda: mocap_info(args.clip, map_file=args.map, unit=args.unit, as_json=args.json))
+
+
+def cmd_retarget(args) -> int:
+    from ..hal.config import load_config
+    from .mocap import run_retarget
+
+    def run():
+        config = load_config(args.config) if args.config else None
+        model = None if config else _load(args.model or "human_arm")
+        return run_retarget(args.clip, model=model, config=config, arm=args.arm, frames=args.frames, time=args.time,
+                            unit=args.unit, map_file=args.map, method=args.method, twist_deg=args.twist,
+                            output=args.output, report_dir=args.report)
+    report = _mocap(run)
+    return 1 if report["flags"] else 0
+
+
+def cmd_export_bvh(args) -> None:
+    from .mocap import export_bvh
+    model = _load(args.model)
+    _mocap(lambda: export_bvh(args.motion, model, args.output, order=args.order, unit=args.unit, rest=args.rest,
+                              rate=args.rate))
 
 
 def cmd_demo(args) -> None:
@@ -693,6 +735,60 @@ def build_parser() -> argparse.ArgumentParser:
                         "with the prediction")
     p.add_argument("--out", default="out/validate", help="output folder (default out/validate)")
     p.set_defaults(func=cmd_validate)
+
+    units = ", ".join(UNIT_NAMES)
+    p = sub.add_parser("mocap", help="what a motion capture file (BVH) holds",
+                       description="Motion capture files (BVH).")
+    mocap = p.add_subparsers(dest="mocap_command", metavar="COMMAND")
+    mocap.required = True
+    p = mocap.add_parser("info", help="joints, frames, unit, up axis, rest frame and the arms found",
+                         description="Joints and their channel orders, frames, rate and duration, the unit and up "
+                         "axis guessed from the skeleton, whether frame 0 is a rest pose, the arm chains found by "
+                         "the name tables (CMU/cgspeed, Mixamo, Motive, Xsens) and warnings.")
+    p.add_argument("clip", metavar="CLIP.bvh")
+    p.add_argument("--map", default=None, metavar="FILE",
+                   help="TOML naming the arm's joints: [right] and/or [left] with thorax, clavicle (optional), "
+                        "upper_arm, forearm, hand")
+    p.add_argument("--unit", default=None, choices=UNIT_NAMES, help=f"the file's unit ({units}; default: guessed)")
+    p.add_argument("--json", action="store_true", help="as JSON, for scripts")
+    p.set_defaults(func=cmd_mocap_info)
+
+    p = sub.add_parser("retarget", help="a captured arm (BVH) as a motion of the model's arm",
+                       description="Retarget the arm of a BVH clip onto a model: each segment's orientation "
+                       "relative to the thorax, split along the model's own dof axes, the elbow's hinge fitted from "
+                       "the motion, outliers out, soft limits 2° inside the hard ones, an 8 Hz zero-phase low-pass, "
+                       "a C2 lead-in from rest; written as a trajectory CSV with its qd and qdd (validate, swing "
+                       "and view read it). Exit status 0 retargeted, 1 retargeted but flagged, 2 bad input.")
+    p.add_argument("clip", metavar="CLIP.bvh")
+    target = p.add_mutually_exclusive_group()
+    target.add_argument("--model", default=None, help="model to retarget onto (default human_arm)")
+    target.add_argument("--config", default=None, metavar="FILE",
+                        help="robot configuration: its model, and validate --fit's time scale in the report")
+    p.add_argument("--arm", default="right", choices=("right", "left"), help="which arm of the clip (default right)")
+    p.add_argument("--frames", default=None, metavar="A:B", help="frames A to B-1 (default: all but a rest frame 0)")
+    p.add_argument("--time", default=None, metavar="A:B", help="seconds A to B of the clip")
+    p.add_argument("--unit", default=None, choices=UNIT_NAMES, help=f"the file's unit ({units}; default: guessed)")
+    p.add_argument("--map", default=None, metavar="FILE", help="TOML naming the arm's joints (see mocap info)")
+    p.add_argument("--method", default="angles", choices=("angles", "ik"), help="segment angles (default) or IK")
+    p.add_argument("--twist", type=float, default=None, metavar="DEG",
+                   help="the elbow axis's twist about the upper arm (default: fitted from the motion)")
+    p.add_argument("-o", "--output", default=None, metavar="FILE",
+                   help="trajectory CSV to write (default out/retarget/<clip>.csv)")
+    p.add_argument("--report", default=None, metavar="DIR", help="write DIR/report.json and DIR/retarget.png")
+    p.set_defaults(func=cmd_retarget)
+
+    p = sub.add_parser("export-bvh", help="a motion of a model's arm as a BVH clip (Blender, retarget)",
+                       description="Write a motion as a BVH clip: a standing figure in the CMU naming whose right "
+                       "arm moves, its lengths the model's, Y up; retarget reads it back.")
+    p.add_argument("motion", metavar="MOTION", help="built-in motion, keyframe file or trajectory CSV")
+    p.add_argument("--model", default="human_arm", help="the motion's model (default human_arm)")
+    p.add_argument("--order", default="ZXY", help="rotation channel order of every joint (default ZXY)")
+    p.add_argument("--unit", default="cm", choices=UNIT_NAMES, help=f"the file's unit ({units}; default cm)")
+    p.add_argument("--rest", default="hang", choices=("hang", "tpose"),
+                   help="the pose of all channels zero: the hanging arm (default) or a T-pose")
+    p.add_argument("--rate", type=float, default=120.0, help="frames per second (default 120)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.bvh", help="the file to write")
+    p.set_defaults(func=cmd_export_bvh)
 
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
                        description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")

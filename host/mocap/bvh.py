@@ -322,7 +322,7 @@ def format_bvh(clip: Clip, decimals: int = 6) -> str:
         for child in clip.children(i):
             block(child, depth + 1)
         if joint.end_site is not None:
-            out += [f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {offset(joint.end_site)}", f"{pad}\t}}"]
+            out.extend([f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {offset(joint.end_site)}", f"{pad}\t}}"])
         out.append(f"{pad}}}")
 
     block(0, 0)
