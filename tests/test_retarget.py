@@ -1,0 +1,258 @@
+"""Retargeting captured arm motion (servodyn.mocap.retarget, `servodyn retarget`, `export-bvh`):
+a round trip through BVH over random in-limit poses, orders, units and rest poses; an injected
+elbow-axis twist recovered; single-frame glitches removed; the forehand with 0.2° channel noise
+within 3 N·m of its torques; the real CMU clip inside the limits and passing validate --fit."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from servodyn.control.motion import motion_path
+from servodyn.control.trajectory import read_trajectory_csv
+from servodyn.hal.config import load_config
+from servodyn.mocap import find_arms, guess_axes
+from servodyn.mocap.bvh import format_bvh, parse_bvh
+from servodyn.mocap.export import ORDERS, arm_clip, euler_channels
+from servodyn.mocap.retarget import ArmTarget, retarget
+from servodyn.mocap.skeleton import UNITS, segment_rotations
+from servodyn.model import load_model
+from servodyn.tools.cli import main
+from servodyn.tools.mocap import run_retarget
+from servodyn.tools.validate import validate
+
+CLIPS = Path("/usr/share/assimp/models/BVH")
+needs_clips = pytest.mark.skipif(not (CLIPS / "01_01.bvh").exists(),
+                                 reason="assimp-testmodels not installed (make test installs it)")
+RATE = 120.0
+ARM_JOINTS = ("RightArm", "RightForeArm", "RightHand")
+
+
+@pytest.fixture(scope="module")
+def human():
+    model = load_model("human_arm")
+    return model, ArmTarget.of(model)
+
+
+def read_back(text):
+    clip = parse_bvh(text)
+    arms = find_arms(clip)
+    axes, _ = guess_axes(clip, arms)
+    return clip, arms["right"], axes
+
+
+def forehand(model):
+    return motion_path("tennis_forehand", model).at_scale(1.0, 1.0 / RATE)
+
+
+@pytest.mark.parametrize("name", ["human_arm", "replica"])
+def test_the_target_reads_the_models_own_axes(name):
+    """The dof axes at q = 0 found from the model's kinematics are its files' (human_arm.toml and
+    replica.toml: -y, -x, z; -y, z; x, y), and the product of exponentials gives the model's
+    own body rotations (1e-12) at a random pose."""
+    model = load_model(name)
+    target = ArmTarget.of(model)
+    expected = [[0, -1, 0], [-1, 0, 0], [0, 0, 1], [0, -1, 0], [0, 0, 1], [1, 0, 0], [0, 1, 0]]
+    assert np.abs(target.axes - expected).max() < 1e-9, "the files' axes"
+    q = np.random.default_rng(1).uniform(model.lower, np.minimum(model.upper, 1.0))
+    R, _ = model.user_poses(q)
+    R0, _ = model.user_poses(np.zeros(7))
+    hand = len(model.bodies) - 1
+    assert np.abs(target.rotations(q[None])[2][0] - R[hand] @ R0[hand].T).max() < 1e-12, "POE = the model's kinematics"
+    elbow, wrist, _ = target.points(q[None])
+    _, p = model.body_poses(q)
+    body_of = [i for i, b in enumerate(model.bodies) for _ in b.dofs]
+    assert np.abs(elbow[0] - p[body_of[3]]).max() < 1e-12 and np.abs(wrist[0] - p[body_of[5]]).max() < 1e-12
+
+
+def test_a_model_that_is_no_arm_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "c.bvh").write_text("HIERARCHY\n")
+    assert main(["retarget", str(tmp_path / "c.bvh"), "--model", "human15"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+
+
+def in_limit_poses(draw_angles, target, frames):
+    lo, hi = target.lower + 0.01, target.upper - 0.01
+    q = lo + np.array(draw_angles).reshape(frames, 7) * (hi - lo)
+    # the shoulder's lock (abduction ±90°) is a singularity of every 3-angle split: kept 10° away
+    near = np.abs(np.abs(q[:, 1]) - math.pi / 2) < math.radians(10)
+    q[near, 1] = np.where(q[near, 1] > 0, math.radians(70), math.radians(-30))
+    return q
+
+
+@settings(max_examples=30, deadline=None)
+@given(fractions=st.lists(st.floats(0, 1), min_size=8 * 7, max_size=8 * 7),
+       orders=st.lists(st.sampled_from(ORDERS), min_size=3, max_size=3),
+       unit=st.sampled_from(sorted(UNITS)), rest=st.sampled_from(["hang", "tpose"]))
+def test_round_trip_through_bvh_returns_the_angles(human, fractions, orders, unit, rest):
+    """Random in-limit poses (8 frames), each arm joint its own rotation order, any unit, either rest
+    pose: written at 6 decimals and retargeted back without smoothing, every angle within 1e-5 rad
+    (a degree at 6 decimals is 1.7e-8 rad; the split loses no more than that near the limits)."""
+    model, target = human
+    q = in_limit_poses(fractions, target, 8)
+    clip = arm_clip(target, q, 1 / RATE, dict(zip(ARM_JOINTS, orders)), unit, rest)
+    back, chain, axes = read_back(format_bvh(clip, 6))
+    result = retarget(back, chain, axes, target, slice(None), twist=0.0, smooth=False, with_lead_in=False)
+    assert np.abs(result.q_raw - q).max() <= 1e-5, f"orders {orders}, unit {unit}, rest {rest}"
+
+
+def twisted(clip, chain, psi):
+    """The clip as a file whose arm segments' rest frames are turned by psi about the bone (the
+    twist BVH does not carry): each segment's rotation relative to the thorax times Rot(bone, psi)."""
+    rot = segment_rotations(clip, chain)
+    bone = clip.joints[chain.forearm].offset / np.linalg.norm(clip.joints[chain.forearm].offset)
+    c, s = math.cos(psi), math.sin(psi)
+    K = np.array([[0, -bone[2], bone[1]], [bone[2], 0, -bone[0]], [-bone[1], bone[0], 0]])
+    T = np.eye(3) + s * K + (1 - c) * K @ K
+    G = {role: rot[role] @ T for role in ("upper_arm", "forearm", "hand")}
+    local = {chain.upper_arm: G["upper_arm"], chain.forearm: np.einsum("fji,fjk->fik", G["upper_arm"], G["forearm"]),
+             chain.hand: np.einsum("fji,fjk->fik", G["forearm"], G["hand"])}
+    motion = clip.motion.copy()
+    for i, R in local.items():
+        joint = clip.joints[i]
+        motion[:, joint.column:joint.column + 3] = euler_channels(R, joint.order)
+    return clip.with_motion(motion)
+
+
+@pytest.mark.parametrize("psi_deg", [25.0, -40.0])
+def test_an_injected_elbow_twist_is_recovered(human, psi_deg):
+    """The forehand written with its arm's rest frames twisted about the bone: the calibration finds
+    the twist to 0.5° (it undoes it: -psi) and the angles come back within 0.5°. Without it the
+    elbow leaves its hinge plane by about the twist's size."""
+    model, target = human
+    clip = arm_clip(target, forehand(model).q, 1 / RATE, "ZYX", "cmu", "tpose")
+    clip, chain, axes = read_back(format_bvh(clip, 6))
+    clip = twisted(clip, chain, math.radians(psi_deg))
+    result = retarget(clip, chain, axes, target, slice(None), smooth=False, with_lead_in=False)
+    found = result.report["calibration"]["twist_deg"]
+    assert abs(found + psi_deg) <= 0.5, f"twist {psi_deg}° injected, {found:.3f}° found (should undo it)"
+    assert result.report["calibration"]["residual_p95_deg"] < 0.5, "the hinge fits after calibration"
+    assert np.degrees(np.abs(result.q_raw - forehand(model).q)).max() < 0.5
+    raw = retarget(clip, chain, axes, target, slice(None), twist=0.0, smooth=False, with_lead_in=False)
+    assert raw.report["elbow_residual_p95_deg"] > abs(psi_deg) / 3, "uncalibrated, the elbow is off its plane"
+
+
+def test_single_frame_spikes_are_removed(human):
+    """Five 15° single-frame spikes on the upper arm's channels: the outlier pass finds them all and
+    the written motion stays within 0.5° of the clean clip's; the low-pass alone leaves several
+    degrees."""
+    model, target = human
+    clean = arm_clip(target, forehand(model).q, 1 / RATE, "ZXY", "cm", "hang")
+    clean, chain, axes = read_back(format_bvh(clean, 6))
+    spiky = clean.motion.copy()
+    column = clean.joints[chain.upper_arm].column
+    frames = [30, 70, 110, 150, 190]
+    spiky[frames, column + 1] += 15.0
+    a = retarget(clean, chain, axes, target, slice(None), with_lead_in=False)
+    b = retarget(clean.with_motion(spiky), chain, axes, target, slice(None), with_lead_in=False)
+    assert sum(b.report["outliers_removed"].values()) >= len(frames), "every spike found"
+    assert np.degrees(np.abs(a.q - b.q)).max() < 0.5, "the spikes leave no mark"
+    from servodyn.mocap.retarget import low_pass
+    assert np.degrees(np.abs(low_pass(b.q_raw, RATE) - a.q)).max() > 2.0, "the low-pass alone would not do"
+
+
+def test_the_forehand_with_channel_noise_keeps_its_torques(human):
+    """The forehand exported at 120 Hz, 0.2° of Gaussian noise on every arm channel, retargeted
+    back: the torques (RNEA, the written q, qd, qdd) within 3 N·m of the forehand's own at every
+    frame (the note measured 468 N·m unfiltered)."""
+    model, target = human
+    path = forehand(model)
+    clip = arm_clip(target, path.q, 1 / RATE, "ZYX", "cm", "tpose")
+    clip, chain, axes = read_back(format_bvh(clip, 6))
+    noisy = clip.motion.copy()
+    rng = np.random.default_rng(25)
+    for name in ARM_JOINTS:
+        joint = clip.joints[clip.index(name)]
+        noisy[:, joint.column:joint.column + 3] += rng.normal(0, 0.2, (clip.frames, 3))
+    result = retarget(clip.with_motion(noisy), chain, axes, target, slice(None), with_lead_in=False)
+    traj = result.trajectory
+    tau = model.inverse_dynamics(traj.q, traj.qd, traj.qdd)
+    truth = model.inverse_dynamics(path.q, path.qd, path.qdd)
+    error = np.abs(tau - truth).max()
+    assert error <= 3.0, f"torque error {error:.2f} N·m (peak torque {np.abs(truth).max():.1f})"
+    unfiltered = retarget(clip.with_motion(noisy), chain, axes, target, slice(None), smooth=False, with_lead_in=False)
+    raw = unfiltered.trajectory
+    assert np.abs(model.inverse_dynamics(raw.q, raw.qd, raw.qdd) - truth).max() > 30 * error, "the filter is needed"
+
+
+def test_the_lead_in_starts_at_rest_and_joins_the_motion_c2(human):
+    """The written motion starts at rest (q in the soft limits nearest 0, no speed, no acceleration)
+    and its q, qd, qdd are continuous where the clip begins (to the spline's own step)."""
+    model, target = human
+    clip = arm_clip(target, forehand(model).q[60:], 1 / RATE, "ZXY", "cm", "hang")
+    clip, chain, axes = read_back(format_bvh(clip, 6))
+    result = retarget(clip, chain, axes, target, slice(None))
+    traj = result.trajectory
+    lo, hi = target.soft_limits()
+    assert np.abs(traj.q[0] - np.clip(0, lo, hi)).max() < 1e-12 and np.abs(traj.qd[0]).max() < 1e-12
+    assert np.abs(traj.qdd[0]).max() < 1e-9, "from rest"
+    k = int(round(result.lead_in_s * RATE))
+    for name, x, tol in (("q", traj.q, 0.02), ("qd", traj.qd, 0.5), ("qdd", traj.qdd, 60.0)):
+        step = np.abs(np.diff(x[k - 3:k + 3], axis=0)).max()
+        assert step < tol, f"{name} jumps {step:.3g} at the join"
+
+
+@needs_clips
+def test_the_cmu_clip_retargets_inside_the_limits_and_passes_validate_fit(tmp_path):
+    """CMU 01_01 (ten seconds of it) on the replica: the elbow axis 30° off, fitted (residual under
+    1°), no frame outside the limits, and validate --fit finds a time scale (at most 10) at which
+    the motion passes every check."""
+    config = load_config("replica")
+    report = run_retarget(str(CLIPS / "01_01.bvh"), config=config, time="2:12", output=tmp_path / "m.csv",
+                          report_dir=tmp_path / "r", say=lambda *a, **k: None)
+    saved = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert saved["calibration"]["fitted"] and abs(abs(saved["calibration"]["twist_deg"]) - 30.0) < 1.0
+    assert saved["calibration"]["residual_p95_deg"] < 1.0
+    assert saved["limit_hits"] == {}, "inside the soft limits as captured"
+    traj = read_trajectory_csv(tmp_path / "m.csv", config.model.dof_names)
+    assert np.all(traj.q >= config.model.lower) and np.all(traj.q <= config.model.upper), "inside the hard limits"
+    scale = report["validate"]["fit_time_scale"]
+    assert scale is not None and 1.0 < scale <= 10.0, f"fit {scale}"
+    again = validate(config, str(tmp_path / "m.csv"), time_scale=scale * 1.001, say=lambda *a, **k: None)
+    assert again["passed"], "passes at the fitted time scale"
+    assert saved["cartesian_error"]["hand"]["p95_mm"] < 20.0, "the hand follows the captured one"
+
+
+@needs_clips
+def test_retarget_exit_status_flags_the_boxing_clip(tmp_path, capsys):
+    """Boxing_Toes onto human_arm: written, but flagged (exit 1): its 3-channel elbow is no hinge
+    and its hooks leave the limits."""
+    assert main(["retarget", str(CLIPS / "Boxing_Toes.bvh"), "--time", "0:8", "-o", str(tmp_path / "b.csv")]) == 1
+    out = capsys.readouterr().out
+    assert "flag: the captured elbow is no hinge" in out and (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--frames", "5:2"], "B must come after A"),
+    (["--frames", "x:2"], "whole numbers"),
+    (["--time", "1:2", "--frames", "1:2"], "not both"),
+    (["--frames", "999999:"], "the clip has"),
+    (["--map", "/nonexistent.toml"], "no such file"),
+])
+def test_retarget_bad_options_are_one_line(tmp_path, capsys, args, words, human):
+    model, target = human
+    path = tmp_path / "f.bvh"
+    path.write_text(format_bvh(arm_clip(target, forehand(model).q[:20], 1 / RATE), 6))
+    assert main(["retarget", str(path), "-o", str(tmp_path / "m.csv"), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err, err
+
+
+def test_export_bvh_command_round_trips_the_forehand(tmp_path, capsys, human):
+    """export-bvh then retarget: the written motion (filtered) within 1° of the forehand."""
+    model, target = human
+    out = tmp_path / "f.bvh"
+    assert main(["export-bvh", "tennis_forehand", "--order", "YZX", "--unit", "m", "-o", str(out)]) == 0
+    assert main(["retarget", str(out), "-o", str(tmp_path / "m.csv")]) == 0
+    traj = read_trajectory_csv(tmp_path / "m.csv", model.dof_names)
+    lead = traj.t[-1] - forehand(model).t[-1]
+    q = forehand(model).q
+    k = int(round(lead * RATE))
+    assert np.degrees(np.abs(traj.q[k:k + len(q)] - q)).max() < 1.5
+    assert main(["export-bvh", "tennis_forehand", "--order", "XXY", "-o", str(out)]) == 2
+    assert "--order XXY" in capsys.readouterr().err
