@@ -621,7 +621,7 @@ def _put(q, arm, x):
 
 def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.01,
                max_speed: float | np.ndarray | None = None, swivel: float | None = None,
-               end: str | None = None) -> PathResult:
+               end: str | None = None, progress=None) -> PathResult:
     """A hand path: one solve per sample, each from the previous pose (so the swivel and the
     branches carry on), the first one cold unless q0 is given.
 
@@ -629,7 +629,7 @@ def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.0
     number or one per dof of the model): a step that would turn a dof faster is replaced by the
     pose nearest the target within the step's bounds (the limits and ±max_speed·dt, by bounded
     least squares), and the sample is marked `slowed`. A sample out of reach or without a swivel
-    in the limits raises, naming the sample.
+    in the limits raises, naming the sample. progress(i, N), if given, is called after each sample.
     """
     positions = np.asarray(positions, dtype=float)
     if positions.ndim != 2 or positions.shape[1] != 3:
@@ -675,6 +675,8 @@ def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.0
         out.q[i], out.position_error[i], out.rotation_error[i] = r.q, r.position_error, r.rotation_error
         out.swivel[i], out.reach[i] = r.swivel, r.reach
         q = r.q
+        if progress is not None:
+            progress(i + 1, N)
     return out
 
 
