@@ -143,29 +143,43 @@ def _log(R) -> np.ndarray:
     return v * angle / (2 * math.sin(angle))
 
 
+def _skew(w) -> np.ndarray:
+    return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+
+
+def _turn(w, K, angle, v):
+    """v (..., 3) turned by angle (...) about the constant unit axis w (K its cross matrix)."""
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return v * c + (v @ K.T) * s + w * ((v @ w)[..., None] * (1 - c))
+
+
 def _euler(G, w0, w1, w2, hint0):
     """Both branches of G = Rot(w0, a) Rot(w1, b) Rot(w2, c) for any axes with w1 across w0 and w2:
     angles (N, 2, 3) for G (N, 3, 3). In gimbal lock (a and c turn about one line) a = hint0."""
+    K0, K1 = _skew(w0), _skew(w1)
+    w12 = K1 @ w2
     c1 = w0 @ w2 - (w0 @ w1) * (w1 @ w2)
-    s1 = w0 @ _cross(w1, w2)
+    s1 = w0 @ w12
     k = (w0 @ w1) * (w1 @ w2)
     Gw2 = G @ w2
     value = Gw2 @ w0
     alpha = math.atan2(s1, c1)
     # cos(b - alpha) = (value - k) / rho; its sine from |w0 x G w2|, exact near the lock too
-    across = np.sum(_cross(w0, Gw2) ** 2, axis=-1) + 2 * value * k - (w0 @ w1) ** 2 - (w1 @ w2) ** 2
+    across = np.sum((Gw2 @ K0.T) ** 2, axis=-1) + 2 * value * k - (w0 @ w1) ** 2 - (w1 @ w2) ** 2
     spread = np.arctan2(np.sqrt(np.maximum(across, 0.0)), value - k)
     b = np.stack([alpha + spread, alpha - spread], axis=1)              # (N, 2)
-    v = _rotv(w1, b, np.broadcast_to(w2, b.shape + (3,)))             # Rot(w1, b) w2
-    target = np.broadcast_to(Gw2[:, None, :], v.shape)
-    a, lever = _angle_about(w0, v, target)
-    a = np.where(lever < 1e-9, hint0, a)
-    # c: what Rot(w1, -b) Rot(w0, -a) G does to a vector across w2
-    x = _cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
+    cb, sb = np.cos(b)[..., None], np.sin(b)[..., None]
+    v = w2 * cb + w12 * sb + w1 * ((w1 @ w2) * (1 - cb))                # Rot(w1, b) w2, (N, 2, 3)
+    # a: the turn about w0 taking v to G w2
+    ap = v - (v @ w0)[..., None] * w0
+    bp = (Gw2 - value[:, None] * w0)[:, None, :]
+    a = np.arctan2(np.sum((ap @ K0.T) * bp, axis=-1), np.sum(ap * bp, axis=-1))
+    a = np.where(np.sum(ap * ap, axis=-1) < 1e-18, hint0, a)
+    # c: what Rot(w1, -b) Rot(w0, -a) G does to a vector x across w2
+    x = np.cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
     x /= np.linalg.norm(x)
-    y = np.broadcast_to((G @ x)[:, None, :], v.shape)
-    y = _rotv(w1, -b, _rotv(w0, -a, y))
-    c, _ = _angle_about(w2, np.broadcast_to(x, y.shape), y)
+    y = _turn(w1, K1, -b, _turn(w0, K0, -a, (G @ x)[:, None, :]))
+    c = np.arctan2(y @ (_skew(w2) @ x), y @ x)
     return np.stack([a, b, c], axis=-1)
 
 
@@ -359,10 +373,18 @@ class Arm:
         if np.linalg.norm(ref) < 1e-9:
             ref = np.array([-1.0, 0.0, 0.0]) - n_hat * -n_hat[0]
         ref /= np.linalg.norm(ref)
-        rows = []
+        # elbow angles outside the elbow's limits are no branch (unless both are: then the least bad)
+        elbows = sorted(elbows)
+        lo, hi = self.lower[-4], self.upper[-4]
+        wrapped = [t + 2 * math.pi * round(((lo + hi) / 2 - t) / (2 * math.pi)) if math.isfinite(lo + hi) else t
+                   for t in elbows]
+        inside = [t for t, tw in zip(elbows, wrapped) if lo - TOL_LIMIT <= tw <= hi + TOL_LIMIT]
+        elbows = inside or elbows
         phi = np.asarray(phi, dtype=float)
-        for t3 in sorted(elbows):
-            E3 = _rot(we, t3)
+        N, ne = len(phi), len(elbows)
+        Rs, E3s = np.empty((ne, N, 3, 3)), np.empty((ne, 3, 3))
+        for e, t3 in enumerate(elbows):
+            E3 = E3s[e] = _rot(we, t3)
             s0 = (E3 @ (s.W - re) + re) - s.S
             s0 /= np.linalg.norm(s0)
             # the smallest rotation taking s0 onto n, then the swivel about n
@@ -374,20 +396,21 @@ class Arm:
             R_min = _rot(axis / np.linalg.norm(axis), math.atan2(sin_a, cos_a))
             bend = _cross(n_hat, R_min @ we)
             phi0 = math.atan2(_cross(ref, bend) @ n_hat, ref @ bend)
-            Rs = _rot(n_hat, phi - phi0) @ R_min                            # (N, 3, 3)
-            shoulder = _euler(Rs, w[0], w[1], w[2], x_prev[0])              # (N, 2, 3)
-            if rot is not None:
-                Rw = np.swapaxes(Rs @ E3, 1, 2) @ (rot @ self.end_R.T)        # E3ᵀ Rsᵀ R end_Rᵀ
-                wrist = _euler(Rw, w[4], w[5], w[6], x_prev[4])             # (N, 2, 3)
-            else:
-                wrist = np.broadcast_to(x_prev[4:7], (len(phi), 1, 3))
-            N, ns, nw = len(phi), shoulder.shape[1], wrist.shape[1]
-            c = np.empty((N, ns, nw, 7))
-            c[..., 0:3] = shoulder[:, :, None, :]
-            c[..., 3] = t3
-            c[..., 4:7] = wrist[:, None, :, :]
-            rows.append(c.reshape(N, ns * nw, 7))
-        return np.concatenate(rows, axis=1)
+            Rs[e] = _rot(n_hat, phi - phi0) @ R_min
+        Rs = Rs.reshape(ne * N, 3, 3)
+        shoulder = _euler(Rs, w[0], w[1], w[2], x_prev[0])                  # (ne N, 2, 3)
+        if rot is not None:
+            E3n = np.repeat(E3s, N, axis=0)
+            Rw = np.swapaxes(Rs @ E3n, 1, 2) @ (rot @ self.end_R.T)           # E3ᵀ Rsᵀ R end_Rᵀ
+            wrist = _euler(Rw, w[4], w[5], w[6], x_prev[4])                 # (ne N, 2, 3)
+        else:
+            wrist = np.broadcast_to(x_prev[4:7], (ne * N, 1, 3))
+        ns, nw = shoulder.shape[1], wrist.shape[1]
+        c = np.empty((ne, N, ns, nw, 7))
+        c[..., 0:3] = shoulder.reshape(ne, N, ns, 1, 3)
+        c[..., 3] = np.array(elbows)[:, None, None, None]
+        c[..., 4:7] = wrist.reshape(ne, N, 1, nw, 3)
+        return c.transpose(1, 0, 2, 3, 4).reshape(N, ne * ns * nw, 7)
 
     def _fit(self, cand, x_prev):
         """Wrap each angle to the turn nearest its range (or x_prev); the largest limit excess."""
@@ -445,6 +468,8 @@ class Arm:
                 _, _, axes, _ = self.forward(x_prev)
                 preferred = self._swivel_at(pos_l - s.S, Rp.T @ axes[-4])
             phis = np.array([preferred])
+        if cold and swivel is None:
+            return self._search_swivel(pos_l, rot_l, float(phis[0]), tail, x_ref)
         x, excess = self._pick(pos_l, rot_l, phis, tail, x_ref)
         if excess[0] <= TOL_LIMIT:
             return x[0], float(phis[0])
@@ -455,9 +480,11 @@ class Arm:
     def _search_swivel(self, pos, rot, preferred, x_prev, x_ref):
         """The in-limit swivel nearest `preferred`: a grid round the circle, then finer grids
         between the nearest in-limit swivel and the preferred one (or round the least excess)."""
-        phis = preferred + np.linspace(-math.pi, math.pi, GRID, endpoint=False)
+        phis = preferred + np.linspace(0.0, 2 * math.pi, GRID, endpoint=False)
         x, excess = self._pick(pos, rot, phis, x_prev, x_ref)
         ok = excess <= TOL_LIMIT
+        if ok[0]:
+            return x[0], preferred
         if not ok.any():
             # none inside: look closer round the three least bad swivels
             for k in np.argsort(excess)[:3]:
