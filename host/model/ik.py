@@ -558,12 +558,18 @@ _ARMS: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 # -------------------------------------------------------------------------------------- the API
 def _target(position, rotation):
-    pos = np.asarray(position, dtype=float)
+    try:
+        pos = np.asarray(position, dtype=float)
+    except (TypeError, ValueError):
+        pos = np.array([math.nan])
     if pos.shape != (3,) or not np.all(np.isfinite(pos)):
         raise IkError(f"the target position must be three finite numbers (m), got {position!r}")
     if rotation is None:
         return pos, None
-    rot = np.asarray(rotation, dtype=float)
+    try:
+        rot = np.asarray(rotation, dtype=float)
+    except (TypeError, ValueError):
+        rot = np.array([math.nan])
     if rot.shape != (3, 3) or not np.all(np.isfinite(rot)) or \
             np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0:
         raise IkError("the target rotation must be a 3 x 3 rotation matrix")
