@@ -263,3 +263,20 @@ def test_export_bvh_command_round_trips_the_forehand(tmp_path, capsys, human):
     assert np.degrees(np.abs(traj.q[k:k + len(q)] - q)).max() < 1.5
     assert main(["export-bvh", "tennis_forehand", "--order", "XXY", "-o", str(out)]) == 2
     assert "--order XXY" in capsys.readouterr().err
+
+
+@needs_clips
+def test_ik_keeps_the_boxing_hooks_inside_the_limits_nearer_the_captured_hand(tmp_path):
+    """Boxing_Toes, 3 s: its 3-channel elbow is no hinge and its hooks leave the limits, so the
+    angles method clamps (the hand p95 tens of mm off); IK on the captured hand with the limits as
+    bounds stays inside them and puts the hand nearer the captured one."""
+    model = load_model("human_arm")
+    angles = run_retarget(str(CLIPS / "Boxing_Toes.bvh"), model=model, time="0:3", output=tmp_path / "a.csv",
+                          say=lambda *a, **k: None)
+    solved = run_retarget(str(CLIPS / "Boxing_Toes.bvh"), model=model, time="0:3", method="ik",
+                          output=tmp_path / "i.csv", say=lambda *a, **k: None)
+    traj = read_trajectory_csv(tmp_path / "i.csv", model.dof_names)
+    assert np.all(traj.q >= model.lower - 1e-12) and np.all(traj.q <= model.upper + 1e-12), "inside the limits"
+    a, i = angles["cartesian_error"]["hand"]["p95_mm"], solved["cartesian_error"]["hand"]["p95_mm"]
+    assert i < 0.8 * a, f"IK's hand {i:.1f} mm (p95) against the angles' {a:.1f} mm"
+    assert sum(solved["ik"].values()) == solved["frames"]["count"], "every frame solved one way or another"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -144,9 +145,6 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
                  output: str | Path | None = None, report_dir: str | Path | None = None, say=print) -> dict:
     """Retarget; the report (written to report_dir/report.json when given), `flags` non-empty when
     the result needs a look."""
-    if method != "angles":
-        raise MocapError(f"--method {method}: only 'angles' is available in this build (the IK solver is not "
-                         "merged yet)")
     clip = _clip(clip_path)
     arms = _arms(clip, map_file)
     if arm not in arms:
@@ -160,7 +158,13 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
         warnings.append("the left arm is retargeted onto the model's arm as recorded (not mirrored)")
     span = frame_slice(clip, frames, time)
     twist = None if twist_deg is None else math.radians(twist_deg)
-    result = retarget(clip, chain, axes, target, span, twist)
+    shown = [0]
+
+    def progress(i, n):          # IK takes a few ms a frame: a line every tenth of a long clip
+        if n >= 500 and i * 10 // n > shown[0]:
+            shown[0] = i * 10 // n
+            print(f"  ik: {i}/{n} frames", file=sys.stderr, flush=True)
+    result = retarget(clip, chain, axes, target, span, twist, method=method, progress=progress)
     traj = result.trajectory
     output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
     write_trajectory_csv(output, traj, robot_model.dof_names)
@@ -198,11 +202,11 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
 def flags(report: dict) -> list[str]:
     out = []
     count = report["frames"]["count"]
-    for dof, hit in report["limit_hits"].items():
+    for dof, hit in report["limit_hits"].items() if report["method"] == "angles" else ():
         if hit["frames"] > FLAG_LIMIT_FRACTION * count:
             out.append(f"{dof}: {hit['frames']} of {count} frames outside the soft limits (up to "
                        f"{hit['worst_deg']:.1f}° beyond), clamped")
-    if report["elbow_residual_p95_deg"] > FLAG_ELBOW_RESIDUAL_DEG:
+    if report["elbow_residual_p95_deg"] > FLAG_ELBOW_RESIDUAL_DEG and report["method"] == "angles":
         out.append(f"the captured elbow is no hinge: the forearm leaves the model's elbow plane by "
                    f"{report['elbow_residual_p95_deg']:.1f}° (p95); --method ik fits the hand instead")
     hand = report["cartesian_error"]["hand"]["p95_mm"]
@@ -232,6 +236,9 @@ def summary_text(r: dict) -> str:
              f"limits: {sum(h['frames'] for h in r['limit_hits'].values())} dof-frames clamped "
              f"{r['soft_limit_margin_deg']:g}° inside; flips avoided {r['flips_avoided']}; outliers replaced "
              f"{sum(r['outliers_removed'].values())}",
+             *([f"ik: {r['ik']['at_captured_swivel']} frames at the captured elbow's swivel, "
+                f"{r['ik']['nearest_swivel']} at the nearest swivel inside the limits, {r['ik']['least_squares']} "
+                "by bounded least squares"] if "ik" in r else []),
              f"Cartesian error: elbow {r['cartesian_error']['elbow']['p95_mm']:.1f} mm, hand "
              f"{r['cartesian_error']['hand']['p95_mm']:.1f} mm (p95)",
              f"peak torque {max(r['torque']['peak_nm'].values()):.2f} N·m "

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..control.trajectory import Trajectory, spline_derivatives
+from ..model import ik
 from ..model.rotations import unit
 from .angles import about, angle_about, smallest_rotation, split3
 from .bvh import Clip
@@ -263,6 +264,46 @@ def decompose(cap: Capture, target: ArmTarget) -> tuple[np.ndarray, dict]:
                "elbow_residual_max_deg": float(np.abs(off_hinge).max())}
 
 
+def solve_ik(cap: Capture, target: ArmTarget, q_angles: np.ndarray, progress=None) -> tuple[np.ndarray, dict]:
+    """The model's angles by inverse kinematics on the captured hand (servodyn.model.ik): per frame
+    the wrist at the captured forearm's end and the hand's frame as captured, the elbow's swivel
+    the captured elbow's (from the angles' split, which is exact before any limit), the limits as
+    bounds, from the previous frame's pose. Where no pose at that swivel is inside the limits, the
+    in-limit swivel nearest the previous frame's; where none reaches the hand's frame, the bounded
+    least-squares pose nearest it. (F, 7) angles and what it took; progress(i, F) after each frame."""
+    model = target.model
+    arm = ik.Arm.of(model)
+    R0 = model.user_poses(np.zeros(model.nq))[0][arm.end]
+    wrist = target.shoulder + cap.F_upper @ (target.elbow - target.shoulder) + target.lengths[1] * cap.forearm
+    rotations = cap.F_hand @ R0
+    lo, hi = target.lower, target.upper
+    q = np.empty_like(q_angles)
+    previous = np.clip(q_angles[0], lo, hi)
+    counts = {"at_captured_swivel": 0, "nearest_swivel": 0, "least_squares": 0}
+    for i in range(len(q)):
+        swivel = arm.swivel_of(q_angles[i][arm.q_index])
+        try:
+            r = ik.solve(model, wrist[i], rotations[i], q_prev=previous, swivel=swivel)
+            counts["at_captured_swivel"] += 1
+        except ik.IkError:
+            try:
+                r = ik.solve(model, wrist[i], rotations[i], q_prev=previous)
+                counts["nearest_swivel"] += 1
+            except ik.IkError:
+                r = None
+        if r is not None:
+            previous = r.q
+        else:
+            x, _, _ = arm.solve_dls(previous[arm.q_index], wrist[i], rotations[i])
+            previous = previous.copy()
+            previous[arm.q_index] = np.clip(x, arm.lower, arm.upper)
+            counts["least_squares"] += 1
+        q[i] = previous
+        if progress is not None:
+            progress(i + 1, len(q))
+    return q, {"ik": counts, "flips_avoided": max(0, _flips(q_angles) - _flips(q))}
+
+
 # ---------------------------------------------------------------------------- smoothing
 
 def remove_outliers(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -320,11 +361,18 @@ class Retargeted:
     report: dict
 
 
+METHODS = ("angles", "ik")
+
+
 def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: slice | None = None,
-             twist: float | None = None, smooth: bool = True, with_lead_in: bool = True) -> Retargeted:
-    """The clip's arm on the model: the decomposition, then (smooth) outliers, soft limits,
-    low-pass and spline, then (with_lead_in) the lead-in from rest. `frames` None takes the
-    whole clip without its rest frame (frame 0 when it is a T-pose)."""
+             twist: float | None = None, smooth: bool = True, with_lead_in: bool = True,
+             method: str = "angles", progress=None) -> Retargeted:
+    """The clip's arm on the model: the decomposition (method "angles") or inverse kinematics on
+    the hand ("ik", `solve_ik`), then (smooth) outliers, soft limits, low-pass and spline, then
+    (with_lead_in) the lead-in from rest. `frames` None takes the whole clip without its rest
+    frame (frame 0 when it is a T-pose)."""
+    if method not in METHODS:
+        raise RetargetError(f"method '{method}': expected one of {', '.join(METHODS)}")
     dropped = False
     if frames is None:
         dropped = rest_frame(clip, chain)[0]
@@ -335,8 +383,13 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
                             "motion needs at least two")
     q_raw, info = decompose(cap, target)
     soft_lo, soft_hi = target.soft_limits()
+    outside = (q_raw < soft_lo) | (q_raw > soft_hi)       # the captured pose, split: where it leaves the limits
+    worst = np.maximum(np.maximum(soft_lo - q_raw, q_raw - soft_hi), 0.0).max(axis=0)
+    if method == "ik":
+        q_angles = q_raw
+        q_raw, solved = solve_ik(cap, target, q_angles, progress)
+        info.update(solved)
     names = target.model.dof_names
-    outside = (q_raw < soft_lo) | (q_raw > soft_hi)
     replaced = np.zeros(q_raw.shape, dtype=bool)
     q = q_raw
     if smooth:
@@ -365,12 +418,12 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
                    "rate_hz": clip.rate, "duration_s": float(cap.t[-1])},
         "calibration": cap.calibration,
         "lead_in_s": lead,
+        "method": method,
         "flips_avoided": info["flips_avoided"],
+        **({"ik": info["ik"]} if "ik" in info else {}),
         "elbow_residual_p95_deg": info["elbow_residual_p95_deg"],
         "elbow_residual_max_deg": info["elbow_residual_max_deg"],
-        "limit_hits": {d: {"frames": int(outside[:, j].sum()),
-                           "worst_deg": float(np.degrees(max(soft_lo[j] - q_raw[:, j].min(),
-                                                             q_raw[:, j].max() - soft_hi[j], 0.0)))}
+        "limit_hits": {d: {"frames": int(outside[:, j].sum()), "worst_deg": float(np.degrees(worst[j]))}
                        for j, d in enumerate(names) if outside[:, j].any()},
         "soft_limit_margin_deg": math.degrees(SOFT_MARGIN),
         "outliers_removed": {d: int(replaced[:, j].sum()) for j, d in enumerate(names) if replaced[:, j].any()},
