@@ -280,3 +280,36 @@ def test_ik_keeps_the_boxing_hooks_inside_the_limits_nearer_the_captured_hand(tm
     a, i = angles["cartesian_error"]["hand"]["p95_mm"], solved["cartesian_error"]["hand"]["p95_mm"]
     assert i < 0.8 * a, f"IK's hand {i:.1f} mm (p95) against the angles' {a:.1f} mm"
     assert sum(solved["ik"].values()) == solved["frames"]["count"], "every frame solved one way or another"
+
+
+def test_the_view_overlays_the_captured_arm_on_the_retargeted_one(tmp_path):
+    """view --motion retargeted.csv --source CLIP.bvh: at each time the captured arm (orange) is
+    where the retargeted arm is, within the filter's few millimetres, and hidden during the lead-in;
+    a clip the motion did not come from is one line."""
+    from servodyn.tools.view import ViewError, open_view
+    model = load_model("human_arm")
+    bvh, csv = tmp_path / "f.bvh", tmp_path / "f.csv"
+    assert main(["export-bvh", "tennis_forehand", "-o", str(bvh)]) == 0
+    assert main(["retarget", str(bvh), "-o", str(csv)]) == 0
+    v = open_view("human_arm", motion=str(csv), source=str(bvh), port=0, say=lambda *a, **k: None)
+    try:
+        lead = v.source.t[0]
+        v.seek(0.5 * lead)
+        assert not v.source.handle.visible, "no captured arm before the clip starts"
+        for j in (60, 132, 180):          # frames of the swing, the fastest (contact) among them
+            t = float(v.source.t[j])
+            v.seek(t)
+            k = v.timeline.index(t)
+            elbow, wrist, _ = ArmTarget.of(model).points(v.timeline.planned[k][None])
+            drawn = v.source.handle.points          # (3 segments, 2 ends, 3)
+            assert v.source.handle.visible
+            assert np.linalg.norm(drawn[0, 1] - elbow[0]) < 0.01, "the captured elbow on the arm's"
+            assert np.linalg.norm(drawn[1, 1] - wrist[0]) < 0.01, "the captured wrist on the arm's"
+    finally:
+        v.close()
+    other = tmp_path / "other.bvh"
+    clip = parse_bvh(bvh.read_text())
+    other.write_text(format_bvh(clip.with_motion(clip.motion[:100]), 6))         # a shorter clip
+    with pytest.raises(ViewError, match="--source overlays"):
+        open_view("human_arm", motion=str(csv), source=str(other), port=0,
+                  say=lambda *a, **k: None)

@@ -335,7 +335,8 @@ def cmd_view(args) -> None:
     from .view import ViewError, open_view, serve_forever
     try:
         viewer = open_view(args.subject, log=args.log, motion=args.motion, time_scale=args.time_scale,
-                           host=args.host, port=args.port, save_to=Path(args.save) if args.save else None)
+                           host=args.host, port=args.port, save_to=Path(args.save) if args.save else None,
+                           source=args.source)
     except ViewError as err:
         raise CliError(str(err)) from None
     serve_forever(viewer)
@@ -610,6 +611,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="play the motion this many times slower (default: the configuration's for the forehand)")
     p.add_argument("--save", default=None, metavar="FILE",
                    help="where 'Save keyframes' writes (default out/view/<motion>.toml)")
+    p.add_argument("--source", default=None, metavar="CLIP.bvh",
+                   help="overlay the captured arm the --motion CSV was retargeted from (servodyn retarget)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.set_defaults(func=cmd_view)

@@ -289,3 +289,4 @@ def export_bvh(motion: str, model, output: str | Path, order: str = "ZXY", unit:
     say(f"wrote {output}: '{path.name}' on '{model.name}', {clip.frames} frames at {rate:g} Hz, rotation order "
         f"{order}, unit {unit}, rest pose {rest}")
     return clip
+

@@ -34,6 +34,8 @@ from ..control.trajectory import TrajectoryError
 from ..hal.config import builtin_configs, load_config
 from ..hal.errors import ConfigError
 from ..loop.log import RunLogError, read_run_log
+from ..mocap import BvhError, RetargetError, SkeletonError, find_arms, guess_axes, read_bvh
+from ..mocap.retarget import source_arm
 from ..model import ModelError, builtin_models, ik, load_model
 from ..model.files import read_toml
 from ..model.rotations import matrix_to_quat, quat_to_matrix
@@ -50,6 +52,7 @@ SOLID_RGB = (178, 184, 196)
 GHOST_RGB = (90, 160, 255)
 GHOST_OPACITY = 0.35
 GIZMO_SCALE = 0.3          # of the arm's length: the hand's transform gizmo
+SOURCE_RGB = (255, 140, 40)  # the captured arm of --source
 
 
 class ViewError(ValueError):
@@ -208,6 +211,25 @@ class ArmDrawing:
 
 # ---------------------------------------------------------------------------- the page
 
+class SourceOverlay:
+    """The captured arm a retargeted motion came from (`--source CLIP.bvh`): shoulder, elbow, wrist
+    and hand as line segments, posed at the player's time (hidden during the lead-in)."""
+
+    def __init__(self, server, t: np.ndarray, points: np.ndarray, time_scale: float):
+        self.t, self.points = t * time_scale, points
+        self.handle = server.scene.add_line_segments("/source", self._segments(0), SOURCE_RGB, thickness=0.012)
+
+    def _segments(self, k: int) -> np.ndarray:
+        p = self.points[k].astype(np.float32)
+        return np.stack([p[:-1], p[1:]], axis=1)
+
+    def pose(self, t: float) -> None:
+        k = int(np.clip(np.searchsorted(self.t, t), 1, len(self.t) - 1))
+        k -= int(t - self.t[k - 1] < self.t[k] - t)          # the nearest frame
+        self.handle.visible = bool(t >= self.t[0] - 1e-9)
+        self.handle.points = self._segments(k)
+
+
 def check_address(host: str, port: int) -> None:
     """ViewError unless host:port can be served (viser would fail in its own thread, and hang)."""
     import socket
@@ -266,6 +288,7 @@ class Viewer:
         self.plots = {}
         self.player = None
         self.editor = None
+        self.source: SourceOverlay | None = None
         self.cursor_t = 0.0
         self._stop = threading.Event()
         self._threads = []
@@ -335,6 +358,8 @@ class Viewer:
                 else:
                     self.arm.pose(tl.planned[k])
                 self.arm.color_joints(tl.share[k])
+                if self.source is not None:
+                    self.source.pose(self.cursor_t)
                 self._follow_plots(self.cursor_t)
             self._seeking = True
             try:
@@ -712,9 +737,13 @@ class LiveFeed:
 
 def open_view(spec: str | None = None, log: str | None = None, motion: str | None = None,
               time_scale: float | None = None, host: str = "127.0.0.1", port: int = 8080,
-              save_to: Path | None = None, say=print) -> Viewer:
-    """Serve the page for a configuration or model, with a logged run or a motion loaded."""
+              save_to: Path | None = None, source: str | None = None, say=print) -> Viewer:
+    """Serve the page for a configuration or model, with a logged run or a motion loaded; with
+    `source` (a BVH clip) the captured arm a retargeted motion CSV came from, overlaid."""
     config, model = load_subject(spec)
+    if source is not None and not str(motion or "").lower().endswith(".csv"):
+        raise ViewError("--source overlays the clip a retargeted motion came from: give that motion's CSV "
+                        "(servodyn retarget -o) as --motion")
     timeline = None
     if log is not None:
         timeline = log_timeline(model, config, Path(log))
@@ -751,6 +780,16 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
     if motion_obj is not None:
         viewer.edit(motion_obj, time_scale, save_to or Path("out/view") / f"{motion_obj.name}.toml")
     elif timeline is not None:
+        if source is not None:
+            try:
+                clip = read_bvh(source)
+                arms = find_arms(clip)
+                t_source, points = source_arm(clip, model, float(timeline.t[-1]) / time_scale, arms,
+                                              guess_axes(clip, arms)[0] if arms else None)
+            except (BvhError, RetargetError, SkeletonError) as err:
+                viewer.close()
+                raise ViewError(str(err)) from None
+            viewer.source = SourceOverlay(viewer.server, t_source, points, time_scale)
         viewer.show_timeline(timeline, f"run {log}" if log else f"{motion} at time scale {time_scale:g}")
     elif nothing_to_play:
         viewer.readout.content = nothing_to_play

@@ -184,6 +184,15 @@ def capture(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: 
     return Capture(t, F_upper, F_hand, u, psi, calibration)
 
 
+def captured_points(cap: Capture, target: ArmTarget) -> np.ndarray:
+    """(F, 4, 3) the captured arm with the model's segment lengths: shoulder, elbow, wrist and the
+    hand's centre of mass, in the model's base frame."""
+    elbow = target.shoulder + cap.F_upper @ (target.elbow - target.shoulder)
+    wrist = elbow + target.lengths[1] * cap.forearm
+    hand = wrist + cap.F_hand @ (target.hand - target.wrist)
+    return np.stack([np.broadcast_to(target.shoulder, elbow.shape), elbow, wrist, hand], axis=1)
+
+
 def _hinge_frame(target: ArmTarget) -> tuple[np.ndarray, np.ndarray]:
     """(f, h): where elbow flexion moves the forearm from rest, and the hinge axis."""
     h = target.axes[3]
@@ -274,7 +283,7 @@ def solve_ik(cap: Capture, target: ArmTarget, q_angles: np.ndarray, progress=Non
     model = target.model
     arm = ik.Arm.of(model)
     R0 = model.user_poses(np.zeros(model.nq))[0][arm.end]
-    wrist = target.shoulder + cap.F_upper @ (target.elbow - target.shoulder) + target.lengths[1] * cap.forearm
+    wrist = captured_points(cap, target)[:, 2]
     rotations = cap.F_hand @ R0
     lo, hi = target.lower, target.upper
     q = np.empty_like(q_angles)
@@ -404,8 +413,7 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
         lead = float(len(tl) * clip.frame_time)
         t = np.concatenate([tl, cap.t + lead])
         Q, QD, QDD = (np.concatenate(pair) for pair in ((ql, q), (qdl, qd), (qddl, qdd)))
-    elbow_c = target.shoulder + cap.F_upper @ (target.elbow - target.shoulder)
-    hand_c = elbow_c + target.lengths[1] * cap.forearm + cap.F_hand @ (target.hand - target.wrist)
+    _, elbow_c, _, hand_c = captured_points(cap, target).transpose(1, 0, 2)
     elbow_m, _, hand_m = target.points(q)
     errors = {}
     for what, a, b in (("elbow", elbow_c, elbow_m), ("hand", hand_c, hand_m)):
@@ -432,3 +440,20 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
     }
     return Retargeted(Trajectory(t=t, q=Q, qd=QD, qdd=QDD, derived=False), lead, q_raw, q, cap, report)
 
+
+
+def source_arm(clip: Clip, model, duration: float, arms: dict[str, ArmChain], axes: Axes,
+               arm: str = "right") -> tuple[np.ndarray, np.ndarray]:
+    """The captured arm of a clip as `retarget` (whole clip) reads it, on the clock of the motion it
+    writes (lead-in included): times (F,) and points (F, 4, 3), `captured_points`. RetargetError
+    when a motion of `duration` s is not that clip's whole retarget."""
+    if arm not in arms:
+        raise RetargetError(f"{clip.source}: no {arm} arm found (found: {', '.join(arms) or 'none'})")
+    target = ArmTarget.of(model)
+    result = retarget(clip, arms[arm], axes, target)
+    t = result.capture.t + result.lead_in_s
+    if abs(t[-1] - duration) > 2 * clip.frame_time:
+        raise RetargetError(f"{clip.source}: retargeted as a whole it lasts {t[-1]:.3f} s, the motion "
+                            f"{duration:.3f} s: --source overlays a motion that `servodyn retarget` wrote from "
+                            "the whole clip")
+    return t, captured_points(result.capture, target)
