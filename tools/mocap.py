@@ -184,9 +184,12 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
                         "peak_over_gravity": float(peak.max() / g_peak) if g_peak > 0 else None,
                         "spikes": spikes}
     if config is not None:
-        checked = validate(config, str(output), fit=True, say=lambda *a, **k: None)
-        report["validate"] = {"passed_as_captured": checked["passed"], "fit_time_scale": checked.get("fit_time_scale"),
-                              "fit_how": checked.get("fit_how")}
+        try:
+            checked = validate(config, str(output), fit=True, say=lambda *a, **k: None)
+            report["validate"] = {"passed_as_captured": checked["passed"],
+                                  "fit_time_scale": checked.get("fit_time_scale"), "fit_how": checked.get("fit_how")}
+        except ValueError as err:          # the fit past the longest motion the validator plays
+            report["validate"] = {"passed_as_captured": False, "fit_time_scale": None, "fit_how": str(err)}
     report["flags"] = flags(report)
     say(summary_text(report))
     if report_dir is not None:
@@ -229,7 +232,8 @@ def summary_text(r: dict) -> str:
     lines = [f"retarget {r['clip']} ({r['arm']} arm: {r['chain']['upper_arm']}, names {r['names_from']}) onto "
              f"'{r['model']}': {r['frames']['count']} frames from frame {r['frames']['first']}"
              f"{' (rest frame 0 dropped)' if r['frames']['rest_frame_dropped'] else ''} at {r['frames']['rate_hz']:.4g} Hz,"
-             f" {r['lead_in_s']:.2f} s lead-in from rest, {r['duration_s']:.2f} s in all",
+             f" {r['lead_in_s']:.2f} s lead-in from rest (its first {r['eased_in_s']:g} s played from stillness),"
+             f" {r['duration_s']:.2f} s in all",
              f"elbow axis: twist {cal['twist_deg']:.1f}° "
              + (f"fitted over {cal['frames']} frames (residual p95 {cal['residual_p95_deg_before']:.1f}° → "
                 f"{cal['residual_p95_deg']:.1f}°)" if cal.get("fitted") else f"({cal['why']})"),

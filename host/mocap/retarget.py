@@ -21,9 +21,11 @@ at the wrist (`ArmTarget`). Then, with the model's dof axes at q = 0 (w1..w7, wo
 
 Then (`smooth`): outliers out (a Hampel-style pass on the residual from a local quadratic),
 soft limits SOFT_MARGIN inside the hard ones, a zero-phase Butterworth low-pass at CUTOFF_HZ,
-one C2 spline for q, qd, qdd, and a C2 lead-in from rest. Noise in the angles is amplified twice
-by differentiation: 0.2° of channel noise is some 470 N·m of torque error through q̈ unfiltered,
-2–3 N·m after this (docs: motion-capture notes).
+one C2 spline for q, qd, qdd; then the clip's first EASE_IN s played from stillness (slower,
+the same path) and a C2 lead-in from rest to its first pose (arriving at the clip's own speed
+instead can swing a joint past its limit). Noise in the angles is amplified twice by differentiation: 0.2° of channel noise is some
+470 N·m of torque error through q̈ unfiltered, 2.5 N·m after this on the forehand
+(tests/test_retarget.py).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ CALIBRATION_FLEXION = math.radians(30.0)   # frames with the elbow bent this far
 CALIBRATION_FRAMES = 10
 LEAD_IN_SPEED = 1.0                 # rad/s, the lead-in's mean speed on its largest move
 LEAD_IN_MIN = 1.0                   # s
+EASE_IN = 0.25                      # s of the clip's start played from stillness, in twice the time
 FLIP = math.radians(30.0)           # a step this large between frames is a flip, not motion
 
 
@@ -347,23 +350,57 @@ def low_pass(q: np.ndarray, rate: float, cutoff: float = CUTOFF_HZ) -> np.ndarra
     return sosfiltfilt(sos, q, axis=0, padlen=min(3 * (2 * len(sos) + 1), len(q) - 1))
 
 
-def lead_in(start: np.ndarray, q0: np.ndarray, qd0: np.ndarray, qdd0: np.ndarray, dt: float):
-    """A C2 quintic from rest at `start` (no speed, no acceleration) to the motion's first sample,
-    sampled every dt (the last sample, the motion's first, left out): t, q, qd, qdd."""
-    from scipy.interpolate import BPoly
+def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The quintic s(x) = 10x³ − 15x⁴ + 6x⁵ from 0 to 1 with zero slope and curvature at both ends,
+    and its first two derivatives (in x)."""
+    return (x ** 3 * (10 - 15 * x + 6 * x ** 2), 30 * x ** 2 * (1 - x) ** 2, 60 * x * (1 - x) * (1 - 2 * x))
+
+
+def ease_in(t: np.ndarray, q: np.ndarray, window: float):
+    """The motion started from stillness by slowing its first `window` s, its path unchanged: over
+    the first 2·window of the new clock it plays at σ(τ) = window·(2x³ − x⁴), x = τ / (2·window)
+    (σ' and σ'' zero at the start, σ' = 1 and σ'' = 0 where it joins the motion, C2), then as it
+    was, `window` s later. q (F, n) is the C2 spline's samples at t (uniform). Returns the new
+    samples (every step of t) t, q, qd, qdd, and the new time of each of the motion's samples."""
+    from scipy.interpolate import CubicSpline
+    dt = float(t[1] - t[0])
+    m = int(round(window / dt))
+    if m < 1:
+        qd, qdd = spline_derivatives(t, q)
+        return t, q, qd, qdd, t.copy()
+    spline = CubicSpline(t, q, axis=0, bc_type="not-a-knot" if len(t) > 3 else "natural")
+    tau = np.arange(2 * m) * dt
+    x = tau / (2 * m * dt)
+    sigma = m * dt * (2 * x ** 3 - x ** 4)
+    d1 = (6 * x ** 2 - 4 * x ** 3) / 2                     # dσ/dτ
+    d2 = (12 * x - 12 * x ** 2) / (4 * m * dt)             # d²σ/dτ²
+    rest = t >= m * dt - 1e-9 * dt
+    q_new = np.concatenate([spline(sigma), q[rest]])
+    qd_new = np.concatenate([spline(sigma, 1) * d1[:, None], spline(t[rest], 1)])
+    qdd_new = np.concatenate([spline(sigma, 2) * d1[:, None] ** 2 + spline(sigma, 1) * d2[:, None],
+                              spline(t[rest], 2)])
+    t_new = np.arange(len(q_new)) * dt
+    shown = np.where(rest, t + m * dt, np.interp(t, sigma, tau))
+    return t_new, q_new, qd_new, qdd_new, shown
+
+
+def lead_in(start: np.ndarray, q0: np.ndarray, dt: float):
+    """A C2 quintic from rest at `start` to rest at q0 (the eased motion's first pose), sampled
+    every dt, q0 itself left out: t, q, qd, qdd. It moves monotonically, at LEAD_IN_SPEED on the
+    largest move (at least LEAD_IN_MIN long)."""
     duration = max(LEAD_IN_MIN, 1.875 * float(np.abs(q0 - start).max()) / LEAD_IN_SPEED)
     n = max(2, int(math.ceil(duration / dt)))
-    duration = n * dt
-    zero = np.zeros_like(start)
-    poly = BPoly.from_derivatives([0.0, duration], np.array([[start, zero, zero], [q0, qd0, qdd0]]))
     t = np.arange(n) * dt
-    return t, poly(t), poly.derivative(1)(t), poly.derivative(2)(t)
+    s, ds, dds = (v[:, None] for v in _smoothstep(t / (n * dt)))
+    move = q0 - start
+    return t, start + s * move, ds / (n * dt) * move, dds / (n * dt) ** 2 * move
 
 
 @dataclass
 class Retargeted:
     trajectory: Trajectory          # the motion to play: lead-in, then the clip
     lead_in_s: float
+    frame_times: np.ndarray         # (F,) s, when each of the clip's frames is played in `trajectory`
     q_raw: np.ndarray               # (F, 7) the decomposition, before any smoothing
     q: np.ndarray                   # (F, 7) smoothed, at the clip's frames
     capture: Capture
@@ -406,13 +443,15 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
         q = np.clip(q, soft_lo, soft_hi)
         q = np.clip(low_pass(q, clip.rate), soft_lo, soft_hi)
     qd, qdd = spline_derivatives(cap.t, q)
-    t, Q, QD, QDD, lead = cap.t, q, qd, qdd, 0.0
+    t, Q, QD, QDD, lead, eased, shown = cap.t, q, qd, qdd, 0.0, 0.0, cap.t
     if with_lead_in:
+        eased = min(EASE_IN, float(cap.t[-1]) / 4) if len(cap.t) > 3 else 0.0
+        te, qe, qde, qdde, shown = ease_in(cap.t, q, eased)
         rest = np.clip(np.zeros(7), soft_lo, soft_hi)
-        tl, ql, qdl, qddl = lead_in(rest, q[0], qd[0], qdd[0], clip.frame_time)
+        tl, ql, qdl, qddl = lead_in(rest, qe[0], clip.frame_time)
         lead = float(len(tl) * clip.frame_time)
-        t = np.concatenate([tl, cap.t + lead])
-        Q, QD, QDD = (np.concatenate(pair) for pair in ((ql, q), (qdl, qd), (qddl, qdd)))
+        t, shown = np.concatenate([tl, te + lead]), shown + lead
+        Q, QD, QDD = (np.concatenate(pair) for pair in ((ql, qe), (qdl, qde), (qddl, qdde)))
     _, elbow_c, _, hand_c = captured_points(cap, target).transpose(1, 0, 2)
     elbow_m, _, hand_m = target.points(q)
     errors = {}
@@ -426,6 +465,7 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
                    "rate_hz": clip.rate, "duration_s": float(cap.t[-1])},
         "calibration": cap.calibration,
         "lead_in_s": lead,
+        "eased_in_s": eased,      # the clip's first seconds played slower from stillness (twice as long)
         "method": method,
         "flips_avoided": info["flips_avoided"],
         **({"ik": info["ik"]} if "ik" in info else {}),
@@ -438,7 +478,7 @@ def retarget(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames:
         "filter": {"cutoff_hz": CUTOFF_HZ, "order": FILTER_ORDER, "zero_phase": True} if smooth else None,
         "cartesian_error": errors,
     }
-    return Retargeted(Trajectory(t=t, q=Q, qd=QD, qdd=QDD, derived=False), lead, q_raw, q, cap, report)
+    return Retargeted(Trajectory(t=t, q=Q, qd=QD, qdd=QDD, derived=False), lead, shown, q_raw, q, cap, report)
 
 
 
@@ -451,7 +491,7 @@ def source_arm(clip: Clip, model, duration: float, arms: dict[str, ArmChain], ax
         raise RetargetError(f"{clip.source}: no {arm} arm found (found: {', '.join(arms) or 'none'})")
     target = ArmTarget.of(model)
     result = retarget(clip, arms[arm], axes, target)
-    t = result.capture.t + result.lead_in_s
+    t = result.frame_times
     if abs(t[-1] - duration) > 2 * clip.frame_time:
         raise RetargetError(f"{clip.source}: retargeted as a whole it lasts {t[-1]:.3f} s, the motion "
                             f"{duration:.3f} s: --source overlays a motion that `servodyn retarget` wrote from "

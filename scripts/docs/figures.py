@@ -57,6 +57,8 @@ def run(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[str, Path]:
     argv = list(args)
     if args[0] in ("swing", "validate", "experiment", "demo"):
         argv += ["--out", str(out)]
+    if args[0] == "retarget":
+        argv += ["--report", str(out), "-o", str(out / "motion.csv")]
     if args[0] == "validate" and "--simulate" not in args:
         proc = _in_process(argv)
     else:
@@ -123,6 +125,34 @@ def validate(config: str, motion: str = "tennis_forehand", *args: str) -> dict:
 
 def validate_output(config: str, motion: str = "tennis_forehand", *args: str) -> str:
     return run("validate", config, motion, *args, ok=(0, 1))[0]
+
+
+def retarget(clip: str, *args: str) -> dict:
+    """`servodyn retarget CLIP ARGS`: its report.json (exit 0, or 1 flagged)."""
+    return _json(("retarget", clip, *args), "report.json", ok=(0, 1))
+
+
+CLIPS = Path("/usr/share/assimp/models/BVH")     # Debian's assimp-testmodels (make test installs it)
+
+
+def readme_mocap_table() -> None:
+    """The three public clips, ten seconds of each from t = 2 s, retargeted onto the replica."""
+    rows = ["| clip (10 s from t = 2 s) | elbow axis: twist, residual p95 | captured outside the limits "
+            "(dof-frames) | flips avoided | hand error p95 | `validate --fit` on the replica |",
+            "|---|---|---|---|---|---|"]
+    for name in ("01_01", "01_03", "Boxing_Toes"):
+        try:
+            r = retarget(str(CLIPS / f"{name}.bvh"), "--config", "replica", "--time", "2:12")
+        except CommandFailed as failed:
+            rows.append(f"| {name} | *pending: `{failed.command}` fails today ({failed.why})* | | | | |")
+            continue
+        cal = r["calibration"]
+        fit = r["validate"]["fit_time_scale"]
+        rows.append(f"| {name} | {abs(cal['twist_deg']):.1f}°, {cal['residual_p95_deg']:.1f}° | "
+                    f"{sum(h['frames'] for h in r['limit_hits'].values())} | {r['flips_avoided']} | "
+                    f"{r['cartesian_error']['hand']['p95_mm']:.1f} mm | "
+                    + (f"×{fit:.2f}" if fit else "none") + " |")
+    print("\n".join(rows))
 
 
 def experiment(name: str) -> dict:
