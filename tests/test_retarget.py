@@ -260,7 +260,7 @@ def test_export_bvh_command_round_trips_the_forehand(tmp_path, capsys, human):
     q = forehand(model).q
     late = len(q) - int(0.25 * RATE)          # the frames after the eased start, as recorded
     assert np.degrees(np.abs(traj.q[-late:] - q[-late:])).max() < 1.5
-    assert main(["export-bvh", "tennis_forehand", "--order", "XXY", "-o", str(out)]) == 2
+    assert main(["export-bvh", "tennis_forehand", "--order", "XXY", "-o", str(tmp_path / "bad.bvh")]) == 2
     assert "--order XXY" in capsys.readouterr().err
 
 
@@ -312,3 +312,16 @@ def test_the_view_overlays_the_captured_arm_on_the_retargeted_one(tmp_path):
     with pytest.raises(ViewError, match="--source overlays"):
         open_view("human_arm", motion=str(csv), source=str(other), port=0,
                   say=lambda *a, **k: None)
+
+
+def test_export_bvh_asks_before_replacing_a_file(tmp_path, monkeypatch, capsys):
+    """An existing OUT.bvh (perhaps a capture) is replaced only on a yes: 'n' keeps it (exit 1),
+    --yes replaces it."""
+    import io
+    out = tmp_path / "clip.bvh"
+    out.write_text("a capture\n")
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["export-bvh", "tennis_forehand", "-o", str(out)]) == 1
+    assert out.read_text() == "a capture\n" and "kept as it was" in capsys.readouterr().err
+    assert main(["export-bvh", "tennis_forehand", "-o", str(out), "--yes"]) == 0
+    assert out.read_text().startswith("HIERARCHY"), "replaced on --yes"

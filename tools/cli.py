@@ -373,11 +373,21 @@ def cmd_retarget(args) -> int:
     return 1 if report["flags"] else 0
 
 
-def cmd_export_bvh(args) -> None:
+def cmd_export_bvh(args) -> int:
     from .mocap import export_bvh
     model = _load(args.model)
+    if Path(args.output).exists() and not _confirm_overwrite(args.output, args.yes):
+        print(f"{args.output}: kept as it was, nothing written (--yes overwrites)", file=sys.stderr)
+        return 1
     _mocap(lambda: export_bvh(args.motion, model, args.output, order=args.order, unit=args.unit, rest=args.rest,
                               rate=args.rate))
+    return 0
+
+
+def _confirm_overwrite(path: str, yes: bool) -> bool:
+    """A file that exists is replaced only when the user says so (a clip may be a capture)."""
+    from .bringup import ask
+    return ask(f"{path} exists: overwrite it?", yes)
 
 
 def cmd_ik(args) -> int:
@@ -834,6 +844,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the pose of all channels zero: the hanging arm (default) or a T-pose")
     p.add_argument("--rate", type=float, default=120.0, help="frames per second (default 120)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.bvh", help="the file to write")
+    p.add_argument("--yes", action="store_true", help="overwrite OUT.bvh without asking")
     p.set_defaults(func=cmd_export_bvh)
 
 

@@ -167,6 +167,8 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
     result = retarget(clip, chain, axes, target, span, twist, method=method, progress=progress)
     traj = result.trajectory
     output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
+    if output.resolve() == Path(clip_path).resolve():
+        raise MocapError(f"-o {output}: that is the clip itself; name another file for the motion")
     write_trajectory_csv(output, traj, robot_model.dof_names)
     report = {"clip": str(clip_path), "model": robot_model.name, "config": config.name if config else None,
               "arm": arm, "chain": chain.names(clip), "names_from": chain.source, "method": method,
