@@ -325,3 +325,15 @@ def test_export_bvh_asks_before_replacing_a_file(tmp_path, monkeypatch, capsys):
     assert out.read_text() == "a capture\n" and "kept as it was" in capsys.readouterr().err
     assert main(["export-bvh", "tennis_forehand", "-o", str(out), "--yes"]) == 0
     assert out.read_text().startswith("HIERARCHY"), "replaced on --yes"
+
+
+@needs_clips
+def test_the_left_arm_is_mirrored_onto_the_right_arm(tmp_path):
+    """CMU 01_01's left arm onto human_arm (a right arm): mirrored, so its hinge is found as the
+    right arm's is (30° off, residual under 1°) and no frame leaves the limits."""
+    model = load_model("human_arm")
+    report = run_retarget(str(CLIPS / "01_01.bvh"), model=model, arm="left", time="2:6", output=tmp_path / "l.csv",
+                          say=lambda *a, **k: None)
+    assert abs(abs(report["calibration"]["twist_deg"]) - 30.0) < 1.0 and report["calibration"]["residual_p95_deg"] < 1
+    assert report["limit_hits"] == {} and report["chain"]["upper_arm"] == "LeftArm"
+    assert report["cartesian_error"]["hand"]["p95_mm"] < 20.0

@@ -155,7 +155,7 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
     robot_model = config.model if config is not None else model
     target = ArmTarget.of(robot_model)
     if arm == "left":
-        warnings.append("the left arm is retargeted onto the model's arm as recorded (not mirrored)")
+        warnings.append("the left arm is mirrored (left for right) onto the model's arm")
     span = frame_slice(clip, frames, time)
     twist = None if twist_deg is None else math.radians(twist_deg)
     shown = [0]

@@ -163,9 +163,10 @@ def _conjugate(A, R):
 def capture(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: slice = slice(None),
             twist: float | None = None) -> Capture:
     """The arm's segments relative to the thorax for `frames`, with the elbow axis calibrated (or
-    the given twist, rad)."""
+    the given twist, rad); a left arm mirrored (the built-in arms are right arms)."""
     rot = segment_rotations(clip, chain, frames)
-    A = axes.A
+    # a left arm is mirrored onto the model's (right) arm: left and right swapped, y -> -y
+    A = axes.A if chain.side == "right" else np.diag([1.0, -1.0, 1.0]) @ axes.A
     for role, child in (("upper_arm", chain.forearm), ("forearm", chain.hand)):
         if np.linalg.norm(clip.joints[child].offset) < 1e-12:
             raise RetargetError(f"{clip.source}: joint '{clip.joints[child].name}' sits on its parent "
