@@ -61,4 +61,52 @@ AK80_9 = MotorSpec(
     source="CubeMars AK80-9 manual: rated 9 N m, peak 18 N m, gear 9, Kt 0.091 N m/A x 9, "
            "MIT 12.5 / 50 / 18")
 
-MOTORS = {m.name: m for m in (DM_J4340, DM_J4310, AK80_9)}
+# The motors below have no readable manual here (Damiao's are PDFs in dmBots/DM-J6006-2EC and
+# DM-J8009P-2EC; CubeMars' AK60-6 and AK70-10 manuals were not found). Their MIT ranges are sourced
+# (Damiao's defaults as openarm_can's dm_motor_constants.hpp has them; CubeMars' MIT ranges as
+# TMotorCANControl's mit_can parameters have them); every other figure is an ESTIMATE, marked so in
+# its source and derived by one rule from the motors above: peak torque 0.7 x the MIT TMAX (the
+# DM-J4310's 7 of 10, the lower of the two Damiao motors above), rated torque a third of the peak
+# (the DM-J4340's 9 of 27), no-load speed half the MIT VMAX (the DM-J4340's 5.5 of 10 rad/s
+# rounded down), output torque constant 0.85 x V / no-load speed (the DM-J4310's 0.82 and the
+# DM-J4340's 0.93), phase resistance and thermal figures as for a motor of its size.
+_ESTIMATE = ("; ESTIMATES (manual not readable here): peak 0.7 x TMAX, rated peak / 3, no-load speed "
+             "VMAX / 2, Kt 0.85 x V / no-load speed, R, thermal")
+
+
+def _estimated(name: str, dialect: str, gear: float, voltage: float, ranges: Ranges, source: str,
+               kt: float | None = None, peak: float | None = None, resistance: float = 0.5,
+               thermal: tuple[float, float] = (2.5, 500.0)) -> MotorSpec:
+    """A motor whose data sheet is estimated from its MIT ranges by the rule above; `kt` and
+    `peak`, when a source gives them, replace the estimate."""
+    peak = peak if peak is not None else round(0.7 * ranges.t_max, 1)
+    no_load = ranges.v_max / 2 if kt is None else 0.85 * voltage / kt      # rad/s
+    kt = kt if kt is not None else 0.85 * voltage / no_load
+    return MotorSpec(name=name, kind="can", dialect=dialect, gear_ratio=gear, stall_torque=peak,
+                     stall_current=peak / kt, no_load_speed_rpm=round(no_load * 60 / (2 * 3.141592653589793), 1),
+                     nominal_voltage=voltage, rated_torque=round(peak / 3, 2), phase_resistance=resistance,
+                     temperature_limit=100.0, thermal_resistance=thermal[0], thermal_time_constant=thermal[1],
+                     ranges=ranges, source=source + _ESTIMATE)
+
+
+DM_J6006 = _estimated(
+    "DM-J6006", "damiao", 6.0, 24.0, Ranges(p_max=12.5, v_max=45.0, t_max=20.0),
+    "Damiao DM-J6006-2EC: gear 6 (Damiao's naming: J6006 = 60 mm stator, 6:1), 24 V; MIT 12.5 / 45 / 20 "
+    "(openarm_can dm_motor_constants.hpp, DM6006)")
+DM_J8009 = _estimated(
+    "DM-J8009", "damiao", 9.0, 24.0, Ranges(p_max=12.5, v_max=45.0, t_max=54.0),
+    "Damiao DM-J8009-2EC: gear 9 (Damiao's naming: J8009 = 80 mm stator, 9:1), 24 V; MIT 12.5 / 45 / 54 "
+    "(openarm_can dm_motor_constants.hpp, DM8009)", resistance=0.3, thermal=(1.5, 700.0))
+AK60_6 = _estimated(
+    "AK60-6", "cubemars", 6.0, 24.0, Ranges(p_max=12.5, v_max=50.0, t_max=15.0),
+    "CubeMars AK60-6: gear 6, 24 V; peak 9 N m (T-Motor's specification, as IHMC's TMotorAK606Parameters "
+    "cites it); motor Kt 0.068 N m/A x 6 (TMotorCANControl mit_can, 'from the TMotor website'); "
+    "MIT 12.5 / 50 / 15 (TMotorCANControl; IHMC's parameters give 41.87 / 9 for another firmware)",
+    kt=0.068 * 6, peak=9.0, resistance=0.3)
+AK70_10 = _estimated(
+    "AK70-10", "cubemars", 10.0, 24.0, Ranges(p_max=12.5, v_max=50.0, t_max=25.0),
+    "CubeMars AK70-10: gear 10, 24 V; motor Kt 0.095 N m/A x 10 (TMotorCANControl mit_can, 'from the "
+    "TMotor website'); MIT 12.5 / 50 / 25 (CubeMars manual section 5.3 as quoted by its users; "
+    "TMotorCANControl)", kt=0.095 * 10, resistance=0.3)
+
+MOTORS = {m.name: m for m in (DM_J4340, DM_J4310, AK80_9, DM_J6006, DM_J8009, AK60_6, AK70_10)}
