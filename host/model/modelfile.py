@@ -201,6 +201,12 @@ def _body_from(entry: dict, where: str, folder: Path | None, chain: tuple[Path, 
     return body | {k: v for k, v in entry.items() if k != "from"}
 
 
+def resolved_body(entry: dict, folder: Path | None) -> dict:
+    """A [[body]] table whole: itself, or for one that says `from = FILE` the body it takes from that
+    file with its own keys in place (what the model is built from; sizing edits its solids)."""
+    return _body_from(entry, f"body '{entry.get('name')}'", folder) if "from" in entry else entry
+
+
 def model_from_dict(data: dict, origin: str = "model", folder: Path | None = None) -> Model:
     """Build a Model from the parsed contents of a model file (folder: where it lies, for the
     files its bodies name with `from`)."""
