@@ -107,11 +107,16 @@ def _rotv(w, angle, v):
     return v * c + _cross(w, v) * s + w * (np.sum(w * v, axis=-1)[..., None] * (1 - c))
 
 
+_EYE = np.eye(3)
+
+
 def _rot(w, angle):
     """Rotation matrices (..., 3, 3) about the unit axis w (3,) by angles (...)."""
     K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    if np.ndim(angle) == 0:
+        return _EYE + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
     a = np.asarray(angle, dtype=float)[..., None, None]
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    return _EYE + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
 
 
 def _angle_about(w, a, b):
@@ -176,7 +181,7 @@ def _euler(G, w0, w1, w2, hint0):
     a = np.arctan2(np.sum((ap @ K0.T) * bp, axis=-1), np.sum(ap * bp, axis=-1))
     a = np.where(np.sum(ap * ap, axis=-1) < 1e-18, hint0, a)
     # c: what Rot(w1, -b) Rot(w0, -a) G does to a vector x across w2
-    x = np.cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
+    x = _cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
     x /= np.linalg.norm(x)
     y = _turn(w1, K1, -b, _turn(w0, K0, -a, (G @ x)[:, None, :]))
     c = np.arctan2(y @ (_skew(w2) @ x), y @ x)
@@ -278,23 +283,43 @@ class Arm:
         return tuple(names[k] for k in self.q_index)
 
     # ---------------------------------------------------------------- forward kinematics
+    def _exp(self, k, angle):
+        """The rotation of dof k by angle (its cross matrices kept from the first call)."""
+        if "K" not in self._cache:
+            K = np.array([_skew(w) for w in self.axis])
+            self._cache["K"], self._cache["KK"] = K, K @ K
+        return _EYE + math.sin(angle) * self._cache["K"][k] + (1 - math.cos(angle)) * self._cache["KK"][k]
+
     def forward(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Hand rotation and origin at chain angles x (n,), and each dof's world axis and pivot."""
-        R, p = np.eye(3), np.zeros(3)
+        R, p = _EYE, np.zeros(3)
         axes, pivots = np.empty((self.n, 3)), np.empty((self.n, 3))
         for k in range(self.n):
             w, r = self.axis[k], self.point[k]
             axes[k] = R @ w
             pivots[k] = R @ r + p
-            E = _rot(w, x[k])
+            E = self._exp(k, float(x[k]))
             p = p + R @ (r - E @ r)
             R = R @ E
         return R @ self.end_R, R @ self.end_p + p, axes, pivots
 
     def hand(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The hand's rotation and origin at the model's q."""
-        R, p, _, _ = self.forward(np.asarray(q, dtype=float)[self.q_index])
-        return R, p
+        x = np.asarray(q, dtype=float)[self.q_index]
+        R, p = _EYE, np.zeros(3)
+        for k in range(self.n):
+            r = self.point[k]
+            E = self._exp(k, float(x[k]))
+            p = p + R @ (r - E @ r)
+            R = R @ E
+        return R @ self.end_R, R @ self.end_p + p
+
+    def _elbow_axis(self, x) -> np.ndarray:
+        """The elbow's axis (the 4th of the last seven dofs) at chain angles x, in the base frame."""
+        R = _EYE
+        for k in range(self.n - 4):
+            R = R @ self._exp(k, float(x[k]))
+        return R @ self.axis[self.n - 4]
 
     # ---------------------------------------------------------------- S-R-S structure
     def _find_srs(self) -> tuple[_Srs | None, str]:
@@ -342,10 +367,10 @@ class Arm:
     # ---------------------------------------------------------------- closed form
     def _prefix(self, x) -> tuple[np.ndarray, np.ndarray]:
         """The pose (R, p) the dofs before the S-R-S seven give the chain's frame at angles x."""
-        R, p = np.eye(3), np.zeros(3)
+        R, p = _EYE, np.zeros(3)
         for k in range(self.n - 7):
             w, r = self.axis[k], self.point[k]
-            E = _rot(w, x[k])
+            E = self._exp(k, float(x[k]))
             p = p + R @ (r - E @ r)
             R = R @ E
         return R, p
@@ -465,8 +490,7 @@ class Arm:
                 preferred = 0.0
             else:
                 # keep the elbow's previous bending direction, as seen across the new line
-                _, _, axes, _ = self.forward(x_prev)
-                preferred = self._swivel_at(pos_l - s.S, Rp.T @ axes[-4])
+                preferred = self._swivel_at(pos_l - s.S, Rp.T @ self._elbow_axis(x_prev))
             phis = np.array([preferred])
         if cold and swivel is None:
             return self._search_swivel(pos_l, rot_l, float(phis[0]), tail, x_ref)
