@@ -523,21 +523,16 @@ class Arm:
                            "puts a joint past its limit")
         signed = np.angle(np.exp(1j * (phis - preferred)))
         k = int(np.argmin(np.where(ok, np.abs(signed), np.inf)))
-        best_x, best_phi = x[k], phis[k]
-        # close in on the edge of the in-limit range from the preferred swivel's side, twice
-        near, far = preferred, preferred + signed[k]
-        for _ in range(2):
-            fine = np.linspace(near, far, 17)
-            xf, ef = self._pick(pos, rot, fine, x_prev, x_ref)
-            inside = np.flatnonzero(ef <= TOL_LIMIT)
-            if not len(inside):
-                break
-            j = int(inside[0])
-            best_x, best_phi = xf[j], fine[j]
-            if j == 0:
-                break
-            near, far = fine[j - 1], fine[j]
-        return best_x, float(best_phi)
+        # close in on the edge of the in-limit range from the preferred swivel's side, between the
+        # in-limit grid swivel and its neighbour towards the preferred one (to 1/16 of a step, 0.3°)
+        step = 2 * math.pi / GRID
+        far = preferred + signed[k]
+        fine = np.linspace(far - math.copysign(step, signed[k]), far, 17)
+        xf, ef = self._pick(pos, rot, fine, x_prev, x_ref)
+        inside = np.flatnonzero(ef <= TOL_LIMIT)
+        if not len(inside):                                   # (the last is the grid's swivel: inside)
+            return x[k], float(phis[k])
+        return xf[inside[0]], float(fine[inside[0]])
 
     # ---------------------------------------------------------------- damped least squares
     def solve_dls(self, x0, pos, rot, lower=None, upper=None, iterations=100):
