@@ -619,8 +619,8 @@ def solve(model: Model, position, rotation=None, q_prev=None, swivel: float | No
         raise IkError(f"the swivel must be a finite angle, got {swivel!r}")
     if method == "srs" and arm.srs is None:
         raise IkError(f"model '{model.name}': no closed form: {arm.why_not_srs}")
-    S = arm._shoulder()
-    reach_m = float(np.linalg.norm(pos - S))
+    Rp, pp = arm._prefix(x_prev) if arm.srs is not None else (_EYE, np.zeros(3))
+    reach_m = float(np.linalg.norm(pos - (Rp @ arm._shoulder() + pp)))
     refusal = None
     x, phi, how, iterations = None, math.nan, "srs", 0
     if arm.srs is not None and method != "dls":
@@ -716,10 +716,10 @@ def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.0
             if np.any(np.abs(x_new - x_prev) > step * (1 + 1e-9)):
                 lo = np.maximum(arm.lower, x_prev - step)
                 hi = np.minimum(arm.upper, x_prev + step)
-                x, _, _ = arm.solve_dls(np.clip(x_new, lo, hi), r_pos := positions[i], rot, lo, hi, 30)
+                x, _, _ = arm.solve_dls(np.clip(x_new, lo, hi), positions[i], rot, lo, hi, 30)
                 q_new = _put(q, arm, x)
                 R, p = arm.hand(q_new)
-                r = IkResult(q=q_new, position_error=float(np.linalg.norm(p - r_pos)),
+                r = IkResult(q=q_new, position_error=float(np.linalg.norm(p - positions[i])),
                              rotation_error=0.0 if rot is None else _rotation_angle(R @ rot.T),
                              reach=r.reach, reach_m=r.reach_m,
                              swivel=arm.swivel_of(x) if arm.srs is not None else math.nan, method="dls")
