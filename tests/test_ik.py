@@ -309,3 +309,21 @@ def test_cli_path_writes_a_trajectory_that_reaches_the_targets(tmp_path):
     bad.write_text("t,x,y,z\n0,0.2,-0.1,-0.2\n0.5,nan,0,0\n")
     res = run("ik", "replica", "--path", bad, "-o", out)
     assert res.returncode == 2 and "row 3: a NaN" in res.stderr, res.stderr
+
+
+def test_cli_path_with_orientations_turns_the_hand_through_each_row(tmp_path):
+    from servodyn.control.trajectory import read_trajectory_csv
+    rows = [(0.0, 0.25, -0.15, -0.25, 0.0, -1.2, 0.0), (0.4, 0.3, -0.1, -0.2, 0.2, -1.4, 0.1),
+            (0.8, 0.3, -0.05, -0.15, 0.1, -1.5, 0.3)]
+    targets = tmp_path / "targets.csv"
+    targets.write_text("t,x,y,z,roll,pitch,yaw\n" + "".join(",".join(map(str, r)) + "\n" for r in rows))
+    out = tmp_path / "motion.csv"
+    res = run("ik", "human_arm", "--path", targets, "-o", out, "--dt", "0.05")
+    assert res.returncode == 0, res.stderr
+    model = load_model("human_arm")
+    traj = read_trajectory_csv(out, model.dof_names)
+    arm = ik.Arm.of(model)
+    for k, row in zip((0, 8, 16), rows):
+        R, p = arm.hand(traj.q[k])
+        assert np.abs(p - row[1:4]).max() < 1e-12 and np.abs(R - rpy_to_matrix(row[4:])).max() < 1e-12, \
+            f"sample {k}: the hand at row t = {row[0]} s, turned as the row says"
