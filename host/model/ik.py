@@ -101,30 +101,16 @@ def _cross(a, b):
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-def _rotv(w, angle, v):
-    """v turned by `angle` about the unit axis w (Rodrigues on vectors, broadcasting)."""
-    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + _cross(w, v) * s + w * (np.sum(w * v, axis=-1)[..., None] * (1 - c))
-
-
 _EYE = np.eye(3)
 
 
 def _rot(w, angle):
     """Rotation matrices (..., 3, 3) about the unit axis w (3,) by angles (...)."""
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    K = _skew(w)
     if np.ndim(angle) == 0:
         return _EYE + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
     a = np.asarray(angle, dtype=float)[..., None, None]
     return _EYE + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
-
-
-def _angle_about(w, a, b):
-    """The angle about unit w that turns a's component across w onto b's (..., 3)."""
-    ap = a - w * np.sum(w * a, axis=-1)[..., None]
-    bp = b - w * np.sum(w * b, axis=-1)[..., None]
-    return np.arctan2(np.sum(w * _cross(ap, bp), axis=-1), np.sum(ap * bp, axis=-1)), \
-        np.linalg.norm(ap, axis=-1)
 
 
 def _rotation_angle(R) -> float:
@@ -352,7 +338,7 @@ class Arm:
         # reach over the elbow's range: |W(θ) - S| at the ends and where it is longest or shortest
         lo, hi = self.lower[-4], self.upper[-4]
         theta = np.linspace(max(lo, -math.pi), min(hi, math.pi), 2001)
-        d = np.linalg.norm(_rotv(we, theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
+        d = np.linalg.norm(_turn(we, _skew(we), theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
         return _Srs(S=S, W=W, min_reach=float(d.min()), max_reach=float(d.max()),
                     elbow_lo=lo, elbow_hi=hi), ""
 
