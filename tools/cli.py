@@ -357,6 +357,49 @@ def cmd_view(args) -> None:
     serve_forever(viewer)
 
 
+def cmd_ik(args) -> int:
+    from .ik import IkInputError, parse_triple, pose_report, read_targets, solve_pose, solve_targets, write_path
+    from ..model import ik
+    model = _load(args.model)
+    try:
+        if (args.to is None) == (args.path is None):
+            raise IkInputError("give either --to X,Y,Z (one pose) or --path TARGETS.csv -o MOTION.csv")
+        if args.path is None:
+            rpy = None if args.rpy is None else parse_triple(args.rpy, "--rpy")
+            result = solve_pose(model, parse_triple(args.to, "--to"), rpy, args.swivel, args.end)
+            print("\n".join(pose_report(model, result, args.end)))
+            return 0
+        if args.output is None:
+            raise IkInputError("--path needs -o MOTION.csv, the trajectory it writes")
+        if args.rpy is not None:
+            raise IkInputError("--rpy is for --to; a path takes roll,pitch,yaw columns in its file")
+        if not (args.dt > 0 and math.isfinite(args.dt)):
+            raise IkInputError(f"--dt must be a positive number of seconds, got {args.dt}")
+        if args.max_speed is not None and not (args.max_speed > 0):
+            raise IkInputError(f"--max-speed must be a positive number of rad/s, got {args.max_speed}")
+        targets = read_targets(args.path)
+        shown = [0]
+
+        def progress(i, n):
+            if n >= 200 and i * 10 // n > shown[0]:
+                shown[0] = i * 10 // n
+                print(f"  {i}/{n} samples", file=sys.stderr, flush=True)
+        traj, result = solve_targets(model, targets, args.dt, args.max_speed, args.swivel, args.end, progress)
+    except IkInputError as err:
+        raise CliError(str(err)) from None
+    except ik.IkError as err:
+        if type(err) is ik.IkError:
+            raise CliError(str(err)) from None
+        raise CliError(str(err), 1) from None
+    write_path(model, traj, args.output)
+    worst = int(np.argmax(result.position_error))
+    print(f"{len(traj.t)} samples every {args.dt:g} s ({traj.t[-1]:.3f} s), {model.nv} dofs -> {args.output}")
+    print(f"hand error: largest {result.position_error.max() * 1e3:.3g} mm at t = {traj.t[worst]:.3f} s, "
+          f"{np.degrees(result.rotation_error.max()):.3g}°; {int(result.slowed.sum())} samples held back by "
+          f"--max-speed; reach up to {result.reach.max():.3f}")
+    return 1 if result.position_error.max() > args.tolerance else 0
+
+
 def cmd_demo(args) -> None:
     from .demo import run_demo
     run_demo(args.model, Path(args.out))
@@ -749,6 +792,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--yes", action="store_true", help="overwrite OUT/config.toml and OUT/model.toml without asking")
     p.add_argument("--json", action="store_true", help="print the report as JSON (no progress on stderr)")
     p.set_defaults(func=cmd_size)
+
+    p = sub.add_parser("ik", help="joint angles that put the hand at a point (or along a path)",
+                       description="Inverse kinematics of the hand (the origin of the last body, the wrist centre "
+                       "of the built-in arms) in the model's base frame (x forward, y left, z up): closed form for "
+                       "an S-R-S arm (human_arm, the replicas), bounded damped least squares otherwise. One pose "
+                       "with --to; a hand path with --path TARGETS.csv (columns t,x,y,z and optionally "
+                       "roll,pitch,yaw in rad) -o MOTION.csv, a trajectory CSV that validate, swing and view read. "
+                       "Exit status 0 solved, 1 refused (out of reach, no swivel inside the limits, a path held "
+                       "back past --tolerance), 2 bad input.")
+    p.add_argument("model", help="model: built-in name, .urdf or .toml")
+    p.add_argument("--to", default=None, metavar="X,Y,Z",
+                   help="hand position, m (--to=-0.1,0,0 when the first number is negative)")
+    p.add_argument("--rpy", default=None, metavar="R,P,Y",
+                   help="hand orientation, degrees (roll, pitch, yaw; URDF convention); default: any")
+    p.add_argument("--swivel", type=float, default=None, metavar="DEG",
+                   help="elbow swivel about the shoulder-wrist line, 0 = elbow down (default: nearest 0 "
+                        "inside the limits; along a path, the previous sample's)")
+    p.add_argument("--path", default=None, metavar="CSV", help="targets file: t,x,y,z[,roll,pitch,yaw]")
+    p.add_argument("-o", "--output", default=None, metavar="CSV", help="trajectory to write (with --path)")
+    p.add_argument("--dt", type=float, default=0.01, metavar="S", help="path sampling period (default 0.01 s)")
+    p.add_argument("--max-speed", type=float, default=None, metavar="RAD/S",
+                   help="no dof turns faster along the path (default: no bound)")
+    p.add_argument("--tolerance", type=float, default=1e-3, metavar="M",
+                   help="hand error a path may keep where the speed bound holds it back (default 0.001 m)")
+    p.add_argument("--end", default=None, metavar="BODY", help="the hand body (default: r_hand, else the last)")
+    p.set_defaults(func=cmd_ik)
 
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
                        description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")
