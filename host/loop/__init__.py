@@ -128,7 +128,10 @@ def chatter(tau, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
     tau = np.asarray(tau, dtype=float)
     if len(tau) * dt < 1.0 / CHATTER_CUTOFF_HZ or CHATTER_CUTOFF_HZ >= 0.5 / dt:
         return None
-    high = tau - sosfiltfilt(butter(2, CHATTER_CUTOFF_HZ, fs=1.0 / dt, output="sos"), tau, axis=0)
+    # padded by three periods of the cut-off (reflected about each end), so that the filter's
+    # start-up at the ends does not count as chatter
+    pad = min(len(tau) - 1, int(round(3.0 / (CHATTER_CUTOFF_HZ * dt))))
+    high = tau - sosfiltfilt(butter(2, CHATTER_CUTOFF_HZ, fs=1.0 / dt, output="sos"), tau, axis=0, padlen=pad)
     peak = np.abs(tau).max(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         share = np.where(peak > 0, np.sqrt(np.mean(high**2, axis=0)) / np.where(peak > 0, peak, 1.0), 0.0)
