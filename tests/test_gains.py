@@ -88,7 +88,7 @@ def test_every_joint_keeps_the_quantisation_bound(replica):
     """Along homing and the swing, at every knot: one count of each sensor commands at most
     QUANTUM_SHARE of the joint's torque scale, unless the joint is at its stiffness floor
     (MIN_STIFFNESS, the servo's friction), which wins. On the replica the wrist is bounded (its
-    rotor-dominated inertia turned one velocity unit into ~30 % of its torque) and nothing
+    rotor-dominated inertia turned one tick and one velocity unit into 56 % of its torque) and nothing
     needs the floor."""
     config, swing, sensors, (home, motion) = replica
     rest = homing(config.model.neutral_q(), swing.q[0], HOME_DURATION, swing.t[1] - swing.t[0])

@@ -67,9 +67,10 @@ def scheduled_gains(model, q, sensors: Sensors | None = None, torque_scale=None)
     With the joints' `sensors` and `torque_scale` (N m, the largest torque each joint's plan
     asks, planned_torque_scale), the bandwidth is also kept under resolution_bandwidth: a servo's
     measurement moves in counts (a Dynamixel's 0.088° tick and 0.229 rpm unit), and a PD stiff for
-    the rotor inertia turns each count into a step of torque that buzzes (on the replica's wrist,
-    kd times one velocity unit was 30 % of the torque the swing needs). The feed-forward carries
-    the motion, so the PD is softer there, never under MIN_STIFFNESS (the servo's friction)."""
+    the rotor inertia turns each count into a step of torque that buzzes (on the replica's wrist
+    flexion one tick and one velocity unit commanded 56 % of the largest torque the swing asks).
+    The feed-forward carries the motion, so the PD is softer there, never under MIN_STIFFNESS
+    (the servo's friction)."""
     # the inertia a joint sees with the others free, 1 / (M^-1)_ii <= M_ii: gains on M_ii would
     # overdrive a light joint whose neighbours move with it
     inertia = 1.0 / np.diag(np.linalg.inv(model.mass_matrix(q)))
@@ -92,7 +93,7 @@ def error_lowpass(bandwidth, dt: float) -> np.ndarray:
     cut off at ERROR_FILTER_RATIO times its bandwidth (rad/s), for a control period dt: the
     estimate of the tracking error (and so of the velocity) that the PD acts on. The desired
     motion is its prediction and the measurement its correction, so the lag (1 / the cut-off,
-    about 8 ms on the replica) delays only the PD's answer to an error, not the motion; the
+    8 to 13 ms on the replica) delays only the PD's answer to an error, not the motion; the
     count-sized steps of a quantised measurement are smoothed to a fraction above the cut-off."""
     return 1.0 - np.exp(-ERROR_FILTER_RATIO * np.asarray(bandwidth, dtype=float) * dt)
 
