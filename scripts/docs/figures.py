@@ -239,6 +239,8 @@ def readme_swing() -> dict:
     human = validate("replica", "tennis_forehand", "--fit", "--retime")
     return {**make_demo(), "ff_max": deg(ff["tracking_max_rad"]), "ff_rms": deg(ff["tracking_rms_rad"]),
             "pd_max": deg(pd["tracking_max_rad"]), "ticks": ff["ticks"] + ff["home_ticks"],
+            "ff_chatter": 100 * ff["chatter_max"],
+            "chatter_dof": max(ff["chatter_by_dof"], key=lambda dof: ff["chatter_by_dof"][dof]["rms_share"]),
             "home_ticks": ff["home_ticks"], "scale": ff["time_scale"],
             "rot_speed": _joint(human, "r_shoulder_rotation")["peak_speed_rad_s"],
             "rot_limit": _limit(human, "r_shoulder_rotation", "speed", "peak_speed_rad_s")}
