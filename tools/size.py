@@ -185,7 +185,7 @@ def _model_text(problem, found) -> str:
                           + ", ".join(f"{d} {s}" for d, s in found.choice.items()) + ".\n")
     header = (f"# {path.stem}, sized by `servodyn size` for {', '.join(m.name for m in problem.motions)} at time "
               f"scale {problem.time_scale:g}, {problem.voltage:g} V:\n# each dof's servo mounted as a part in place "
-              "of the model's own (the housing's centroid and shaft axis kept).\n")
+              "of the model's own (its horn face and shaft axis kept).\n")
     return header + tomlkit.dumps(doc)
 
 
