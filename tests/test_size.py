@@ -345,3 +345,24 @@ def test_a_resized_housing_keeps_its_horn_face(model, dof, servo):
     model_after = model_from_dict(after)
     assert model_after.total_mass - model_before.total_mass == pytest.approx(
         sizing.part_mass(servo) - sizing.part_mass(old_part), abs=1e-12)
+
+
+def test_a_part_without_armature_is_never_a_candidate(arm3, monkeypatch, capsys):
+    """An unknown rotor inertia is not 0 (0 would make the servo look easier to drive): a part
+    whose armature parts.toml lacks is left out with its reason, in the report and its printout,
+    and mounting it is refused with one line."""
+    from servodyn.model.modelfile import parts
+    monkeypatch.setitem(parts()["XC330-T288"], "armature", None)
+    model, motion = arm3
+    p = restricted(model, motion)
+    assert "XC330-T288" not in p.limits
+    assert p.reasons["XC330-T288"].startswith("no armature in parts.toml")
+    data = sizing.load_model_data(str(model))[0]
+    with pytest.raises(sizing.SizingError, match="XC330-T288: no armature"):
+        sizing.mounted(data, sizing.housings(data), {"wrist": "XC330-T288"})
+    assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--out",
+                 str(model.parent / "no_armature"), "--yes"]) == 0
+    out = capsys.readouterr().out
+    assert "XC330-T288 (no armature in parts.toml" in out
+    report = json.loads((model.parent / "no_armature" / "size.json").read_text())
+    assert "XC330-T288" not in {j["servo"] for j in report["joints"].values()}
