@@ -218,3 +218,43 @@ def test_x330_tables_count_current_in_milliamps(tmp_path):
     assert "led" not in {i.name for i in SERVOS["XW540-T260"].items()}, "no LED on the XW540"
     config = load(one_joint("XL330-M288", tmp_path), tmp_path)
     assert config.joints[0].current_limit == pytest.approx(1.47), "default: the stall current at 5 V"
+
+
+# the parts whose armature a published model gives (parts.toml's sources say which); every other
+# is an estimate by the rule in parts.toml's header, recomputed here
+SOURCED_ARMATURE = {"XM430-W350", "XM540-W270", "XL330-M288", "DM-J4310", "DM-J4340", "DM-J8009"}
+CASE_REFERENCE = {"X330": "XL330-M288", "X430": "XM430-W350", "X540": "XM540-W270"}
+CAN_ROTOR = 1.0e-4          # kg m^2: OpenArm's rotor for every Damiao frame it models
+
+
+def _rotor(name: str) -> float:
+    """A servo's rotor inertia (kg m^2) by parts.toml's rule: a sourced one's from its armature; a
+    gear variant of a motor (same case, same stall current) shares the variant's with the higher
+    gear; else the case reference's, scaled by the motor-side stall torque to the power 5/3."""
+    spec = CATALOGUE[name]
+    if spec.kind == "can":
+        return parts()[name]["armature"] / spec.gear_ratio ** 2 if name in SOURCED_ARMATURE else CAN_ROTOR
+    if name in SOURCED_ARMATURE:
+        return parts()[name]["armature"] / spec.gear_ratio ** 2
+    case = "X" + name[2:5]
+    variants = [n for n in SERVOS if n != name and n[2:5] == name[2:5] and n[:2] == name[:2]
+                and SERVOS[n].stall_current == spec.stall_current and SERVOS[n].gear_ratio > spec.gear_ratio]
+    if variants:
+        return _rotor(variants[0])
+    ref = CATALOGUE[CASE_REFERENCE[case]]
+    motor_torque = lambda s: s.stall_torque / s.gear_ratio
+    return _rotor(ref.name) * (motor_torque(spec) / motor_torque(ref)) ** (5 / 3)
+
+
+@pytest.mark.parametrize("name", sorted(CATALOGUE))
+def test_every_part_has_an_armature_sourced_or_estimated_by_the_rule(name):
+    """No part without a rotor inertia (sizing would take it as 0 and favour it); an estimate says
+    so in its source and is the rule's figure to its rounding (2 to 3 significant figures: 2 %)."""
+    part = parts()[name]
+    assert part["armature"] is not None and part["armature"] > 0, f"{name}: an armature in parts.toml"
+    estimated = "estimate" in part["source"].lower().split("armature", 1)[-1]
+    if name in SOURCED_ARMATURE:
+        return
+    assert estimated, f"{name}: its armature is an estimate and its source must say so"
+    expected = _rotor(name) * CATALOGUE[name].gear_ratio ** 2
+    assert part["armature"] == pytest.approx(expected, rel=0.02), f"{name}: the rule gives {expected:.4g} kg m^2"

@@ -96,9 +96,9 @@ def arm3(tmp_path_factory):
     return folder / "arm3.toml", swing_csv(folder / "swing.csv")
 
 
-def restricted(model, motion, names=FEW, scale=1.0):
+def restricted(model, motion, names=FEW, scale=1.0, payload=0.0):
     base = model_from_dict(sizing.load_model_data(str(model))[0])
-    p = sizing.problem(str(model), [motion_path(motion, base)], voltage=12.0, time_scale=scale)
+    p = sizing.problem(str(model), [motion_path(motion, base)], voltage=12.0, time_scale=scale, payload=payload)
     p.limits = {n: lim for n, lim in p.limits.items() if n in names}
     return p
 
@@ -111,19 +111,39 @@ def full_judge(p, choice):
     return [judge(config, m, p.time_scale, model=model, voltage=p.voltage, margin=p.margin) for m in p.motions]
 
 
-def test_greedy_equals_brute_force(arm3):
+def brute_force(p):
+    """Every assignment of the few servos to the three joints (5^3 = 125 sets), each judged whole
+    by the validator at margin 1: set -> (servo mass, passed, the worst ratio of a joint's own
+    checks a servo changes over every joint, the worst of every check but position)."""
+    sets = {}
+    for combo in itertools.product(sorted(p.limits), repeat=len(p.dofs)):
+        judged = full_judge(p, dict(zip(p.dofs, combo)))
+        ratios = [j.result.ratios for j in judged]
+        joint_worst = max(float(r[c].max()) for r in ratios for c in sizing.SERVO_CHECKS)
+        overall = max(float(r[c].max(initial=0.0)) for r in ratios for c in r if c != "position")
+        sets[combo] = (sum(sizing.part_mass(s) for s in combo), all(j.passed for j in judged), joint_worst, overall)
+    return p, sets
+
+
+@pytest.fixture(scope="module")
+def brute(arm3):
+    return brute_force(restricted(*arm3))
+
+
+@pytest.fixture(scope="module")
+def brute_loaded(arm3):
+    """Played 3x slower with 0.3 kg in the hand: gravity binds, so reserve costs mass."""
+    return brute_force(restricted(*arm3, scale=3.0, payload=0.3))
+
+
+def test_greedy_equals_brute_force(brute):
     """The hand-inward greedy's bill is the lightest of every passing assignment of the few servos
     (5^3 = 125 sets, each judged whole by the validator), and its own set passes."""
-    model, motion = arm3
-    p = restricted(model, motion)
+    p, sets = brute
     found = sizing.size(p)["sizing"]
     assert found.passed
     greedy_mass = sum(sizing.part_mass(s) for s in found.choice.values())
-    passing = []
-    for combo in itertools.product(sorted(p.limits), repeat=len(p.dofs)):
-        choice = dict(zip(p.dofs, combo))
-        if all(j.passed for j in full_judge(p, choice)):
-            passing.append(sum(sizing.part_mass(s) for s in combo))
+    passing = [mass for mass, passed, _, _ in sets.values() if passed]
     assert passing, "the case must have passing sets"
     # grams: the same bill to the gram (the masses are data-sheet figures in grams)
     assert greedy_mass == pytest.approx(min(passing), abs=1e-9)
@@ -248,3 +268,101 @@ def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "PASS" in out and "ERROR" in out
     assert main(["validate", "replica", str(tmp_path / "none*.csv"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_margin_objective_equals_brute_force(brute_loaded):
+    """--objective margin: the smallest worst ratio any set of the few servos reaches (the brute
+    force's least, over the 125 sets, of the largest ratio a servo changes over every joint and
+    motion), found by the bisection to MARGIN_TOLERANCE, and at that reserve the lightest set."""
+    p, sets = brute_loaded
+    outcome = sizing.size(p, objective="margin")
+    found, reached = outcome["sizing"], outcome["reached_margin"]
+    assert found.passed and reached is not None
+    best = min(worst for _, passed, worst, _ in sets.values() if passed)
+    # the bisection stops once its bracket is MARGIN_TOLERANCE of its top: reached is in
+    # [best, best / (1 - tolerance)], the least reserve sizing can promise to that tolerance
+    assert best <= reached <= best / (1 - sizing.MARGIN_TOLERANCE) + 1e-12
+    chosen = tuple(found.choice[d] for d in p.dofs)
+    mass, passed, worst, overall = sets[chosen]
+    assert passed and worst <= reached + 1e-12
+    # the lightest of the sets within that reserve, to the gram
+    within = [m for m, ok, w, _ in sets.values() if ok and w <= reached + 1e-12]
+    assert mass == pytest.approx(min(within), abs=1e-9)
+    # not the mass objective's answer: reserve costs mass here
+    lightest = sizing.size(p)["sizing"].choice
+    assert sum(map(sizing.part_mass, lightest.values())) < mass - 1e-3
+    # the robot-wide checks (bus, supply) stay within it too: the written set validates at that margin
+    assert overall <= reached + 1e-12
+
+
+# ---------------------------------------------------------------------------- mounting a servo
+
+def _housing(data, dof):
+    return next(h for h in sizing.housings(data) if h.dof == dof)
+
+
+def _centre(data, place):
+    """The housing's centroid in its carrier's frame (a round motor's pos is its back face)."""
+    solid = data["body"][place.carrier]["solid"][place.solid]
+    R = sizing.rpy_to_matrix(solid.get("rpy", [0.0, 0.0, 0.0]))
+    return np.asarray(solid["pos"], dtype=float) + R @ np.array([0.0, 0.0, sizing._centroid(solid["part"])])
+
+
+@pytest.mark.parametrize("model, dof, servo", [
+    ("replica", "r_elbow_flexion", "XM540-W270"),        # a larger box servo
+    ("replica", "r_wrist_deviation", "XC330-T288"),      # a smaller one
+    ("replica_dm", "r_elbow_flexion", "DM-J4310"),       # a shorter round motor
+    ("replica", "r_forearm_pronation", "DM-J4340"),      # a round motor for a box servo
+])
+def test_a_resized_housing_keeps_its_horn_face(model, dof, servo):
+    """Another servo in a housing's place: its output flange where the old one's was (to 1e-12 m),
+    its centre on the same side of the shaft line, off it in proportion to the housing's height
+    (a box servo's shaft lies towards one end of H) or on it (a round motor), and the housing
+    grown or shrunk behind the flange by the difference of the depths along the shaft."""
+    data = sizing.load_model_data(model)[0]
+    place = _housing(data, dof)
+    old_part = data["body"][place.carrier]["solid"][place.solid]["part"]
+    before_face, before_centre = sizing.flange_centre(data, place), _centre(data, place)
+    after = sizing.mounted(data, sizing.housings(data), {dof: servo})
+    after_face, after_centre = sizing.flange_centre(after, place), _centre(after, place)
+    assert np.allclose(after_face, before_face, atol=1e-12, rtol=0), "the horn face stays"
+    point, axis = sizing.shaft_line(data, place)
+    def across(c):
+        v = c - point
+        return v - axis * (axis @ v)
+    def along(c):
+        return abs(float(axis @ (before_face - c)))     # from the centre to the flange (the dof's
+                                                        # axis may point either way along the shaft)
+    scale_old, scale_new = sizing._shaft_offset_scale(old_part), sizing._shaft_offset_scale(servo)
+    expected = across(before_centre) * (scale_new / scale_old if scale_old else 0.0)
+    assert np.allclose(across(after_centre), expected, atol=1e-12, rtol=0), "the offset from the shaft"
+    # the centroid sits half the housing's depth behind the flange, before and after
+    depth = lambda part: sizing._flange(part) - sizing._centroid(part)
+    assert along(before_centre) == pytest.approx(depth(old_part), abs=1e-12)
+    assert along(after_centre) == pytest.approx(depth(servo), abs=1e-12)
+    # the model builds, and weighs the difference of the two housings more
+    model_before = model_from_dict(data)
+    model_after = model_from_dict(after)
+    assert model_after.total_mass - model_before.total_mass == pytest.approx(
+        sizing.part_mass(servo) - sizing.part_mass(old_part), abs=1e-12)
+
+
+def test_a_part_without_armature_is_never_a_candidate(arm3, monkeypatch, capsys):
+    """An unknown rotor inertia is not 0 (0 would make the servo look easier to drive): a part
+    whose armature parts.toml lacks is left out with its reason, in the report and its printout,
+    and mounting it is refused with one line."""
+    from servodyn.model.modelfile import parts
+    monkeypatch.setitem(parts()["XC330-T288"], "armature", None)
+    model, motion = arm3
+    p = restricted(model, motion)
+    assert "XC330-T288" not in p.limits
+    assert p.reasons["XC330-T288"].startswith("no armature in parts.toml")
+    data = sizing.load_model_data(str(model))[0]
+    with pytest.raises(sizing.SizingError, match="XC330-T288: no armature"):
+        sizing.mounted(data, sizing.housings(data), {"wrist": "XC330-T288"})
+    assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--out",
+                 str(model.parent / "no_armature"), "--yes"]) == 0
+    out = capsys.readouterr().out
+    assert "XC330-T288 (no armature in parts.toml" in out
+    report = json.loads((model.parent / "no_armature" / "size.json").read_text())
+    assert "XC330-T288" not in {j["servo"] for j in report["joints"].values()}

@@ -185,7 +185,7 @@ def _model_text(problem, found) -> str:
                           + ", ".join(f"{d} {s}" for d, s in found.choice.items()) + ".\n")
     header = (f"# {path.stem}, sized by `servodyn size` for {', '.join(m.name for m in problem.motions)} at time "
               f"scale {problem.time_scale:g}, {problem.voltage:g} V:\n# each dof's servo mounted as a part in place "
-              "of the model's own (the housing's centroid and shaft axis kept).\n")
+              "of the model's own (its horn face and shaft axis kept).\n")
     return header + tomlkit.dumps(doc)
 
 
@@ -248,6 +248,9 @@ def text(report: dict) -> str:
         else:
             lines.append(f"  {dof:<22} {'(not reached)':<11}")
     lines.append("  (ratio: the peak share of the limit over every motion; ✗ over what the margin allows)")
+    left_out = _left_out(report)
+    if left_out:
+        lines.append("  not candidates: " + "; ".join(f"{', '.join(names)} ({why})" for why, names in left_out.items()))
     if report["passed"] or "servo_mass_kg" in report:
         bill = ", ".join(f"{n} × {name}" for name, n in report["bill"].items())
         lines.append(f"bill: {bill}; servos {report['servo_mass_kg']:.3f} kg")
@@ -276,6 +279,16 @@ def text(report: dict) -> str:
     if files:
         lines.append("wrote " + ", ".join(files.values()))
     return "\n".join(lines)
+
+
+def _left_out(report: dict) -> dict:
+    """The servos sizing never picks and why, grouped by the reason: {why: [servo, ...]}."""
+    first = next(iter(report["joints"].values()), {"candidates": []})
+    grouped: dict[str, list[str]] = {}
+    for c in first["candidates"]:
+        if c["why_not"]:
+            grouped.setdefault(c["why_not"], []).append(c["servo"])
+    return grouped
 
 
 def _short(check: str | None) -> str:

@@ -10,10 +10,16 @@ joint is driven at the horn (gear_ratio 1), as the built-in configurations do.
 Where a servo sits. A model names its servos as parts: the servo of a dof drives the body that
 holds the dof and is bolted to the body before it, its parent (host/model/builtin/README.md), so
 its housing is a solid of the parent naming that part, and the dof names it as its `motor` (its
-armature). Sizing puts the candidate's part in that solid's place, its centroid where the old
-one's was and its shaft along the same axis, and names it as the dof's motor (its armature: the
-part's, 0 where parts.toml has none). A dof whose model has no housing for it gets one at its
+armature). Sizing puts the candidate's part in that solid's place, its horn face where the old
+one's horn face was and its shaft along the same axis, and names it as the dof's motor (its
+armature: the part's). A dof whose model has no housing for it gets one at its
 joint's origin, on the parent; a dof on the fixed base carries its housing on the base.
+A housing's place is its output flange: a differently sized servo is mounted with its horn face
+(output flange) where the old one's was, so what is bolted to the horn keeps its geometry; the
+housing grows or shrinks behind it. Across the shaft, its centre keeps its side of the shaft
+line, off it in proportion to the housing's height (a box servo's shaft sits off its centre
+along H, the replica's H/4), on it for a round motor (coaxial). A part with no armature in
+parts.toml is never a candidate: an unknown rotor inertia is not 0.
 
 Why from the hand inwards, and when it is optimal. The torque of a dof depends on the masses
 outboard of it — its body's subtree — and on its own servo's armature, not on anything inboard;
@@ -61,6 +67,7 @@ from ..hal.config import config_from_dict
 from ..model import builtin_models
 from ..model.files import read_toml
 from ..model.modelfile import model_from_dict, parts, resolved_body
+from ..model.shapes import BOX_FROM_ELLIPSOID
 from ..model.rotations import rpy_to_matrix
 from ..model.tree import ModelError
 from .checks import CHECKS, check
@@ -104,6 +111,8 @@ def unusable(servo, voltage: float) -> str | None:
         return f"{voltage:g} V is outside its supply range, {low:g} to {high:g} V"
     if servo.name not in parts():
         return "no housing in parts.toml (mass and size unknown)"
+    if parts()[servo.name]["armature"] is None:
+        return "no armature in parts.toml (its rotor inertia unknown, not 0)"
     return None
 
 
@@ -199,6 +208,42 @@ def _centroid(part: str) -> float:
     return float(entry["length"]) / 2 if entry["type"] == "cylinder" else 0.0
 
 
+def _flange(part: str) -> float:
+    """Along the part's local z (its output shaft), from where `pos` puts it to its output flange:
+    a round motor's length (pos is its back face), a box servo's D/2 (pos is its centre)."""
+    entry = parts()[part]
+    if entry["type"] == "cylinder":
+        return float(entry["length"])
+    return float(entry["semi_axes"][2]) * BOX_FROM_ELLIPSOID / 2
+
+
+def _shaft_offset_scale(part: str) -> float:
+    """What a housing's centre lies off its shaft line in proportion to: a box servo's height H
+    (its shaft towards one end of it), 0 for a round motor (coaxial)."""
+    entry = parts()[part]
+    return 0.0 if entry["type"] == "cylinder" else float(entry["semi_axes"][1]) * BOX_FROM_ELLIPSOID
+
+
+def shaft_line(data: dict, housing: Housing) -> tuple[np.ndarray, np.ndarray]:
+    """(a point, the unit direction) of the dof's axis in its carrier's frame: the line through
+    the joint's origin along the dof's axis, where the housing's shaft lies."""
+    child = data["body"][housing.body]
+    R = rpy_to_matrix(child.get("rpy", [0.0, 0.0, 0.0]))
+    axis = R @ np.asarray(child["dof"][housing.dof_index]["axis"], dtype=float)
+    return np.asarray(child.get("pos", [0.0, 0.0, 0.0]), dtype=float), axis / np.linalg.norm(axis)
+
+
+def flange_centre(data: dict, housing: Housing) -> np.ndarray:
+    """Where the housing's output flange meets its shaft axis, in the carrier's frame: what
+    mounting another servo keeps."""
+    solid = data["body"][housing.carrier]["solid"][housing.solid]
+    R = rpy_to_matrix(solid.get("rpy", [0.0, 0.0, 0.0]))
+    pos = np.asarray(solid.get("pos", [0.0, 0.0, 0.0]), dtype=float)
+    point, axis = shaft_line(data, housing)
+    face = pos + R @ np.array([0.0, 0.0, _flange(solid["part"])])
+    return point + axis * float(axis @ (face - point))
+
+
 def mount(data: dict, housing: Housing, servo: str | None) -> None:
     """Put `servo`'s part in the housing's place and name it as the dof's motor (tables edited in
     place: plain dicts or a tomlkit document). servo None: the dof's own rotor left out (armature 0),
@@ -209,20 +254,25 @@ def mount(data: dict, housing: Housing, servo: str | None) -> None:
     if servo is None:
         dof["armature"] = 0.0
         return
-    if parts()[servo]["armature"] > 0:
-        dof["motor"] = servo
-    else:
-        dof["armature"] = 0.0          # parts.toml has no rotor inertia for it
+    if parts()[servo]["armature"] is None:
+        raise SizingError(f"{servo}: no armature in parts.toml (its rotor inertia unknown, not 0)")
+    dof["motor"] = servo
     if housing.carrier is None:
         return                          # on the fixed base: its mass moves nothing
     carrier = data["body"][housing.carrier]
     if housing.solid is not None:
         solid = carrier["solid"][housing.solid]
+        old = solid["part"]
         R = rpy_to_matrix(solid.get("rpy", [0.0, 0.0, 0.0]))
         pos = np.asarray(solid.get("pos", [0.0, 0.0, 0.0]), dtype=float)
-        pos = pos + R @ np.array([0.0, 0.0, _centroid(solid["part"]) - _centroid(servo)])
+        point, axis = shaft_line(data, housing)
+        # along the shaft: the flange stays; across it: the centre's offset scales with the housing
+        along = R @ np.array([0.0, 0.0, _flange(old) - _flange(servo)])
+        off = (pos - point) - axis * float(axis @ (pos - point))
+        scale = _shaft_offset_scale(old)
+        across = off * (_shaft_offset_scale(servo) / scale - 1.0) if scale > 0 else np.zeros(3)
         solid["part"] = servo
-        solid["pos"] = [float(x) for x in pos]
+        solid["pos"] = [float(x) for x in pos + along + across]
         return
     child = data["body"][housing.body]
     R = rpy_to_matrix(child.get("rpy", [0.0, 0.0, 0.0]))
@@ -391,7 +441,7 @@ def _motion_rows(task):
     tau0 = p.model(data).inverse_dynamics(traj.q, traj.qd, traj.qdd)[:, [k]]
     out = []
     for name in names:
-        tau = tau0 + float(parts()[name]["armature"]) * traj.qdd[:, [k]]
+        tau = tau0 + parts()[name]["armature"] * traj.qdd[:, [k]]
         out.append((name, *_score(tau, traj, k, p.limits[name], p.margin, p.repeat, p.ambient)))
     return m, out
 
