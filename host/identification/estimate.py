@@ -197,7 +197,7 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
             elif what == "friction_viscous_nm_s":
                 A[:, j, c] = log.qd[:, j]
             elif what == "friction_coulomb_nm":
-                A[:, j, c] = np.sign(log.qd[:, j])
+                A[:, j, c] = log.sign[:, j]
             elif what == "torque_constant_scale":
                 A[:, j, c] = -log.tau[:, j]
             else:

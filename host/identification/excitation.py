@@ -23,6 +23,7 @@ from .estimate import _base_columns, _gram_condition
 HARMONICS = 5
 PERIOD_S = 10.0           # s: the period aimed at (f ≈ 0.1 Hz; notes/identification.md)
 SAMPLES = 120             # per period, where the condition number is evaluated
+PEAK_SAMPLES = 4000       # per period, where the peaks are found (the highest harmonic's period in 800)
 MARGIN = 0.1              # of each joint's range kept clear at both ends
 SPEED_FRACTION = 0.6      # of each joint's velocity limit
 
@@ -64,13 +65,14 @@ def _coefficients(x: np.ndarray, k: int, N: int) -> tuple[np.ndarray, np.ndarray
 
 def _fitted(series: FourierExcitation, excited, half, speed) -> FourierExcitation:
     """Each excited joint's excursion scaled to fill its half range, then to keep its speed."""
-    t = np.linspace(0, 1 / series.base_hz, SAMPLES, endpoint=False)
+    t = np.linspace(0, 1 / series.base_hz, PEAK_SAMPLES, endpoint=False)
     q, qd, _ = series.evaluate(t)
     dev = np.max(np.abs(q - series.q0), axis=0)
     fast = np.max(np.abs(qd), axis=0)
     factor = np.ones(len(series.q0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        factor[excited] = np.minimum(half[excited] / dev[excited], speed[excited] / fast[excited])
+        # 0.1 % short of the bounds: a peak between two of the samples overshoots by less
+        factor[excited] = np.minimum(half[excited] / dev[excited], speed[excited] / fast[excited]) * 0.999
     factor = np.where(np.isfinite(factor), factor, 0.0)
     return FourierExcitation(series.base_hz, series.q0, series.a * factor[:, None], series.b * factor[:, None],
                              series.duration)

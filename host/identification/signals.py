@@ -4,7 +4,7 @@ differentiation, the torque through the same filter, both decimated.
 The filter is a Butterworth low-pass of order FILTER_ORDER at FILTER_HZ run forwards and backwards
 (scipy.signal.sosfiltfilt): zero phase, so no lag between q̈ and the torque; its gain is |H|², -6 dB
 at the cut-off. The torque goes through the same filter, so what the filter does to the motion it
-does to the torque too. At 1 kHz and 4096 counts per turn, the quantisation left in q̈ after a
+does to the torque too; so does sign(q̇), the Coulomb friction's column. At 1 kHz and 4096 counts per turn, the quantisation left in q̈ after a
 10 Hz low-pass is about 0.1 rad/s² rms (notes/identification.md)."""
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ class Prepared:
     qd: np.ndarray        # (m, n) rad/s
     qdd: np.ndarray       # (m, n) rad/s²
     tau: np.ndarray       # (m, n) N m, measured (current x torque constant x gear)
+    sign: np.ndarray      # (m, n) sign(q̇) through the same filter: the Coulomb friction's column
     rate_hz: float        # the log's own sampling rate
 
 
@@ -55,10 +56,14 @@ def prepare(t, q, tau, cutoff_hz: float = FILTER_HZ, decimated_hz: float = DECIM
     tauf = sosfiltfilt(sos, tau, axis=0)
     qd = np.gradient(qf, step, axis=0)
     qdd = np.gradient(qd, step, axis=0)
+    # Coulomb friction steps where q̇ changes sign, and the filter smooths that step in the torque:
+    # its column goes through the filter too, or the torque's smoothed step biases the fit
+    sign = sosfiltfilt(sos, np.sign(qd), axis=0)
     every = max(1, int(round(rate / decimated_hz)))
     edge = int(round(EDGE_S * rate))
     keep = slice(edge, len(t) - edge, every)
     if len(t) - 2 * edge < 2 * every:
         raise SignalError(f"{origin}: {t[-1] - t[0]:.3g} s, too short to identify from (needs well over "
                           f"{2 * EDGE_S:g} s)")
-    return Prepared(t=t[keep], q=qf[keep], qd=qd[keep], qdd=qdd[keep], tau=tauf[keep], rate_hz=rate)
+    return Prepared(t=t[keep], q=qf[keep], qd=qd[keep], qdd=qdd[keep], tau=tauf[keep], sign=sign[keep],
+                    rate_hz=rate)
