@@ -33,7 +33,7 @@ from .checks import (CHECKS, Judgement, MotionRefused, Result, check, describe, 
 from .fit import fit_time_scale
 from .limits import Limits
 from .retime import retime
-from .thermal import AMBIENT, winding_temperature
+from ..hal.thermal import AMBIENT, winding_temperature
 
 __all__ = ["AMBIENT", "CHECKS", "Judgement", "Limits", "MotionRefused", "Result", "check", "describe",
            "fit_time_scale", "judge", "retime", "torque_speed_ratio", "violations", "winding_temperature"]

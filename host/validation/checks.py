@@ -12,7 +12,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError
 from ..readable import fixed, percent
 from .limits import Limits
-from .thermal import AMBIENT, winding_temperature
+from ..hal.thermal import AMBIENT, winding_temperature
 
 class MotionRefused(ServodynError, ValueError):
     """The validator says a motion would leave a servo's limits: nothing moved. One line, the
