@@ -14,8 +14,6 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml, string_key
@@ -101,10 +99,6 @@ class JointConfig:
         """N m per A at the horn as the file's `torque_constant` (or the servo's) gives it, before the
         identified scale: what the simulator's servos are built from."""
         return self.torque_constant / self.torque_constant_scale
-
-    def friction(self, velocity):
-        """The joint's friction torque (N m) against `velocity` (rad/s): F_c·sign(q̇) + F_v·q̇."""
-        return self.friction_coulomb * np.sign(velocity) + self.friction_viscous * np.asarray(velocity)
 
     @property
     def torque_limit(self) -> float:
