@@ -28,12 +28,12 @@ class Limits:
     temperature: np.ndarray      # °C
     command: np.ndarray          # N m at the joint
     command_step: np.ndarray     # N m
-    friction_coulomb: np.ndarray = None   # N m at the joint (the configuration's; default none)
-    friction_viscous: np.ndarray = None   # N m s/rad at the joint
     voltage: float
     supply_current: float | None
     wire: list = field(default_factory=list)   # (bus name, seconds per tick, description)
     period: float = SMALL_TIME_STEP            # s: the configuration's control period, the sampling
+    friction_coulomb: np.ndarray | None = None   # N m at the joint (the configuration's; None: none)
+    friction_viscous: np.ndarray | None = None   # N m s/rad at the joint
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
         """The joints' friction torque (N m) against their speeds: F_c·sign(q̇) + F_v·q̇, what the
