@@ -349,6 +349,14 @@ class Model:
         return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
                      source=self.source)
 
+    def with_mass_scale(self, scale: float) -> "Model":
+        """The same model with every body's mass and inertia times `scale` (centres of mass kept)."""
+        if not (math.isfinite(scale) and scale > 0):
+            raise ModelError(f"mass scale must be a finite number > 0, got {scale}")
+        bodies = [replace(b, mass=b.mass * scale, inertia=b.inertia * scale) for b in self.bodies]
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
+
     def with_free_root(self) -> "Model":
         """The same model with body 0 floating free instead of fixed to the base."""
         first = self.bodies[0]
