@@ -119,13 +119,13 @@ def test_thermal_constants_from_a_heating_run():
 
 def write_log(path, model, log, drop=()):
     """A swing_log.csv as the loop writes it (loop.log.columns), without the `drop` quantities."""
-    header = [c for c in columns(model.dof_names) if c.rsplit("_", 1)[0] not in drop
-              and not any(c.startswith(d + "_") for d in drop)]
+    header = [c for c in columns(model.dof_names) if not any(c.startswith(d + "_") for d in drop)]
     tau = measured_torque(log["current"], load_config("replica").joints)
     data = {"t": log["t"]}
     for k, d in enumerate(model.dof_names):
         data.update({f"q_d_{d}": log["q"][:, k], f"q_{d}": log["q"][:, k], f"qd_{d}": log["qd"][:, k],
-                     f"tau_{d}": tau[:, k], f"current_{d}": log["current"][:, k]})
+                     f"tau_{d}": tau[:, k], f"current_{d}": log["current"][:, k],
+                     f"temperature_{d}": log["temperature"][:, k] if "temperature" in log else np.full(len(tau), np.nan)})
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)

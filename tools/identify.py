@@ -116,23 +116,35 @@ def report(config, paths, estimate, thermal, payload_body, known_payload, cutoff
     return out
 
 
-def patch_values(result: dict) -> tuple[dict, dict | None]:
-    """The configuration keys the data determine: per dof, and the [payload] table (or None)."""
+def patch_values(result: dict, config) -> tuple[dict, dict | None]:
+    """The configuration keys the data determine: per dof, and the [payload] table (or None). The
+    payload identified is what the arm carries beyond the configuration's model, so a configured
+    [payload] and it make the patch's one point mass."""
     per_joint = {}
     for dof, entry in result["joints"].items():
         values = {k: v["value"] for k, v in entry.items() if v["value"] is not None}
         if values:
             per_joint[dof] = values
     payload = result["payload"]
-    table = None
-    if payload and payload["mass_kg"]["value"] is not None and payload["com_m"]["value"] is not None:
-        table = {"body": payload["body"], "mass_kg": payload["mass_kg"]["value"], "com_m": payload["com_m"]["value"]}
-    return per_joint, table
+    if not payload or payload["mass_kg"]["value"] is None or payload["com_m"]["value"] is None:
+        return per_joint, None
+    mass, com = payload["mass_kg"]["value"], np.array(payload["com_m"]["value"])
+    before = getattr(config, "payload", None)
+    if before is not None and before.body == payload["body"] and before.mass > 0:
+        # a payload without com_m sits at the body's centre of mass, which it then leaves unchanged
+        b = config.model.body_names.index(before.body)
+        c0 = np.array(before.com) if before.com is not None else np.asarray(config.model.bodies[b].com, dtype=float)
+        total = before.mass + mass
+        if total <= 0:
+            return per_joint, None
+        com = (before.mass * c0 + mass * com) / total
+        mass = total
+    return per_joint, {"body": payload["body"], "mass_kg": float(mass), "com_m": [float(c) for c in com]}
 
 
-def patch_toml(result: dict) -> str:
+def patch_toml(result: dict, config) -> str:
     """DIR/patch.toml: the identified keys as [[joint]] tables and a [payload] table."""
-    per_joint, payload = patch_values(result)
+    per_joint, payload = patch_values(result, config)
     doc = tomlkit.document()
     doc.add(tomlkit.comment(f"servodyn identify: from {', '.join(result['logs'])} on '{result['config']}'"))
     doc.add(tomlkit.comment("values the logs determine; copy into the configuration, or use identify --apply"))
@@ -229,11 +241,18 @@ def run(config_name: str, paths: list[str], payload_body: str | None, known_payl
         raise IdentifyError(str(err)) from None
     for note in estimate.notes:
         warn(f"servodyn identify: {note}")
+    # the logs' torque used the effective constant (the configured one x its scale so far): the
+    # scale found multiplies that one
+    for joint in joints:
+        found = estimate.joints[joint.dof]["torque_constant_scale"]
+        if found.determined:
+            s0 = getattr(joint, "torque_constant_scale", 1.0)
+            estimate.joints[joint.dof]["torque_constant_scale"] = Parameter(found.value * s0, found.std * s0)
     thermal = _thermal([r[1] for r in read], joints, model.dof_names)
     result = report(config, paths, estimate, thermal, payload_body, known_payload, cutoff)
     out.mkdir(parents=True, exist_ok=True)
     (out / "identified.json").write_text(json.dumps(result, indent=1) + "\n")
-    (out / "patch.toml").write_text(patch_toml(result))
+    (out / "patch.toml").write_text(patch_toml(result, config))
     fit_figure(out / "torque_fit.png", estimate, f"{config.name}: measured and predicted joint torque")
     say(summary(result))
     say(f"wrote {out / 'identified.json'}, {out / 'patch.toml'}, {out / 'torque_fit.png'}")
@@ -244,7 +263,7 @@ def run(config_name: str, paths: list[str], payload_body: str | None, known_payl
 
 def _apply(config, result: dict, target: str | None, yes: bool, say) -> int:
     """The configuration patched with the determined values, comments kept, after asking."""
-    per_joint, payload = patch_values(result)
+    per_joint, payload = patch_values(result, config)
     try:
         patch = ConfigPatch.of(config, target)
         for dof, values in per_joint.items():

@@ -11,13 +11,16 @@ current (torque = current x torque constant x gear ratio) gives them by least sq
               per joint Coulomb and viscous friction (on samples beyond a few velocity quanta),
               armature; a payload at a body (or the arm's base parameters); a torque-constant scale
               per joint when a log carries a known payload (Gautier & Briot 2011)
-  thermal     a servo's thermal resistance and time constant from a heating run's temperature
+  thermal     a servo's thermal resistance and time constant from a heating run's temperature, on
+              the winding model the validator and the simulated servos use (hal.thermal)
   excitation  Swevers' finite Fourier series, its coefficients chosen for a well conditioned
               observation matrix, at rest at both ends
 
 Parameters the data cannot determine (a relative standard error above REL_SIGMA_MAX, a column the
 logs never excite, a joint that never moves) are reported as such, never invented.
-`servodyn excite` and `servodyn identify` (tools/) are the commands.
+It takes arrays, not files: `servodyn identify` (tools/identify.py) reads the logs with the loop's
+reader (loop.log.read_run_log) and `servodyn excite` checks its motion with the validator; beside the
+validator and the simulator in the layers, it imports neither.
 """
 
 from .estimate import (REL_SIGMA_MAX, STILL_SPEED, Estimate, IdentificationError, Parameter, identify,

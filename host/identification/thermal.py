@@ -1,6 +1,6 @@
 """A servo's thermal resistance and time constant from a heating run's winding temperature.
 
-The winding model is the validator's (validation.thermal): C·dT/dt = P − (T − T_amb)/R_th with
+The winding model is the one the validator and the simulated servos use (hal.thermal): C·dT/dt = P − (T − T_amb)/R_th with
 P = I²·R·(1 + α(T − 25 °C)). Held over a step Δt it is, exactly, ΔT_{k+1} = a·ΔT_k + b·P_k with
 ΔT = T − T_amb, a = e^(−Δt/τ_th), b = R_th·(1 − a); so a and b by least squares, then
 τ_th = −Δt / ln a and R_th = b / (1 − a). Dynamixel reports the temperature in 1 °C steps: the run
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..validation.thermal import COPPER_ALPHA
+from ..hal.thermal import COPPER_ALPHA
 from .estimate import Parameter, _judged
 
 STEP_S = 1.0            # s: the regression's step (the temperature is read at a low rate)
@@ -30,17 +30,24 @@ def fit_thermal(t, current, temperature, resistance: float, ambient: float | Non
     """R_th (K/W) and τ_th (s) of one servo from its current (A) and winding temperature (°C) over a
     run; `resistance` its winding's Ω at 25 °C; ambient the temperature at the start by default."""
     t, current, temperature = (np.asarray(x, dtype=float) for x in (t, current, temperature))
-    ambient = float(temperature[0]) if ambient is None else float(ambient)
-    rise = float(np.max(temperature) - ambient)
+    # the temperature is read at a low rate (nan between readings): steps between the readings
+    read = np.isfinite(temperature)
+    if read.sum() < 2:
+        why = "not determined: the log has no temperature readings"
+        return ThermalFit(Parameter(None, None, why), Parameter(None, None, why))
+    ambient = float(temperature[read][0]) if ambient is None else float(ambient)
+    rise = float(np.max(temperature[read]) - ambient)
     if rise < MIN_RISE_C or t[-1] - t[0] < 10 * STEP_S:
         why = f"not determined: the winding warms by {rise:.1f} °C (needs {MIN_RISE_C:g} °C or more over a long run)"
         return ThermalFit(Parameter(None, None, why), Parameter(None, None, why))
-    # per step of STEP_S: the mean heat over the step, the temperature at its start and end
+    # per step of STEP_S: the mean heat over the step, the temperature (between readings, linear)
+    # at its start and end
+    held = np.interp(t, t[read], temperature[read])
     edges = np.arange(t[0], t[-1] + 1e-9, STEP_S)
-    at = np.searchsorted(t, edges)
+    at = np.unique(np.searchsorted(t, edges))
     at = at[at < len(t)]
-    T = temperature[at] - ambient
-    heat = current**2 * resistance * (1 + COPPER_ALPHA * (temperature - 25.0))
+    T = held[at] - ambient
+    heat = current**2 * resistance * (1 + COPPER_ALPHA * (held - 25.0))
     power = np.add.reduceat(heat, at)[:-1] / np.diff(at)
     A = np.column_stack([T[:-1], power])
     y = T[1:]
