@@ -45,6 +45,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.loop
 	@$(VENV)/bin/python -m servodyn.tools.bench.view
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
+	@$(VENV)/bin/python -m servodyn.tools.bench.identify
 	@$(VENV)/bin/python -m servodyn.tools.bench.can
 	@$(VENV)/bin/python -m servodyn.tools.bench.bringup
 	@$(MAKE) --no-print-directory fw
