@@ -127,6 +127,13 @@ class RobotConfig:
     payload: "Payload | None" = None      # `[payload]`, already in `model`
     plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
 
+    @property
+    def friction(self) -> dict:
+        """The joints' friction (model dof order) as the controller compensates it: ControlConfig's
+        friction_coulomb and friction_viscous keywords."""
+        return {"friction_coulomb": [j.friction_coulomb for j in self.joints],
+                "friction_viscous": [j.friction_viscous for j in self.joints]}
+
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
 

@@ -19,8 +19,9 @@ hal/README.md): Coulomb, viscous and a static friction that falls to Coulomb's o
 speed, a real step at zero speed. A step in an explicit integrator chatters or needs a tiny step;
 so, as MuJoCo's frictionloss, it is a bounded force solved at the velocity level: each step, a
 joint whose sliding friction would not reverse it within the step slides, F(q̇) against q̇; the
-others are held with the force that brings them to rest by the step's end (projected Gauss-Seidel
-on M⁻¹, each bounded by ±F at its speed: at rest the static friction), held over the RK4 step
+others are held with the force that brings them to rest by the step's end (one linear solve on
+M⁻¹ when every such force is within ±F at its speed, at rest the static friction; else projected
+Gauss-Seidel, each bounded), held over the RK4 step
 like the drives' currents. A joint at rest stays there exactly until the torque on it exceeds the
 static friction, and no step can make friction push a joint forwards.
 """
@@ -37,7 +38,7 @@ from servodyn.control.timing import SMALL_TIME_STEP
 
 STOP_TIME_CONSTANT = 0.01     # s: a joint's stop as a spring-damper (natural frequency 100 rad/s:
                               # 0.1 rad a step at 1 ms, well inside RK4's stable range)
-FRICTION_SWEEPS = 4           # projected Gauss-Seidel sweeps over the held joints each step
+FRICTION_SWEEPS = 30          # at most, projected Gauss-Seidel sweeps over the held joints in a step
 
 
 @dataclass
@@ -66,15 +67,25 @@ class JointFriction:
         after = qd + dt * (free + diagonal * friction)   # each alone: does sliding stop it this step?
         held = [k for k in range(len(qd)) if bound[k] > 0 and (qd[k] == 0 or after[k] * qd[k] <= 0)]
         if held:
+            # every held joint at rest by the step's end, if their static friction can: one solve
             friction[held] = 0.0
             acceleration = free + inverse @ friction
+            wanted = -np.linalg.solve(inverse[np.ix_(held, held)], qd[held] / dt + acceleration[held])
+            if np.all(np.abs(wanted) <= bound[held]):
+                friction[held] = wanted
+                return friction
+            # some slip: each bounded by its friction, the others at rest (projected Gauss-Seidel)
             for _ in range(FRICTION_SWEEPS):
+                largest = 0.0
                 for k in held:
                     wanted = friction[k] - (qd[k] / dt + acceleration[k]) / diagonal[k]
                     change = min(bound[k], max(-bound[k], wanted)) - friction[k]
                     if change:
                         acceleration += inverse[:, k] * change
                         friction[k] += change
+                        largest = max(largest, abs(change) / bound[k])
+                if largest < 1e-12:
+                    break
         return friction
 
 

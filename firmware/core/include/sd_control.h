@@ -39,6 +39,11 @@ typedef struct sd_control_config_ {
   sd_real kp[SD_MAX_DOF];         // (ndof) N m/rad, or 1/s^2 in computed-torque mode
   sd_real kd[SD_MAX_DOF];         // (ndof) N m s/rad, or 1/s in computed-torque mode
   sd_real tau_max[SD_MAX_DOF];    // (ndof) |tau| limit (N m); 0 for none
+  // friction compensated on the desired velocity, every small step, in every mode but PD:
+  // F_c tanh(qd_d / friction_speed) + F_v qd_d (the Coulomb step smoothed, see control.c)
+  sd_real friction_coulomb[SD_MAX_DOF];   // (ndof) N m; 0 for none
+  sd_real friction_viscous[SD_MAX_DOF];   // (ndof) N m s/rad; 0 for none
+  sd_real friction_speed;                 // rad/s: > 0 where any friction_coulomb is
 } sd_control_config;
 
 typedef struct sd_control_state_ {
@@ -59,10 +64,13 @@ enum sd_control_error_ {
   SD_CONTROL_ERR_BALL = -3,       // the model has a ball joint: the joint PD works on angles
   SD_CONTROL_ERR_GAIN = -4,       // a kp or kd negative or not finite
   SD_CONTROL_ERR_LIMIT = -5,      // a torque limit negative or not finite
+  SD_CONTROL_ERR_FRICTION = -6,   // a friction negative or not finite, or Coulomb's without a
+                                  // positive finite friction_speed
 };
 
 // Check a configuration against a model: SD_CONTROL_OK or the negative sd_control_error_ code of
-// the first fault found (mode, update period, ball joints, then each dof's gains and limit).
+// the first fault found (mode, update period, ball joints, then each dof's gains, limit and
+// friction).
 int sd_control_check(const struct sd_model_* m, const sd_control_config* c);
 
 // A short static description of an sd_control_check code.
