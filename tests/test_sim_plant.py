@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from servodyn.hal.config import CONFIGS_DIR, config_from_dict
+from servodyn.hal.dynamixel.control_table import XM430_W350
 from servodyn.hal.thermal import winding_step
 from servodyn.loop.log import read_run_log
+from servodyn.sim.dynamixel import Servo
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.tools.swing import run_swing
 
@@ -226,3 +228,18 @@ def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
     blind, compensated = results[False], results[True]
     assert compensated["tracking_max_rad"] * 2.0 <= blind["tracking_max_rad"], (compensated, blind)
     assert compensated["tracking_rms_rad"] * 3.0 <= blind["tracking_rms_rad"], (compensated, blind)
+
+
+def test_a_servo_over_its_temperature_limit_raises_overheating():
+    """A simulated XM430 whose winding passes Temperature Limit (80 °C) reports it in Present
+    Temperature (whole degrees, 1 °C of the model) and raises Overheating (Hardware Error Status
+    bit 2), which its default Shutdown (52) cuts the torque for, as the e-manual says."""
+    servo = Servo(XM430_W350, 1, temperature=25.0)
+    servo._set("torque_enable", 1)
+    for _ in range(600):                                     # 60 s at 3 A: a 5.2 Ω winding, 12 K/W
+        servo.heat(9.0, 0.1)
+        if servo.get("hardware_error_status"):
+            break
+    assert abs(servo.get("present_temperature") - servo.temperature) <= 0.5, "whole degrees of the model"
+    assert servo.get("present_temperature") == 81, "the first whole degree over 80 °C"
+    assert servo.get("hardware_error_status") == 4 and not servo.torque_enabled, "Overheating, torque off"
