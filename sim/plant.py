@@ -19,9 +19,10 @@ hal/README.md): Coulomb, viscous and a static friction that falls to Coulomb's o
 speed, a real step at zero speed. A step in an explicit integrator chatters or needs a tiny step;
 so, as MuJoCo's frictionloss, it is a bounded force solved at the velocity level: each step, a
 joint whose sliding friction would not reverse it within the step slides, F(q̇) against q̇; the
-others are held with the force that brings them to rest by the step's end (one linear solve on
-M⁻¹ when every such force is within ±F at its speed, at rest the static friction; else projected
-Gauss-Seidel, each bounded), held over the RK4 step
+others are held with the force that brings them to rest by the step's end, each within ±F at its
+speed (at rest the static friction): one linear solve on M⁻¹ for them all, and where a force
+would exceed its bound the joint slips at it and the rest are solved again (an active set, at
+most one solve per joint), held over the RK4 step
 like the drives' currents. A joint at rest stays there exactly until the torque on it exceeds the
 static friction, and no step can make friction push a joint forwards.
 """
@@ -38,7 +39,6 @@ from servodyn.control.timing import SMALL_TIME_STEP
 
 STOP_TIME_CONSTANT = 0.01     # s: a joint's stop as a spring-damper (natural frequency 100 rad/s:
                               # 0.1 rad a step at 1 ms, well inside RK4's stable range)
-FRICTION_SWEEPS = 30          # at most, projected Gauss-Seidel sweeps over the held joints in a step
 
 
 @dataclass
@@ -48,6 +48,7 @@ class JointFriction:
     viscous: np.ndarray           # N m s/rad
     static: np.ndarray            # N m to break away from rest (>= coulomb)
     stribeck: np.ndarray          # rad/s over which static falls to Coulomb's
+    _units: np.ndarray | None = None   # unit torques, one row per dof, and a row of none
 
     def bound(self, qd: np.ndarray) -> np.ndarray:
         """|friction| at speed q̇: F_c + (F_s − F_c)·exp(−(q̇/v_s)²) + F_v·|q̇|."""
@@ -59,33 +60,33 @@ class JointFriction:
         the module's docstring)."""
         if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau).all()):
             return np.zeros_like(qd)
-        free = model.forward_dynamics(q, qd, tau)
-        inverse = np.linalg.inv(model.mass_matrix(q))
+        # one batched call: the free acceleration, and M⁻¹ column by column (a unit torque's)
+        n = len(qd)
+        if self._units is None or len(self._units) != n + 1:
+            self._units = np.vstack([np.eye(n), np.zeros(n)])
+        rows = model.forward_dynamics(np.tile(q, (n + 1, 1)), np.tile(qd, (n + 1, 1)), tau + self._units)
+        free, inverse = rows[n], (rows[:n] - rows[n]).T
         bound = self.bound(qd)
         friction = -np.sign(qd) * bound                  # sliding, against the motion
         diagonal = np.diag(inverse)
         after = qd + dt * (free + diagonal * friction)   # each alone: does sliding stop it this step?
-        held = [k for k in range(len(qd)) if bound[k] > 0 and (qd[k] == 0 or after[k] * qd[k] <= 0)]
-        if held:
-            # every held joint at rest by the step's end, if their static friction can: one solve
-            friction[held] = 0.0
-            acceleration = free + inverse @ friction
+        held = [k for k in range(n) if bound[k] > 0 and (qd[k] == 0 or after[k] * qd[k] <= 0)]
+        if not held:
+            return friction
+        # the held joints at rest by the step's end, each within its friction: solve them all;
+        # the one whose force would exceed its bound most slips at its bound, the rest again
+        friction[held] = 0.0
+        acceleration = free + inverse @ friction
+        while held:
             wanted = -np.linalg.solve(inverse[np.ix_(held, held)], qd[held] / dt + acceleration[held])
-            if np.all(np.abs(wanted) <= bound[held]):
+            excess = np.abs(wanted) / bound[held]
+            if excess.max() <= 1.0:
                 friction[held] = wanted
-                return friction
-            # some slip: each bounded by its friction, the others at rest (projected Gauss-Seidel)
-            for _ in range(FRICTION_SWEEPS):
-                largest = 0.0
-                for k in held:
-                    wanted = friction[k] - (qd[k] / dt + acceleration[k]) / diagonal[k]
-                    change = min(bound[k], max(-bound[k], wanted)) - friction[k]
-                    if change:
-                        acceleration += inverse[:, k] * change
-                        friction[k] += change
-                        largest = max(largest, abs(change) / bound[k])
-                if largest < 1e-12:
-                    break
+                break
+            worst = int(np.argmax(excess))
+            k = held.pop(worst)
+            friction[k] = math.copysign(bound[k], wanted[worst])
+            acceleration += inverse[:, k] * friction[k]
         return friction
 
 

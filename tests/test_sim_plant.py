@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from servodyn.hal.config import CONFIGS_DIR, config_from_dict
+from servodyn.hal.dynamixel.control_table import XM430_W350
 from servodyn.hal.thermal import winding_step
 from servodyn.loop.log import read_run_log
+from servodyn.sim.dynamixel import Servo
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.tools.swing import run_swing
 
@@ -179,3 +181,65 @@ def test_a_log_without_temperature_still_reads(holds, tmp_path):
     back = read_run_log(old, config.model)
     assert np.isnan(back.temperature).all(), "no column: nan"
     assert np.array_equal(back.q, log.q) and np.array_equal(back.current, log.current), "the rest unchanged"
+
+
+def _sway(path: Path, model, seconds=2.0) -> Path:
+    """Every joint swaying 0.25 rad at 1 Hz (reversing twice a second) about the arm hanging at
+    rest (each joint 0.3 rad inside its limits: the elbow bent 0.3 rad), from and to rest, with
+    its exact velocities and accelerations."""
+    t = np.arange(int(round(seconds / 1e-3)) + 1) * 1e-3
+    w = 2 * np.pi
+    envelope = np.sin(np.pi * t / seconds) ** 2                    # from and to rest
+    d_env = np.pi / seconds * np.sin(2 * np.pi * t / seconds)
+    dd_env = 2 * (np.pi / seconds) ** 2 * np.cos(2 * np.pi * t / seconds)
+    s, c = np.sin(w * t), np.cos(w * t)
+    centre = np.clip(model.neutral_q(), model.lower + 0.3, model.upper - 0.3)
+    q = centre + 0.25 * (envelope * s)[:, None] * np.ones(7)
+    qd = 0.25 * (d_env * s + envelope * w * c)[:, None] * np.ones(7)
+    qdd = 0.25 * (dd_env * s + 2 * d_env * w * c - envelope * w * w * s)[:, None] * np.ones(7)
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["t"] + [f"{p}_{d}" for p in ("q", "qd", "qdd") for d in DOFS])
+        writer.writerows(np.hstack([t[:, None], q, qd, qdd]).tolist())
+    return path
+
+
+def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
+    """On a plant with friction on every joint (0.4 N m Coulomb at the shoulder down to 0.1 at the
+    wrist, a quarter of that in N m s/rad viscous), a sway that reverses every joint twice a
+    second: with the configuration's friction keys the feed-forward compensates it
+    (F_c·tanh(q̇_d/0.1) + F_v·q̇_d), and the largest tracking error is at least 2 times and the
+    rms at least 3 times smaller than with the controller that knows no friction (measured: 0.61°
+    to 0.21° and 0.28° to 0.05°, 3.0x and 6.2x). The PD does the rest either way."""
+    coulomb = dict(zip(DOFS, (0.4, 0.4, 0.3, 0.2, 0.1, 0.1, 0.1)))
+    sim = {"joint": {d: {"friction_coulomb_nm": c, "friction_viscous_nm_s": c / 4} for d, c in coulomb.items()}}
+    results = {}
+    for known in (False, True):
+        data = copy.deepcopy(REPLICA)
+        data["sim"] = sim
+        if known:
+            for joint in data["joint"]:
+                joint.update(friction_coulomb_nm=coulomb[joint["dof"]], friction_viscous_nm_s=coulomb[joint["dof"]] / 4)
+        config = config_from_dict(data, origin="test.toml")
+        motion = _sway(tmp_path / "sway.csv", config.model)
+        results[known] = run_swing(config, out=tmp_path / str(known), motion=str(motion), home_duration=0.5,
+                                   figure=False, say=lambda *a, **k: None)
+        assert results[known]["completed"], results[known]["error"]
+    blind, compensated = results[False], results[True]
+    assert compensated["tracking_max_rad"] * 2.0 <= blind["tracking_max_rad"], (compensated, blind)
+    assert compensated["tracking_rms_rad"] * 3.0 <= blind["tracking_rms_rad"], (compensated, blind)
+
+
+def test_a_servo_over_its_temperature_limit_raises_overheating():
+    """A simulated XM430 whose winding passes Temperature Limit (80 °C) reports it in Present
+    Temperature (whole degrees, 1 °C of the model) and raises Overheating (Hardware Error Status
+    bit 2), which its default Shutdown (52) cuts the torque for, as the e-manual says."""
+    servo = Servo(XM430_W350, 1, temperature=25.0)
+    servo._set("torque_enable", 1)
+    for _ in range(600):                                     # 60 s at 3 A: a 5.2 Ω winding, 12 K/W
+        servo.heat(9.0, 0.1)
+        if servo.get("hardware_error_status"):
+            break
+    assert abs(servo.get("present_temperature") - servo.temperature) <= 0.5, "whole degrees of the model"
+    assert servo.get("present_temperature") == 81, "the first whole degree over 80 °C"
+    assert servo.get("hardware_error_status") == 4 and not servo.torque_enabled, "Overheating, torque off"
