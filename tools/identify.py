@@ -213,6 +213,10 @@ def summary(result: dict) -> str:
         where = ("—" if com["value"] is None else
                  "(" + ", ".join(f"{v * 1e3:.1f}±{s * 1e3:.1g}" for v, s in zip(com["value"], com["std"])) + ") mm")
         lines.append(f"payload at {payload['body']}: {_cell(payload['mass_kg'])} kg, com {where}")
+    base = result.get("base_parameters")
+    if base:
+        found = sum(v["value"] is not None for v in base.values())
+        lines.append(f"the arm's base parameters: {found} of {len(base)} determined (identified.json: base_parameters)")
     lines.append(f"condition number {result['condition_number']:.3g} over {result['equations']} equations; "
                  "— = not determined (see identified.json)")
     return "\n".join(lines)
