@@ -67,9 +67,10 @@ def test_identify_recovers_the_plant(loop):
     servos are not the identification's model — their friction sticks below a Stribeck speed, their
     current is quantised at 2.69 mA and read a tick late, the horn's torque passes a gear efficiency."""
     result = loop["result"]
+    armature = load_config(loop["config"]).model.armature      # the plant's: [sim] leaves it
     for k, (dof, entry) in enumerate(result["joints"].items()):
         for key, truth, floor in (("torque_constant_scale", SCALES[k], 0.0), ("friction_coulomb_nm", COULOMB[k], 0.01),
-                                  ("friction_viscous_nm_s", VISCOUS[k], 0.01)):
+                                  ("friction_viscous_nm_s", VISCOUS[k], 0.01), ("armature_kg_m2", armature[k], 0.0)):
             got = entry[key]
             assert got["value"] is not None, f"{dof} {key}: {got.get('note')}"
             tol = 6.5 * got["std"] + 0.05 * truth + floor
