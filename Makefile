@@ -47,6 +47,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.ik
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
 	@$(VENV)/bin/python -m servodyn.tools.bench.size
+	@$(VENV)/bin/python -m servodyn.tools.bench.identify
 	@$(VENV)/bin/python -m servodyn.tools.bench.can
 	@$(VENV)/bin/python -m servodyn.tools.bench.bringup
 	@$(MAKE) --no-print-directory fw

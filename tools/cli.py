@@ -347,6 +347,25 @@ def cmd_size(args) -> int:
     return 0 if report["passed"] else 1
 
 
+def cmd_excite(args) -> int:
+    from .excite import ExciteError, run
+    try:
+        return run(args.config, args.duration, args.joints, Path(args.out), harmonics=args.harmonics,
+                   margin=args.margin, seed=args.seed)
+    except ExciteError as err:
+        raise CliError(str(err)) from None
+
+
+def cmd_identify(args) -> int:
+    from .identify import IdentifyError, run
+    try:
+        return run(args.config, args.logs, args.payload_body, args.known_payload, args.arm, Path(args.out),
+                   cutoff=args.cutoff, apply_to=args.write, apply=args.apply, yes=args.yes,
+                   warn=lambda line: print(line, file=sys.stderr))
+    except IdentifyError as err:
+        raise CliError(str(err)) from None
+
+
 def cmd_view(args) -> None:
     from .view import ViewError, open_view, serve_forever
     try:
@@ -818,6 +837,52 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hand error a path may keep where the speed bound holds it back (default 0.001 m)")
     p.add_argument("--end", default=None, metavar="BODY", help="the hand body (default: r_hand, else the last)")
     p.set_defaults(func=cmd_ik)
+
+    p = sub.add_parser("excite", help="write an exciting trajectory for servodyn identify",
+                       description="A finite Fourier series per joint (Swevers et al.), its coefficients chosen "
+                       "for a well conditioned identification, starting and ending at rest, written as a "
+                       "trajectory CSV for servodyn swing --motion. The margin: each joint stays inside its "
+                       "position limits less --margin of its range at both ends and under 0.6 of its velocity "
+                       "limit; then servodyn validate checks it on the configuration, and while it fails every "
+                       "excursion is scaled by 0.85. Exit status 0 written, 2 bad input.")
+    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S",
+                   help="seconds, whole periods of about 10 s (default 30)")
+    p.add_argument("--joints", nargs="+", default=None, metavar="DOF", help="only these joints move (default all)")
+    p.add_argument("--harmonics", type=count(2, what="harmonics"), default=5, metavar="N",
+                   help="harmonics per joint (default 5)")
+    p.add_argument("--margin", type=float, default=0.1, metavar="F",
+                   help="fraction of each joint's range kept clear at both ends (default 0.1)")
+    p.add_argument("--seed", type=count(0, what="seed"), default=0, help="the optimiser's start (default 0)")
+    p.add_argument("--out", default="out/excite/excitation.csv", metavar="CSV",
+                   help="trajectory CSV to write (default out/excite/excitation.csv)")
+    p.set_defaults(func=cmd_excite)
+
+    p = sub.add_parser("identify", help="friction, armature, torque constants, payload from logs",
+                       description="Least squares on swing logs (t, q_*, current_*; torque = current x "
+                       "torque_constant x gear_ratio): per joint Coulomb and viscous friction, armature, "
+                       "with --known-payload a torque-constant scale, from temperature_* columns the thermal "
+                       "resistance and time constant; the payload's mass and centre of mass at a body. q and "
+                       "the current go through one 4th-order Butterworth low-pass forwards and backwards "
+                       "(zero lag, -6 dB at --cutoff) before q is differentiated twice. Writes "
+                       "OUT/identified.json, OUT/patch.toml and OUT/torque_fit.png; what the logs cannot "
+                       "determine is reported so, never invented. Exit status 0 done, 1 patch declined, "
+                       "2 bad input.")
+    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders)")
+    p.add_argument("--payload-body", default=None, metavar="BODY", help="the body carrying the payload (default: the last)")
+    p.add_argument("--known-payload", type=float, default=0.0, metavar="KG",
+                   help="the last LOG carried this mass more, at the payload body's centre of mass (as validate "
+                        "--payload puts it): makes each joint's torque-constant scale identifiable")
+    p.add_argument("--arm", action="store_true",
+                   help="the whole arm's base inertial parameters instead of a payload")
+    p.add_argument("--cutoff", type=float, default=10.0, metavar="HZ", help="the low-pass's cut-off (default 10 Hz)")
+    p.add_argument("--out", default="out/identify", help="output folder (default out/identify)")
+    p.add_argument("--apply", action="store_true",
+                   help="also patch the configuration (comments kept), after showing the change and asking")
+    p.add_argument("--write", default=None, metavar="FILE", help="with --apply: write the patched configuration here")
+    p.add_argument("--yes", action="store_true", help="with --apply: write without asking")
+    p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
                        description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")

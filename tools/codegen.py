@@ -22,6 +22,7 @@ import numpy as np
 
 from .. import _core
 from ..control import ControlConfig
+from ..control.controller import FRICTION_SPEED
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
 from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
@@ -129,7 +130,9 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
             f"   .nm_per_amp = SD_R({_num(j.torque_constant * j.gear_ratio)}), "
             f".current_limit = SD_R({_num(j.current_limit)}), "
             f".q_min = SD_R({_num(j.position_limits[0])}), .q_max = SD_R({_num(j.position_limits[1])}), "
-            f".qd_max = SD_R({_num(j.velocity_limit)})}},  // {j.dof}")
+            f".qd_max = SD_R({_num(j.velocity_limit)}),\n"
+            f"   .friction_coulomb = SD_R({_num(j.friction_coulomb)}), "
+            f".friction_viscous = SD_R({_num(j.friction_viscous)})}},  // {j.dof}")
     update_ticks = ControlConfig(small_time_step=period).update_ticks
 
     header = _HEADER.format(config=config.name) + f"""// Robot '{config.name}': model '{config.model_ref}', {nb} bodies, {nd} dofs, {len(joints)} servos on one
@@ -192,6 +195,7 @@ const fw_plan fw_plan_ = {{
   .read_size = {PRESENT_LENGTH},
   .goal_address = {ADDR_GOAL_CURRENT},
   .overrun_tolerance = SD_R({_num(OVERRUN_TOLERANCE)}),
+  .friction_speed = SD_R({_num(FRICTION_SPEED)}),
 }};
 """
     return {"servodyn_gen.h": header, "servodyn_gen.c": source}

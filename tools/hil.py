@@ -251,7 +251,8 @@ def replay(config_name: str, record: Record) -> dict:
     limit = [j.current_limit for j in config.joints]
     scale = config.swing_time_scale or 1.0
     swing = load_motion("tennis_forehand", model).sample(config.control_period, time_scale=scale)
-    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period))
+    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period,
+                                                 **config.friction))
     reads = record.reads
     q_meas = [units.from_ticks(r[:, 2]) for r in reads]
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]

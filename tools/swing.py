@@ -170,7 +170,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if server is not None:
                 server.stop()
             raise
-        controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
+        friction = config.friction if feedforward else {}      # compensated with the feed-forward
+        controller = Controller(model, ControlConfig(mode=mode, small_time_step=period, **friction),
+                                q_start=swing.q[0])
         log = RunLog(model.dof_names) if log is None else log
         log.stream(out / "swing_log.csv")
         error = None

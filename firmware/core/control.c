@@ -32,6 +32,11 @@ int sd_control_check(const sd_model* m, const sd_control_config* c) {
     if (!(c->error_lowpass[j] >= 0 && c->error_lowpass[j] <= 1)) {
       return SD_CONTROL_ERR_FILTER;
     }
+    if (!(c->friction_coulomb[j] >= 0) || !SD_ISFINITE(c->friction_coulomb[j]) ||
+        !(c->friction_viscous[j] >= 0) || !SD_ISFINITE(c->friction_viscous[j]) ||
+        (c->friction_coulomb[j] > 0 && !(c->friction_speed > 0 && SD_ISFINITE(c->friction_speed)))) {
+      return SD_CONTROL_ERR_FRICTION;
+    }
   }
   return SD_CONTROL_OK;
 }
@@ -45,6 +50,8 @@ const char* sd_control_strerror(int code) {
     case SD_CONTROL_ERR_GAIN:   return "a gain (kp or kd) negative or not finite";
     case SD_CONTROL_ERR_LIMIT:  return "a torque limit negative or not finite";
     case SD_CONTROL_ERR_FILTER: return "an error low-pass coefficient outside [0, 1]";
+    case SD_CONTROL_ERR_FRICTION:
+      return "a friction negative or not finite, or Coulomb friction without a positive friction_speed";
     default:                    return "unknown error";
   }
 }
@@ -136,6 +143,20 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
   }
   for (int j = 0; j < nv; j++) {
     tau[j] = s->tau_hold[j];
+  }
+
+  // every small step: friction compensation on the desired velocity. The Coulomb step is
+  // smoothed, tanh(qd_d / friction_speed): a plan that reverses a joint would otherwise step the
+  // command by 2 F_c in one tick (a knock at every reversal), and at rest the sign of a speed a
+  // few encoder counts wide is noise; a compensation on the desired (not the measured) velocity
+  // adds no feedback, so it cannot make the loop chatter
+  if (c->mode != SD_MODE_PD) {
+    for (int j = 0; j < nv; j++) {
+      if (c->friction_coulomb[j] > 0) {
+        tau[j] += c->friction_coulomb[j] * sd_tanh(qd_d[j] / c->friction_speed);
+      }
+      tau[j] += c->friction_viscous[j] * qd_d[j];
+    }
   }
 
   // every small step: the joint PD on top of the held torque

@@ -265,3 +265,6 @@ ADDR_BUS_WATCHDOG = ITEMS["bus_watchdog"].address
 ADDR_GOAL_CURRENT = ITEMS["goal_current"].address
 ADDR_PRESENT = ITEMS["present_current"].address      # Present Current (2), Velocity (4), Position (4)
 PRESENT_LENGTH = sum(ITEMS[n].size for n in ("present_current", "present_velocity", "present_position"))
+# the same read on to Present Temperature (146, 1 byte, °C): what the loop reads at a low rate
+ADDR_PRESENT_TEMPERATURE = ITEMS["present_temperature"].address
+PRESENT_WITH_TEMPERATURE_LENGTH = ADDR_PRESENT_TEMPERATURE + 1 - ADDR_PRESENT

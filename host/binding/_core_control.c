@@ -15,11 +15,13 @@ typedef struct {
 } ControllerObject;
 
 static int Controller_init(ControllerObject* self, PyObject* args, PyObject* kwargs) {
-  static char* kwlist[] = {"core", "mode", "update_ticks", "kp", "kd", "tau_max", NULL};
-  PyObject *core, *kp, *kd, *tau_max;
+  static char* kwlist[] = {"core", "mode", "update_ticks", "kp", "kd", "tau_max", "friction_coulomb",
+                           "friction_viscous", "friction_speed", NULL};
+  PyObject *core, *kp, *kd, *tau_max, *coulomb = NULL, *viscous = NULL;
   int mode, update_ticks;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!iiOOO", kwlist, &CoreType, &core, &mode,
-                                   &update_ticks, &kp, &kd, &tau_max)) {
+  double speed = 0.0;
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!iiOOO|OOd", kwlist, &CoreType, &core, &mode,
+                                   &update_ticks, &kp, &kd, &tau_max, &coulomb, &viscous, &speed)) {
     return -1;
   }
   Py_INCREF(core);
@@ -30,9 +32,12 @@ static int Controller_init(ControllerObject* self, PyObject* args, PyObject* kwa
   c->update_ticks = update_ticks;
   int nv = self->core->model.ndof;
   if (sd_fill(c->kp, kp, nv, "kp") || sd_fill(c->kd, kd, nv, "kd") ||
-      sd_fill(c->tau_max, tau_max, nv, "tau_max")) {
+      sd_fill(c->tau_max, tau_max, nv, "tau_max") ||
+      (coulomb && coulomb != Py_None && sd_fill(c->friction_coulomb, coulomb, nv, "friction_coulomb")) ||
+      (viscous && viscous != Py_None && sd_fill(c->friction_viscous, viscous, nv, "friction_viscous"))) {
     return -1;
   }
+  c->friction_speed = (sd_real)speed;
   int err = sd_control_check(&self->core->model, c);
   if (err != SD_CONTROL_OK) {
     PyErr_Format(PyExc_ValueError, "controller: %s", sd_control_strerror(err));

@@ -122,7 +122,8 @@ static void check_rejects_bad_configs(void) {
 
 static void check_codes_have_messages(void) {
   static const int codes[] = {SD_CONTROL_ERR_MODE, SD_CONTROL_ERR_UPDATE, SD_CONTROL_ERR_BALL,
-                              SD_CONTROL_ERR_GAIN, SD_CONTROL_ERR_LIMIT, SD_CONTROL_ERR_FILTER};
+                              SD_CONTROL_ERR_GAIN, SD_CONTROL_ERR_LIMIT, SD_CONTROL_ERR_FILTER,
+                              SD_CONTROL_ERR_FRICTION};
   const int n = (int)(sizeof codes / sizeof codes[0]);
   const char* unknown = sd_control_strerror(-100);
   for (int k = 0; k < n; k++) {
@@ -798,7 +799,57 @@ static void closed_loop_holds_pendulum(void) {
   EXPECT_GE(last, 0.05, "PD alone leaves a gravity sag: the feed-forward does the holding");
 }
 
+// friction compensation: F_c tanh(qd_d / speed) + F_v qd_d on top of the held RNEA, every small
+// step, in the feed-forward modes; none in PD mode; a bad friction refused at the check
+static void friction_is_compensated_on_the_desired_velocity(void) {
+  unsigned seed = 77;
+  for (int model = 0; model < SDT_NMODEL; model++) {
+    const char* name;
+    if (sdt_model_by_index(&g_model, model, &name) != SD_OK || g_model.free_root) continue;
+    int n = g_model.ndof;
+    configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD, 1, 9);
+    g_cfg.friction_speed = SD_R(0.1);
+    for (int j = 0; j < n; j++) {
+      g_cfg.friction_coulomb[j] = (sd_real)sdt_uniform(&seed, 0.05, 0.5);
+      g_cfg.friction_viscous[j] = (sd_real)sdt_uniform(&seed, 0.0, 0.2);
+    }
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "frictions >= 0 with a speed are accepted");
+    sd_control_reset(&g_state);
+    ctl_states s;
+    sd_real tau[SDT_MAXN], ref[SDT_MAXN];
+    random_states(&seed, &g_model, &s);
+    s.qd_d[0] = SD_R(0.0);          // at rest: no Coulomb term at all
+    sd_rnea(&g_model, &g_ref, s.q_d, s.qd_d, s.qdd_d, NULL, ref);
+    step(&s, tau);
+    double worst = 0;
+    for (int j = 0; j < n; j++) {
+      double qd = (double)s.qd_d[j];
+      double expected = (double)ref[j] + (double)g_cfg.friction_coulomb[j] * tanh(qd / 0.1) +
+                        (double)g_cfg.friction_viscous[j] * qd;
+      worst = fmax(worst, fabs((double)tau[j] - expected) / fmax(1.0, fabs(expected)));
+    }
+    sdt_context("model %s", name);
+    EXPECT_LE(worst, CTL_REL * 10, "tau = RNEA + F_c tanh(qd_d / 0.1) + F_v qd_d");
+    g_cfg.mode = SD_MODE_PD;
+    sd_control_reset(&g_state);
+    step(&s, tau);
+    double pd[SDT_MAXN], off = 0;
+    pd_torque(&g_model, &g_cfg, &s, pd);
+    for (int j = 0; j < n; j++) off = fmax(off, fabs((double)tau[j] - pd[j]));
+    EXPECT_LE(off, CTL_REL * 100, "PD mode compensates nothing: no feed-forward at all");
+  }
+  if (sdt_model_chain3(&g_model) != SD_OK) return;
+  CHECK_REJECTS(g_cfg.friction_coulomb[1] = SD_R(-0.1), SD_CONTROL_ERR_FRICTION,
+                "a negative Coulomb friction would push the joint along");
+  CHECK_REJECTS(g_cfg.friction_viscous[0] = (sd_real)NAN, SD_CONTROL_ERR_FRICTION, "a NaN viscous friction");
+  CHECK_REJECTS(g_cfg.friction_coulomb[0] = SD_R(0.2), SD_CONTROL_ERR_FRICTION,
+                "Coulomb friction needs a smoothing speed (0 would divide by zero)");
+  CHECK_REJECTS((g_cfg.friction_coulomb[0] = SD_R(0.2), g_cfg.friction_speed = (sd_real)INFINITY),
+                SD_CONTROL_ERR_FRICTION, "an infinite smoothing speed is refused");
+}
+
 const sdt_test sdt_control_tests[] = {
+  {"friction_is_compensated_on_the_desired_velocity", friction_is_compensated_on_the_desired_velocity},
   {"check_accepts_good_configs", check_accepts_good_configs},
   {"check_rejects_bad_configs", check_rejects_bad_configs},
   {"check_codes_have_messages", check_codes_have_messages},

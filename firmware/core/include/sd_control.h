@@ -43,6 +43,11 @@ typedef struct sd_control_config_ {
                                   // 1 - exp(-w_c small_time_step) in [0, 1]; 0 for none. The
                                   // measured state is quantised (an encoder tick, a velocity
                                   // unit): this keeps the gains from buzzing at that resolution
+  // friction compensated on the desired velocity, every small step, in every mode but PD:
+  // F_c tanh(qd_d / friction_speed) + F_v qd_d (the Coulomb step smoothed, see control.c)
+  sd_real friction_coulomb[SD_MAX_DOF];   // (ndof) N m; 0 for none
+  sd_real friction_viscous[SD_MAX_DOF];   // (ndof) N m s/rad; 0 for none
+  sd_real friction_speed;                 // rad/s: > 0 where any friction_coulomb is
 } sd_control_config;
 
 typedef struct sd_control_state_ {
@@ -67,10 +72,13 @@ enum sd_control_error_ {
   SD_CONTROL_ERR_GAIN = -4,       // a kp or kd negative or not finite
   SD_CONTROL_ERR_LIMIT = -5,      // a torque limit negative or not finite
   SD_CONTROL_ERR_FILTER = -6,     // an error_lowpass outside [0, 1]
+  SD_CONTROL_ERR_FRICTION = -7,   // a friction negative or not finite, or Coulomb's without a
+                                  // positive finite friction_speed
 };
 
 // Check a configuration against a model: SD_CONTROL_OK or the negative sd_control_error_ code of
-// the first fault found (mode, update period, ball joints, then each dof's gains and limit).
+// the first fault found (mode, update period, ball joints, then each dof's gains, limit and
+// friction).
 int sd_control_check(const struct sd_model_* m, const sd_control_config* c);
 
 // A short static description of an sd_control_check code.
