@@ -73,7 +73,7 @@ from ..model.tree import ModelError
 from .checks import CHECKS, check
 from .fit import FIT_GRID, smallest_passing_scale
 from .limits import Limits
-from .thermal import AMBIENT
+from ..hal.thermal import AMBIENT
 
 FAMILIES = ("dynamixel", "can", "any")
 OBJECTIVES = ("mass", "margin")
