@@ -208,12 +208,25 @@ def supply_voltage_error(voltage: float, joints) -> str | None:
     """Why `voltage` cannot supply these joints' servos, or None. The lowest is half the lowest voltage
     any of their data sheets rates them at (a Dynamixel X's 11.1 V row; its driver cuts out below
     9.5 V, the floor of its Min Voltage Limit): below it no servo runs, and the validator's envelope,
-    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324."""
+    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324. Then
+    the supply range each data sheet allows (ServoSpec.supply_range): 12 V burns a 5 V XL330 (when
+    one supply can feed every servo; servos of no common voltage have a supply each)."""
     rated = min(min([j.servo.nominal_voltage, *(row[0] for row in j.servo.ratings)]) for j in joints)
     low, high = rated / 2, RANGES["voltage"][1]
     if not (_is_number(voltage) and low <= voltage <= high):
         return (f"{voltage:g} V is outside [{low:g}, {high:g}] V: half the lowest voltage the servos' data sheets "
                 f"rate them at ({rated:g} V; below it their drivers cut out), and no servo's supply is above 48 V")
+    # a supply the data sheet does not allow burns or browns out the servo; when no one voltage suits
+    # every servo (replica_mixed: 24 V Damiao motors, 12 V Dynamixels), the robot has a supply per
+    # kind and this one voltage is only the validator's figure: not checked against the ranges
+    spans = [j.servo.supply_range or (j.servo.nominal_voltage,) * 2 for j in joints]
+    if max(low for low, _ in spans) > min(high for _, high in spans):
+        return None
+    for joint in joints:
+        allowed = joint.servo.supply_range
+        if allowed is not None and not allowed[0] <= voltage <= allowed[1]:
+            return (f"{voltage:g} V is outside the {joint.servo.name}'s supply range, {allowed[0]:g} to "
+                    f"{allowed[1]:g} V (its data sheet; joint {joint.dof!r})")
     return None
 
 
@@ -277,6 +290,10 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
                                f"{bus.kind}")
         c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {spec.device_key} ({', '.join(catalogue)})")
     servo = catalogue[servo_name]
+    if not servo.current_control:
+        drivable = ", ".join(k for k, s in catalogue.items() if s.current_control)
+        c.fail(device_key, f"{servo_name} has no current control mode, and the {bus.kind} backend drives every "
+                           f"joint by its torque (Goal Current); choose one that has ({drivable})")
     direction = c.get("direction", "int", 1)
     if direction not in (1, -1):
         c.fail("direction", f"must be +1 or -1, got {direction}")

@@ -26,6 +26,7 @@ from ..control.controller import FRICTION_SPEED
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
 from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
+from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, watchdog_units
 from ..hal.dynamixel.units import ServoMap
@@ -105,7 +106,7 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
     motion = load_motion(motion_name, model)
     period = config.control_period
     swing = motion.sample(period, time_scale=scale)
-    home_gains, swing_gains = plan_gains(model, swing)
+    home_gains, swing_gains = plan_gains(model, swing, joint_sensors(config))
     fields = model_fields(model)
     nb, nd = int(fields["nbody"]), int(fields["ndof"])
 
@@ -165,12 +166,14 @@ const fw_servo fw_servos[FW_NJOINT] = {{
 {chr(10).join(servo_rows)}
 }};
 
-// PD gains planned along homing (from the rest pose) and along the swing: knots, linear between
+// PD gains planned along homing (from the rest pose) and along the swing against the servos'
+// resolution: knots, linear between; and the low-pass of the errors they act on
 const fw_gains fw_home_gains = {{
   .n = FW_NGAIN_HOME,
   .t = {_c(home_gains.t)},
   .kp = {_c(home_gains.kp)},
   .kd = {_c(home_gains.kd)},
+  .error_lowpass = {_c(home_gains.error_lowpass)},
 }};
 
 const fw_gains fw_swing_gains = {{
@@ -178,6 +181,7 @@ const fw_gains fw_swing_gains = {{
   .t = {_c(swing_gains.t)},
   .kp = {_c(swing_gains.kp)},
   .kd = {_c(swing_gains.kd)},
+  .error_lowpass = {_c(swing_gains.error_lowpass)},
 }};
 
 const fw_plan fw_plan_ = {{

@@ -37,6 +37,7 @@ import numpy as np
 from ..control import ControlConfig, Controller
 from ..control.motion import load_motion
 from ..control.schedule import plan_run
+from ..hal.backend import joint_sensors
 from ..hal.config import load_config
 from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
@@ -257,7 +258,7 @@ def replay(config_name: str, record: Record) -> dict:
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
     goals, q_d, phase = [], [], []
     n = 0
-    for segment in plan_run(model, swing, q_meas[0]):
+    for segment in plan_run(model, swing, q_meas[0], sensors=joint_sensors(config)):
         controller.reset()
         for k in range(len(segment.traj.t)):
             if n + 1 >= len(reads):

@@ -34,9 +34,9 @@ from ..control.trajectory import TrajectoryError
 from ..hal.config import builtin_configs, load_config
 from ..hal.errors import ConfigError
 from ..loop.log import RunLogError, read_run_log
-from ..model import ModelError, builtin_models, load_model
+from ..model import ModelError, builtin_models, ik, load_model
 from ..model.files import read_toml
-from ..model.rotations import matrix_to_quat
+from ..model.rotations import matrix_to_quat, quat_to_matrix
 from ..model.shapes import solid_mesh
 from ..validation import Limits, check, describe, torque_speed_ratio, violations
 
@@ -49,6 +49,7 @@ PLOT_WINDOW = 2.0          # s of the plots around the cursor
 SOLID_RGB = (178, 184, 196)
 GHOST_RGB = (90, 160, 255)
 GHOST_OPACITY = 0.35
+GIZMO_SCALE = 0.3          # of the arm's length: the hand's transform gizmo
 
 
 class ViewError(ValueError):
@@ -435,6 +436,7 @@ class MotionEditor:
                                                   min=round(lo, 3), max=round(hi, 3), step=0.1))
             self.save_button = gui.add_button("Save keyframes")
             self.saved = gui.add_markdown(f"saves to `{self.save_to}`")
+        self.hand = HandGizmo(self) if HandGizmo.fits(self.model) else None
         self._loading = False
         self.key.on_update(lambda _: self._load_keyframe())
         self.key_time.on_update(lambda _: self._changed())
@@ -462,6 +464,8 @@ class MotionEditor:
         v = self.viewer
         if v.timeline is not None:
             v.seek((self.motion.t[self.k] - self.motion.t[0]) * self.time_scale)
+        if getattr(self, "hand", None) is not None:
+            self.hand.follow_keyframe()
 
     def _changed(self) -> None:
         if self._loading:
@@ -471,6 +475,19 @@ class MotionEditor:
         t[self.k] = float(self.key_time.value)
         q[self.k] = np.radians([float(h.value) for h in self.angles])
         self.set_keyframe(self.k, t[self.k], q[self.k])
+
+    def show_angles(self) -> None:
+        """The number fields to keyframe k's angles (without counting it as an edit)."""
+        self._loading = True
+        try:
+            for j, handle in enumerate(self.angles):
+                handle.value = round(math.degrees(self.motion.q[self.k, j]), 3)
+        finally:
+            self._loading = False
+
+    def refuse(self, reason: str) -> None:
+        """A refusal on the page, where the editor's refusals go: the verdict line."""
+        self.verdict.content = f"**refused**: {reason}"
 
     def set_keyframe(self, k: int, t_k: float, q_k) -> bool:
         """Replace keyframe k; False (and the reason on the page) if the motion it makes is refused."""
@@ -484,7 +501,7 @@ class MotionEditor:
                                       f"{t[k + 1] if k + 1 < len(t) else math.inf:g} s)")
             motion = replace(self.motion, t=t, q=q)
         except (TrajectoryError, ValueError) as err:
-            self.verdict.content = f"**refused**: {err}"
+            self.refuse(str(err))
             return False
         self.motion = motion
         self.edits += 1
@@ -525,6 +542,127 @@ class MotionEditor:
         save_motion(self.motion, self.save_to)
         self.saved.content = f"saved `{self.save_to}` ({len(self.motion.t)} keyframes)"
         return self.save_to
+
+
+class HandGizmo:
+    """The hand of the selected keyframe as a transform gizmo: a drag event is one inverse
+    kinematics solve from the keyframe's pose (its branch and elbow swivel carried on), the
+    keyframe set to the result (the arm, torques and verdict follow, as for a typed angle), and the
+    angle fields shown. Events that arrive while one is being handled are coalesced: the latest
+    target is handled next, none is queued behind a slow one. A swivel slider turns the elbow about
+    the shoulder-wrist line with the hand held; the reach and each refusal ("out of reach", "no
+    swivel inside the limits") are shown on the page. The hand's orientation is followed when
+    "Turn the hand too" is ticked; otherwise the wrist keeps its angles."""
+
+    @staticmethod
+    def fits(model) -> bool:
+        try:
+            ik.Arm.of(model)
+        except ik.IkError:
+            return False
+        return model.nq == model.nv
+
+    def __init__(self, editor: MotionEditor):
+        self.editor = editor
+        self.model = editor.model
+        self.arm = ik.Arm.of(self.model)
+        self.events = 0              # drag events received
+        self.solves = 0              # inverse kinematics solves done (coalesced events are skipped)
+        self.refusals = 0
+        self.arm_s = []              # s per handled event from its arrival to the arm redrawn (IK, pose)
+        self.handler_s = []          # s per handled event in all: IK, arm, keyframe, torques, verdict
+        self._pending = None
+        self._busy = threading.Lock()
+        self._placing = False
+        self.dragging = False
+        server, gui = editor.viewer.server, editor.viewer.server.gui
+        _, p = self.model.user_poses(self.model.neutral_q())
+        size = GIZMO_SCALE * max(0.2, float(np.linalg.norm(p - p[0], axis=1).max()))
+        self.gizmo = server.scene.add_transform_controls("/hand_target", scale=size, depth_test=False,
+                                                         line_width=3.0)
+        with gui.add_folder("Drag the hand", order=11):
+            self.reach = gui.add_markdown("")
+            self.turn = gui.add_checkbox("Turn the hand too", False)
+            self.swivel = gui.add_slider("Elbow swivel (°)", min=-180.0, max=180.0, step=0.5, initial_value=0.0,
+                                         disabled=self.arm.srs is None)
+        self.gizmo.on_update(self._on_drag)
+        self.swivel.on_update(lambda _: None if self._placing else self.solve_to(*self._hand(), swivel=True))
+
+    def _hand(self):
+        """The gizmo's pose: (position, rotation)."""
+        w, x, y, z = self.gizmo.wxyz
+        return np.asarray(self.gizmo.position, dtype=float), quat_to_matrix([x, y, z, w])
+
+    def follow_keyframe(self) -> None:
+        """Put the gizmo (and the swivel slider) on the selected keyframe's hand."""
+        q = self.editor.motion.q[self.editor.k]
+        R, p = self.arm.hand(q)
+        x, y, z, w = matrix_to_quat(R)
+        self._placing = True
+        try:
+            if not self.dragging:             # never pull the gizmo from under the pointer
+                self.gizmo.position = tuple(p)
+                self.gizmo.wxyz = (w, x, y, z)
+            if self.arm.srs is not None:
+                self.swivel.value = round(math.degrees(self.arm.swivel_of(q[self.arm.q_index])), 1)
+        finally:
+            self._placing = False
+        self._show_reach(float(np.linalg.norm(p - self.arm.srs.S if self.arm.srs else p - self.arm.point[0])))
+
+    def _show_reach(self, distance: float, note: str = "") -> None:
+        far = self.arm.max_reach()
+        self.reach.content = f"reach {distance / far:.2f} ({distance:.3f} m of {far:.3f} m){note}"
+
+    def _on_drag(self, event) -> None:
+        self.events += 1
+        if event.phase == "start":
+            self.dragging = True
+            return
+        if event.phase == "end":
+            self._pending = None
+            with self._busy:
+                self.dragging = False
+                self.follow_keyframe()        # a refused target snaps back to the hand
+            return
+        self._pending = self._hand()
+        # coalesce: whoever holds the lock handles the latest target before letting go
+        while self._pending is not None and self._busy.acquire(blocking=False):
+            try:
+                target, self._pending = self._pending, None
+                if target is not None:
+                    self.solve_to(*target)
+            finally:
+                self._busy.release()
+
+    def solve_to(self, position, rotation, swivel: bool = False) -> bool:
+        """Keyframe k's hand to `position` (and `rotation` with "Turn the hand too"); False and the
+        refusal on the page if inverse kinematics or the editor refuses it."""
+        start = time.perf_counter()
+        ed = self.editor
+        k = ed.k
+        q_prev = ed.motion.q[k]
+        phi = math.radians(float(self.swivel.value)) if swivel and self.arm.srs is not None else None
+        try:
+            with ed.viewer.lock:
+                result = ik.solve(self.model, position, rotation if self.turn.value else None, q_prev=q_prev,
+                                  swivel=phi)
+        except ik.IkError as err:
+            self.refusals += 1
+            ed.refuse(str(err))
+            self._show_reach(float(np.linalg.norm(np.asarray(position) - (self.arm.srs.S if self.arm.srs else
+                                                                          self.arm.point[0]))), " — refused")
+            return False
+        self.solves += 1
+        with ed.viewer.lock:
+            ed.viewer.arm.pose(result.q)      # the arm first: the verdict below takes longer
+            self.arm_s.append(time.perf_counter() - start)
+            # the keyframe, its torques and verdict; the swivel slider and the reach follow the
+            # keyframe there (follow_keyframe)
+            ok = ed.set_keyframe(k, float(ed.motion.t[k]), result.q)
+            if ok:
+                ed.show_angles()
+        self.handler_s.append(time.perf_counter() - start)
+        return ok
 
 
 class LiveFeed:

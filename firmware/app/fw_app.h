@@ -34,6 +34,7 @@ typedef struct fw_gains_ {
   sd_real t[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME];
   sd_real kp[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
   sd_real kd[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
+  sd_real error_lowpass[FW_NJOINT];   // the low-pass of the errors the gains act on (sd_control.h)
 } fw_gains;
 
 typedef struct fw_plan_ {

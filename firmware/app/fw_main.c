@@ -274,6 +274,7 @@ static void schedule_gains(const fw_gains* s, sd_real t) {
   for (int i = 0; i < FW_NJOINT; i++) {
     g.control.kp[i] = s->kp[k][i] + w * (s->kp[k + 1][i] - s->kp[k][i]);
     g.control.kd[i] = s->kd[k][i] + w * (s->kd[k + 1][i] - s->kd[k][i]);
+    g.control.error_lowpass[i] = s->error_lowpass[i];
   }
 }
 

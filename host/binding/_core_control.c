@@ -185,15 +185,17 @@ done:
   return result;
 }
 
-// set_gains(kp, kd): new PD gains from the next step on (gain scheduling), checked like __init__'s
+// set_gains(kp, kd, error_lowpass=None): new PD gains (and the low-pass of the errors they act
+// on; None keeps it) from the next step on (gain scheduling), checked like __init__'s
 static PyObject* Controller_set_gains(ControllerObject* self, PyObject* args) {
-  PyObject *okp, *okd;
-  if (!PyArg_ParseTuple(args, "OO", &okp, &okd)) {
+  PyObject *okp, *okd, *olp = Py_None;
+  if (!PyArg_ParseTuple(args, "OO|O", &okp, &okd, &olp)) {
     return NULL;
   }
   sd_control_config c = self->config;
   int nv = self->core->model.ndof;
-  if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd")) {
+  if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd") ||
+      (olp != Py_None && sd_fill(c.error_lowpass, olp, nv, "error_lowpass"))) {
     return NULL;
   }
   int err = sd_control_check(&self->core->model, &c);
@@ -217,7 +219,7 @@ static PyObject* Controller_get(ControllerObject* self, void* closure) {
 static PyMethodDef Controller_methods[] = {
     {"reset", (PyCFunction)Controller_reset, METH_NOARGS, "start a new run at tick 0"},
     {"set_gains", (PyCFunction)Controller_set_gains, METH_VARARGS,
-     "set_gains(kp, kd): new PD gains from the next step on"},
+     "set_gains(kp, kd, error_lowpass=None): new PD gains (and the errors' low-pass) from the next step on"},
     {"step", (PyCFunction)Controller_step, METH_VARARGS,
      "step(q_d, qd_d, qdd_d, q, qd) -> tau: one small_time_step of the controller"},
     {"simulate", (PyCFunction)Controller_simulate, METH_VARARGS,

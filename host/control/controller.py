@@ -128,12 +128,17 @@ class Controller:
     def reset(self) -> None:
         self._c.reset()
 
-    def set_gains(self, kp, kd) -> None:
-        """New PD gains from the next step on (gain scheduling)."""
+    def set_gains(self, kp, kd, error_lowpass=None) -> None:
+        """New PD gains from the next step on (gain scheduling), and the one-pole low-pass of the
+        errors they act on (per dof, 1 - exp(-w_c dt); 0: none; None: unchanged; see
+        schedule.error_lowpass)."""
         n = self.model.nv
         self.kp = np.broadcast_to(np.asarray(kp, dtype=float), (n,)).copy()
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (n,)).copy()
-        self._c.set_gains(self.kp, self.kd)
+        if error_lowpass is None:
+            self._c.set_gains(self.kp, self.kd)
+        else:
+            self._c.set_gains(self.kp, self.kd, np.broadcast_to(np.asarray(error_lowpass, dtype=float), (n,)).copy())
 
     def step(self, q_d, qd_d, qdd_d, q, qd) -> np.ndarray:
         """One small_time_step: the torques for the measured (q, qd) and the desired state."""

@@ -2,6 +2,7 @@
 
     >>> from servodyn.model import load_model
     >>> arm = load_model("human_arm")            # built-in, or a .urdf / servodyn .toml file
+    >>> from servodyn.model import ik            # inverse kinematics: ik.solve, ik.solve_path
 """
 
 from __future__ import annotations

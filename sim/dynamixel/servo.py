@@ -25,7 +25,8 @@ from .drive import Mechanics, PositionPid
 
 WATCHDOG_TRIPPED = -1
 OVERHEATING = HARDWARE_FAULTS["overheating"]
-_FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "moving"})   # set_present
+_FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "present_load",
+                         "moving"})   # set_present
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 _CHANGES = frozenset({"operating_mode", "torque_enable"})    # items whose change, not the write, acts
 GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
@@ -75,9 +76,12 @@ class Servo:
                     ("id", "drive_mode", "torque_enable", "status_return_level", "hardware_error_status",
                      "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm", "baud_rate",
                      "pwm_limit", "goal_current", "current_limit", "present_input_voltage", "homing_offset",
-                     "moving_threshold", "moving")}
+                     "moving_threshold", "moving")
+                    if name in self.items}       # a model without current control has no current items
+        # Present Current, or Present Load on a model without current control (its unit in current_unit)
         self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
-                                                              "present_current"))
+                                                              "present_current" if model.current_control
+                                                              else "present_load"))
         self._no_load_speed = model.no_load_speed
         self._owner: list[Item | None] = [None] * TABLE_SIZE      # the item holding each byte
         self._layouts: dict[tuple[int, int], tuple] = {}           # (address, length) -> items written
@@ -361,10 +365,16 @@ class Servo:
         for name in ("profile_acceleration", "profile_velocity", *GAIN_ITEMS):
             self._set(name, self.items[name].default)
         self._set("goal_pwm", self.get("pwm_limit"))
-        self._set("goal_current", self.get("current_limit"))
+        self._goal_current_to_limit()
         self._pid.reset()
         if mode == OperatingMode.POSITION:
             self._reset_turns()
+
+    def _goal_current_to_limit(self) -> None:
+        """Goal Current = Current Limit, as a mode switch or power-up leaves it (a model without
+        current control has neither)."""
+        if self.model.current_control:
+            self._set("goal_current", self.get("current_limit"))
 
     def _load_defaults(self, eeprom: bool, writable_only: bool = False) -> None:
         for item in self.items.values():
@@ -374,7 +384,7 @@ class Servo:
     def _power_up(self) -> None:
         self._load_defaults(eeprom=False)
         self._set("goal_pwm", self.get("pwm_limit"))
-        self._set("goal_current", self.get("current_limit"))
+        self._goal_current_to_limit()
         self._registered = None
         self._heard_at = None
         self._pid.reset()
