@@ -175,7 +175,7 @@ class Plant:
         for _ in range(steps):
             position, velocity = self.horn(self.q, self.qd)
             self.chain.output(position, velocity, self.small_time_step, self.current, horn_torque)
-            self.charge_squared += self.current * self.current * self.small_time_step
+            self.charge_squared += self.current * self.current      # x small_time_step in take_heat
             tau = scale * horn_torque + self.stop_torque()
             if self.friction is not None:
                 tau = tau + self.friction.torque(self.model, self.q, self.qd, tau, self.small_time_step)
@@ -187,7 +187,7 @@ class Plant:
     def take_heat(self) -> np.ndarray:
         """∫I² dt (A² s) at each drive since the last call: what heated its winding meanwhile."""
         taken, self.charge_squared = self.charge_squared, np.zeros_like(self.charge_squared)
-        return taken
+        return taken * self.small_time_step
 
     def push(self, k: int, angle: float) -> None:
         """An external push puts joint k at `angle`, past its stop if need be: that stop gives from

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servodyn.hal.config import CONFIGS_DIR, config_from_dict
+from servodyn.hal.config import CONFIGS_DIR, config_from_dict, load_config
 from servodyn.hal.dynamixel.control_table import XM430_W350
 from servodyn.hal.thermal import winding_step
 from servodyn.loop.log import read_run_log
@@ -88,7 +88,10 @@ def test_a_device_gives_scale_times_its_torque_constant(name, scale):
     kt = config.joints[ELBOW].configured_torque_constant
     assert drive.output_torque(1.5, 0.3) == pytest.approx(scale * kt * 1.5, rel=1e-12), "scale x Kt x I"
     nominal = SimulatedRobot(with_sim({}, name)).device("r_elbow_flexion")
-    assert nominal.output_torque(1.5, 0.0) == pytest.approx(kt * 1.5, rel=1e-3), "without [sim] the data sheet's"
+    assert nominal.output_torque(1.5, 0.0) == pytest.approx(kt * 1.5, rel=1e-12), "an empty [sim]: scale 1"
+    default = SimulatedRobot(load_config(name)).device("r_elbow_flexion")
+    assert default.output_torque(1.5, 0.0) == pytest.approx(kt * 1.5, rel=1e-3), \
+        "no [sim]: the data sheet's, which the built-in file's torque_constant rounds to 1e-3"
 
 
 def _hold_motion(path: Path, q) -> Path:

@@ -59,7 +59,9 @@ class RunLog:
         self.qd.append(state.qd)
         self.tau.append(np.array(tau))
         self.current.append(state.current)
-        self.temperature.append(self._unread if state.temperature is None else state.temperature)
+        # a state of a bus that reads no temperature: none, or a record without the field
+        temperature = getattr(state, "temperature", None)
+        self.temperature.append(self._unread if temperature is None else temperature)
         self.tick_seconds.append(seconds)
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
