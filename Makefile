@@ -44,7 +44,10 @@ bench: venv
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench.loop
 	@$(VENV)/bin/python -m servodyn.tools.bench.view
+	@$(VENV)/bin/python -m servodyn.tools.bench.ik
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
+	@$(VENV)/bin/python -m servodyn.tools.bench.size
+	@$(VENV)/bin/python -m servodyn.tools.bench.identify
 	@$(VENV)/bin/python -m servodyn.tools.bench.can
 	@$(VENV)/bin/python -m servodyn.tools.bench.bringup
 	@$(MAKE) --no-print-directory mocap-clips

@@ -1,6 +1,7 @@
 """What each kind of bus is, apart from the bus itself: per backend a static description (its
 servo catalogue, the configuration keys and options it takes, one tick's time on its wire, the
-torque range its commands reach) that the configuration and the validator read without opening a
+torque range its commands reach, the resolution of what its servos report) that the configuration, the
+validator and the gain planning read without opening a
 port or importing a driver. The bus (hal.bus.ServoBus) opens, reads, writes and stops.
 
     backend("dynamixel").wire_time(joints, bus)    # a Backend subclass, imported on first use
@@ -11,6 +12,9 @@ from __future__ import annotations
 
 import importlib
 
+import numpy as np
+
+from ..control.schedule import Sensors
 from .errors import ServoInitializationError
 
 BACKENDS = {   # kind -> "module:class" of its description, imported on first use
@@ -71,6 +75,12 @@ class Backend:
         """(largest joint torque the wire can command, its quantization step), N m."""
         return float("inf"), 0.0
 
+    @classmethod
+    def sensor_steps(cls, joint) -> tuple[float, float]:
+        """(position, velocity) one count of what the servo reports is worth at the joint, rad and
+        rad/s; 0 where the measurement is exact (what the gains are planned against)."""
+        return 0.0, 0.0
+
 
 class Loopback(Backend):
     """No servos: the model alone behind the HAL (hal.loopback)."""
@@ -87,6 +97,13 @@ def backend(kind: str) -> type[Backend]:
         return getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError) as err:
         raise ServoInitializationError(f"bus kind {kind!r}: cannot load {BACKENDS[kind]} ({err})") from err
+
+
+def joint_sensors(config) -> Sensors:
+    """The resolution of every joint's measurement of a configuration (hal.config.RobotConfig),
+    in model dof order, from its backend."""
+    steps = np.array([backend(config.buses[j.bus].kind).sensor_steps(j) for j in config.joints], dtype=float)
+    return Sensors(position_step=steps[:, 0], velocity_step=steps[:, 1])
 
 
 def servo_catalogue(kind: str | None) -> dict:

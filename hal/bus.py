@@ -44,6 +44,9 @@ class JointState:
     qd: np.ndarray            # rad/s
     current: np.ndarray       # A: motor current, positive = positive joint torque
     tau: np.ndarray           # N m: joint torque of that current
+    # °C: each winding's temperature as its servo last reported it (read at a low rate, held between
+    # reads; nan for a joint not read yet); None: the bus does not read temperatures
+    temperature: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

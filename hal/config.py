@@ -22,11 +22,19 @@ from .errors import ConfigError
 from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
-TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control"}
+TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control", "payload", "sim"}
 SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
+# what identification measures (`servodyn identify` writes these names in its patch): each a
+# number >= 0 in its RANGES; absent, the model's armature, the servo's thermal data, no friction
+IDENTIFIED_KEYS = ("friction_coulomb_nm", "friction_viscous_nm_s", "torque_constant_scale", "armature_kg_m2",
+                   "thermal_resistance_k_w", "thermal_time_constant_s")
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
-              "torque_constant", "position_limits", "velocity_limit", "current_limit"}
+              "torque_constant", "position_limits", "velocity_limit", "current_limit", *IDENTIFIED_KEYS}
+PAYLOAD_KEYS = {"body", "mass_kg", "com_m"}
+# the [sim] table (and a plant file): the arm the simulator runs, when it is not the configured one
+SIM_KEYS = {"plant", "mass_scale", "payload", "joint"}
+SIM_JOINT_KEYS = {*IDENTIFIED_KEYS, "friction_static_nm", "stribeck_velocity_rad_s"}
 
 # physically sane ranges (lowest, highest, why): a typo like 1e300 would otherwise reach the
 # firmware's single-precision tables as inf
@@ -41,6 +49,17 @@ RANGES = {
     "current_unit": (0.0, 1.0, "A per register unit; Dynamixel's is a few mA"),
     "voltage": (0.0, 100.0, "V at the servos; their supplies are 5 to 48 V"),
     "current_limit": (0.0, 1000.0, "A"),
+    "friction_coulomb_nm": (0.0, 100.0, "N m at the joint, more than the largest catalogue servo's stall torque"),
+    "friction_static_nm": (0.0, 100.0, "N m at the joint, more than the largest catalogue servo's stall torque"),
+    "friction_viscous_nm_s": (0.0, 100.0, "N m s/rad at the joint: 100 would stop any servo at 0.1 rad/s"),
+    "stribeck_velocity_rad_s": (1e-4, 10.0, "rad/s: the speed over which static friction falls to Coulomb's"),
+    "torque_constant_scale": (0.25, 4.0, "the torque a current really gives over torque_constant's; identified "
+                                         "scales are within 10-30 %, four times off is a slip of units"),
+    "armature_kg_m2": (0.0, 10.0, "kg m^2 reflected at the joint; the replicas' rotors give 0.01 to 0.1"),
+    "thermal_resistance_k_w": (0.0, 100.0, "K/W winding to ambient; servo motors have 1 to 20"),
+    "thermal_time_constant_s": (0.0, 100_000.0, "s; a winding heats in tens to thousands of seconds"),
+    "mass_scale": (0.1, 10.0, "every body's mass and inertia times this"),
+    "mass_kg": (0.0, 100.0, "kg of payload, more than any servo arm lifts"),
 }
 
 
@@ -63,11 +82,23 @@ class JointConfig:
     direction: int                # +1 / -1: servo positive = dof positive / negative
     zero_offset: float            # rad: horn angle at dof = 0
     gear_ratio: float             # horn turns per joint turn
-    torque_constant: float        # N m per A at the horn
+    torque_constant: float        # N m per A at the horn, effective: the configured one x torque_constant_scale
     position_limits: tuple[float, float]   # rad at the joint
     velocity_limit: float         # rad/s at the joint
     current_limit: float          # A
     options: dict = field(default_factory=dict)   # the backend's own keys (Dynamixel: current_unit)
+    # identified (IDENTIFIED_KEYS; the armature is the model's)
+    torque_constant_scale: float = 1.0   # torque_constant = configured value x this
+    friction_coulomb: float = 0.0        # N m at the joint
+    friction_viscous: float = 0.0        # N m s/rad at the joint
+    thermal_resistance: float = 0.0      # K/W winding to ambient (0: not modelled); default the servo's
+    thermal_time_constant: float = 0.0   # s; default the servo's
+
+    @property
+    def configured_torque_constant(self) -> float:
+        """N m per A at the horn as the file's `torque_constant` (or the servo's) gives it, before the
+        identified scale: what the simulator's servos are built from."""
+        return self.torque_constant / self.torque_constant_scale
 
     @property
     def torque_limit(self) -> float:
@@ -93,6 +124,15 @@ class RobotConfig:
     swing_time_scale: float | None = None
     supply: SupplyConfig | None = None    # None: the servos' nominal voltage, no current rating
     control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
+    payload: "Payload | None" = None      # `[payload]`, already in `model`
+    plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
+
+    @property
+    def friction(self) -> dict:
+        """The joints' friction (model dof order) as the controller compensates it: ControlConfig's
+        friction_coulomb and friction_viscous keywords."""
+        return {"friction_coulomb": [j.friction_coulomb for j in self.joints],
+                "friction_viscous": [j.friction_viscous for j in self.joints]}
 
     def joints_on(self, bus: str) -> tuple[JointConfig, ...]:
         return tuple(j for j in self.joints if j.bus == bus)
@@ -168,12 +208,25 @@ def supply_voltage_error(voltage: float, joints) -> str | None:
     """Why `voltage` cannot supply these joints' servos, or None. The lowest is half the lowest voltage
     any of their data sheets rates them at (a Dynamixel X's 11.1 V row; its driver cuts out below
     9.5 V, the floor of its Min Voltage Limit): below it no servo runs, and the validator's envelope,
-    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324."""
+    in proportion to V, would be scaled towards zero, down to 0/0 for a voltage like 5e-324. Then
+    the supply range each data sheet allows (ServoSpec.supply_range): 12 V burns a 5 V XL330 (when
+    one supply can feed every servo; servos of no common voltage have a supply each)."""
     rated = min(min([j.servo.nominal_voltage, *(row[0] for row in j.servo.ratings)]) for j in joints)
     low, high = rated / 2, RANGES["voltage"][1]
     if not (_is_number(voltage) and low <= voltage <= high):
         return (f"{voltage:g} V is outside [{low:g}, {high:g}] V: half the lowest voltage the servos' data sheets "
                 f"rate them at ({rated:g} V; below it their drivers cut out), and no servo's supply is above 48 V")
+    # a supply the data sheet does not allow burns or browns out the servo; when no one voltage suits
+    # every servo (replica_mixed: 24 V Damiao motors, 12 V Dynamixels), the robot has a supply per
+    # kind and this one voltage is only the validator's figure: not checked against the ranges
+    spans = [j.servo.supply_range or (j.servo.nominal_voltage,) * 2 for j in joints]
+    if max(low for low, _ in spans) > min(high for _, high in spans):
+        return None
+    for joint in joints:
+        allowed = joint.servo.supply_range
+        if allowed is not None and not allowed[0] <= voltage <= allowed[1]:
+            return (f"{voltage:g} V is outside the {joint.servo.name}'s supply range, {allowed[0]:g} to "
+                    f"{allowed[1]:g} V (its data sheet; joint {joint.dof!r})")
     return None
 
 
@@ -237,6 +290,10 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
                                f"{bus.kind}")
         c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {spec.device_key} ({', '.join(catalogue)})")
     servo = catalogue[servo_name]
+    if not servo.current_control:
+        drivable = ", ".join(k for k, s in catalogue.items() if s.current_control)
+        c.fail(device_key, f"{servo_name} has no current control mode, and the {bus.kind} backend drives every "
+                           f"joint by its torque (Goal Current); choose one that has ({drivable})")
     direction = c.get("direction", "int", 1)
     if direction not in (1, -1):
         c.fail("direction", f"must be +1 or -1, got {direction}")
@@ -254,12 +311,137 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
     if current_limit > highest + 1e-12:
         c.fail("current_limit", f"{current_limit:g} A exceeds the {servo_name}'s largest current limit, "
                                 f"{how} = {highest:.3g} A")
+    scale = c.within("torque_constant_scale", 1.0)
+    thermal = _thermal(c, servo.thermal_resistance, servo.thermal_time_constant)
     return JointConfig(dof=dof, bus=bus_name, id=servo_id, servo=servo, direction=direction,
                        zero_offset=c.within("zero_offset", 0.0), gear_ratio=gear_ratio,
-                       torque_constant=c.positive("torque_constant", servo.torque_constant),
+                       torque_constant=c.positive("torque_constant", servo.torque_constant) * scale,
                        position_limits=limits,
                        velocity_limit=c.positive("velocity_limit", servo.no_load_speed / gear_ratio),
-                       current_limit=current_limit, options=options)
+                       current_limit=current_limit, options=options, torque_constant_scale=scale,
+                       friction_coulomb=c.within("friction_coulomb_nm", 0.0),
+                       friction_viscous=c.within("friction_viscous_nm_s", 0.0),
+                       thermal_resistance=thermal[0], thermal_time_constant=thermal[1])
+
+
+def _thermal(c: _Checker, resistance: float, time_constant: float) -> tuple[float, float]:
+    """(R_th, τ_th) of a table, each defaulting to the given; both > 0 (modelled) or both 0."""
+    resistance = c.within("thermal_resistance_k_w", resistance)
+    time_constant = c.within("thermal_time_constant_s", time_constant)
+    if (resistance > 0) != (time_constant > 0):
+        key = "thermal_time_constant_s" if resistance > 0 else "thermal_resistance_k_w"
+        c.fail(key, f"must be positive when {'thermal_resistance_k_w' if resistance > 0 else 'thermal_time_constant_s'} "
+                    "is (a winding model needs both; 0 and 0: not modelled)")
+    return resistance, time_constant
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A point mass carried rigidly by a body (`[payload]`, `[sim.payload]`)."""
+    body: str
+    mass: float                   # kg
+    com: tuple | None             # m in the body's frame; None: at the body's own centre of mass
+
+    def on(self, model):
+        return model.with_payload(self.mass, self.body, self.com)
+
+
+def _payload(table, where: str, model) -> Payload:
+    c = _Checker(table, where, PAYLOAD_KEYS)
+    body = c.get("body", "str", model.body_names[-1])
+    if body not in model.body_names:
+        c.fail("body", f"{body!r} is not a body of model '{model.name}' ({', '.join(model.body_names)})")
+    com = None
+    if "com_m" in table:
+        value = table["com_m"]
+        if not (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value))):
+            c.fail("com_m", f"must be a list of three finite numbers (m in the body's frame), got {value!r}")
+        if max(map(abs, value)) > 10.0:
+            c.fail("com_m", f"{value} is more than 10 m from the body's origin")
+        com = tuple(float(v) for v in value)
+    return Payload(body=body, mass=c.within("mass_kg", 0.0), com=com)
+
+
+@dataclass(frozen=True)
+class PlantJoint:
+    """One joint of the simulated arm as it really is (`[sim.joint.<dof>]`); None: the simulated
+    servo's own (its data sheet's torque constant and thermal data, its built-in friction)."""
+    friction_coulomb: float | None = None       # N m at the joint, sliding
+    friction_viscous: float | None = None       # N m s/rad
+    friction_static: float | None = None        # N m to break away from rest (default: Coulomb's)
+    stribeck_velocity: float = 0.02             # rad/s over which static friction falls to Coulomb's
+    torque_constant_scale: float = 1.0          # the torque a current gives / the configured torque_constant's
+    thermal_resistance: float | None = None     # K/W
+    thermal_time_constant: float | None = None  # s
+
+    @property
+    def has_friction(self) -> bool:
+        return self.friction_coulomb is not None or self.friction_viscous is not None or \
+            self.friction_static is not None
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """The arm the simulator runs when the configuration has a `[sim]` table: the model as its file
+    describes it (not the configuration's identified armature and payload), its masses times
+    `mass_scale`, then `[sim]`'s armatures and payload; per joint what `[sim.joint.<dof>]` says."""
+    model: object                 # servodyn.Model of the plant
+    joints: dict                  # dof -> PlantJoint (every dof)
+    payload: Payload | None
+    mass_scale: float
+    source: str                   # where it was read (the configuration, or its plant file)
+
+
+def _plant(table, where: str, base: Path | None, nominal_model) -> PlantSpec:
+    """The `[sim]` table, over its plant file's keys when it names one (relative to the configuration)."""
+    c = _Checker(table, where, SIM_KEYS)
+    merged, source = {}, where
+    if "plant" in table:
+        ref = c.get("plant", "str")
+        path = (base or Path.cwd()) / ref
+        try:
+            merged = read_toml(path, ConfigError, label=path.name)
+        except FileNotFoundError:
+            c.fail("plant", f"{str(path)!r}: no such file")
+        source = path.name
+        _Checker(merged, source, SIM_KEYS - {"plant"})
+    for key, value in table.items():       # [sim]'s own keys over the file's, joint by joint
+        if key == "joint" and isinstance(value, dict) and isinstance(merged.get("joint"), dict):
+            merged["joint"] = {**merged["joint"], **{d: {**merged["joint"].get(d, {}), **t} if isinstance(t, dict)
+                                                     else t for d, t in value.items()}}
+        elif key != "plant":
+            merged[key] = value
+    c = _Checker(merged, source, SIM_KEYS - {"plant"})
+    scale = c.within("mass_scale", 1.0)
+    model = nominal_model.with_mass_scale(scale) if scale != 1.0 else nominal_model
+    tables = merged.get("joint", {})
+    if not isinstance(tables, dict):
+        c.fail("joint", "must be a table of [sim.joint.<dof>] tables")
+    joints, armature = {}, {}
+    for dof, t in tables.items():
+        if dof not in model.dof_names:
+            c.fail("joint", f"{dof!r} is not a dof of model '{model.name}' ({', '.join(model.dof_names)})")
+        j = _Checker(t, f"{source}: joint '{dof}'", SIM_JOINT_KEYS)
+        given = lambda key: j.within(key, 0.0) if key in t else None
+        thermal = _thermal(j, 0.0, 0.0) if {"thermal_resistance_k_w", "thermal_time_constant_s"} & set(t) else \
+            (None, None)
+        joints[dof] = PlantJoint(friction_coulomb=given("friction_coulomb_nm"),
+                                 friction_viscous=given("friction_viscous_nm_s"),
+                                 friction_static=given("friction_static_nm"),
+                                 stribeck_velocity=j.within("stribeck_velocity_rad_s", PlantJoint.stribeck_velocity),
+                                 torque_constant_scale=j.within("torque_constant_scale", 1.0),
+                                 thermal_resistance=thermal[0], thermal_time_constant=thermal[1])
+        if "armature_kg_m2" in t:
+            armature[dof] = j.within("armature_kg_m2", 0.0)
+        static, coulomb = joints[dof].friction_static, joints[dof].friction_coulomb or 0.0
+        if static is not None and static < coulomb:
+            j.fail("friction_static_nm", f"{static:g} N m is below friction_coulomb_nm ({coulomb:g}): an arm "
+                                         "at rest holds at least what slides it")
+    model = model.with_armature(armature) if armature else model
+    payload = _payload(merged["payload"], f"{source}: payload", model) if "payload" in merged else None
+    model = payload.on(model) if payload is not None else model
+    joints = {d: joints.get(d, PlantJoint()) for d in model.dof_names}
+    return PlantSpec(model=model, joints=joints, payload=payload, mass_scale=scale, source=source)
 
 
 def _load_model(ref: str, base: Path | None, where: str):
@@ -314,6 +496,16 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
         raise ConfigError(f"{origin}: bus '{idle[0]}' has no joint (a [[joint]] with bus = \"{idle[0]}\"); remove the "
                           "bus, or give it its joints")
     model = _geared_armature(model, joints)
+    nominal_model = model                 # as the model file describes it: what a [sim] plant starts from
+    armature = {}
+    for k, entry in enumerate(entries):
+        if "armature_kg_m2" in entry:
+            c = _Checker(entry, f"{origin}: joint {k + 1} ({entry['dof']})", set(entry))
+            armature[entry["dof"]] = c.within("armature_kg_m2", 0.0)
+    model = model.with_armature(armature) if armature else model
+    payload = _payload(data["payload"], f"{origin}: payload", model) if "payload" in data else None
+    model = payload.on(model) if payload is not None else model
+    plant = _plant(data["sim"], f"{origin}: sim", base, nominal_model) if "sim" in data else None
     nominal = {j.servo.nominal_voltage for j in joints.values()}
     supply = SupplyConfig(voltage=max(nominal), current_limit=None)
     if "supply" in data:
@@ -335,7 +527,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
             c.fail("period", why)
     return RobotConfig(name=name, path=None, model_ref=model_ref, model=model, buses=buses,
                        joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale,
-                       supply=supply, control_period=period)
+                       supply=supply, control_period=period, payload=payload, plant=plant)
 
 
 def builtin_configs() -> dict[str, Path]:

@@ -73,14 +73,18 @@ class Robot:
             self._reads += 1
             return state
         q, qd, current, tau = (np.zeros(self.n) for _ in range(4))
+        temperature = np.full(self.n, np.nan)
+        read = False                       # whether any bus reads temperatures
         t = 0.0
         for bus in self.buses.values():
             s = bus.read_state()
             k = bus.dof_index
             q[k], qd[k], current[k], tau[k] = s.q, s.qd, s.current, s.tau
+            if s.temperature is not None:
+                temperature[k], read = s.temperature, True
             t = max(t, s.t)
         self._reads += 1
-        return JointState(t=t, q=q, qd=qd, current=current, tau=tau)
+        return JointState(t=t, q=q, qd=qd, current=current, tau=tau, temperature=temperature if read else None)
 
     def write(self, command: JointCommand) -> None:
         if command.q.shape != (self.n,):

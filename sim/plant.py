@@ -13,11 +13,24 @@ Each joint stops at the model's limits, its mechanical range: past one, a critic
 of time constant STOP_TIME_CONSTANT on the joint's own inertia pushes it back (MuJoCo's soft
 limits), so an arm left with torque off hangs on its stops as the real one does instead of folding
 through them (the replicas' elbows sagged 0.05-0.1 rad past full extension in 5 s).
+
+A joint may have friction of its own (`JointFriction`: a plant whose [sim] table gives it, see
+hal/README.md): Coulomb, viscous and a static friction that falls to Coulomb's over a Stribeck
+speed, a real step at zero speed. A step in an explicit integrator chatters or needs a tiny step;
+so, as MuJoCo's frictionloss, it is a bounded force solved at the velocity level: each step, a
+joint whose sliding friction would not reverse it within the step slides, F(q̇) against q̇; the
+others are held with the force that brings them to rest by the step's end, each within ±F at its
+speed (at rest the static friction): one linear solve on M⁻¹ for them all, and where a force
+would exceed its bound the joint slips at it and the rest are solved again (an active set, at
+most one solve per joint), held over the RK4 step
+like the drives' currents. A joint at rest stays there exactly until the torque on it exceeds the
+static friction, and no step can make friction push a joint forwards.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -26,6 +39,55 @@ from servodyn.control.timing import SMALL_TIME_STEP
 
 STOP_TIME_CONSTANT = 0.01     # s: a joint's stop as a spring-damper (natural frequency 100 rad/s:
                               # 0.1 rad a step at 1 ms, well inside RK4's stable range)
+
+
+@dataclass
+class JointFriction:
+    """Friction at the joints (arrays over the dofs; a joint without any: all 0)."""
+    coulomb: np.ndarray           # N m, sliding
+    viscous: np.ndarray           # N m s/rad
+    static: np.ndarray            # N m to break away from rest (>= coulomb)
+    stribeck: np.ndarray          # rad/s over which static falls to Coulomb's
+    _units: np.ndarray | None = None   # unit torques, one row per dof, and a row of none
+
+    def bound(self, qd: np.ndarray) -> np.ndarray:
+        """|friction| at speed q̇: F_c + (F_s − F_c)·exp(−(q̇/v_s)²) + F_v·|q̇|."""
+        return self.coulomb + (self.static - self.coulomb) * np.exp(-(qd / self.stribeck) ** 2) + \
+            self.viscous * np.abs(qd)
+
+    def torque(self, model, q, qd, tau, dt: float) -> np.ndarray:
+        """The friction torque held over the next step of `dt` under the joint torques `tau` (see
+        the module's docstring)."""
+        if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau).all()):
+            return np.zeros_like(qd)
+        # one batched call: the free acceleration, and M⁻¹ column by column (a unit torque's)
+        n = len(qd)
+        if self._units is None or len(self._units) != n + 1:
+            self._units = np.vstack([np.eye(n), np.zeros(n)])
+        rows = model.forward_dynamics(np.tile(q, (n + 1, 1)), np.tile(qd, (n + 1, 1)), tau + self._units)
+        free, inverse = rows[n], (rows[:n] - rows[n]).T
+        bound = self.bound(qd)
+        friction = -np.sign(qd) * bound                  # sliding, against the motion
+        diagonal = np.diag(inverse)
+        after = qd + dt * (free + diagonal * friction)   # each alone: does sliding stop it this step?
+        held = [k for k in range(n) if bound[k] > 0 and (qd[k] == 0 or after[k] * qd[k] <= 0)]
+        if not held:
+            return friction
+        # the held joints at rest by the step's end, each within its friction: solve them all;
+        # the one whose force would exceed its bound most slips at its bound, the rest again
+        friction[held] = 0.0
+        acceleration = free + inverse @ friction
+        while held:
+            wanted = -np.linalg.solve(inverse[np.ix_(held, held)], qd[held] / dt + acceleration[held])
+            excess = np.abs(wanted) / bound[held]
+            if excess.max() <= 1.0:
+                friction[held] = wanted
+                break
+            worst = int(np.argmax(excess))
+            k = held.pop(worst)
+            friction[k] = math.copysign(bound[k], wanted[worst])
+            acceleration += inverse[:, k] * friction[k]
+        return friction
 
 
 class Drive(Protocol):
@@ -71,7 +133,7 @@ class Plant:
 
     def __init__(self, model, joints: Sequence, drives: Sequence[Drive], *,
                  small_time_step: float = SMALL_TIME_STEP, q0=None, integrator: str = "rk4",
-                 chain: Chain | None = None):
+                 chain: Chain | None = None, friction: JointFriction | None = None):
         if [j.dof for j in joints] != list(model.dof_names) or len(drives) != len(joints):
             raise ValueError("Plant: one joint and one drive per dof of the model, in its dof order")
         self.model, self.drives = model, list(drives)
@@ -84,6 +146,8 @@ class Plant:
         self.q = model.neutral_q() if q0 is None else np.array(q0, dtype=float)
         self.qd = np.zeros(model.nv)
         self.current = np.zeros(model.nv)          # A at each drive, over the last step
+        self.charge_squared = np.zeros(model.nv)   # A² s: ∫I² dt at each drive since take_heat()
+        self.friction = friction                   # at the joints, besides the drives' own
         self.time = 0.0
         # the stops: the model's limits, each dof's inertia where the arm starts (the spring's time
         # constant is close to STOP_TIME_CONSTANT wherever the arm is); a stop can be broken (stops)
@@ -111,11 +175,19 @@ class Plant:
         for _ in range(steps):
             position, velocity = self.horn(self.q, self.qd)
             self.chain.output(position, velocity, self.small_time_step, self.current, horn_torque)
-            self.q, self.qd = self.model.step(self.q, self.qd, scale * horn_torque + self.stop_torque(),
-                                              self.small_time_step, self.integrator)
+            self.charge_squared += self.current * self.current      # x small_time_step in take_heat
+            tau = scale * horn_torque + self.stop_torque()
+            if self.friction is not None:
+                tau = tau + self.friction.torque(self.model, self.q, self.qd, tau, self.small_time_step)
+            self.q, self.qd = self.model.step(self.q, self.qd, tau, self.small_time_step, self.integrator)
             self.time += self.small_time_step
             self.publish()
 
+
+    def take_heat(self) -> np.ndarray:
+        """∫I² dt (A² s) at each drive since the last call: what heated its winding meanwhile."""
+        taken, self.charge_squared = self.charge_squared, np.zeros_like(self.charge_squared)
+        return taken * self.small_time_step
 
     def push(self, k: int, angle: float) -> None:
         """An external push puts joint k at `angle`, past its stop if need be: that stop gives from

@@ -21,6 +21,14 @@ it by the wall clock, and `wall_clock()` puts the servos' own clocks (Bus Watchd
 on it too, so a host that dies is noticed in real time even when the plant falls behind. A port's
 `wire_clock()` times the bytes as a servo's receiver does (a frame with a gap over 1.5 ms between
 bytes is dropped). Every transport serving the robot takes `robot.lock` around it.
+
+The arm it runs is the configuration's unless its `[sim]` table says otherwise (hal/config.py's
+PlantSpec, hal/README.md): then the plant's model is `[sim]`'s (masses scaled, armatures, a
+payload), and each joint's device gives `torque_constant_scale` × the configured torque constant
+per ampere (while it reports the current it draws), has the joint's friction instead of its own
+small built-in one (sim/plant.py's JointFriction), and its winding the thermal constants given.
+Dynamixel servos heat by the validator's winding model (hal/thermal.py) once a control period on
+their mean I², and report it in Present Temperature; CAN motors heat themselves every step.
 """
 
 from __future__ import annotations
@@ -29,19 +37,24 @@ import dataclasses
 import threading
 import time as _time
 
+import numpy as np
+
 from servodyn.control.timing import plant_step
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
+from servodyn.hal.thermal import AMBIENT
 
 from .bench import Bench, require
 from .can import CanMotor, CanNetwork
 from .dynamixel import Servo, ServoChain, VirtualBus
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
-from .plant import Plant, PlantView
+from .plant import JointFriction, Plant, PlantView
 
 PUSHED = 0.5     # rad beyond its upper limit an external push moves a joint ("pushed"): past
                  # the host's and the firmware's range margins (0.05, 0.35 rad)
+HEAT_PERIOD = 0.01   # s: the Dynamixel servos' windings are stepped on their mean I² this often (their
+                     # time constants are minutes; Present Temperature counts whole degrees)
 FAULTS = ("silent", "pushed", "overheat", *HARDWARE_FAULTS, *WIRE_FAULTS, *CAN_WIRE_FAULTS)
 
 
@@ -54,12 +67,17 @@ class SimulatedRobot(PlantView):
         if not kinds <= {"can", "dynamixel"}:
             raise ValueError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
                              f"(this configuration has {', '.join(sorted(kinds))})")
-        self.config, self.model = config, config.model
+        self.config = config
+        self.model = config.plant.model if config.plant is not None else config.model
         self.joints = [next(j for j in config.joints if j.dof == name) for name in self.model.dof_names]
         voltage = config.supply.voltage if config.supply else None
         self.bench = bench.set_up(config, self.joints) if bench is not None else None
         self.drives = [self._device(j, config.buses[j.bus], voltage, self.bench) for j in self.joints]
+        for joint, drive in zip(self.joints, self.drives):
+            self._as_plant(joint, drive)
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
+        self._heated = [(d, k) for k, d in enumerate(self.drives) if isinstance(d, Servo)]   # heat()ed here
+        self._unheated = 0.0               # s the plant ran since the servos' windings were stepped
         self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
         wired = lambda j: self.bench is None or j.dof in self.bench.connected
         on_bus = lambda name: [d for d, j in zip(self.drives, self.joints) if j.bus == name and wired(j)]
@@ -72,7 +90,7 @@ class SimulatedRobot(PlantView):
                                 zero_offset=self.bench.mounting[j.dof].zero_offset) for j in self.joints]
         self.plant = Plant(self.model, mounted, self.drives, small_time_step=small_time_step, q0=q0,
                            integrator=integrator, chain=chain if chain is not None and chain.covers(self.drives)
-                           else None)
+                           else None, friction=self._friction())
         # the servos' clock is the plant's until wall_clock(); no byte timeout until a port's wire_clock()
         self._servo_clock = lambda: self.plant.time
         self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
@@ -103,14 +121,43 @@ class SimulatedRobot(PlantView):
             kind, what = CanMotor, "CAN motors"
         else:
             def configured():
-                return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud)
+                return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud, temperature=AMBIENT)
 
             def fresh():
-                return Servo.factory_fresh(joint.servo, position=0.0, zero_ticks=0)
+                return Servo.factory_fresh(joint.servo, position=0.0, zero_ticks=0, temperature=AMBIENT)
             kind, what = Servo, "Dynamixel servos"
         if bench is None:
             return configured()
         return bench.device(joint.dof, bus.kind, what, fresh, configured, kind)
+
+    def _as_plant(self, joint, drive) -> None:
+        """The device as the plant's joint really is ([sim.joint.<dof>]); without [sim], as it is made."""
+        plant = self.config.plant
+        if plant is None:
+            return
+        spec = plant.joints[joint.dof]
+        torque_constant = spec.torque_constant_scale * joint.configured_torque_constant
+        thermal = (spec.thermal_resistance, spec.thermal_time_constant) if spec.thermal_resistance is not None \
+            else drive.thermal
+        drive.thermal = thermal
+        if isinstance(drive, CanMotor):
+            drive.torque_constant = torque_constant
+            if spec.has_friction:
+                drive.viscous = drive.coulomb = 0.0
+        else:
+            friction = {"viscous_friction": 0.0, "coulomb_friction": 0.0} if spec.has_friction else {}
+            drive.mechanics = dataclasses.replace(drive.mechanics, torque_constant=torque_constant, **friction)
+
+    def _friction(self) -> JointFriction | None:
+        """The joints' friction of a [sim] plant that gives any (None: the devices' own only)."""
+        plant = self.config.plant
+        if plant is None or not any(plant.joints[d].has_friction for d in self.model.dof_names):
+            return None
+        specs = [plant.joints[d] for d in self.model.dof_names]
+        coulomb = np.array([s.friction_coulomb or 0.0 for s in specs])
+        static = np.array([s.friction_static if s.friction_static is not None else c for s, c in zip(specs, coulomb)])
+        return JointFriction(coulomb=coulomb, viscous=np.array([s.friction_viscous or 0.0 for s in specs]),
+                             static=static, stribeck=np.array([s.stribeck_velocity for s in specs]))
 
     # --- the buses --------------------------------------------------------------------------------
 
@@ -126,6 +173,12 @@ class SimulatedRobot(PlantView):
     def advance(self, duration: float) -> None:
         """Run the plant; the servos' clocks (bus watchdog, Realtime Tick) follow."""
         self.plant.advance(duration)
+        self._unheated += duration
+        if self._unheated >= HEAT_PERIOD:
+            elapsed, self._unheated = self._unheated, 0.0
+            heat = self.plant.take_heat() / elapsed                   # mean I² meanwhile
+            for servo, k in self._heated:
+                servo.heat(heat[k], elapsed)
         self.tick()
 
     def tick(self) -> None:

@@ -22,7 +22,9 @@ from servodyn.hal.can.motors import DM_J4310, DM_J4340, MOTORS
 
 ROOT = Path(__file__).resolve().parent.parent
 CODEC = ROOT / "hal" / "can" / "c"
-RANGES = [m.ranges for m in MOTORS.values()] + [frames.Ranges(12.5, 65.0, 200.0)]
+# the ranges of a motor of each kind and a wide one (the codec is range-generic; every catalogue
+# motor's ranges seed the fuzz target, fuzz/can/seeds.py)
+RANGES = [MOTORS[name].ranges for name in ("DM-J4340", "DM-J4310", "AK80-9")] + [frames.Ranges(12.5, 65.0, 200.0)]
 # Damiao's feedback layout (DM_CAN.py), built by hand: motor 3 enabled, p code 0x8000, v code 0x800,
 # t code 0x7FF, 35 and 41 degC
 DAMIAO_VENDOR_FEEDBACK = bytes([0x13, 0x80, 0x00, 0x80, 0x07, 0xFF, 35, 41])

@@ -30,6 +30,16 @@ def test_documents_quote_what_the_commands_print():
         "(review the diff):\n" + proc.stdout[-20000:] + proc.stderr[-5000:])
 
 
+def test_no_committed_document_reads_pending():
+    """*pending* is for a branch whose command others are still fixing; what lands quotes real
+    figures (a pending block regenerates as pending, so the check above would not catch it)."""
+    files = subprocess.run(["git", "ls-files", "*.md", "*.toml"], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout.split()
+    pending = [f for f in files if "*pending*" in (ROOT / f).read_text(encoding="utf-8")
+               and not f.startswith("tests/")]
+    assert pending == [], f"documents with figures still pending: {pending}"
+
+
 def test_a_failing_command_leaves_its_figures_pending():
     """A command others are still fixing: its figures read *pending*, with the command and why;
     once it runs, `make docs` fills them in and the check above fails until it has."""

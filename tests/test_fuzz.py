@@ -74,6 +74,6 @@ def test_can_seeds_are_valid_frames_of_every_kind_for_each_motor():
             decoder(r, rest)   # raises FrameError on a frame that is not of its kind
         kinds.add((prefix, kind))
     per_motor = {kind for _, kind in kinds}
-    assert len(per_motor) >= 14 and len(kinds) == 3 * len(per_motor), \
-        f"every kind of frame for each of the three motors: {sorted(per_motor)}"
+    assert len(per_motor) >= 14 and len(kinds) == len(MOTORS) * len(per_motor), \
+        f"every kind of frame for each of the {len(MOTORS)} motors: {sorted(per_motor)}"
     assert {"regression_float_huge_range", "regression_denormal_range"} <= set(corpus), "the crashes replay"

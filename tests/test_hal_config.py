@@ -59,8 +59,8 @@ def test_servo_table():
     assert xm430.current_limit_max * xm430.current_unit == pytest.approx(3.209, abs=1e-3), "1193 x 2.69 mA"
     assert xm540.current_limit_max * xm540.current_unit == pytest.approx(5.506, abs=1e-3), "2047 x 2.69 mA"
     assert xm430.no_load_speed == pytest.approx(46 * 2 * math.pi / 60), "XM430-W350: 46 rpm no-load at 12 V"
-    assert {s.model_number for s in SERVOS.values()} == {1020, 1120, 1000, 1100}, \
-        "Model Number: XM430-W350 1020, XM540-W270 1120, XH430-W350 1000, XH540-W270 1100"
+    assert {n: SERVOS[n].model_number for n in ("XM430-W350", "XM540-W270", "XH430-W350", "XH540-W270")} == \
+        {"XM430-W350": 1020, "XM540-W270": 1120, "XH430-W350": 1000, "XH540-W270": 1100}, "Model Number(0), e-manual"
 
 
 def test_defaults_come_from_the_servo_and_the_model():
@@ -236,7 +236,7 @@ def test_replica_model_matches_human_arm():
         assert np.allclose(unit(p[5] - p[3]), unit(h[2] - h[1]), atol=1e-12), "forearm direction"
 
 
-@pytest.mark.parametrize("servo_name", sorted(SERVOS))
+@pytest.mark.parametrize("servo_name", sorted(n for n, s in SERVOS.items() if s.current_control))
 def test_every_servo_the_configuration_accepts_is_simulated(servo_name):
     """One data sheet per servo model, read by the configuration and by the simulator: a replica
     whose wrist servo is any accepted model loads, and the simulated servo answers a ping with
@@ -290,3 +290,108 @@ def test_a_gear_stage_scales_the_motors_armature():
     assert config.model.armature[0] == pytest.approx(4 * 0.14), "0.14 kg m² x 2²"
     assert np.array_equal(config.model.armature[1:], plain[1:]), "the other dofs unchanged"
     assert plain[0] == 0.14, "without a stage, the motor's own"
+
+
+# --- the identified numbers: [[joint]] keys, [payload], [sim] -------------------------------------
+
+@pytest.mark.parametrize("key, value, message", [
+    ("friction_coulomb_nm", -0.1, "'friction_coulomb_nm' -0.1 is outside [0, 100]"),
+    ("friction_viscous_nm_s", math.nan, "'friction_viscous_nm_s' must be a finite number, got nan"),
+    ("torque_constant_scale", 5.0, "'torque_constant_scale' 5 is outside [0.25, 4]"),
+    ("torque_constant_scale", "1.1", "'torque_constant_scale' must be a finite number, got '1.1'"),
+    ("armature_kg_m2", 11.0, "'armature_kg_m2' 11 is outside [0, 10]"),
+    ("thermal_resistance_k_w", 0.0, "'thermal_resistance_k_w' must be positive when thermal_time_constant_s is"),
+    ("thermal_time_constant_s", math.inf, "'thermal_time_constant_s' must be a finite number, got inf"),
+])
+def test_identified_joint_keys_refused_in_one_line(key, value, message):
+    """Each identified key out of its range (or not a finite number) stops the load with one line
+    naming the file, the joint and the key."""
+    with pytest.raises(ConfigError) as err:
+        build(set_joint(3, key, value))
+    text = str(err.value)
+    assert "\n" not in text and text.startswith("test.toml: joint 4 (r_elbow_flexion): ") and message in text, text
+
+
+def test_identified_joint_keys_are_used():
+    """Accepted: the torque constant every conversion uses is the configured one x the scale
+    (2.409 x 1.15 = 2.770 N m/A), friction and thermal constants as given, the armature replaces
+    the model's at that dof (0.02 kg m², the other dofs keep theirs)."""
+    def mutate(data):
+        data["joint"][0].update(torque_constant_scale=1.15, friction_coulomb_nm=0.3, friction_viscous_nm_s=0.05,
+                                armature_kg_m2=0.02, thermal_resistance_k_w=4.0, thermal_time_constant_s=100.0)
+    config, nominal = build(mutate), load_config("replica")
+    j = config.joints[0]
+    assert j.torque_constant == pytest.approx(2.409 * 1.15, rel=1e-12), "effective Kt = configured x scale"
+    assert j.configured_torque_constant == pytest.approx(2.409, rel=1e-12), "the file's torque_constant"
+    assert (j.friction_coulomb, j.friction_viscous) == (0.3, 0.05), "friction as given"
+    assert (j.thermal_resistance, j.thermal_time_constant) == (4.0, 100.0), "thermal constants as given"
+    assert config.model.armature[0] == pytest.approx(0.02, abs=1e-15), "the armature key replaces the model's"
+    assert np.allclose(config.model.armature[1:], nominal.model.armature[1:], atol=0), "other dofs keep theirs"
+    assert config.joints[1].thermal_resistance == config.joints[1].servo.thermal_resistance > 0, \
+        "a joint without thermal keys: its servo's data sheet estimate"
+
+
+def test_payload_table_is_in_the_model():
+    """[payload] 0.3 kg at the hand's centre of mass adds exactly 0.3 kg and, at rest, the
+    gravity torque the model's own with_payload gives (1e-12 N m: the same operation)."""
+    config = build(lambda d: d.update(payload={"mass_kg": 0.3}))
+    nominal = load_config("replica").model
+    assert config.model.total_mass - nominal.total_mass == pytest.approx(0.3, abs=1e-12), "0.3 kg more"
+    q = (nominal.lower + nominal.upper) / 2
+    zero = np.zeros(nominal.nv)
+    expected = nominal.with_payload(0.3, "r_hand").inverse_dynamics(q, zero, zero)
+    assert np.allclose(config.model.inverse_dynamics(q, zero, zero), expected, atol=1e-12), "gravity with the payload"
+    assert config.payload.body == "r_hand", "the last body by default"
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"mass_kg": -1.0}, "test.toml: payload: 'mass_kg' -1 is outside [0, 100]"),
+    ({"mass_kg": 0.3, "body": "r_foot"}, "test.toml: payload: 'body' 'r_foot' is not a body of model 'replica'"),
+    ({"mass_kg": 0.3, "com_m": [0.0, 0.1]}, "test.toml: payload: 'com_m' must be a list of three finite numbers"),
+    ({"mass": 0.3}, "test.toml: payload: unknown key 'mass'"),
+])
+def test_payload_table_refused_in_one_line(table, message):
+    with pytest.raises(ConfigError) as err:
+        build(lambda d: d.update(payload=table))
+    assert str(err.value).startswith(message) and "\n" not in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"mass_scale": 0.0}, "test.toml: sim: 'mass_scale' 0 is outside [0.1, 10]"),
+    ({"joint": {"r_knee": {}}}, "test.toml: sim: 'joint' 'r_knee' is not a dof of model 'replica'"),
+    ({"joint": {"r_elbow_flexion": {"friction_coulomb_nm": 0.3, "friction_static_nm": 0.2}}},
+     "test.toml: sim: joint 'r_elbow_flexion': 'friction_static_nm' 0.2 N m is below friction_coulomb_nm (0.3)"),
+    ({"joint": {"r_elbow_flexion": {"stiction": 1.0}}}, "test.toml: sim: joint 'r_elbow_flexion': unknown key 'stiction'"),
+    ({"plant": "no_such_plant.toml"}, "test.toml: sim: 'plant'"),
+    ({"payload": {"mass_kg": 200.0}}, "test.toml: sim: payload: 'mass_kg' 200 is outside [0, 100]"),
+])
+def test_sim_table_refused_in_one_line(table, message):
+    with pytest.raises(ConfigError) as err:
+        build(lambda d: d.update(sim=table))
+    assert str(err.value).startswith(message) and "\n" not in str(err.value), str(err.value)
+
+
+def test_sim_plant_file_and_its_table(tmp_path):
+    """A plant file (relative to the configuration) gives the plant; [sim]'s own keys override it
+    key by key. The plant starts from the model file, not from the configuration's identified
+    [payload] and armature: patching the configuration leaves the simulated arm as it was."""
+    (tmp_path / "plant.toml").write_text(
+        "mass_scale = 1.1\n[payload]\nmass_kg = 0.3\n"
+        "[joint.r_elbow_flexion]\nfriction_coulomb_nm = 0.2\ntorque_constant_scale = 1.2\n"
+        "[joint.r_wrist_flexion]\narmature_kg_m2 = 0.03\n")
+    data = copy.deepcopy(REPLICA)
+    data["model"] = "replica"
+    data["payload"] = {"mass_kg": 0.5}                       # the controller's belief
+    data["joint"][3]["armature_kg_m2"] = 0.09
+    data["sim"] = {"plant": "plant.toml", "joint": {"r_elbow_flexion": {"torque_constant_scale": 0.9}}}
+    config = config_from_dict(data, origin="test.toml", base=tmp_path)
+    nominal = load_config("replica").model
+    plant = config.plant
+    assert plant.model.total_mass == pytest.approx(1.1 * nominal.total_mass + 0.3, rel=1e-12), \
+        "masses x 1.1, then the file's 0.3 kg payload (not the configuration's 0.5 kg)"
+    elbow = plant.joints["r_elbow_flexion"]
+    assert (elbow.friction_coulomb, elbow.torque_constant_scale) == (0.2, 0.9), "[sim]'s scale over the file's"
+    assert plant.model.armature[5] == pytest.approx(0.03, abs=1e-15), "the file's armature"
+    assert plant.model.armature[3] == pytest.approx(nominal.armature[3], abs=1e-15), \
+        "the configuration's identified armature is not the plant's"
+    assert plant.joints["r_shoulder_flexion"].has_friction is False, "a joint the plant does not name: its own"

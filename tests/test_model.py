@@ -366,3 +366,20 @@ def test_long_urdf_chains_load_without_recursion(tmp_path):
     (tmp_path / "long.urdf").write_text(chain(500))
     with pytest.raises(ModelError, match=r"long.urdf: a model needs 1 to \d+ bodies, got 250"):
         servodyn.load_model(tmp_path / "long.urdf")
+
+
+def test_mass_scale_scales_every_rigid_body_torque():
+    """with_mass_scale(1.2): every body's mass and inertia x 1.2, so every rigid-body torque (gravity,
+    inertia, velocity products) x 1.2 exactly (1e-12 relative) while the armature's share stays;
+    a scale <= 0 is refused in one line."""
+    model = servodyn.load_model("replica")
+    scaled = model.with_mass_scale(1.2)
+    rng = np.random.default_rng(7)
+    q = rng.uniform(model.lower, model.upper, (20, model.nq))
+    qd, qdd = rng.uniform(-2, 2, (2, 20, model.nv))
+    armature = model.armature * qdd
+    expected = 1.2 * (model.inverse_dynamics(q, qd, qdd) - armature) + armature
+    assert np.allclose(scaled.inverse_dynamics(q, qd, qdd), expected, rtol=1e-12, atol=1e-12)
+    assert scaled.total_mass == pytest.approx(1.2 * model.total_mass, rel=1e-14)
+    with pytest.raises(ModelError, match="mass scale must be a finite number > 0, got 0"):
+        model.with_mass_scale(0.0)

@@ -26,7 +26,9 @@ MOTORS = {"replica_dm": ["DM-J4340"] * 4 + ["DM-J4310"] * 3,
 
 
 def _housings(model):
-    """(body index, solid, part name) of every actuator housing: a solid of a part's mass and size."""
+    """(body index, solid, part name) of every actuator housing: a solid of a part's mass and size.
+    Parts of one case and mass (the X430 family's XM430-W350, -W210, XH430-W350, ...) are one
+    housing: the name is the first of them in the catalogue, the one the built-in models use."""
     catalogue = parts()
     found = []
     for i, body in enumerate(model.bodies):
@@ -35,6 +37,7 @@ def _housings(model):
                 dims = part.get("semi_axes") or [part[k] for k in ("radius", "length") if k in part]
                 if solid.mass == part["mass"] and np.allclose(sorted(solid.dims), sorted(dims), rtol=0, atol=1e-12):
                     found.append((i, solid, name))
+                    break
     return found
 
 

@@ -20,7 +20,8 @@ from servodyn.sim.dynamixel import Mechanics, Servo, ServoChain, VirtualBus
 from servodyn.sim.plant import STOP_TIME_CONSTANT, Drives
 
 CONFIG = load_config("replica")
-MODELS = list(SERVOS.values())
+# the models one C chain drives (a model without current control has other items: each servo on its own)
+MODELS = [m for m in SERVOS.values() if m.current_control]
 RAM_WRITABLE = [item for item in MODELS[0].items() if item.writable and not item.eeprom]
 
 

@@ -376,3 +376,45 @@ def test_cli_csv_whose_spline_overflows(tmp_path):
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "huge.csv: the motion between the samples overflows" in lines[0], lines[0]
+
+
+def test_identified_friction_scale_thermal_and_payload_change_the_checks(tmp_path):
+    """The configuration's identified numbers are what the checks use. The elbow spun at a constant
+    1 rad/s: with 0.3 N m of Coulomb and 0.1 N m s/rad of viscous friction the torque it needs is
+    the rigid body's + 0.4 N m, and with torque_constant_scale 0.8 its current is that over
+    0.8 x 1.783 N m/A (each to 1e-9: the same arithmetic); a [payload] of 0.5 kg is the model's
+    (its hold torque equals --payload 0.5's, 1e-9); thermal constants of 24 K/W, 60 s heat the
+    abduction more than the data sheet's 6 K/W, 420 s over the same hold."""
+    names = load_config("replica").model.dof_names
+    elbow = names.index("r_elbow_flexion")
+    start = np.zeros(7)
+    start[elbow] = 0.5
+    motion = ramp(tmp_path / "spin.csv", names, elbow, 1.0, seconds=0.5, start=start)
+    nominal = config()
+
+    def identified(data):
+        data["joint"][elbow].update(friction_coulomb_nm=0.3, friction_viscous_nm_s=0.1, torque_constant_scale=0.8)
+    tuned = config(identified)
+    path = motion_path(motion, nominal.model)
+    base = check(nominal.model, Limits.of(nominal, 12.0), path.at_scale(1.0, 1e-3))
+    got = check(tuned.model, Limits.of(tuned, 12.0), path.at_scale(1.0, 1e-3))
+    moving = np.abs(base.qd[:, elbow]) > 0.5
+    assert np.allclose(got.tau[moving, elbow], base.tau[moving, elbow] + 0.4, atol=1e-9), "RNEA + F_c + F_v q̇"
+    no_load = tuned.joints[elbow].servo.no_load_current
+    expected = np.abs(got.tau[:, elbow]) / (0.8 * 1.783) + no_load
+    assert np.allclose(got.current[:, elbow], expected, atol=1e-9), "current through the scaled torque constant"
+    assert got.peak("current")[elbow] > 1.5 * base.peak("current")[elbow], "a larger current ratio"
+
+    loaded = config(lambda d: d.update(payload={"mass_kg": 0.5}))
+    held = hold(tmp_path / "hold.csv", names, ABDUCTED, seconds=5.0)
+    with_table = validate(loaded, held, **QUIET)
+    with_flag = validate(nominal, held, payload=0.5, **QUIET)
+    for dof in names:
+        assert with_table["joints"][dof]["peak_torque_nm"] == pytest.approx(
+            with_flag["joints"][dof]["peak_torque_nm"], abs=1e-9), f"{dof}: [payload] is --payload"
+
+    def hot(data):
+        data["joint"][1].update(thermal_resistance_k_w=24.0, thermal_time_constant_s=60.0)
+    datasheet = with_flag["joints"]["r_shoulder_abduction"]["peak_temperature_c"]
+    assert validate(config(hot), held, payload=0.5, **QUIET)["joints"]["r_shoulder_abduction"][
+        "peak_temperature_c"] > datasheet + 5.0, "the configured thermal constants, not the data sheet's"

@@ -260,3 +260,44 @@ def test_a_trajectory_csv_plays_with_its_torques(tmp_path):
         assert np.array_equal(v.timeline.tau, result.tau) and np.array_equal(v.timeline.share, result.ratios["torque_speed"])
     finally:
         v.close()
+
+
+def test_dragging_the_hand_solves_ik_and_the_verdict_follows(viewer):
+    """Drag events on the hand's gizmo (as viser delivers them): each is one IK solve from the
+    keyframe's pose, the keyframe's hand lands on the gizmo (1e-9 m), the torques shown are the
+    edited motion's; the swivel slider turns the elbow with the hand held; a target out of reach
+    is refused on the verdict line and changes nothing; the drag's end puts the gizmo back on the hand."""
+    from types import SimpleNamespace
+    ed = viewer.editor
+    hand = ed.hand
+    ed.key.value = 3
+    q0 = ed.motion.q[ed.k].copy()
+    _, p0 = hand.arm.hand(q0)
+    hand._on_drag(SimpleNamespace(phase="start"))
+    for step in range(1, 6):
+        hand.gizmo.position = tuple(p0 + step * np.array([0.004, -0.002, 0.003]))
+        hand._on_drag(SimpleNamespace(phase="update"))
+        _, p = hand.arm.hand(ed.motion.q[ed.k])
+        assert np.abs(p - hand.gizmo.position).max() < 1e-9, "the keyframe's hand is on the gizmo"
+    hand._on_drag(SimpleNamespace(phase="end"))
+    q1 = ed.motion.q[ed.k].copy()
+    assert np.degrees(np.abs(q1 - q0)).max() > 0.5, "the drag moved the keyframe"
+    assert np.array_equal(q1[4:], q0[4:]), "without 'Turn the hand too' the wrist keeps its angles"
+    traj = ed.motion.sample(1e-3, ed.time_scale)
+    peak = np.abs(viewer.model.inverse_dynamics(traj.q, traj.qd, traj.qdd)).max(axis=0)
+    assert ", ".join(f"{v:.3f}" for v in peak) in ed.verdict.content, "the readout is the dragged motion's"
+    assert "reach 0." in hand.reach.content, hand.reach.content
+    # the swivel slider: the elbow turns about the shoulder-wrist line, the hand stays
+    hand.swivel.value = round(math.degrees(hand.arm.swivel_of(q1[hand.arm.q_index])) + 10.0, 1)
+    assert hand.solve_to(*hand._hand(), swivel=True), ed.verdict.content
+    q2 = ed.motion.q[ed.k]
+    assert hand.arm.swivel_of(q2[hand.arm.q_index]) == pytest.approx(math.radians(hand.swivel.value), abs=1e-9)
+    assert np.abs(hand.arm.hand(q2)[1] - hand.arm.hand(q1)[1]).max() < 1e-9, "the hand held"
+    # out of reach: refused, nothing changed, and the gizmo back on the hand at the drag's end
+    edits = ed.edits
+    hand.gizmo.position = (0.0, -1.0, 0.0)
+    hand._on_drag(SimpleNamespace(phase="update"))
+    assert "refused" in ed.verdict.content and "out of reach" in ed.verdict.content, ed.verdict.content
+    assert ed.edits == edits, "a refused drag changes no keyframe"
+    hand._on_drag(SimpleNamespace(phase="end"))
+    assert np.abs(np.asarray(hand.gizmo.position) - hand.arm.hand(ed.motion.q[ed.k])[1]).max() < 1e-9

@@ -106,3 +106,91 @@ def test_typing_a_keyframe_angle_updates_the_torque_readout(page):
                      "the page to show the edited motion's torques")
     assert readout not in before and "edits: 1" in after, "the torque readout changed with the keyframe"
 
+
+
+def _projector(browser, viewer):
+    """World point → page pixel, from the camera the page reports to the server (OpenCV axes:
+    x right, y down, z forward; a vertical field of view) and the canvas's place on the page."""
+    import math
+    from servodyn.model.rotations import quat_to_matrix
+    client = wait_for(lambda: next(iter(viewer.server.get_clients().values()), None), "the page's client")
+    cam = client.camera
+    wait_for(lambda: cam.fov > 0, "the page's camera")
+    left, top, width, height = browser.eval("(() => { const r = document.querySelector('canvas')"
+                                            ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()")
+    w, x, y, z = cam.wxyz
+    R = quat_to_matrix([x, y, z, w])
+    f = (height / 2) / math.tan(cam.fov / 2)
+
+    def project(X):
+        c = R.T @ (np.asarray(X, dtype=float) - cam.position)
+        return np.array([left + width / 2 + f * c[0] / c[2], top + height / 2 + f * c[1] / c[2]])
+    return project
+
+
+def _drag_hand_outwards(browser, viewer, pixels: float):
+    """Press on the gizmo's arrow that points farthest from the shoulder and drag it `pixels`
+    along the arrow with the mouse, as a person would; returns the arrow's world direction."""
+    import time
+    from servodyn.model.rotations import quat_to_matrix
+    hand = viewer.editor.hand
+    project = _projector(browser, viewer)
+    centre = np.asarray(hand.gizmo.position, dtype=float)
+    w, x, y, z = hand.gizmo.wxyz
+    axes = quat_to_matrix([x, y, z, w]).T                      # rows: the gizmo's x, y, z in the world
+    outwards = axes[int(np.argmax(axes @ (centre - hand.arm.srs.S)))]
+    grab = project(centre + 0.8 * hand.gizmo.scale * outwards)
+    along = grab - project(centre)
+    along /= np.linalg.norm(along)
+    mouse = lambda kind, p, **kw: browser.call("Input.dispatchMouseEvent", type=kind, x=float(p[0]), y=float(p[1]),
+                                               **kw)
+    mouse("mouseMoved", grab)
+    mouse("mousePressed", grab, button="left", buttons=1, clickCount=1)
+    steps = max(int(pixels // 3), 1)
+    for i in range(1, steps + 1):
+        mouse("mouseMoved", grab + along * pixels * i / steps, button="left", buttons=1)
+        time.sleep(0.03)
+    mouse("mouseReleased", grab + along * pixels, button="left", buttons=0, clickCount=1)
+    return outwards
+
+
+def test_dragging_the_hand_gizmo_moves_the_keyframe_and_the_verdict(page):
+    """The hand's transform gizmo of keyframe 4 dragged with the mouse along its outward arrow:
+    inverse kinematics moves keyframe 4's angles (the page's fields show them), the hand follows
+    the gizmo, and the page's torque readout becomes the edited motion's; dragged far past the
+    arm's reach, the page shows the refusal and the keyframe stays inside the limits."""
+    viewer, browser = page
+    ed, hand = viewer.editor, viewer.editor.hand
+    assert hand is not None, "the replica's editor has a hand gizmo"
+    wait_for(lambda: "Drag the hand" in browser.text(), "the drag panel")
+    ed.key.value = 4
+    q_before = ed.motion.q[ed.k].copy()
+    R, p = hand.arm.hand(q_before)
+    assert np.abs(np.asarray(hand.gizmo.position) - p).max() < 1e-9, "the gizmo sits on keyframe 4's hand"
+    solves = hand.solves
+    outwards = _drag_hand_outwards(browser, viewer, 30)
+    wait_for(lambda: hand.solves > solves and not hand.dragging, "the drag to reach the server and end")
+    q_after = ed.motion.q[ed.k].copy()
+    moved = np.degrees(np.abs(q_after - q_before)).max()
+    assert moved > 1.0, f"keyframe 4's angles moved {moved:.2f}° at most"
+    _, p_after = hand.arm.hand(q_after)
+    assert (p_after - p) @ outwards > 0.005, "the hand went along the dragged arrow, more than 5 mm"
+    assert np.abs(np.asarray(hand.gizmo.position) - p_after).max() < 1e-9, "the gizmo ends on the hand"
+    j = int(np.argmax(np.abs(q_after - q_before)))
+    label = f"{viewer.model.dof_names[j]} (°)"
+    shown = wait_for(lambda: (lambda v: v if v is not None and abs(float(v) - np.degrees(q_after[j])) < 1e-3 else None)(
+        browser.eval(f"(() => {{ const l = [...document.querySelectorAll('label')].find(x => x.innerText.trim() === "
+                     f"'{label}'); const i = l && document.getElementById(l.htmlFor); return i ? i.value : null; }})()")),
+        f"the page's {label} field to show the new angle")
+    assert abs(float(shown) - np.degrees(q_after[j])) < 1e-3
+    traj = ed.motion.sample(1e-3, ed.time_scale)
+    peak = np.abs(viewer.model.inverse_dynamics(traj.q, traj.qd, traj.qdd)).max(axis=0)
+    readout = ", ".join(f"{v:.3f}" for v in peak)
+    wait_for(lambda: readout in browser.text(), "the page to show the dragged motion's torques")
+    # far past the reach: refused on the page, the keyframe still inside the limits
+    refusals = hand.refusals
+    _drag_hand_outwards(browser, viewer, 400)
+    wait_for(lambda: hand.refusals > refusals and not hand.dragging, "the refusal")
+    wait_for(lambda: "refused: out of reach" in browser.text(), "the page to show the refusal")
+    q_k = ed.motion.q[ed.k]
+    assert np.all(q_k >= viewer.model.lower) and np.all(q_k <= viewer.model.upper), "in the limits"

@@ -318,17 +318,56 @@ def cmd_firmware(args) -> None:
 def cmd_validate(args) -> int:
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
-    from .validate import validate
+    from .validate import expand_motions, validate, validate_many
+    options = dict(time_scale=args.time_scale, payload=args.payload, payload_body=args.payload_body,
+                   payload_com=args.payload_com, supply_voltage=args.supply_voltage, margin=args.margin,
+                   repeat=args.repeat, ambient=args.ambient, fit=args.fit, retime_motion=args.retime,
+                   simulate_motion=args.simulate)
     try:
         config = load_config(args.config)
-        report = validate(config, args.motion, time_scale=args.time_scale, payload=args.payload,
-                          payload_body=args.payload_body, payload_com=args.payload_com,
-                          supply_voltage=args.supply_voltage, margin=args.margin, repeat=args.repeat,
-                          ambient=args.ambient, fit=args.fit, retime_motion=args.retime,
-                          simulate_motion=args.simulate, out=Path(args.out))
+        motions = expand_motions(args.motion)
+        if len(args.motion) == 1 and motions == args.motion:       # one motion: its report, as always
+            report = validate(config, motions[0], out=Path(args.out), **options)
+            return 0 if report["passed"] else 1
+        return validate_many(config, motions, jobs=args.jobs, out=Path(args.out), **options)["code"]
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
+
+
+def cmd_size(args) -> int:
+    from .size import SizingError, progress_line, run_size, text
+    try:
+        report = run_size(args.model, args.motion, time_scale=args.time_scale, payload=args.payload,
+                          supply_voltage=args.supply_voltage, margin=args.margin, family=args.family,
+                          objective=args.objective, jobs=args.jobs, repeat=args.repeat, out=Path(args.out),
+                          yes=args.yes, say=print, progress=None if args.json else progress_line)
+    except (SizingError, ValueError) as err:
+        raise CliError(str(err)) from None
+    if args.json:
+        import json
+        print(json.dumps(report, indent=1))
+    else:
+        print(text(report))
     return 0 if report["passed"] else 1
+
+
+def cmd_excite(args) -> int:
+    from .excite import ExciteError, run
+    try:
+        return run(args.config, args.duration, args.joints, Path(args.out), harmonics=args.harmonics,
+                   margin=args.margin, seed=args.seed)
+    except ExciteError as err:
+        raise CliError(str(err)) from None
+
+
+def cmd_identify(args) -> int:
+    from .identify import IdentifyError, run
+    try:
+        return run(args.config, args.logs, args.payload_body, args.known_payload, args.arm, Path(args.out),
+                   cutoff=args.cutoff, apply_to=args.write, apply=args.apply, yes=args.yes,
+                   warn=lambda line: print(line, file=sys.stderr))
+    except IdentifyError as err:
+        raise CliError(str(err)) from None
 
 
 def cmd_view(args) -> None:
@@ -769,7 +808,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "current limit and winding temperature, the supply's rating, the bus's time per "
                        "tick and the range the wire can command. Exit status 0 pass, 1 fail, 2 bad input.")
     p.add_argument("config", help="robot configuration: built-in name or .toml file")
-    p.add_argument("motion", help="built-in motion, keyframe file (.toml) or trajectory CSV (.csv)")
+    p.add_argument("motion", nargs="+", help="built-in motion, keyframe file (.toml) or trajectory CSV (.csv); "
+                   "several, a folder of CSVs or a glob ('logs/*.csv'): one verdict each, OUT/<motion>/ "
+                   "each report, OUT/summary.json, exit status the worst")
+    p.add_argument("--jobs", type=count(1, 256, "processes"), default=1, metavar="N",
+                   help="validate several motions in N processes (default 1)")
     p.add_argument("--time-scale", type=float, default=1.0, metavar="S",
                    help="play the motion S times slower (default 1: as written)")
     p.add_argument("--payload", type=float, default=0.0, metavar="KG", help="a point mass carried at the hand")
@@ -847,6 +890,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--yes", action="store_true", help="overwrite OUT.bvh without asking")
     p.set_defaults(func=cmd_export_bvh)
 
+    p = sub.add_parser("size", help="choose each joint's servo so that the motions pass",
+                       description="Choose a servo per joint from the catalogue (the Dynamixel and CAN servos "
+                       "servodyn drives) so that every motion passes every check of `servodyn validate`, each "
+                       "chosen servo's housing and rotor mounted on the model (a heavier wrist servo loads the "
+                       "shoulder): from the hand inwards, the lightest that passes (or, --objective margin, the "
+                       "lightest set with the largest reserve). Writes OUT/config.toml and OUT/model.toml, "
+                       "validates them on every motion, and OUT/size.json. When nothing passes it names the "
+                       "joint and check, and the time scale at which a set would. Exit status 0 a set passes, "
+                       "1 none does, 2 bad input.")
+    p.add_argument("model", help="model: built-in name or servodyn model file (.toml)")
+    p.add_argument("--motion", action="append", required=True, metavar="M",
+                   help="built-in motion, keyframe file or trajectory CSV (repeatable: every one must pass)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="S",
+                   help="play the motions S times slower (default 1: as written)")
+    p.add_argument("--payload", type=float, default=0.0, metavar="KG", help="a point mass carried at the hand")
+    p.add_argument("--supply-voltage", type=float, default=None, metavar="V",
+                   help="supply voltage (default: each of the family's nominal voltages, the best result)")
+    p.add_argument("--margin", type=float, default=1.0, metavar="F",
+                   help="fraction of each limit allowed (default 1.0; 0.8 keeps 20%% in reserve)")
+    p.add_argument("--family", choices=sizing_families(), default="dynamixel",
+                   help="which servos: dynamixel, can or any (default dynamixel)")
+    p.add_argument("--objective", choices=("mass", "margin"), default="mass",
+                   help="the lightest set (default), or the set with the largest reserve")
+    p.add_argument("--repeat", type=count(1, 10_000, "plays"), default=1, metavar="N",
+                   help="plays in a row, for the heat (default 1)")
+    p.add_argument("--jobs", type=count(1, 256, "processes"), default=1, metavar="N",
+                   help="spread the motions over N processes (default 1)")
+    p.add_argument("--out", default="out/size", help="output folder (default out/size)")
+    p.add_argument("--yes", action="store_true", help="overwrite OUT/config.toml and OUT/model.toml without asking")
+    p.add_argument("--json", action="store_true", help="print the report as JSON (no progress on stderr)")
+    p.set_defaults(func=cmd_size)
 
     p = sub.add_parser("ik", help="joint angles that put the hand at a point (or along a path)",
                        description="Inverse kinematics of the hand (the origin of the last body, the wrist centre "
@@ -874,12 +948,62 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--end", default=None, metavar="BODY", help="the hand body (default: r_hand, else the last)")
     p.set_defaults(func=cmd_ik)
 
+    p = sub.add_parser("excite", help="write an exciting trajectory for servodyn identify",
+                       description="A finite Fourier series per joint (Swevers et al.), its coefficients chosen "
+                       "for a well conditioned identification, starting and ending at rest, written as a "
+                       "trajectory CSV for servodyn swing --motion. The margin: each joint stays inside its "
+                       "position limits less --margin of its range at both ends and under 0.6 of its velocity "
+                       "limit; then servodyn validate checks it on the configuration, and while it fails every "
+                       "excursion is scaled by 0.85. Exit status 0 written, 2 bad input.")
+    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S",
+                   help="seconds, whole periods of about 10 s (default 30)")
+    p.add_argument("--joints", nargs="+", default=None, metavar="DOF", help="only these joints move (default all)")
+    p.add_argument("--harmonics", type=count(2, what="harmonics"), default=5, metavar="N",
+                   help="harmonics per joint (default 5)")
+    p.add_argument("--margin", type=float, default=0.1, metavar="F",
+                   help="fraction of each joint's range kept clear at both ends (default 0.1)")
+    p.add_argument("--seed", type=count(0, what="seed"), default=0, help="the optimiser's start (default 0)")
+    p.add_argument("--out", default="out/excite/excitation.csv", metavar="CSV",
+                   help="trajectory CSV to write (default out/excite/excitation.csv)")
+    p.set_defaults(func=cmd_excite)
+
+    p = sub.add_parser("identify", help="friction, armature, torque constants, payload from logs",
+                       description="Least squares on swing logs (t, q_*, current_*; torque = current x "
+                       "torque_constant x gear_ratio): per joint Coulomb and viscous friction, armature, "
+                       "with --known-payload a torque-constant scale, from temperature_* columns the thermal "
+                       "resistance and time constant; the payload's mass and centre of mass at a body. q and "
+                       "the current go through one 4th-order Butterworth low-pass forwards and backwards "
+                       "(zero lag, -6 dB at --cutoff) before q is differentiated twice. Writes "
+                       "OUT/identified.json, OUT/patch.toml and OUT/torque_fit.png; what the logs cannot "
+                       "determine is reported so, never invented. Exit status 0 done, 1 patch declined, "
+                       "2 bad input.")
+    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders)")
+    p.add_argument("--payload-body", default=None, metavar="BODY", help="the body carrying the payload (default: the last)")
+    p.add_argument("--known-payload", type=float, default=0.0, metavar="KG",
+                   help="the last LOG carried this mass more, at the payload body's centre of mass (as validate "
+                        "--payload puts it): makes each joint's torque-constant scale identifiable")
+    p.add_argument("--arm", action="store_true",
+                   help="the whole arm's base inertial parameters instead of a payload")
+    p.add_argument("--cutoff", type=float, default=10.0, metavar="HZ", help="the low-pass's cut-off (default 10 Hz)")
+    p.add_argument("--out", default="out/identify", help="output folder (default out/identify)")
+    p.add_argument("--apply", action="store_true",
+                   help="also patch the configuration (comments kept), after showing the change and asking")
+    p.add_argument("--write", default=None, metavar="FILE", help="with --apply: write the patched configuration here")
+    p.add_argument("--yes", action="store_true", help="with --apply: write without asking")
+    p.set_defaults(func=cmd_identify)
+
     p = sub.add_parser("demo", help="torque profile of a sample reach of the built-in arm",
                        description="Torque profile of a sample reach of the built-in arm: CSV and PNG.")
     p.add_argument("--model", default="human_arm", help="model (default human_arm)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
     return parser
+
+
+def sizing_families() -> tuple[str, ...]:
+    return ("dynamixel", "can", "any")
 
 
 def _file_error(err: OSError, args) -> str:

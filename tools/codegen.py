@@ -22,9 +22,11 @@ import numpy as np
 
 from .. import _core
 from ..control import ControlConfig
+from ..control.controller import FRICTION_SPEED
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
 from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
+from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, watchdog_units
 from ..hal.dynamixel.units import ServoMap
@@ -104,7 +106,7 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
     motion = load_motion(motion_name, model)
     period = config.control_period
     swing = motion.sample(period, time_scale=scale)
-    home_gains, swing_gains = plan_gains(model, swing)
+    home_gains, swing_gains = plan_gains(model, swing, joint_sensors(config))
     fields = model_fields(model)
     nb, nd = int(fields["nbody"]), int(fields["ndof"])
 
@@ -128,7 +130,9 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
             f"   .nm_per_amp = SD_R({_num(j.torque_constant * j.gear_ratio)}), "
             f".current_limit = SD_R({_num(j.current_limit)}), "
             f".q_min = SD_R({_num(j.position_limits[0])}), .q_max = SD_R({_num(j.position_limits[1])}), "
-            f".qd_max = SD_R({_num(j.velocity_limit)})}},  // {j.dof}")
+            f".qd_max = SD_R({_num(j.velocity_limit)}),\n"
+            f"   .friction_coulomb = SD_R({_num(j.friction_coulomb)}), "
+            f".friction_viscous = SD_R({_num(j.friction_viscous)})}},  // {j.dof}")
     update_ticks = ControlConfig(small_time_step=period).update_ticks
 
     header = _HEADER.format(config=config.name) + f"""// Robot '{config.name}': model '{config.model_ref}', {nb} bodies, {nd} dofs, {len(joints)} servos on one
@@ -162,12 +166,14 @@ const fw_servo fw_servos[FW_NJOINT] = {{
 {chr(10).join(servo_rows)}
 }};
 
-// PD gains planned along homing (from the rest pose) and along the swing: knots, linear between
+// PD gains planned along homing (from the rest pose) and along the swing against the servos'
+// resolution: knots, linear between; and the low-pass of the errors they act on
 const fw_gains fw_home_gains = {{
   .n = FW_NGAIN_HOME,
   .t = {_c(home_gains.t)},
   .kp = {_c(home_gains.kp)},
   .kd = {_c(home_gains.kd)},
+  .error_lowpass = {_c(home_gains.error_lowpass)},
 }};
 
 const fw_gains fw_swing_gains = {{
@@ -175,6 +181,7 @@ const fw_gains fw_swing_gains = {{
   .t = {_c(swing_gains.t)},
   .kp = {_c(swing_gains.kp)},
   .kd = {_c(swing_gains.kd)},
+  .error_lowpass = {_c(swing_gains.error_lowpass)},
 }};
 
 const fw_plan fw_plan_ = {{
@@ -188,6 +195,7 @@ const fw_plan fw_plan_ = {{
   .read_size = {PRESENT_LENGTH},
   .goal_address = {ADDR_GOAL_CURRENT},
   .overrun_tolerance = SD_R({_num(OVERRUN_TOLERANCE)}),
+  .friction_speed = SD_R({_num(FRICTION_SPEED)}),
 }};
 """
     return {"servodyn_gen.h": header, "servodyn_gen.c": source}

@@ -81,6 +81,22 @@ class ConfigPatch:
                 table[key] = new
             self._changes.append((f"joint '{dof}'", key, old, new))
 
+    def set_table(self, name: str, **values) -> None:
+        """Set keys of the top-level table [name] (added at the file's end when absent)."""
+        if name not in self.document:
+            self.document.add(name, tomlkit.table())
+        table = self.document[name]
+        for key, new in values.items():
+            if isinstance(new, float):
+                new = float(f"{new:.6g}") if math.isfinite(new) else new
+            if isinstance(new, (list, tuple)):
+                new = [float(f"{v:.6g}") for v in new]
+            old = _plain(table.get(key)) if key in table else None
+            if old == new:
+                continue
+            table[key] = new
+            self._changes.append((f"[{name}]", key, old, new))
+
     def changes(self) -> list[str]:
         """One line per value that changes: where, key, old -> new."""
         return [f"{where}: {key} {'(unset)' if old is None else _shown(old)} -> {_shown(new)}"

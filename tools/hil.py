@@ -37,6 +37,7 @@ import numpy as np
 from ..control import ControlConfig, Controller
 from ..control.motion import load_motion
 from ..control.schedule import plan_run
+from ..hal.backend import joint_sensors
 from ..hal.config import load_config
 from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
@@ -250,13 +251,14 @@ def replay(config_name: str, record: Record) -> dict:
     limit = [j.current_limit for j in config.joints]
     scale = config.swing_time_scale or 1.0
     swing = load_motion("tennis_forehand", model).sample(config.control_period, time_scale=scale)
-    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period))
+    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period,
+                                                 **config.friction))
     reads = record.reads
     q_meas = [units.from_ticks(r[:, 2]) for r in reads]
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
     goals, q_d, phase = [], [], []
     n = 0
-    for segment in plan_run(model, swing, q_meas[0]):
+    for segment in plan_run(model, swing, q_meas[0], sensors=joint_sensors(config)):
         controller.reset()
         for k in range(len(segment.traj.t)):
             if n + 1 >= len(reads):

@@ -123,7 +123,10 @@ def pose_report(model: Model, result: ik.IkResult, end: str | None = None) -> li
     how = "closed form (S-R-S)" if result.method == "srs" else f"damped least squares, {result.iterations} iterations"
     swivel = "" if math.isnan(result.swivel) else f", swivel {math.degrees(result.swivel):.2f}°"
     lines.append(f"reach {result.reach:.3f} ({result.reach_m:.4f} m of {arm.max_reach():.4f} m){swivel}")
-    lines.append(f"error {result.position_error:.2e} m, {result.rotation_error:.2e} rad ({how})")
+    def small(x, unit):
+        # rounding's digits differ from machine to machine: below 1e-12 is exact here
+        return f"< 1e-12 {unit}" if x < 1e-12 else f"{x:.2e} {unit}"
+    lines.append(f"error {small(result.position_error, 'm')}, {small(result.rotation_error, 'rad')} ({how})")
     return lines
 
 

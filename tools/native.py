@@ -62,6 +62,7 @@ def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe
     part = lambda p: swing[:, HEAD + p * n:HEAD + (p + 1) * n]
     log.t = list((swing[:, 0] - home_ticks) * SMALL_TIME_STEP)
     log.q_d, log.q, log.qd, log.tau, log.current = (list(part(p)) for p in range(5))
+    log.temperature = list(np.full((len(swing), n), np.nan))      # the native loop reads none
     log.tick_start, log.tick_seconds = list(swing[:, 1]), list(swing[:, 2])
     log.cpu_seconds = log.process_cpu_seconds = list(swing[:, 3])    # one thread: the process's own
     log.missed = int(report.get("missed", 0))

@@ -36,6 +36,7 @@ from ..control.timing import SMALL_TIME_STEP
 from ..errors import ExitCode
 from ..hal.config import load_config
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
+from ..loop.log import PER_DOF
 from .argtypes import OneLineParser, count
 from .hil import run_qemu
 from .swing import run_swing
@@ -174,7 +175,7 @@ def _check_log(path: Path, ticks: int, ndof: int, period: float = SMALL) -> list
     if not text.endswith("\n"):
         return ["the log's last line is cut"]
     rows = list(csv.reader(text.splitlines()))
-    width = 1 + 5 * ndof
+    width = 1 + len(PER_DOF) * ndof
     if any(len(r) != width for r in rows):
         return ["a log row with a wrong number of fields"]
     if len(rows) - 1 != ticks:

@@ -27,11 +27,12 @@ from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError, exit_code
+from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
 from ..hal.host import is_pseudo_terminal
 from ..hal.robot import Robot
-from ..loop import Interrupted, Overrun, RunLog, follow, summarize
+from ..loop import CHATTER_CUTOFF_HZ, Interrupted, Overrun, RunLog, follow, summarize
 from ..loop.realtime import one_cpu
 from ..validation import MotionRefused, judge
 from .native import BUILT_FOR, fault_message, run_native
@@ -169,7 +170,9 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
             if server is not None:
                 server.stop()
             raise
-        controller = Controller(model, ControlConfig(mode=mode, small_time_step=period), q_start=swing.q[0])
+        friction = config.friction if feedforward else {}      # compensated with the feed-forward
+        controller = Controller(model, ControlConfig(mode=mode, small_time_step=period, **friction),
+                                q_start=swing.q[0])
         log = RunLog(model.dof_names) if log is None else log
         log.stream(out / "swing_log.csv")
         error = None
@@ -180,7 +183,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
         restore_signals = _signals_stop_the_run(stopping)
         try:
             home, played = plan_run(model, swing, bus.read_state().q if start_pose is None else start_pose,
-                                    home_duration)
+                                    home_duration, joint_sensors(config))
             if dry_run:
                 say(f"dry run: torque off; the homing's {home.traj.t[-1]:g} s read and logged with the torques "
                     "the controller would send (none is sent)")
@@ -415,19 +418,6 @@ def _fault_injector(server, fault_at, played, config):
     return inject
 
 
-def encoder_step(joint) -> float | None:
-    """rad at the joint of one count of the position its servo reports: a Dynamixel's register
-    (ticks per horn turn), a CAN motor's 16-bit MIT position over ±p_max; None when not known."""
-    servo = joint.servo
-    if getattr(servo, "ticks_per_rev", None):
-        horn = 2 * np.pi / servo.ticks_per_rev
-    elif getattr(servo, "ranges", None) is not None:
-        horn = 2 * servo.ranges.p_max / 65535
-    else:
-        return None
-    return horn / joint.gear_ratio
-
-
 def _title(summary: dict, config: RobotConfig | None) -> str:
     """The figure's title: what played, where, and under which control (PD only says so)."""
     control = "PD only, no feed-forward" if summary.get("mode") == "pd" else "feed-forward + PD"
@@ -440,10 +430,21 @@ def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True, conf
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
         return
     e = np.array(log.q_d) - np.array(log.q)
-    say(f"\n  {'dof':<24} {'rms (deg)':>10} {'max (deg)':>10}")
+    buzz = summary.get("chatter_by_dof") or {}
+    say(f"\n  {'':<24} {'tracking error':>21}   {'torque above ' + format(CHATTER_CUTOFF_HZ, 'g') + ' Hz':>25}")
+    say(f"  {'dof':<24} {'rms (deg)':>10} {'max (deg)':>10}   {'rms/peak (%)':>12} {'p-p (N m)':>12}")
     for k, name in enumerate(log.dof_names):
+        noise = (f"{100 * buzz[name]['rms_share']:>12.2f} {buzz[name]['peak_to_peak_nm']:>12.3f}"
+                 if name in buzz else f"{'-':>12} {'-':>12}")
         say(f"  {name:<24} {np.degrees(np.sqrt(np.mean(e[:, k]**2))):>10.3f} "
-            f"{np.degrees(np.abs(e[:, k]).max()):>10.3f}")
+            f"{np.degrees(np.abs(e[:, k]).max()):>10.3f}   {noise}")
+    if summary.get("chatter_max") is not None:
+        met = (summary["chatter_max"] <= summary["chatter_goal"]
+               and summary["tracking_max_rad"] <= summary["tracking_goal_rad"])
+        say(f"  goal: chatter <= {100 * summary['chatter_goal']:g} % of each joint's peak torque (worst "
+            f"{100 * summary['chatter_max']:.2f} %) with the largest error <= "
+            f"{np.degrees(summary['tracking_goal_rad']):g} deg (worst {np.degrees(summary['tracking_max_rad']):.3f} "
+            f"deg): {'met' if met else 'not met'}")
     cpu = summary["cpu_ms_per_tick"]
     say(f"\n  loop {summary['loop_hz']:.0f} Hz, {summary['clock']} (period median "
         f"{summary['period_median_ms']:.3f} ms, p99 jitter {summary['jitter_p99_ms']:.3f} ms; CPU per tick "
@@ -453,7 +454,7 @@ def _write(out: Path, log: RunLog, summary: dict, say, figure: bool = True, conf
         say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}")
         return
     limits = [j.torque_limit for j in config.joints] if config is not None else None
-    steps = [encoder_step(j) for j in config.joints] if config is not None else None
+    steps = list(joint_sensors(config).position_step) if config is not None else None
     tracking_figure(out / "swing_tracking.png", np.array(log.t), np.array(log.q_d), np.array(log.q),
                     np.array(log.tau), log.dof_names, _title(summary, config), limits, steps)
     say(f"wrote {out / 'swing_log.csv'}, {out / 'summary.json'}, {out / 'swing_tracking.png'}")

@@ -7,17 +7,21 @@ Exit status 0 pass, 1 fail, 2 bad input; DIR/report.json and plots in DIR.
 
 from __future__ import annotations
 
+import glob
 import json
 import math
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..control.motion import motion_path
-from ..control.trajectory import write_trajectory_csv
+from ..control.trajectory import TrajectoryError, write_trajectory_csv
 from ..hal.config import supply_voltage_error
 from ..loop import RunLog
+from ..model import ModelError
 from ..readable import fixed
 from ..validation import AMBIENT, CHECKS, Judgement, Limits, Result, fit_time_scale, judge, retime
 from .plots import envelope_figure, limits_in_time_figure
@@ -241,3 +245,103 @@ def simulation_summary(sim: dict) -> str:
         fmt = lambda t: "never" if t is None else f"{t:.3f} s"
         lines.append(f"  {dof:<24} predicted {fmt(row['predicted_s'])}, saturated {fmt(row['saturated_s'])}")
     return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- many motions at once
+
+GLOB_CHARACTERS = "*?["
+
+
+def expand_motions(specs: list[str]) -> list[str]:
+    """The motions named: a folder stands for its trajectory CSVs, a glob for its matches (each in
+    name order); anything else is one motion. ValueError for a folder or glob that names none."""
+    found = []
+    for spec in specs:
+        path = Path(spec)
+        if path.is_dir():
+            matches = sorted(str(p) for p in path.glob("*.csv"))
+            what = f"folder {spec} holds no trajectory CSV (*.csv)"
+        elif any(c in spec for c in GLOB_CHARACTERS):
+            matches = sorted(glob.glob(spec))
+            what = f"{spec} matches no file"
+        else:
+            matches, what = [spec], ""
+        if not matches:
+            raise ValueError(what)
+        found += matches
+    return found
+
+
+def _folders(motions: list[str]) -> list[str]:
+    """One output folder name per motion, its file's stem (a suffix where two share one)."""
+    names, seen = [], {}
+    for spec in motions:
+        stem = Path(spec).stem or "motion"
+        seen[stem] = seen.get(stem, 0) + 1
+        names.append(stem if seen[stem] == 1 else f"{stem}_{seen[stem]}")
+    return names
+
+
+_MANY: dict = {}        # the parent's configuration and options, inherited by forked workers
+
+
+def _validate_one(index: int) -> dict:
+    """One motion of many: its report's verdict, or its one-line error; its printout kept."""
+    config, motions, folders, options, out = (_MANY[k] for k in ("config", "motions", "folders", "options", "out"))
+    lines = []
+    say = lambda *a, **k: lines.append(" ".join(map(str, a)))
+    target = out / folders[index] if out is not None else None
+    try:
+        report = validate(config, motions[index], out=target, say=say, **options)
+    except (TrajectoryError, ModelError, ValueError) as err:
+        return {"motion": motions[index], "error": str(err), "code": 2}
+    finally:
+        if target is not None and lines:
+            target.mkdir(parents=True, exist_ok=True)
+            (target / "validate.txt").write_text("\n".join(lines) + "\n")
+    worst = max(report["joints"].items(), key=lambda item: item[1]["worst_ratio"] /
+                (1.0 if item[1]["worst_check"] == "position" else report["margin"]))
+    return {"motion": motions[index], "name": report["motion"], "passed": report["passed"],
+            "code": 0 if report["passed"] else 1, "duration_s": report["duration_s"],
+            "worst": {"dof": worst[0], "check": worst[1]["worst_check"], "ratio": worst[1]["worst_ratio"]},
+            "first_violation": report["violations"][0]["message"] if report["violations"] else None,
+            "fit_time_scale": report.get("fit_time_scale"),
+            "report": str(target / "report.json") if target is not None else None}
+
+
+def validate_many(config, motions: list[str], *, jobs: int = 1, out: Path | None = None, say=print,
+                  **options) -> dict:
+    """Validate each motion as `validate` does, spread over `jobs` processes (forked, so each
+    inherits the configuration and the loaded C core); one verdict line per motion, in the order
+    given, each report in OUT/<motion>/. The summary's `code` is the worst: 2 a motion that
+    cannot be read, 1 one that fails, 0 all pass."""
+    if not 1 <= jobs <= 256:
+        raise ValueError(f"--jobs must be from 1 to 256 processes, got {jobs}")
+    folders = _folders(motions)
+    _MANY.update(config=config, motions=motions, folders=folders, options=options, out=out)
+    if jobs > 1 and len(motions) > 1:
+        context = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(min(jobs, len(motions)), mp_context=context) as pool:
+            results = list(pool.map(_validate_one, range(len(motions))))
+    else:
+        results = [_validate_one(k) for k in range(len(motions))]
+    for r in results:
+        say(verdict_line(r))
+    code = max(r["code"] for r in results)
+    summary = {"passed": code == 0, "code": code, "config": config.name, "jobs": jobs, "motions": results}
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+        say(f"{sum(r['code'] == 0 for r in results)} of {len(results)} pass; wrote {out / 'summary.json'} and a "
+            "folder per motion")
+    return summary
+
+
+def verdict_line(result: dict) -> str:
+    if "error" in result:
+        return f"ERROR {result['motion']}: {result['error']}"
+    worst = result["worst"]
+    head = f"{'PASS' if result['passed'] else 'FAIL'} {result['motion']} ({result['duration_s']:.3f} s)"
+    if result["passed"]:
+        return f"{head}: nearest a limit {worst['dof']} {worst['check']} {fixed(worst['ratio'])}"
+    return f"{head}: {result['first_violation']}"

@@ -681,16 +681,11 @@ class HandGizmo:
         with ed.viewer.lock:
             ed.viewer.arm.pose(result.q)      # the arm first: the verdict below takes longer
             self.arm_s.append(time.perf_counter() - start)
+            # the keyframe, its torques and verdict; the swivel slider and the reach follow the
+            # keyframe there (follow_keyframe)
             ok = ed.set_keyframe(k, float(ed.motion.t[k]), result.q)
             if ok:
                 ed.show_angles()
-                if self.arm.srs is not None and not swivel:
-                    self._placing = True
-                    try:
-                        self.swivel.value = round(math.degrees(result.swivel), 1)
-                    finally:
-                        self._placing = False
-                self._show_reach(result.reach_m)
         self.handler_s.append(time.perf_counter() - start)
         return ok
 

@@ -24,6 +24,8 @@ typedef struct fw_servo_ {
   sd_real current_limit;      // A: commands are clamped here (limiting, not a fault)
   sd_real q_min, q_max;       // rad: joint range; outside it by FW_RANGE_MARGIN is a fault
   sd_real qd_max;             // rad/s
+  sd_real friction_coulomb;   // N m at the joint, compensated on the desired velocity (smoothed)
+  sd_real friction_viscous;   // N m s/rad at the joint
 } fw_servo;
 
 // A gain schedule: knots at times t (s from the start of its phase), linear in between.
@@ -32,6 +34,7 @@ typedef struct fw_gains_ {
   sd_real t[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME];
   sd_real kp[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
   sd_real kd[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
+  sd_real error_lowpass[FW_NJOINT];   // the low-pass of the errors the gains act on (sd_control.h)
 } fw_gains;
 
 typedef struct fw_plan_ {
@@ -44,6 +47,7 @@ typedef struct fw_plan_ {
   uint16_t read_address, read_size;   // the fast sync read: Present Current .. Position
   uint16_t goal_address;      // Goal Current
   sd_real overrun_tolerance;  // s the plan may fall behind the clock on a host OS (native loop)
+  sd_real friction_speed;     // rad/s: the compensated Coulomb friction's smoothing
 } fw_plan;
 
 extern const sd_model fw_model;

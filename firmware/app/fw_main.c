@@ -274,6 +274,7 @@ static void schedule_gains(const fw_gains* s, sd_real t) {
   for (int i = 0; i < FW_NJOINT; i++) {
     g.control.kp[i] = s->kp[k][i] + w * (s->kp[k + 1][i] - s->kp[k][i]);
     g.control.kd[i] = s->kd[k][i] + w * (s->kd[k + 1][i] - s->kd[k][i]);
+    g.control.error_lowpass[i] = s->error_lowpass[i];
   }
 }
 
@@ -476,7 +477,12 @@ int main(void) {
 
   g.control.mode = SD_MODE_FEEDFORWARD_PD;
   g.control.update_ticks = fw_plan_.update_ticks;
-  for (int i = 0; i < FW_NJOINT; i++) g.ids[i] = fw_servos[i].id;
+  g.control.friction_speed = fw_plan_.friction_speed;
+  for (int i = 0; i < FW_NJOINT; i++) {
+    g.ids[i] = fw_servos[i].id;
+    g.control.friction_coulomb[i] = fw_servos[i].friction_coulomb;
+    g.control.friction_viscous[i] = fw_servos[i].friction_viscous;
+  }
   g.read_len = dxl_fast_sync_read(g.read_packet, sizeof g.read_packet, fw_plan_.read_address,
                                   fw_plan_.read_size, g.ids, FW_NJOINT);
   g.period = period_us > 0 ? (uint32_t)((uint64_t)period_us * BOARD_CPU_HZ / 1000000u)

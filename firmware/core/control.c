@@ -29,6 +29,14 @@ int sd_control_check(const sd_model* m, const sd_control_config* c) {
     if (!(c->tau_max[j] >= 0) || !SD_ISFINITE(c->tau_max[j])) {
       return SD_CONTROL_ERR_LIMIT;
     }
+    if (!(c->error_lowpass[j] >= 0 && c->error_lowpass[j] <= 1)) {
+      return SD_CONTROL_ERR_FILTER;
+    }
+    if (!(c->friction_coulomb[j] >= 0) || !SD_ISFINITE(c->friction_coulomb[j]) ||
+        !(c->friction_viscous[j] >= 0) || !SD_ISFINITE(c->friction_viscous[j]) ||
+        (c->friction_coulomb[j] > 0 && !(c->friction_speed > 0 && SD_ISFINITE(c->friction_speed)))) {
+      return SD_CONTROL_ERR_FRICTION;
+    }
   }
   return SD_CONTROL_OK;
 }
@@ -41,6 +49,9 @@ const char* sd_control_strerror(int code) {
     case SD_CONTROL_ERR_BALL:   return "a ball joint: the joint PD works on angles";
     case SD_CONTROL_ERR_GAIN:   return "a gain (kp or kd) negative or not finite";
     case SD_CONTROL_ERR_LIMIT:  return "a torque limit negative or not finite";
+    case SD_CONTROL_ERR_FILTER: return "an error low-pass coefficient outside [0, 1]";
+    case SD_CONTROL_ERR_FRICTION:
+      return "a friction negative or not finite, or Coulomb friction without a positive friction_speed";
     default:                    return "unknown error";
   }
 }
@@ -51,17 +62,33 @@ void sd_control_reset(sd_control_state* s) {
   s->refresh = 0;
   s->nlimited = 0;
   s->nfault = 0;
+  s->filtered = 0;
   for (int j = 0; j < SD_MAX_DOF; j++) {
     s->tau_hold[j] = 0;
+    s->e[j] = 0;
+    s->de[j] = 0;
   }
 }
 
-// the tracking errors of dof j: position (through its coordinate in q) and velocity
-static inline void errors(const sd_model* m, int i, int k, const sd_real* q_d, const sd_real* qd_d,
-                          const sd_real* q, const sd_real* qd, sd_real* e, sd_real* de) {
-  int qi = m->body_qadr[i] + k, vi = m->body_dofadr[i] + k;
-  *e = q_d[qi] - q[qi];
-  *de = qd_d[vi] - qd[vi];
+// every small step: the tracking errors of every dof (position through its coordinate in q),
+// low-passed where error_lowpass says: a one-pole filter started at the first measured errors
+static void filter_errors(const sd_model* m, const sd_control_config* c, sd_control_state* s,
+                          const sd_real* q_d, const sd_real* qd_d, const sd_real* q, const sd_real* qd) {
+  for (int i = m->free_root ? 1 : 0; i < m->nbody; i++) {
+    for (int k = 0; k < m->body_dofnum[i]; k++) {
+      int qi = m->body_qadr[i] + k, vi = m->body_dofadr[i] + k;
+      sd_real e = q_d[qi] - q[qi], de = qd_d[vi] - qd[vi];
+      sd_real a = c->error_lowpass[vi];
+      if (s->filtered && a > 0) {
+        s->e[vi] += a * (e - s->e[vi]);
+        s->de[vi] += a * (de - s->de[vi]);
+      } else {
+        s->e[vi] = e;
+        s->de[vi] = de;
+      }
+    }
+  }
+  s->filtered = 1;
 }
 
 // a faulty step: no torque at all, the fault flagged and counted
@@ -73,6 +100,7 @@ static void refuse(sd_control_state* s, int nv, sd_real* tau, int status) {
   s->nfault++;
   s->tick++;
   s->refresh = 1;  // a skipped update must not leave an old torque held for a whole period
+  s->filtered = 0; // nor an overflowed error in the low-pass
 }
 
 void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
@@ -88,6 +116,7 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
     return;
   }
   int warned = d->warning[SD_WARN_NONFINITE];
+  filter_errors(m, c, s, q_d, qd_d, q, qd);
 
   // every time_step, and after a fault: the inverse dynamics, held until the next update
   if (s->tick % c->update_ticks == 0 || s->refresh) {
@@ -101,10 +130,8 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
       }
       for (int i = first; i < m->nbody; i++) {
         for (int k = 0; k < m->body_dofnum[i]; k++) {
-          sd_real e, de;
           int vi = m->body_dofadr[i] + k;
-          errors(m, i, k, q_d, qd_d, q, qd, &e, &de);
-          s->qdd_ref[vi] += c->kp[vi] * e + c->kd[vi] * de;
+          s->qdd_ref[vi] += c->kp[vi] * s->e[vi] + c->kd[vi] * s->de[vi];
         }
       }
       sd_rnea(m, d, q, qd, s->qdd_ref, NULL, s->tau_hold);
@@ -118,14 +145,26 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
     tau[j] = s->tau_hold[j];
   }
 
+  // every small step: friction compensation on the desired velocity. The Coulomb step is
+  // smoothed, tanh(qd_d / friction_speed): a plan that reverses a joint would otherwise step the
+  // command by 2 F_c in one tick (a knock at every reversal), and at rest the sign of a speed a
+  // few encoder counts wide is noise; a compensation on the desired (not the measured) velocity
+  // adds no feedback, so it cannot make the loop chatter
+  if (c->mode != SD_MODE_PD) {
+    for (int j = 0; j < nv; j++) {
+      if (c->friction_coulomb[j] > 0) {
+        tau[j] += c->friction_coulomb[j] * sd_tanh(qd_d[j] / c->friction_speed);
+      }
+      tau[j] += c->friction_viscous[j] * qd_d[j];
+    }
+  }
+
   // every small step: the joint PD on top of the held torque
   if (c->mode == SD_MODE_FEEDFORWARD_PD || c->mode == SD_MODE_PD) {
     for (int i = first; i < m->nbody; i++) {
       for (int k = 0; k < m->body_dofnum[i]; k++) {
-        sd_real e, de;
         int vi = m->body_dofadr[i] + k;
-        errors(m, i, k, q_d, qd_d, q, qd, &e, &de);
-        tau[vi] += c->kp[vi] * e + c->kd[vi] * de;
+        tau[vi] += c->kp[vi] * s->e[vi] + c->kd[vi] * s->de[vi];
       }
     }
   }

@@ -9,44 +9,11 @@
 //   - every quantity is taken about the body origin with the first moment h = m s, so gravity is
 //     the base's upward acceleration -g and needs no per-body term g_i.
 // Every joint goes through the same two steps, as with spatial_v2's jcalc: its kinematics
-// (sd_joint_kinematics) and its motion below; a free root is the joint of 6 dofs. A dof's
+// (sd_joint_kinematics) and its motion (sd_body_motion, shared with sd_regressor); a free root is the joint of 6 dofs. A dof's
 // armature (a geared motor's rotor) adds armature qdd to its torque, as in Pinocchio and MuJoCo.
 #include "servodyn.h"
 #include "sd_joint.h"
 #include "sd_spatial.h"
-
-// Add the motion of body i's nd-dof joint to the motion w, dw, a it inherits from its parent.
-static inline void joint_motion(const sd_model* m, const sd_data* d, int i, const int nd,
-                                const sd_real* qd, const sd_real* qdd, sd_real* w, sd_real* dw,
-                                sd_real* a) {
-  int adr = m->body_dofadr[i];
-
-  // a ball joint, or a free root's rotation: the dofs are the body-frame rate itself,
-  // dw += qdd + w x qd, w += qd
-  if (nd == 6 || m->body_ball[i]) {
-    int rot = nd == 6 ? adr + 3 : adr;
-    sd_addto3(dw, qdd + rot);
-    sd_addcross(dw, w, qd + rot);
-    sd_addto3(w, qd + rot);
-
-    // a free root's translation: its origin accelerates by qdd_lin + w x v
-    if (nd == 6) {
-      sd_addto3(a, qdd + adr);
-      sd_addcross(a, w, qd + adr);
-    }
-    return;
-  }
-
-  // hinges, dof by dof: dw += z qdd + w x z qd, then w += z qd
-  for (int j = adr; j < adr + nd; j++) {
-    const sd_real* z = d->dof_axis[j];
-    sd_real zqd[3];
-    sd_scl3(zqd, z, qd[j]);
-    sd_addtoscl3(dw, z, qdd[j]);
-    sd_addcross(dw, w, zqd);
-    sd_addto3(w, zqd);
-  }
-}
 
 // The generalized force of body i's nd-dof joint from the wrench (n, f) the body receives,
 // plus what accelerates each dof's armature: armature qdd.
@@ -72,37 +39,13 @@ static inline void joint_force(const sd_model* m, const sd_data* d, int i, const
 
 void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
              const sd_real* qdd, const sd_real* f_ext, sd_real* tau) {
-  static const sd_real zero[3] = {0, 0, 0};
-  sd_real base_acc[3] = {-m->gravity[0], -m->gravity[1], -m->gravity[2]};
-
   // forward pass: velocities and accelerations from the base to the leaves
   for (int i = 0; i < m->nbody; i++) {
-    int parent = m->body_parent[i], nd = m->body_dofnum[i];
-    const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
-    const sd_real* dwp = parent < 0 ? zero : d->body_dw[parent];
-    const sd_real* ap = parent < 0 ? base_acc : d->body_acc[parent];
-    const sd_real* p = m->body_pos[i];
-    sd_real* w = d->body_w[i];
-    sd_real* dw = d->body_dw[i];
-    sd_real* a = d->body_acc[i];
-
-    // joint transform and dof axes
-    sd_joint_kinematics(m, d, i, q, nd);
-    const sd_real* R = d->body_R[i];
-
-    // the parent's motion at the body origin: w = R w_p, dw = R dw_p and
-    // a = R (a_p + dw_p x p + w_p x (w_p x p))
-    sd_real wxp[3], t[3];
-    sd_cross(wxp, wp, p);
-    sd_cross(t, wp, wxp);
-    sd_addcross(t, dwp, p);
-    sd_addto3(t, ap);
-    sd_mulmv(a, R, t);
-    sd_mulmv(w, R, wp);
-    sd_mulmv(dw, R, dwp);
-
-    // plus the joint's own
-    joint_motion(m, d, i, nd, qd, qdd, w, dw, a);
+    int nd = m->body_dofnum[i];
+    sd_body_motion(m, d, i, q, qd, qdd, nd);
+    const sd_real* w = d->body_w[i];
+    const sd_real* dw = d->body_dw[i];
+    const sd_real* a = d->body_acc[i];
 
     // the wrench that moves the body: f = m a + dw x h + w x (w x h), n = I dw + w x I w + h x a
     const sd_real* h = m->body_mcom[i];

@@ -1,4 +1,5 @@
-// sd_joint.h (internal): the position kinematics of one joint, shared by sd_rnea and sd_forward.
+// sd_joint.h (internal): the kinematics of one joint and its body's motion, shared by sd_rnea,
+// sd_forward and sd_regressor.
 #ifndef SD_JOINT_H
 #define SD_JOINT_H
 
@@ -91,6 +92,74 @@ static inline void sd_joint_kinematics(const sd_model* m, sd_data* d, int i, con
     d->dof_axis[j][1] = 0;
     d->dof_axis[j][2] = 1;
   }
+}
+
+// Add the motion of body i's nd-dof joint to the motion w, dw, a it inherits from its parent.
+static inline void sd_joint_motion(const sd_model* m, const sd_data* d, int i, const int nd,
+                                   const sd_real* qd, const sd_real* qdd, sd_real* w,
+                                   sd_real* dw, sd_real* a) {
+  int adr = m->body_dofadr[i];
+
+  // a ball joint, or a free root's rotation: the dofs are the body-frame rate itself,
+  // dw += qdd + w x qd, w += qd
+  if (nd == 6 || m->body_ball[i]) {
+    int rot = nd == 6 ? adr + 3 : adr;
+    sd_addto3(dw, qdd + rot);
+    sd_addcross(dw, w, qd + rot);
+    sd_addto3(w, qd + rot);
+
+    // a free root's translation: its origin accelerates by qdd_lin + w x v
+    if (nd == 6) {
+      sd_addto3(a, qdd + adr);
+      sd_addcross(a, w, qd + adr);
+    }
+    return;
+  }
+
+  // hinges, dof by dof: dw += z qdd + w x z qd, then w += z qd
+  for (int j = adr; j < adr + nd; j++) {
+    const sd_real* z = d->dof_axis[j];
+    sd_real zqd[3];
+    sd_scl3(zqd, z, qd[j]);
+    sd_addtoscl3(dw, z, qdd[j]);
+    sd_addcross(dw, w, zqd);
+    sd_addto3(w, zqd);
+  }
+}
+
+// One step of the forward pass of sd_rnea and sd_regressor: body i's joint kinematics (body_R,
+// dof_axis) and its motion (body_w, body_dw, body_acc) from its parent's, which must be done.
+// The base accelerates upwards at -g, so gravity needs no per-body term.
+static inline void sd_body_motion(const sd_model* m, sd_data* d, int i, const sd_real* q,
+                                  const sd_real* qd, const sd_real* qdd, const int nd) {
+  static const sd_real zero[3] = {0, 0, 0};
+  int parent = m->body_parent[i];
+  sd_real base_acc[3] = {-m->gravity[0], -m->gravity[1], -m->gravity[2]};
+  const sd_real* wp = parent < 0 ? zero : d->body_w[parent];
+  const sd_real* dwp = parent < 0 ? zero : d->body_dw[parent];
+  const sd_real* ap = parent < 0 ? base_acc : d->body_acc[parent];
+  const sd_real* p = m->body_pos[i];
+  sd_real* w = d->body_w[i];
+  sd_real* dw = d->body_dw[i];
+  sd_real* a = d->body_acc[i];
+
+  // joint transform and dof axes
+  sd_joint_kinematics(m, d, i, q, nd);
+  const sd_real* R = d->body_R[i];
+
+  // the parent's motion at the body origin: w = R w_p, dw = R dw_p and
+  // a = R (a_p + dw_p x p + w_p x (w_p x p))
+  sd_real wxp[3], t[3];
+  sd_cross(wxp, wp, p);
+  sd_cross(t, wp, wxp);
+  sd_addcross(t, dwp, p);
+  sd_addto3(t, ap);
+  sd_mulmv(a, R, t);
+  sd_mulmv(w, R, wp);
+  sd_mulmv(dw, R, dwp);
+
+  // plus the joint's own
+  sd_joint_motion(m, d, i, nd, qd, qdd, w, dw, a);
 }
 
 // the wrench (moment about the origin, force), body 0 frame, of the root force in d

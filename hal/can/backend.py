@@ -76,6 +76,7 @@ class CanBus(ServoBus):
         self._scale, self._gear = scale, np.array([j.gear_ratio for j in self.joints], dtype=float)
         self._offset = np.array([j.zero_offset for j in self.joints], dtype=float)
         self.temperatures = np.zeros((self.n, 2))      # °C per motor as last reported (MOS/motor, coil)
+        self.winding = np.full(self.n, np.nan)         # °C per motor's winding, as last reported (nan: none)
         self.link = CanLink(self.bus.name, timeout=reply_timeout)
         self.sent = np.zeros((self.n, 5))              # the last command as sent, decoded (p, v, kp, kd, t)
 
@@ -244,6 +245,7 @@ class CanBus(ServoBus):
                 self._fresh = not self._pending
                 self._state[k] = reply
                 self.temperatures[k] = (reply.temperature, reply.temperature2)
+                self.winding[k] = dialect.winding_temperature(reply)
                 faults = dialect.faults(reply, self._torque_on) if check_faults else ()
                 if faults:
                     self._pending.clear()
@@ -304,7 +306,9 @@ class CanBus(ServoBus):
         q = (motor[:, 0] - self._offset) / self._scale
         qd = motor[:, 1] / self._scale
         tau = motor[:, 2] * self._scale
-        return JointState(t=time.monotonic(), q=q, qd=qd, current=tau / self.torque_per_amp, tau=tau)
+        # every reply carries the motors' temperatures: read every tick at no cost
+        return JointState(t=time.monotonic(), q=q, qd=qd, current=tau / self.torque_per_amp, tau=tau,
+                          temperature=self.winding.copy())
 
     def _write(self, command: JointCommand) -> None:
         if self._pending:

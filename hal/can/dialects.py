@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Callable
 
@@ -77,6 +79,8 @@ class Dialect:
     reply_key: Callable[[bytes], int]            # the id a reply names (routing on a shared feedback id)
     faults: Callable[[frames.Reply, bool], tuple[str, ...]]   # (reply, torque on) -> fault names
     registers: bool = False                     # Damiao's 0x7FF register frames
+    # °C of the winding a reply reports (Damiao: the coil's; CubeMars: the motor's), nan without one
+    winding_temperature: Callable[[frames.Reply], float] = lambda reply: math.nan
 
 
 def _damiao_faults(reply: frames.Reply, torque_on: bool) -> tuple[str, ...]:
@@ -95,7 +99,9 @@ DIALECTS = {
     "mit": Dialect("mit", lambda can_id: 0, (6, 7), frames.unpack_mit_reply, frames.pack_mit_reply,
                    lambda data: data[0], lambda reply, on: ()),
     "damiao": Dialect("damiao", lambda can_id: can_id + 0x10, (8,), frames.unpack_damiao_feedback,
-                      frames.pack_damiao_feedback, lambda data: data[0] & 0xF, _damiao_faults, registers=True),
+                      frames.pack_damiao_feedback, lambda data: data[0] & 0xF, _damiao_faults, registers=True,
+                      winding_temperature=lambda reply: float(reply.temperature2)),
     "cubemars": Dialect("cubemars", lambda can_id: 0, (8,), frames.unpack_cubemars_reply,
-                        frames.pack_cubemars_reply, lambda data: data[0], _cubemars_faults),
+                        frames.pack_cubemars_reply, lambda data: data[0], _cubemars_faults,
+                        winding_temperature=lambda reply: float(reply.temperature)),
 }

@@ -76,3 +76,10 @@ class Can(Backend):
         """The frame's torque field: ±t_max at the motor, 12 bits."""
         ranges = joint.options["ranges"]
         return ranges.t_max * joint.gear_ratio, ranges.torque_step * joint.gear_ratio
+
+    @classmethod
+    def sensor_steps(cls, joint) -> tuple[float, float]:
+        """The MIT reply's position (16 bits over ±p_max) and velocity (12 bits over ±v_max) steps,
+        over the joint's gear."""
+        ranges = joint.options["ranges"]
+        return 2 * ranges.p_max / 65535 / joint.gear_ratio, 2 * ranges.v_max / 4095 / joint.gear_ratio

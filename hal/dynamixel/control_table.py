@@ -89,42 +89,60 @@ def _gain(name: str, address: int, default: int) -> Item:
 
 @dataclass(frozen=True, kw_only=True)
 class Model(ServoSpec):
-    """One X-series servo model: its data sheet at 12 V (ROBOTIS e-manual) and its control table.
-    The HAL (configuration, units, backend) and the simulated servo both read it from here."""
+    """One X-series servo model: its data sheet (ROBOTIS e-manual) and its control table.
+    The HAL (configuration, units, backend) and the simulated servo both read it from here.
+
+    The tables differ by model in what servodyn relies on: the Model Number, the current unit
+    (2.69 mA on the X430/X540, 1 mA on the X330), Current Limit(38)'s range, Velocity Limit(44)'s
+    default and range, the Temperature Limit(31) default, the Min/Max Voltage Limit(32, 34) range,
+    the baud rates (the X330 stops at 4 Mbps), the operating modes of the simulated drive it
+    accepts, and items it has not: the XL430 and XC430 have no current control (no Current Limit,
+    no Goal Current; Present Load(126) in 0.1 % where the others have Present Current), the
+    XW540 no LED(65). Addresses are the same on every model."""
     kind: str = "dynamixel"
     model_number: int           # Model Number(0)
-    current_limit_max: int      # maximum and default of Current Limit(38), in current units
+    current_limit_max: int      # maximum and default of Current Limit(38), in current units (0: no item)
     velocity_limit_default: int  # default of Velocity Limit(44), in velocity units
-    current_unit: float = 2.69e-3   # A per Goal / Present Current unit
+    velocity_limit_max: int = 1023   # the top of Velocity Limit(44)'s range
+    current_unit: float = 2.69e-3   # A per Goal / Present Current unit (no current control: per Present
+                                    # Load unit, 0.1 % of the stall current)
     ticks_per_rev: int = TICKS_PER_REV   # Goal / Present Position units per horn turn
     velocity_unit: float = 0.229     # rpm per Goal / Present Velocity unit
     firmware: int = 46          # fast sync/bulk read need FAST_READ_FIRMWARE or later
+    voltage_limits: tuple[int, int] = (95, 160)   # Min/Max Voltage Limit(32, 34) range, 0.1 V
+    baud_rates: int = len(BAUD_RATES)    # Baud Rate(8) accepts 0 .. baud_rates - 1
+    operating_modes: frozenset[int] = frozenset(OperatingMode)   # of those the simulated drive has
+    absent: frozenset[str] = frozenset()  # control-table items this model has not
+    source: str = ""
 
     @property
     def max_current(self) -> float:
         return self.current_limit_max * self.current_unit
 
     def items(self) -> tuple[Item, ...]:
-        return (
+        low_v, high_v = self.voltage_limits
+        current = self.current_control
+        table = (
             # EEPROM
             _ro("model_number", 0, 2, self.model_number),
             _ro("model_information", 2, 4, 0),
             _ro("firmware_version", 6, 1, self.firmware),
             Item("id", 7, 1, 1, low=0, high=252),
-            Item("baud_rate", 8, 1, 1, low=0, high=7),
+            Item("baud_rate", 8, 1, 1, low=0, high=self.baud_rates - 1),
             Item("return_delay_time", 9, 1, 250, low=0, high=254),
             Item("drive_mode", 10, 1, 0, mask=0x05),      # bit 0 reverse, bit 2 time-based profile
-            Item("operating_mode", 11, 1, OperatingMode.POSITION, choices=frozenset(OperatingMode)),
+            Item("operating_mode", 11, 1, OperatingMode.POSITION, choices=self.operating_modes),
             Item("secondary_id", 12, 1, 255, choices=frozenset([*range(253), 255])),
             Item("protocol_type", 13, 1, 2, low=2, high=2),  # Protocol 1.0 is not simulated
             Item("homing_offset", 20, 4, 0, signed=True, low=-1_044_479, high=1_044_479),
             Item("moving_threshold", 24, 4, 10, low=0, high=1023),
-            Item("temperature_limit", 31, 1, 80, low=0, high=100),
-            Item("max_voltage_limit", 32, 2, 160, low=95, high=160),
-            Item("min_voltage_limit", 34, 2, 95, low=95, high=160),
+            Item("temperature_limit", 31, 1, round(self.temperature_limit), low=0, high=100),
+            Item("max_voltage_limit", 32, 2, high_v, low=low_v, high=high_v),
+            Item("min_voltage_limit", 34, 2, low_v, low=low_v, high=high_v),
             Item("pwm_limit", 36, 2, PWM_FULL, low=0, high=PWM_FULL),
-            Item("current_limit", 38, 2, self.current_limit_max, low=0, high=self.current_limit_max),
-            Item("velocity_limit", 44, 4, self.velocity_limit_default, low=0, high=1023),
+            *([Item("current_limit", 38, 2, self.current_limit_max, low=0, high=self.current_limit_max)]
+              if current else []),
+            Item("velocity_limit", 44, 4, self.velocity_limit_default, low=0, high=self.velocity_limit_max),
             Item("max_position_limit", 48, 4, TICKS_PER_REV - 1, low=0, high=TICKS_PER_REV - 1),
             Item("min_position_limit", 52, 4, 0, low=0, high=TICKS_PER_REV - 1),
             Item("shutdown", 63, 1, 0x34, mask=sum(HardwareError)),
@@ -143,7 +161,7 @@ class Model(ServoSpec):
             _gain("feedforward_1st_gain", 90, 0),
             Item("bus_watchdog", 98, 1, 0, signed=True, low=0, high=127),  # -1: tripped
             Item("goal_pwm", 100, 2, None, signed=True, limit="pwm_limit"),
-            Item("goal_current", 102, 2, None, signed=True, limit="current_limit"),
+            *([Item("goal_current", 102, 2, None, signed=True, limit="current_limit")] if current else []),
             Item("goal_velocity", 104, 4, 0, signed=True, limit="velocity_limit"),
             Item("profile_acceleration", 108, 4, 0, low=0, high=32767),
             Item("profile_velocity", 112, 4, 0, low=0, high=32767),
@@ -152,7 +170,7 @@ class Model(ServoSpec):
             _ro("moving", 122, 1),
             _ro("moving_status", 123, 1, 0),
             _ro("present_pwm", 124, 2, signed=True),
-            _ro("present_current", 126, 2, signed=True),
+            _ro("present_current" if current else "present_load", 126, 2, signed=True),
             _ro("present_velocity", 128, 4, signed=True),
             _ro("present_position", 132, 4, signed=True),
             _ro("velocity_trajectory", 136, 4, signed=True),
@@ -160,32 +178,80 @@ class Model(ServoSpec):
             _ro("present_input_voltage", 144, 2),
             _ro("present_temperature", 146, 1),
         )
+        return tuple(item for item in table if item.name not in self.absent)
 
 
-# The e-manual's rows at 12 V and at 11.1 and 14.8 V (stall torque and current, no-load speed; the
-# XH540-W270's other rows are not in our notes), Current Limit(38) ranges and
-# Velocity Limit(44) defaults. The XH540-W270's Velocity Limit default is not in our notes: its
-# no-load speed in 0.229 rpm units, rounded down. No-load current: a fit of the XM430-W350's
-# torque-current curve gives 0.125 A (5.4 % of its stall current); the others are given the same
-# fraction. Temperature Limit(31) defaults to 80 °C. ROBOTIS publishes no thermal resistance or
-# time constant: R_th and τ_th are estimates for a 28 mm (X430) and a 33 mm (X540) motor in a
-# closed plastic case — R_th such that the winding reaches 80 °C from 25 °C at about 40 % of the
-# stall current, τ_th a few minutes — to be identified on the arm from Present Temperature(146)
-# under a known current.
-_X430 = dict(gear_ratio=353.5, thermal_resistance=12.0, thermal_time_constant=240.0)
-_X540 = dict(gear_ratio=272.5, thermal_resistance=6.0, thermal_time_constant=420.0)
-XM430_W350 = Model(name="XM430-W350", model_number=1020, stall_torque=4.1, stall_current=2.3, no_load_speed_rpm=46.0,
-                   no_load_current=0.125, current_limit_max=1193, velocity_limit_default=200,
-                   ratings=((11.1, 3.8, 2.1, 43.0), (14.8, 4.8, 2.7, 57.0)), **_X430)
-XM540_W270 = Model(name="XM540-W270", model_number=1120, stall_torque=10.6, stall_current=4.4, no_load_speed_rpm=30.0,
-                   no_load_current=0.24, current_limit_max=2047, velocity_limit_default=128,
-                   ratings=((11.1, 10.0, 4.2, 28.0), (14.8, 12.9, 5.5, 37.0)), **_X540)
-XH430_W350 = Model(name="XH430-W350", model_number=1000, stall_torque=3.4, stall_current=1.3, no_load_speed_rpm=30.0,
-                   no_load_current=0.07, current_limit_max=648, velocity_limit_default=130,
-                   ratings=((11.1, 3.1, 1.2, 27.0), (14.8, 4.2, 1.5, 37.0)), **_X430)
-XH540_W270 = Model(name="XH540-W270", model_number=1100, stall_torque=9.9, stall_current=4.9, no_load_speed_rpm=39.0,
-                   no_load_current=0.26, current_limit_max=2047, velocity_limit_default=170, **_X540)
-SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270)}
+# The e-manual's specification tables (ROBOTIS-GIT/emanual, _data/dxl_x_info.yml, read for every
+# model below) give stall torque and current and no-load speed at three supply voltages, the
+# recommended one in bold (the nominal row here); the model's page gives its control table. Read
+# for each model: Model Number(0), Current Limit(38) (range and unit), Velocity Limit(44) (default
+# and range), Temperature Limit(31), Min/Max Voltage Limit(32, 34), Baud Rate(8)'s range and the
+# operating modes (Operating Mode(11)). No-load current: a fit of the XM430-W350's torque-current
+# curve gives 0.125 A (5.4 % of its stall current); the others are given the same fraction (an
+# estimate). ROBOTIS publishes no thermal resistance or time constant: R_th and τ_th are estimates
+# for the motor in its closed case — R_th such that the winding reaches its Temperature Limit from
+# 25 °C at about 40 % of the stall current, τ_th a few minutes — to be identified on the arm from
+# Present Temperature(146) under a known current.
+_X430 = dict(thermal_resistance=12.0, thermal_time_constant=240.0, supply_range=(10.0, 14.8))
+_X540 = dict(thermal_resistance=6.0, thermal_time_constant=420.0, supply_range=(10.0, 14.8))
+_X330 = dict(current_unit=1.0e-3, velocity_limit_max=2047, temperature_limit=70.0, baud_rates=7,
+             thermal_resistance=30.0, thermal_time_constant=120.0)       # thermal: estimates
+# no current control: Operating Mode(11) offers velocity, position, extended position and PWM;
+# of the simulated drive's modes only position
+_NO_CURRENT = dict(current_control=False, current_limit_max=0,
+                   operating_modes=frozenset({OperatingMode.POSITION}))
+_EMANUAL = "ROBOTIS e-manual, emanual.robotis.com/docs/en/dxl/x/{}/ (specifications and control table)"
+_THERMAL = "; no-load current, thermal resistance and time constant: estimates (not published)"
+
+
+def _dxl(name: str, page: str, nominal: tuple, others: tuple, **fields) -> Model:
+    """A Model from the e-manual's rows: `nominal` (V, N m, A, rpm) and the other rows alike."""
+    voltage, torque, current, speed = nominal
+    fields.setdefault("no_load_current", round(0.054 * current, 3))
+    return Model(name=name, nominal_voltage=voltage, stall_torque=torque, stall_current=current,
+                 no_load_speed_rpm=speed, ratings=others,
+                 source=_EMANUAL.format(page) + _THERMAL + fields.pop("note", ""), **fields)
+
+
+XL330_M288 = _dxl("XL330-M288", "xl330-m288", (5.0, 0.52, 1.47, 103.0), ((3.7, 0.42, 1.11, 76.0), (6.0, 0.60, 1.74, 123.0)),
+                  model_number=1200, gear_ratio=288.4, current_limit_max=1750, velocity_limit_default=445,
+                  voltage_limits=(31, 70), supply_range=(3.7, 6.0), **_X330,
+                  note="; a 5 V servo: 3.7-6.0 V, recommended 5.0 V")
+XC330_T288 = _dxl("XC330-T288", "xc330-t288", (11.1, 0.92, 0.80, 65.0), ((9.0, 0.76, 0.61, 52.0), (12.0, 1.00, 0.88, 71.0)),
+                  model_number=1220, gear_ratio=288.35, current_limit_max=910, velocity_limit_default=320,
+                  voltage_limits=(55, 140), supply_range=(6.5, 12.0), **_X330,
+                  note="; Present Current is measured at its supply input, not at the motor (e-manual)")
+XL430_W250 = _dxl("XL430-W250", "xl430-w250", (11.1, 1.4, 1.3, 57.0), ((9.0, 1.0, 1.0, 47.0), (12.0, 1.5, 1.4, 61.0)),
+                  model_number=1060, gear_ratio=258.5, velocity_limit_default=265, current_unit=1.3e-3,
+                  temperature_limit=72.0, voltage_limits=(60, 140), supply_range=(6.5, 12.0),
+                  thermal_resistance=14.0, thermal_time_constant=240.0, **_NO_CURRENT,
+                  note="; no current control mode (no Current Limit, no Goal Current)")
+XC430_W240 = _dxl("XC430-W240", "xc430-w240", (12.0, 1.9, 1.4, 70.0), ((9.0, 1.4, 1.1, 52.0), (11.1, 1.7, 1.3, 65.0)),
+                  model_number=1080, gear_ratio=245.22, velocity_limit_default=306, current_unit=1.4e-3,
+                  voltage_limits=(60, 160), supply_range=(6.5, 14.8),
+                  thermal_resistance=14.0, thermal_time_constant=240.0, **_NO_CURRENT,
+                  note="; no current control mode (no Current Limit, no Goal Current)")
+XM430_W210 = _dxl("XM430-W210", "xm430-w210", (12.0, 3.0, 2.3, 77.0), ((11.1, 2.7, 2.1, 70.0), (14.8, 3.7, 2.7, 95.0)),
+                  model_number=1030, gear_ratio=212.6, current_limit_max=1193, velocity_limit_default=330, **_X430)
+XM430_W350 = _dxl("XM430-W350", "xm430-w350", (12.0, 4.1, 2.3, 46.0), ((11.1, 3.8, 2.1, 43.0), (14.8, 4.8, 2.7, 57.0)),
+                  no_load_current=0.125, model_number=1020, gear_ratio=353.5, current_limit_max=1193, velocity_limit_default=200, **_X430)
+XH430_W210 = _dxl("XH430-W210", "xh430-w210", (12.0, 2.5, 1.3, 50.0), ((11.1, 2.2, 1.2, 46.0), (14.8, 3.1, 1.5, 62.0)),
+                  model_number=1010, gear_ratio=212.6, current_limit_max=648, velocity_limit_default=210, **_X430)
+XH430_W350 = _dxl("XH430-W350", "xh430-w350", (12.0, 3.4, 1.3, 30.0), ((11.1, 3.1, 1.2, 27.0), (14.8, 4.2, 1.5, 37.0)),
+                  no_load_current=0.07, model_number=1000, gear_ratio=353.5, current_limit_max=648, velocity_limit_default=130, **_X430)
+XM540_W150 = _dxl("XM540-W150", "xm540-w150", (12.0, 7.3, 4.4, 53.0), ((11.1, 6.9, 4.2, 50.0), (14.8, 8.9, 5.5, 66.0)),
+                  model_number=1130, gear_ratio=152.3, current_limit_max=2047, velocity_limit_default=230, **_X540)
+XM540_W270 = _dxl("XM540-W270", "xm540-w270", (12.0, 10.6, 4.4, 30.0), ((11.1, 10.0, 4.2, 28.0), (14.8, 12.9, 5.5, 37.0)),
+                  no_load_current=0.24, model_number=1120, gear_ratio=272.5, current_limit_max=2047, velocity_limit_default=128, **_X540)
+XH540_W150 = _dxl("XH540-W150", "xh540-w150", (12.0, 7.1, 4.9, 70.0), ((11.1, 6.6, 4.5, 66.0), (14.8, 8.5, 5.9, 86.0)),
+                  model_number=1110, gear_ratio=152.3, current_limit_max=2047, velocity_limit_default=300, **_X540)
+XH540_W270 = _dxl("XH540-W270", "xh540-w270", (12.0, 9.9, 4.9, 39.0), ((11.1, 9.2, 4.5, 36.0), (14.8, 11.7, 5.9, 46.0)),
+                  no_load_current=0.26, model_number=1100, gear_ratio=272.5, current_limit_max=2047, velocity_limit_default=167, **_X540)
+XW540_T260 = _dxl("XW540-T260", "xw540-t260", (12.0, 9.5, 4.9, 40.0), ((11.1, 8.8, 4.5, 37.0), (14.8, 11.2, 5.9, 48.0)),
+                  model_number=1170, gear_ratio=260.6, current_limit_max=2047, velocity_limit_default=167,
+                  absent=frozenset({"led"}), **_X540, note="; no LED(65)")
+SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270, XL330_M288, XC330_T288, XL430_W250,
+                              XC430_W240, XM430_W210, XH430_W210, XM540_W150, XH540_W150, XW540_T260)}
 MODELS = {m.model_number: m for m in SERVOS.values()}
 
 # the items the host reads and writes, by address
@@ -199,3 +265,6 @@ ADDR_BUS_WATCHDOG = ITEMS["bus_watchdog"].address
 ADDR_GOAL_CURRENT = ITEMS["goal_current"].address
 ADDR_PRESENT = ITEMS["present_current"].address      # Present Current (2), Velocity (4), Position (4)
 PRESENT_LENGTH = sum(ITEMS[n].size for n in ("present_current", "present_velocity", "present_position"))
+# the same read on to Present Temperature (146, 1 byte, °C): what the loop reads at a low rate
+ADDR_PRESENT_TEMPERATURE = ITEMS["present_temperature"].address
+PRESENT_WITH_TEMPERATURE_LENGTH = ADDR_PRESENT_TEMPERATURE + 1 - ADDR_PRESENT

@@ -3,7 +3,10 @@ one tick's wire time and the torque range of Goal Current."""
 
 from __future__ import annotations
 
+import math
+
 from ..backend import Backend
+from ..servos import RPM
 from . import instructions
 from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_LENGTH, SERVOS
 from .protocol import MAX_ID
@@ -46,3 +49,10 @@ class Dynamixel(Backend):
         unit = current_unit(joint)
         per_unit = unit * joint.torque_constant * joint.gear_ratio
         return round(joint.current_limit / unit) * per_unit, per_unit
+
+    @classmethod
+    def sensor_steps(cls, joint) -> tuple[float, float]:
+        """Present Position's tick (a turn of the horn over ticks_per_rev) and Present Velocity's
+        unit (velocity_unit rpm), over the joint's gear."""
+        servo = joint.servo
+        return 2 * math.pi / servo.ticks_per_rev / joint.gear_ratio, servo.velocity_unit * RPM / joint.gear_ratio

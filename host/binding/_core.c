@@ -58,6 +58,15 @@ void sd_load_row(sd_real* dst, const double* src, int n) {
   }
 }
 
+int sd_allfinite_row(const sd_real* x, npy_intp n) {
+  for (npy_intp k = 0; k < n; k++) {
+    if (!isfinite((double)x[k])) {
+      return 0;
+    }
+  }
+  return 1;
+}
+
 void sd_store_row(double* dst, const sd_real* src, int n) {
   for (int k = 0; k < n; k++) {
     dst[k] = (double)src[k];
@@ -237,6 +246,62 @@ static PyObject* Core_forward(CoreObject* self, PyObject* args) {
   return run_dynamics(self, args, sd_forward, "tau");
 }
 
+// regressor(q, qd, qdd) -> Y: (ndof, 10 nbody) per state, (N, ndof, 10 nbody) for a batch
+static PyObject* Core_regressor(CoreObject* self, PyObject* args) {
+  PyObject *oq, *oqd, *oqdd;
+  if (!PyArg_ParseTuple(args, "OOO", &oq, &oqd, &oqdd)) {
+    return NULL;
+  }
+  const sd_model* m = &self->model;
+  npy_intp tail[1] = {m->ndof}, qtail[1] = {m->nq};
+  npy_intp nq, nqd, nqdd;
+  int bq, bqd, bqdd;
+  PyArrayObject *aq = NULL, *aqd = NULL, *aqdd = NULL, *out = NULL;
+  sd_real* rY = NULL;
+  aq = sd_as_rows(oq, "q", qtail, 1, &nq, &bq);
+  if (aq) aqd = sd_as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (aqd) aqdd = sd_as_rows(oqdd, "qdd", tail, 1, &nqdd, &bqdd);
+  if (!aqdd) goto done;
+  if (bqd != bq || bqdd != bq || nqd != nq || nqdd != nq) {
+    PyErr_SetString(PyExc_ValueError, "inputs must all be single states or batches of one length N");
+    goto done;
+  }
+  {
+    int n = m->ndof, nqc = m->nq, ncol = SD_NPARAM * m->nbody;
+    npy_intp dims[3] = {nq, n, ncol};
+    out = (PyArrayObject*)PyArray_SimpleNew(bq ? 3 : 2, bq ? dims : dims + 1, NPY_DOUBLE);
+    rY = PyMem_Malloc(sizeof(sd_real) * (size_t)(n > 0 ? n : 1) * (size_t)ncol);
+    if (!out || !rY) {
+      if (!rY) PyErr_NoMemory();
+      Py_CLEAR(out);
+      goto done;
+    }
+    sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rqdd[SD_MAX_DOF];
+    double* y = PyArray_DATA(out);
+    for (npy_intp r = 0; r < nq; r++) {
+      sd_load_row(rq, (const double*)PyArray_DATA(aq) + r * nqc, nqc);
+      sd_load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
+      sd_load_row(rqdd, (const double*)PyArray_DATA(aqdd) + r * n, n);
+      sd_regressor(m, &self->data, rq, rqd, rqdd, rY);
+      // finite inputs can still overflow (qd^2 at 1e154): an error naming the row, never an inf
+      if (!sd_allfinite_row(rY, n * ncol)) {
+        PyErr_Format(PyExc_FloatingPointError,
+                     "regressor: non-finite result at row %ld (the inputs overflow double precision)",
+                     (long)r);
+        Py_CLEAR(out);
+        goto done;
+      }
+      sd_store_row(y + r * (npy_intp)n * ncol, rY, n * ncol);
+    }
+  }
+done:
+  PyMem_Free(rY);
+  Py_XDECREF(aq);
+  Py_XDECREF(aqd);
+  Py_XDECREF(aqdd);
+  return (PyObject*)out;
+}
+
 // step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd): nsteps steps with tau held
 static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"q", "qd", "tau", "dt", "integrator", "nsteps", "f_ext", NULL};
@@ -380,6 +445,8 @@ static PyMethodDef Core_methods[] = {
      "rnea(q, qd, qdd, f_ext=None) -> tau: inverse dynamics, one state or a batch"},
     {"forward", (PyCFunction)Core_forward, METH_VARARGS,
      "forward(q, qd, tau, f_ext=None) -> qdd: direct dynamics, one state or a batch"},
+    {"regressor", (PyCFunction)Core_regressor, METH_VARARGS,
+     "regressor(q, qd, qdd) -> Y (ndof, 10 nbody): tau = Y pi, one state or a batch"},
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_VARARGS | METH_KEYWORDS,
      "step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd)"},
     {"model_bytes", (PyCFunction)Core_model_bytes, METH_NOARGS, "the sd_model struct as bytes"},
@@ -485,5 +552,6 @@ PyMODINIT_FUNC SD_CAT(PyInit_, SD_MODULE_NAME)(void) {
   PyModule_AddIntConstant(mod, "MAX_BODY", SD_MAX_BODY);
   PyModule_AddIntConstant(mod, "MAX_DOF", SD_MAX_DOF);
   PyModule_AddIntConstant(mod, "REAL_BYTES", (int)sizeof(sd_real));
+  PyModule_AddIntConstant(mod, "NPARAM", SD_NPARAM);
   return mod;
 }

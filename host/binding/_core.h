@@ -42,6 +42,9 @@ PyArrayObject* sd_as_rows(PyObject* obj, const char* name, const npy_intp* tail,
 void sd_load_row(sd_real* dst, const double* src, int n);
 void sd_store_row(double* dst, const sd_real* src, int n);
 
+// 1 when all n numbers are finite.
+int sd_allfinite_row(const sd_real* x, npy_intp n);
+
 // Copy a float64 array of exactly `count` numbers into dst; -1 with a Python error otherwise.
 int sd_fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name);
 

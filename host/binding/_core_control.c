@@ -15,11 +15,13 @@ typedef struct {
 } ControllerObject;
 
 static int Controller_init(ControllerObject* self, PyObject* args, PyObject* kwargs) {
-  static char* kwlist[] = {"core", "mode", "update_ticks", "kp", "kd", "tau_max", NULL};
-  PyObject *core, *kp, *kd, *tau_max;
+  static char* kwlist[] = {"core", "mode", "update_ticks", "kp", "kd", "tau_max", "friction_coulomb",
+                           "friction_viscous", "friction_speed", NULL};
+  PyObject *core, *kp, *kd, *tau_max, *coulomb = NULL, *viscous = NULL;
   int mode, update_ticks;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!iiOOO", kwlist, &CoreType, &core, &mode,
-                                   &update_ticks, &kp, &kd, &tau_max)) {
+  double speed = 0.0;
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!iiOOO|OOd", kwlist, &CoreType, &core, &mode,
+                                   &update_ticks, &kp, &kd, &tau_max, &coulomb, &viscous, &speed)) {
     return -1;
   }
   Py_INCREF(core);
@@ -30,9 +32,12 @@ static int Controller_init(ControllerObject* self, PyObject* args, PyObject* kwa
   c->update_ticks = update_ticks;
   int nv = self->core->model.ndof;
   if (sd_fill(c->kp, kp, nv, "kp") || sd_fill(c->kd, kd, nv, "kd") ||
-      sd_fill(c->tau_max, tau_max, nv, "tau_max")) {
+      sd_fill(c->tau_max, tau_max, nv, "tau_max") ||
+      (coulomb && coulomb != Py_None && sd_fill(c->friction_coulomb, coulomb, nv, "friction_coulomb")) ||
+      (viscous && viscous != Py_None && sd_fill(c->friction_viscous, viscous, nv, "friction_viscous"))) {
     return -1;
   }
+  c->friction_speed = (sd_real)speed;
   int err = sd_control_check(&self->core->model, c);
   if (err != SD_CONTROL_OK) {
     PyErr_Format(PyExc_ValueError, "controller: %s", sd_control_strerror(err));
@@ -180,15 +185,17 @@ done:
   return result;
 }
 
-// set_gains(kp, kd): new PD gains from the next step on (gain scheduling), checked like __init__'s
+// set_gains(kp, kd, error_lowpass=None): new PD gains (and the low-pass of the errors they act
+// on; None keeps it) from the next step on (gain scheduling), checked like __init__'s
 static PyObject* Controller_set_gains(ControllerObject* self, PyObject* args) {
-  PyObject *okp, *okd;
-  if (!PyArg_ParseTuple(args, "OO", &okp, &okd)) {
+  PyObject *okp, *okd, *olp = Py_None;
+  if (!PyArg_ParseTuple(args, "OO|O", &okp, &okd, &olp)) {
     return NULL;
   }
   sd_control_config c = self->config;
   int nv = self->core->model.ndof;
-  if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd")) {
+  if (sd_fill(c.kp, okp, nv, "kp") || sd_fill(c.kd, okd, nv, "kd") ||
+      (olp != Py_None && sd_fill(c.error_lowpass, olp, nv, "error_lowpass"))) {
     return NULL;
   }
   int err = sd_control_check(&self->core->model, &c);
@@ -212,7 +219,7 @@ static PyObject* Controller_get(ControllerObject* self, void* closure) {
 static PyMethodDef Controller_methods[] = {
     {"reset", (PyCFunction)Controller_reset, METH_NOARGS, "start a new run at tick 0"},
     {"set_gains", (PyCFunction)Controller_set_gains, METH_VARARGS,
-     "set_gains(kp, kd): new PD gains from the next step on"},
+     "set_gains(kp, kd, error_lowpass=None): new PD gains (and the errors' low-pass) from the next step on"},
     {"step", (PyCFunction)Controller_step, METH_VARARGS,
      "step(q_d, qd_d, qdd_d, q, qd) -> tau: one small_time_step of the controller"},
     {"simulate", (PyCFunction)Controller_simulate, METH_VARARGS,

@@ -22,6 +22,13 @@ MODES = {
     "pd": _core.MODE_PD,                            # the joint PD alone
 }
 DEFAULT_MODE = "feedforward_pd"
+# rad/s: the speed over which the compensated Coulomb friction rises to its full value,
+# F_c·tanh(q̇_d/FRICTION_SPEED) (firmware/core/control.c says why it is smoothed). Four velocity
+# quanta of a Dynamixel (0.229 rpm = 0.024 rad/s each; a CAN motor's 12-bit speed field is as
+# coarse): below it a measured speed is mostly quantisation, so friction identified there is not
+# known either; a plan's reversal crosses it in a few ticks (0.1 rad/s at 5 rad/s² is 20 ms), so
+# the command ramps by 2·F_c instead of stepping in one tick, and 97 % of F_c is on at 0.2 rad/s.
+FRICTION_SPEED = 0.1
 
 
 class ControlFault(ServodynError, ValueError):
@@ -43,6 +50,9 @@ class ControlConfig:
     kp: np.ndarray | None = None
     kd: np.ndarray | None = None
     tau_max: np.ndarray | float | None = None   # N m; None or 0: no limit
+    friction_coulomb: np.ndarray | None = None  # N m per dof, compensated on q̇_d; None: none
+    friction_viscous: np.ndarray | None = None  # N m s/rad per dof
+    friction_speed: float = FRICTION_SPEED      # rad/s: the Coulomb term's smoothing
 
     @property
     def update_ticks(self) -> int:
@@ -105,9 +115,12 @@ class Controller:
         self.tau_max = np.broadcast_to(np.asarray(limit, dtype=float), (n,)).copy()
         core = model._pick(precision)
         controller_type = _core32.Controller if precision == "float" else _core.Controller
+        friction = {name: np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
+                    for name, value in (("friction_coulomb", config.friction_coulomb),
+                                        ("friction_viscous", config.friction_viscous)) if value is not None}
         try:
             self._c = controller_type(core, MODES[config.mode], config.update_ticks, self.kp,
-                                      self.kd, self.tau_max)
+                                      self.kd, self.tau_max, friction_speed=config.friction_speed, **friction)
         except ValueError as err:
             raise ValueError(f"{err} (ball joints are for simulation only)" if any(
                 b.ball for b in model.bodies) else str(err)) from None
@@ -115,12 +128,17 @@ class Controller:
     def reset(self) -> None:
         self._c.reset()
 
-    def set_gains(self, kp, kd) -> None:
-        """New PD gains from the next step on (gain scheduling)."""
+    def set_gains(self, kp, kd, error_lowpass=None) -> None:
+        """New PD gains from the next step on (gain scheduling), and the one-pole low-pass of the
+        errors they act on (per dof, 1 - exp(-w_c dt); 0: none; None: unchanged; see
+        schedule.error_lowpass)."""
         n = self.model.nv
         self.kp = np.broadcast_to(np.asarray(kp, dtype=float), (n,)).copy()
         self.kd = np.broadcast_to(np.asarray(kd, dtype=float), (n,)).copy()
-        self._c.set_gains(self.kp, self.kd)
+        if error_lowpass is None:
+            self._c.set_gains(self.kp, self.kd)
+        else:
+            self._c.set_gains(self.kp, self.kd, np.broadcast_to(np.asarray(error_lowpass, dtype=float), (n,)).copy())
 
     def step(self, q_d, qd_d, qdd_d, q, qd) -> np.ndarray:
         """One small_time_step: the torques for the measured (q, qd) and the desired state."""

@@ -7,9 +7,17 @@ SMALL_TIME_STEP = 1e-3   # s: the default control period (one servo read and wri
                          # may set its own, `[control] period`) and the longest RK4 step of the plant
 MIN_CONTROL_PERIOD = 1e-4   # s: 10 kHz, beyond any servo bus's round trip
 TIME_STEP = 1e-2         # s: the inverse dynamics period (paper: ~10 small steps), held in between
-BANDWIDTH = 20.0         # rad/s of each joint's PD on its own inertia, at least
+BANDWIDTH = 20.0         # rad/s of each joint's PD on its own inertia, unless its sensors' resolution
+                         # bounds it (QUANTUM_SHARE)
 MAX_BANDWIDTH = 100.0    # rad/s: at 1 kHz the discrete loop keeps its damping up to about here
 MIN_STIFFNESS = 2.0      # N m/rad: a servo's friction (~0.02 N m) then leaves ~0.01 rad of error
+QUANTUM_SHARE = 0.3      # the torque the PD commands for one count of each sensor (an encoder tick
+                         # and a velocity unit, kp dq + kd dv) stays within this share of the joint's
+                         # torque scale (the largest feed-forward of its plan); through the error
+                         # low-pass that leaves the command's part above 20 Hz near 2 % of its peak
+ERROR_FILTER_RATIO = 6.0  # the PD's errors are low-passed at this many times the joint's bandwidth:
+                          # the closed loop (PD, filter, a period's hold) then keeps a damping ratio
+                          # of 0.9 or more (tests/test_gains.py)
 HOME_DURATION = 2.0      # s to move from wherever the arm is to a motion's start pose
 GAIN_PERIOD = 0.1        # s between two knots of a gain schedule (on the played, scaled clock)
 BUS_WATCHDOG = 0.1       # s of bus silence after which the servos drop torque by themselves

@@ -1,8 +1,8 @@
 """The control loop: one tick, a run of ticks against a servo bus, and its log.
 
 A tick (`tick`) is what the host loop, the HIL replay of the firmware and the firmware itself do
-every small_time_step: new PD gains from the schedule every `update_ticks`, the controller step
-on the measured state (inverse dynamics every time_step, held, plus the PD). `follow` wraps it
+every small_time_step: new PD gains from the schedule every `update_ticks` (with the low-pass of
+the errors they act on), the controller step on the measured state (inverse dynamics every time_step, held, plus the PD). `follow` wraps it
 between one `read_state()` and one `write()` of a bus — ros2_control's read → update → write —
 for each sample of a planned segment, and logs it (`log.RunLog`, whose reader is beside its
 writer). `summarize` turns a log into the run's figures; `realtime` places a real-time loop (its
@@ -11,6 +11,7 @@ priority, its CPU, the garbage collector paused).
 
 from __future__ import annotations
 
+import math
 import signal
 import time
 from contextlib import nullcontext
@@ -29,7 +30,7 @@ def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
     """The controller's torque for sample k of the segment at the measured (q, qd)."""
     traj = segment.traj
     if k % controller.config.update_ticks == 0:
-        controller.set_gains(*segment.gains.at(traj.t[k] - traj.t[0]))
+        controller.set_gains(*segment.gains.at(traj.t[k] - traj.t[0]), segment.gains.error_lowpass)
     return controller.step(traj.q[k], traj.qd[k], traj.qdd[k], q, qd)
 
 
@@ -110,7 +111,31 @@ def _follow(bus, controller, segment, log, realtime, on_tick, progress, toleranc
 # the figures of a run that has ticks (summarize): null in the summary of one that has none
 FIGURES = ("tracking_rms_rad", "tracking_max_rad", "tracking_max_by_dof_rad", "loop_hz", "jitter_p99_ms",
            "jitter_max_ms", "period_median_ms", "tick_median_ms", "cpu_ms_per_tick", "process_cpu_ms_per_tick",
-           "peak_torque_nm")
+           "peak_torque_nm", "chatter_by_dof", "chatter_max")
+
+CHATTER_CUTOFF_HZ = 20.0    # a command's part above this is chatter: an arm's motion lives below it
+CHATTER_GOAL = 0.02         # that part's rms, as a share of the joint's peak |torque|, a servo can live with
+TRACKING_GOAL_RAD = math.radians(0.5)    # the largest tracking error the gains must keep to meanwhile
+
+
+def chatter(tau, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The chatter of commanded torques tau (ticks x joints, sampled every dt s), per joint: the
+    part above CHATTER_CUTOFF_HZ, tau minus its zero-phase low-pass (a second-order Butterworth
+    run forward and backward, so the motion itself is not shifted into it), as (its rms over the
+    joint's peak |tau|, its peak-to-peak in N m). None for a run too short to filter (under a
+    period of the cut-off) or sampled too coarsely to hold it."""
+    from scipy.signal import butter, sosfiltfilt
+    tau = np.asarray(tau, dtype=float)
+    if len(tau) * dt < 1.0 / CHATTER_CUTOFF_HZ or CHATTER_CUTOFF_HZ >= 0.5 / dt:
+        return None
+    # padded by three periods of the cut-off (reflected about each end), so that the filter's
+    # start-up at the ends does not count as chatter
+    pad = min(len(tau) - 1, int(round(3.0 / (CHATTER_CUTOFF_HZ * dt))))
+    high = tau - sosfiltfilt(butter(2, CHATTER_CUTOFF_HZ, fs=1.0 / dt, output="sos"), tau, axis=0, padlen=pad)
+    peak = np.abs(tau).max(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(peak > 0, np.sqrt(np.mean(high**2, axis=0)) / np.where(peak > 0, peak, 1.0), 0.0)
+    return share, np.ptp(high, axis=0)
 
 
 def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, error=None) -> dict:
@@ -119,8 +144,11 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
     runs as fast as it can) from the median period. CPU per tick is the loop thread's CPU time
     (time.thread_time) from the read to the end of the write; the process's (time.process_time)
     also counts a simulated bus running in this process. These depend on the machine: they are
-    reported, and measured in `make bench`, never asserted by a test."""
-    clock = {"clock": "realtime" if realtime else "lockstep", "missed_deadlines": log.missed if realtime else None}
+    reported, and measured in `make bench`, never asserted by a test. Chatter (chatter()) and the
+    largest tracking error per joint are reported beside their goals (CHATTER_GOAL,
+    TRACKING_GOAL_RAD)."""
+    clock = {"clock": "realtime" if realtime else "lockstep", "missed_deadlines": log.missed if realtime else None,
+             "chatter_goal": CHATTER_GOAL, "tracking_goal_rad": TRACKING_GOAL_RAD}
     if not log.t:        # every key still there, null: a reader of summary.json needs no special case
         return {"completed": False, "ticks": 0, **dict.fromkeys(FIGURES), **clock,
                 "error": str(error) if error else "no tick ran", "last_tick_time_s": None}
@@ -136,6 +164,7 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
     jitter = np.abs(periods - (period if realtime else np.median(periods)))
     cpu = np.array(log.cpu_seconds, dtype=float)
     process_cpu = np.array(log.process_cpu_seconds, dtype=float)
+    buzz = chatter(log.tau, period)
     return {
         "completed": error is None and len(log.t) == planned_ticks,
         "ticks": len(log.t),
@@ -152,6 +181,10 @@ def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, er
         "process_cpu_ms_per_tick": {"median": float(np.median(process_cpu) * 1e3),
                                     "p99": float(np.percentile(process_cpu, 99) * 1e3)},
         "peak_torque_nm": dict(zip(names, map(float, np.abs(np.array(log.tau)).max(axis=0)))),
+        # the commanded torque's part above CHATTER_CUTOFF_HZ (chatter()): rms over peak, and N m
+        "chatter_by_dof": None if buzz is None else {
+            name: {"rms_share": float(share), "peak_to_peak_nm": float(p2p)} for name, share, p2p in zip(names, *buzz)},
+        "chatter_max": None if buzz is None else float(buzz[0].max()),
         "error": str(error) if error else None,
         "last_tick_time_s": float(log.t[-1]),
     }

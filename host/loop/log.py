@@ -14,7 +14,11 @@ from pathlib import Path
 import numpy as np
 
 FLUSH_EVERY = 0.1      # s of wall-clock time between two writes of a streamed log to disk
-PER_DOF = ("q_d", "q", "qd", "tau", "current")     # the columns of each dof, after t
+PER_DOF = ("q_d", "q", "qd", "tau", "current", "temperature")     # the columns of each dof, after t
+# every column but temperature must be a finite number; temperature (°C, the winding's as the servo
+# reports it, read at a low rate and held between reads) is nan where the bus does not read it, and
+# a log written before it existed reads with it nan
+NEEDED = PER_DOF[:-1]
 
 
 class RunLogError(ValueError):
@@ -37,11 +41,15 @@ class RunLog:
     qd: list = field(default_factory=list)
     tau: list = field(default_factory=list)
     current: list = field(default_factory=list)
+    temperature: list = field(default_factory=list)     # °C, nan where not read
     tick_seconds: list = field(default_factory=list)    # wall time of each tick's work
     tick_start: list = field(default_factory=list)      # s (perf_counter) when each tick began
     cpu_seconds: list = field(default_factory=list)     # CPU time of the loop's thread in each tick
     process_cpu_seconds: list = field(default_factory=list)   # CPU time of the whole process in it
     missed: int = 0             # ticks whose work ended after their period's end (real time)
+
+    def __post_init__(self):
+        self._unread = np.full(len(self.dof_names), math.nan)
 
     def add(self, t, q_d, state, tau, seconds, start, cpu, process_cpu) -> None:
         # t last: a signal's exception (SIGINT, SIGTERM stop the swing) between two appends
@@ -51,6 +59,9 @@ class RunLog:
         self.qd.append(state.qd)
         self.tau.append(np.array(tau))
         self.current.append(state.current)
+        # a state of a bus that reads no temperature: none, or a record without the field
+        temperature = getattr(state, "temperature", None)
+        self.temperature.append(self._unread if temperature is None else temperature)
         self.tick_seconds.append(seconds)
         self.tick_start.append(start)
         self.cpu_seconds.append(cpu)
@@ -127,7 +138,8 @@ class RunLog:
 
     def _trim(self) -> None:
         """Every column as long as t: a row whose add() a signal cut short is dropped whole."""
-        for column in (self.q_d, self.q, self.qd, self.tau, self.current, self.tick_seconds, self.tick_start,
+        for column in (self.q_d, self.q, self.qd, self.tau, self.current, self.temperature, self.tick_seconds,
+                       self.tick_start,
                        self.cpu_seconds, self.process_cpu_seconds):
             del column[len(self.t):]
 
@@ -144,7 +156,8 @@ class RunLog:
     def _row(self, k: int) -> list[str]:
         """Row k's fields, formatted (as Python floats: exactly the values, as numpy's scalars
         format them, for less)."""
-        row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k], self.current[k]))
+        row = np.concatenate(([self.t[k]], self.q_d[k], self.q[k], self.qd[k], self.tau[k], self.current[k],
+                              self.temperature[k]))
         return [f"{v:.9g}" for v in row.tolist()]
 
     def _write_rows(self, writer, start: int) -> int:
@@ -154,11 +167,12 @@ class RunLog:
         return len(self.t)
 
 
-def read_run_log(path: str | Path, model, need=PER_DOF) -> RunLog:
+def read_run_log(path: str | Path, model, need=NEEDED) -> RunLog:
     """A run log as `RunLog` wrote it (a folder: its swing_log.csv), its columns for the model's
-    dofs as arrays (t: (N,); q_d, q, qd, tau, current: (N, n)); RunLogError for a file that is not one
-    (unreadable, missing the `need` columns of a dof, a value that is not a finite number, time
-    not increasing, fewer than two rows)."""
+    dofs as arrays (t: (N,); q_d, q, qd, tau, current, temperature: (N, n)); RunLogError for a file
+    that is not one (unreadable, missing the `need` columns of a dof, a value that is not a finite
+    number outside the temperature columns, time not increasing, fewer than two rows). A column
+    the file does not have reads as nan."""
     file = Path(path) / "swing_log.csv" if Path(path).is_dir() else Path(path)
     dof_names = model.dof_names
     try:
@@ -181,13 +195,16 @@ def read_run_log(path: str | Path, model, need=PER_DOF) -> RunLog:
         data = np.array([[float(x) for x in row] for row in rows[1:]], dtype=float)
     except ValueError:
         raise RunLogError(f"{file}: a value that is not a number (or a row of another length)") from None
-    if data.ndim != 2 or len(data) < 2 or data.shape[1] != len(header) or not np.all(np.isfinite(data)):
+    finite = [k for k, name in enumerate(header) if not name.startswith("temperature_")]
+    if data.ndim != 2 or len(data) < 2 or data.shape[1] != len(header) or not np.all(np.isfinite(data[:, finite])):
         raise RunLogError(f"{file}: needs at least two complete rows of finite numbers")
     t = data[:, t_col]
     if np.any(np.diff(t) <= 0):
         raise RunLogError(f"{file}: time must increase")
     log = RunLog(tuple(dof_names))
     log.t = t
+    present = {p: [header.index(f"{p}_{d}") for d in dof_names] for p in PER_DOF
+               if all(f"{p}_{d}" in header for d in dof_names)}
     for p in PER_DOF:
-        setattr(log, p, data[:, where[p]] if p in where else np.full((len(t), len(dof_names)), math.nan))
+        setattr(log, p, data[:, present[p]] if p in present else np.full((len(t), len(dof_names)), math.nan))
     return log

@@ -101,25 +101,16 @@ def _cross(a, b):
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-def _rotv(w, angle, v):
-    """v turned by `angle` about the unit axis w (Rodrigues on vectors, broadcasting)."""
-    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + _cross(w, v) * s + w * (np.sum(w * v, axis=-1)[..., None] * (1 - c))
+_EYE = np.eye(3)
 
 
 def _rot(w, angle):
     """Rotation matrices (..., 3, 3) about the unit axis w (3,) by angles (...)."""
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    K = _skew(w)
+    if np.ndim(angle) == 0:
+        return _EYE + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
     a = np.asarray(angle, dtype=float)[..., None, None]
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
-
-
-def _angle_about(w, a, b):
-    """The angle about unit w that turns a's component across w onto b's (..., 3)."""
-    ap = a - w * np.sum(w * a, axis=-1)[..., None]
-    bp = b - w * np.sum(w * b, axis=-1)[..., None]
-    return np.arctan2(np.sum(w * _cross(ap, bp), axis=-1), np.sum(ap * bp, axis=-1)), \
-        np.linalg.norm(ap, axis=-1)
+    return _EYE + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
 
 
 def _rotation_angle(R) -> float:
@@ -176,7 +167,7 @@ def _euler(G, w0, w1, w2, hint0):
     a = np.arctan2(np.sum((ap @ K0.T) * bp, axis=-1), np.sum(ap * bp, axis=-1))
     a = np.where(np.sum(ap * ap, axis=-1) < 1e-18, hint0, a)
     # c: what Rot(w1, -b) Rot(w0, -a) G does to a vector x across w2
-    x = np.cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
+    x = _cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
     x /= np.linalg.norm(x)
     y = _turn(w1, K1, -b, _turn(w0, K0, -a, (G @ x)[:, None, :]))
     c = np.arctan2(y @ (_skew(w2) @ x), y @ x)
@@ -278,23 +269,43 @@ class Arm:
         return tuple(names[k] for k in self.q_index)
 
     # ---------------------------------------------------------------- forward kinematics
+    def _exp(self, k, angle):
+        """The rotation of dof k by angle (its cross matrices kept from the first call)."""
+        if "K" not in self._cache:
+            K = np.array([_skew(w) for w in self.axis])
+            self._cache["K"], self._cache["KK"] = K, K @ K
+        return _EYE + math.sin(angle) * self._cache["K"][k] + (1 - math.cos(angle)) * self._cache["KK"][k]
+
     def forward(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Hand rotation and origin at chain angles x (n,), and each dof's world axis and pivot."""
-        R, p = np.eye(3), np.zeros(3)
+        R, p = _EYE, np.zeros(3)
         axes, pivots = np.empty((self.n, 3)), np.empty((self.n, 3))
         for k in range(self.n):
             w, r = self.axis[k], self.point[k]
             axes[k] = R @ w
             pivots[k] = R @ r + p
-            E = _rot(w, x[k])
+            E = self._exp(k, float(x[k]))
             p = p + R @ (r - E @ r)
             R = R @ E
         return R @ self.end_R, R @ self.end_p + p, axes, pivots
 
     def hand(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The hand's rotation and origin at the model's q."""
-        R, p, _, _ = self.forward(np.asarray(q, dtype=float)[self.q_index])
-        return R, p
+        x = np.asarray(q, dtype=float)[self.q_index]
+        R, p = _EYE, np.zeros(3)
+        for k in range(self.n):
+            r = self.point[k]
+            E = self._exp(k, float(x[k]))
+            p = p + R @ (r - E @ r)
+            R = R @ E
+        return R @ self.end_R, R @ self.end_p + p
+
+    def _elbow_axis(self, x) -> np.ndarray:
+        """The elbow's axis (the 4th of the last seven dofs) at chain angles x, in the base frame."""
+        R = _EYE
+        for k in range(self.n - 4):
+            R = R @ self._exp(k, float(x[k]))
+        return R @ self.axis[self.n - 4]
 
     # ---------------------------------------------------------------- S-R-S structure
     def _find_srs(self) -> tuple[_Srs | None, str]:
@@ -327,7 +338,7 @@ class Arm:
         # reach over the elbow's range: |W(θ) - S| at the ends and where it is longest or shortest
         lo, hi = self.lower[-4], self.upper[-4]
         theta = np.linspace(max(lo, -math.pi), min(hi, math.pi), 2001)
-        d = np.linalg.norm(_rotv(we, theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
+        d = np.linalg.norm(_turn(we, _skew(we), theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
         return _Srs(S=S, W=W, min_reach=float(d.min()), max_reach=float(d.max()),
                     elbow_lo=lo, elbow_hi=hi), ""
 
@@ -342,10 +353,10 @@ class Arm:
     # ---------------------------------------------------------------- closed form
     def _prefix(self, x) -> tuple[np.ndarray, np.ndarray]:
         """The pose (R, p) the dofs before the S-R-S seven give the chain's frame at angles x."""
-        R, p = np.eye(3), np.zeros(3)
+        R, p = _EYE, np.zeros(3)
         for k in range(self.n - 7):
             w, r = self.axis[k], self.point[k]
-            E = _rot(w, x[k])
+            E = self._exp(k, float(x[k]))
             p = p + R @ (r - E @ r)
             R = R @ E
         return R, p
@@ -465,8 +476,7 @@ class Arm:
                 preferred = 0.0
             else:
                 # keep the elbow's previous bending direction, as seen across the new line
-                _, _, axes, _ = self.forward(x_prev)
-                preferred = self._swivel_at(pos_l - s.S, Rp.T @ axes[-4])
+                preferred = self._swivel_at(pos_l - s.S, Rp.T @ self._elbow_axis(x_prev))
             phis = np.array([preferred])
         if cold and swivel is None:
             return self._search_swivel(pos_l, rot_l, float(phis[0]), tail, x_ref)
@@ -499,21 +509,16 @@ class Arm:
                            "puts a joint past its limit")
         signed = np.angle(np.exp(1j * (phis - preferred)))
         k = int(np.argmin(np.where(ok, np.abs(signed), np.inf)))
-        best_x, best_phi = x[k], phis[k]
-        # close in on the edge of the in-limit range from the preferred swivel's side, twice
-        near, far = preferred, preferred + signed[k]
-        for _ in range(2):
-            fine = np.linspace(near, far, 17)
-            xf, ef = self._pick(pos, rot, fine, x_prev, x_ref)
-            inside = np.flatnonzero(ef <= TOL_LIMIT)
-            if not len(inside):
-                break
-            j = int(inside[0])
-            best_x, best_phi = xf[j], fine[j]
-            if j == 0:
-                break
-            near, far = fine[j - 1], fine[j]
-        return best_x, float(best_phi)
+        # close in on the edge of the in-limit range from the preferred swivel's side, between the
+        # in-limit grid swivel and its neighbour towards the preferred one (to 1/16 of a step, 0.3°)
+        step = 2 * math.pi / GRID
+        far = preferred + signed[k]
+        fine = np.linspace(far - math.copysign(step, signed[k]), far, 17)
+        xf, ef = self._pick(pos, rot, fine, x_prev, x_ref)
+        inside = np.flatnonzero(ef <= TOL_LIMIT)
+        if not len(inside):                                   # (the last is the grid's swivel: inside)
+            return x[k], float(phis[k])
+        return xf[inside[0]], float(fine[inside[0]])
 
     # ---------------------------------------------------------------- damped least squares
     def solve_dls(self, x0, pos, rot, lower=None, upper=None, iterations=100):
@@ -600,8 +605,8 @@ def solve(model: Model, position, rotation=None, q_prev=None, swivel: float | No
         raise IkError(f"the swivel must be a finite angle, got {swivel!r}")
     if method == "srs" and arm.srs is None:
         raise IkError(f"model '{model.name}': no closed form: {arm.why_not_srs}")
-    S = arm._shoulder()
-    reach_m = float(np.linalg.norm(pos - S))
+    Rp, pp = arm._prefix(x_prev) if arm.srs is not None else (_EYE, np.zeros(3))
+    reach_m = float(np.linalg.norm(pos - (Rp @ arm._shoulder() + pp)))
     refusal = None
     x, phi, how, iterations = None, math.nan, "srs", 0
     if arm.srs is not None and method != "dls":
@@ -697,10 +702,10 @@ def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.0
             if np.any(np.abs(x_new - x_prev) > step * (1 + 1e-9)):
                 lo = np.maximum(arm.lower, x_prev - step)
                 hi = np.minimum(arm.upper, x_prev + step)
-                x, _, _ = arm.solve_dls(np.clip(x_new, lo, hi), r_pos := positions[i], rot, lo, hi, 30)
+                x, _, _ = arm.solve_dls(np.clip(x_new, lo, hi), positions[i], rot, lo, hi, 30)
                 q_new = _put(q, arm, x)
                 R, p = arm.hand(q_new)
-                r = IkResult(q=q_new, position_error=float(np.linalg.norm(p - r_pos)),
+                r = IkResult(q=q_new, position_error=float(np.linalg.norm(p - positions[i])),
                              rotation_error=0.0 if rot is None else _rotation_angle(R @ rot.T),
                              reach=r.reach, reach_m=r.reach_m,
                              swivel=arm.swivel_of(x) if arm.srs is not None else math.nan, method="dls")

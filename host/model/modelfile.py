@@ -79,7 +79,9 @@ def parts() -> dict[str, dict]:
     global _parts
     if _parts is None:
         table = read_toml(PARTS_FILE, ModelError).get("part", {})
-        _parts = {name: _part_solid(name, entry) | {"armature": float(entry.get("armature", 0.0))}
+        # armature None: not known (never 0, which would make the part look lighter to drive)
+        _parts = {name: _part_solid(name, entry)
+                  | {"armature": float(entry["armature"]) if "armature" in entry else None}
                   for name, entry in table.items()}
     return _parts
 
@@ -93,8 +95,8 @@ def _dof_armature(dof: dict, where: str) -> tuple[float, str]:
     catalogue = parts()
     if "armature" in dof:
         raise ModelError(f"{where}: give 'motor' or 'armature', not both (the motor brings its armature)")
-    if not isinstance(name, str) or name not in catalogue or not catalogue[name]["armature"] > 0:
-        motors = [k for k, v in catalogue.items() if v["armature"] > 0]
+    if not isinstance(name, str) or name not in catalogue or not (catalogue[name]["armature"] or 0.0) > 0:
+        motors = [k for k, v in catalogue.items() if (v["armature"] or 0.0) > 0]
         raise ModelError(f"{where}: unknown motor {name!r} (parts with an armature: {', '.join(motors)})")
     return catalogue[name]["armature"], name
 
@@ -199,6 +201,12 @@ def _body_from(entry: dict, where: str, folder: Path | None, chain: tuple[Path, 
     if "from" in body:
         body = _body_from(body, f"{path.stem}: body '{body['name']}'", path.parent, chain + (path,))
     return body | {k: v for k, v in entry.items() if k != "from"}
+
+
+def resolved_body(entry: dict, folder: Path | None) -> dict:
+    """A [[body]] table whole: itself, or for one that says `from = FILE` the body it takes from that
+    file with its own keys in place (what the model is built from; sizing edits its solids)."""
+    return _body_from(entry, f"body '{entry.get('name')}'", folder) if "from" in entry else entry
 
 
 def model_from_dict(data: dict, origin: str = "model", folder: Path | None = None) -> Model:

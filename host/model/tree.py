@@ -349,6 +349,14 @@ class Model:
         return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
                      source=self.source)
 
+    def with_mass_scale(self, scale: float) -> "Model":
+        """The same model with every body's mass and inertia times `scale` (centres of mass kept)."""
+        if not (math.isfinite(scale) and scale > 0):
+            raise ModelError(f"mass scale must be a finite number > 0, got {scale}")
+        bodies = [replace(b, mass=b.mass * scale, inertia=b.inertia * scale) for b in self.bodies]
+        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
+                     source=self.source)
+
     def with_free_root(self) -> "Model":
         """The same model with body 0 floating free instead of fixed to the base."""
         first = self.bodies[0]
@@ -451,6 +459,23 @@ class Model:
             raise ValueError(f"integrator must be one of {sorted(INTEGRATORS)}, got '{integrator}'")
         return self._pick(precision).step(q, qd, tau, float(dt), INTEGRATORS[integrator], int(nsteps),
                                           None if f_ext is None else self._core_fext(f_ext))
+
+    def regressor(self, q, qd, qdd) -> np.ndarray:
+        """The joint-torque regressor Y (nv, 10·nbody): inverse_dynamics = Y @ inertial_parameters()
+        plus armature·qdd, without f_ext. A leading batch axis gives (N, nv, 10·nbody), computed in
+        C in one call. Columns per body in Pinocchio's order (m, m·c, I about the body origin:
+        xx, xy, yy, xz, yz, zz), in the core's body frame (frame_rot turns it to the user's)."""
+        return self.core.regressor(q, qd, qdd)
+
+    def inertial_parameters(self) -> np.ndarray:
+        """The bodies' parameters (10·nbody) in the order of regressor()'s columns."""
+        a = self._arrays
+        out = []
+        for mass, com, (xx, yy, zz, xy, xz, yz) in zip(a["mass"], a["com"], a["inertia"]):
+            c = np.asarray(com, dtype=float)
+            I = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]) + mass * (c @ c * np.eye(3) - np.outer(c, c))
+            out.append([mass, *(mass * c), I[0, 0], I[0, 1], I[1, 1], I[0, 2], I[1, 2], I[2, 2]])
+        return np.array(out, dtype=float).ravel()
 
     def mass_matrix(self, q) -> np.ndarray:
         """The joint-space inertia matrix M(q), column by column from inverse dynamics (the

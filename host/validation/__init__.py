@@ -3,7 +3,10 @@ every limit — and what is the fastest uniform timing that does?
 
 The motion is sampled densely, every small_time_step of the played clock (never only at the
 keyframes); the joint torques of every sample come from the core's RNEA in one batched call
-(gravity and any payload included). Then, per joint and per sample, each check gives a ratio,
+(gravity and any payload included: `[payload]` is in the configuration's model, `--payload` adds
+on top), plus each joint's friction from the configuration (F_c·sign(q̇) + F_v·q̇): the torque
+the servo gives. Currents convert with the configuration's torque constant times its identified
+scale, heat with each joint's thermal constants (the servo's data sheet's unless configured). Then, per joint and per sample, each check gives a ratio,
 1 at its limit; a check passes where every ratio stays within the margin:
 
   position       |q − middle| / half the range                   (the configured joint limits)
@@ -33,7 +36,7 @@ from .checks import (CHECKS, Judgement, MotionRefused, Result, check, describe, 
 from .fit import fit_time_scale
 from .limits import Limits
 from .retime import retime
-from .thermal import AMBIENT, winding_temperature
+from ..hal.thermal import AMBIENT, winding_temperature
 
 __all__ = ["AMBIENT", "CHECKS", "Judgement", "Limits", "MotionRefused", "Result", "check", "describe",
            "fit_time_scale", "judge", "retime", "torque_speed_ratio", "violations", "winding_temperature"]

@@ -12,7 +12,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError
 from ..readable import fixed, percent
 from .limits import Limits
-from .thermal import AMBIENT, winding_temperature
+from ..hal.thermal import AMBIENT, winding_temperature
 
 class MotionRefused(ServodynError, ValueError):
     """The validator says a motion would leave a servo's limits: nothing moved. One line, the
@@ -65,7 +65,8 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
     """Every check of a trajectory sampled at the control period (see the module's docstring)."""
     L = limits
     q, qd, qdd = traj.q, traj.qd, traj.qdd
-    tau = model.inverse_dynamics(q, qd, qdd)              # one batched call into the C core
+    # the torque each servo gives: rigid body (one batched call into the C core) and the joint's friction
+    tau = model.inverse_dynamics(q, qd, qdd) + L.friction(qd)
     n_samples = len(traj.t)
     ratios, values, bounds = {}, {}, {}
 

@@ -22,7 +22,16 @@ def fit_time_scale(model, limits: Limits, path: MotionPath, margin: float, repea
     and the scale before narrows it to 0.1 %, each candidate checked densely like any run."""
     def passes(scale):
         return check(model, limits, path.at_scale(scale, limits.period), margin, repeat, ambient).passed
-    first, last, ratio = FIT_GRID
+    return smallest_passing_scale(passes)
+
+
+def smallest_passing_scale(passes, first: float = FIT_GRID[0], last: float = FIT_GRID[1],
+                           tolerance: float = FIT_TOLERANCE):
+    """The smallest time scale from `first` to `last` for which `passes(scale)` is true, found by a
+    geometric scan (xFIT_GRID[2]) and a bisection to `tolerance` between the first passing scale
+    and the one before; (None, why) when none does. Also sizing's (validation.sizing), whose
+    `passes` is "some set of catalogue servos passes"."""
+    ratio = FIT_GRID[2]
     below, scale = None, first
     while scale <= last * (1 + 1e-12):
         if passes(scale):
@@ -33,10 +42,10 @@ def fit_time_scale(model, limits: Limits, path: MotionPath, margin: float, repea
     if below is None:
         return scale, f"already passes at the scan's first scale, {first:g}"
     above = scale
-    while above - below > FIT_TOLERANCE * above:
+    while above - below > tolerance * above:
         middle = math.sqrt(below * above)
         if passes(middle):
             above = middle
         else:
             below = middle
-    return above, f"scan x{ratio:g} then bisection to {FIT_TOLERANCE:.1%}: fails at {below:.4f}, passes at {above:.4f}"
+    return above, f"scan x{ratio:g} then bisection to {tolerance:.1%}: fails at {below:.4f}, passes at {above:.4f}"

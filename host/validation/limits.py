@@ -19,7 +19,7 @@ class Limits:
     stall_torque: np.ndarray     # N m at the horn, at the supply voltage
     no_load_speed: np.ndarray    # rad/s at the horn, at the supply voltage
     gear: np.ndarray             # horn turns per joint turn
-    torque_constant: np.ndarray  # N m / A at the horn
+    torque_constant: np.ndarray  # N m / A at the horn: the configured one x its identified scale
     current: np.ndarray          # A
     no_load_current: np.ndarray  # A
     resistance: np.ndarray       # Ω at 25 °C
@@ -32,6 +32,15 @@ class Limits:
     supply_current: float | None
     wire: list = field(default_factory=list)   # (bus name, seconds per tick, description)
     period: float = SMALL_TIME_STEP            # s: the configuration's control period, the sampling
+    friction_coulomb: np.ndarray | None = None   # N m at the joint (the configuration's; None: none)
+    friction_viscous: np.ndarray | None = None   # N m s/rad at the joint
+
+    def friction(self, qd: np.ndarray) -> np.ndarray:
+        """The joints' friction torque (N m) against their speeds: F_c·sign(q̇) + F_v·q̇, what the
+        servos must give on top of the rigid-body torque."""
+        if self.friction_coulomb is None:
+            return np.zeros_like(qd)
+        return self.friction_coulomb * np.sign(qd) + self.friction_viscous * qd
 
     @classmethod
     def of(cls, config, voltage: float) -> "Limits":
@@ -51,9 +60,11 @@ class Limits:
                    torque_constant=arr(j.torque_constant for j in joints), current=arr(j.current_limit for j in joints),
                    no_load_current=arr(s.no_load_current for s in servos),
                    resistance=arr(s.winding_resistance for s in servos),
-                   thermal_resistance=arr(s.thermal_resistance for s in servos),
-                   thermal_time_constant=arr(s.thermal_time_constant for s in servos),
+                   thermal_resistance=arr(j.thermal_resistance for j in joints),
+                   thermal_time_constant=arr(j.thermal_time_constant for j in joints),
                    temperature=arr(s.temperature_limit for s in servos),
                    command=arr(c[0] for c in command), command_step=arr(c[1] for c in command),
+                   friction_coulomb=arr(j.friction_coulomb for j in joints),
+                   friction_viscous=arr(j.friction_viscous for j in joints),
                    voltage=voltage, supply_current=config.supply.current_limit if config.supply else None,
                    wire=wire, period=config.control_period)

@@ -55,17 +55,17 @@ def run(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[str, Path]:
     _runs += 1
     out = _SCRATCH / f"run{_runs}"
     argv = list(args)
-    if args[0] in ("swing", "validate", "experiment", "demo"):
+    if args[0] in ("swing", "validate", "experiment", "demo", "size"):
         argv += ["--out", str(out)]
     if args[0] == "retarget":
         argv += ["--report", str(out), "-o", str(out / "motion.csv")]
-    if args[0] == "validate" and "--simulate" not in args:
+    if args[0] in ("validate", "size") and "--simulate" not in args:
         proc = _in_process(argv)
     else:
         proc = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *argv], cwd=_SCRATCH,
                               capture_output=True, text=True)
     shown = "servodyn " + shlex.join(args)
-    default = {"swing": "out/swing", "validate": "out/validate", "demo": "out/demo"}.get(args[0])
+    default = {"swing": "out/swing", "validate": "out/validate", "demo": "out/demo", "size": "out/size"}.get(args[0])
     if args[0] == "experiment":
         default = f"out/{args[1]}"
     if "Traceback" in proc.stderr or proc.returncode not in ok:
@@ -269,6 +269,8 @@ def readme_swing() -> dict:
     human = validate("replica", "tennis_forehand", "--fit", "--retime")
     return {**make_demo(), "ff_max": deg(ff["tracking_max_rad"]), "ff_rms": deg(ff["tracking_rms_rad"]),
             "pd_max": deg(pd["tracking_max_rad"]), "ticks": ff["ticks"] + ff["home_ticks"],
+            "ff_chatter": 100 * ff["chatter_max"],
+            "chatter_dof": max(ff["chatter_by_dof"], key=lambda dof: ff["chatter_by_dof"][dof]["rms_share"]),
             "home_ticks": ff["home_ticks"], "scale": ff["time_scale"],
             "rot_speed": _joint(human, "r_shoulder_rotation")["peak_speed_rad_s"],
             "rot_limit": _limit(human, "r_shoulder_rotation", "speed", "peak_speed_rad_s")}
@@ -573,3 +575,115 @@ def model_counts() -> dict:
         values[f"{name}_bodies"], values[f"{name}_dofs"] = int(bodies), int(dofs)
         values[f"{name}_kg"] = model_mass(name)
     return values
+
+
+# ------------------------------------------------------------------ README: servodyn size, validate M1 M2 …
+
+SIZE_SCALES = (4, 2, 1)                 # the replica's own time scale, then faster, then human speed
+
+
+def size(*args: str) -> dict:
+    """`servodyn size ARGS`: its size.json (exit 0 a set passes, 1 none does)."""
+    return _json(("size", *args), "size.json", ok=(0, 1))
+
+
+def replica_size(scale: float) -> dict:
+    return size("replica", "--motion", "tennis_forehand", "--time-scale", f"{scale:g}", "--supply-voltage", "12")
+
+
+def _cell(joint: dict) -> str:
+    return f"{joint['servo']} ({joint['worst_check'].replace('_', '-')} {joint['worst_ratio']:.2f})"
+
+
+def readme_size_table() -> None:
+    """The replica's forehand sized at time scales 4, 2, 1 (12 V, Dynamixel): each joint's servo
+    and its binding check, the bill's mass; where none passes, the joint and check that rule it out."""
+    try:
+        reports = {s: replica_size(s) for s in SIZE_SCALES}
+    except CommandFailed as failed:
+        return print(f"*Pending: `{failed.command}` fails today ({failed.why}); `make docs` writes this table "
+                     "once it runs.*")
+    own = config("replica")
+    print("| joint | the replica's own | " + " | ".join(f"sized, s = {s:g}" for s in SIZE_SCALES) + " |")
+    print("|---|---|" + "---|" * len(SIZE_SCALES))
+    for joint in own.joints:
+        cells = []
+        for s in SIZE_SCALES:
+            report = reports[s]
+            j = report["joints"][joint.dof]
+            failure = report.get("failure")
+            if j["servo"]:
+                cells.append(_cell(j))
+            elif failure and failure["dof"] == joint.dof:
+                cells.append(f"**none**; nearest: {failure['servo']} at {failure['ratio']:.2f} of its "
+                             f"{failure['check'].replace('_', '-')} limit")
+            else:
+                cells.append("(not reached)")
+        print(f"| {joint.dof} | {joint.servo.name} | " + " | ".join(cells) + " |")
+    masses = []
+    for s in SIZE_SCALES:
+        report = reports[s]
+        masses.append(f"**{report['servo_mass_kg']:.3f} kg**" if report["passed"] else
+                      f"none passes; {report['fit']['time_scale']:.3f}× slower: {report['fit']['servo_mass_kg']:.3f} kg")
+    replica_mass = sum(_part_mass(j.servo.name) for j in own.joints)
+    print(f"| servos' mass | {replica_mass:.3f} kg | " + " | ".join(masses) + " |")
+
+
+def _part_mass(name: str) -> float:
+    from servodyn.model.modelfile import parts
+    return float(parts()[name]["mass"])
+
+
+def readme_size() -> dict:
+    """The figures the size section quotes: the replica's margin to spare at its own time scale,
+    human speed in the Dynamixel catalogue (the joint and check that rule it out), any family at
+    human speed."""
+    own, human = replica_size(4), replica_size(1)
+    anyf = size("replica", "--motion", "tennis_forehand", "--family", "any")
+    spare = [(dof, j) for dof, j in own["joints"].items() if j.get("original_worst", {}).get("spare_kg", 0) > 0]
+    rot = own["joints"]["r_shoulder_rotation"]
+    f = human["failure"]
+    return {"own_mass": sum(_part_mass(j["original"]) for j in own["joints"].values()),
+            "s4_mass": own["servo_mass_kg"], "n_spare": len(spare),
+            "rot_orig_ratio": rot["original_worst"]["ratio"], "rot_servo": rot["servo"], "rot_orig": rot["original"],
+            "rot_orig_check": rot["original_worst"]["check"].replace("_", "-"),
+            "rot_spare_g": rot["original_worst"]["spare_kg"] * 1e3,
+            "fail_dof": f["dof"], "fail_check": f["check"].replace("_", "-"), "fail_servo": f["servo"],
+            "fail_ratio": f["ratio"], "fit": human["fit"]["time_scale"], "fit_mass": human["fit"]["servo_mass_kg"],
+            "any_passed": "passes" if anyf["passed"] else "fails",
+            "any_mass": anyf.get("servo_mass_kg", float("nan")), "any_voltage": anyf["supply_voltage"],
+            "any_bill": ", ".join(f"{n} × {name}" for name, n in anyf.get("bill", {}).items()),
+            "any_binding": "; ".join(f"{_short(dof)} {j['worst_check'].replace('_', '-')} {j['worst_ratio']:.2f}"
+                                     for dof, j in anyf["joints"].items() if j.get("worst_ratio", 0) >= 0.9),
+            "period_ms": own["control_period_s"] * 1e3}
+
+
+def readme_validate_many() -> None:
+    """`servodyn validate replica tennis_forehand out/validate/retimed.csv`: the forehand as written
+    and as TOPP-RA re-timed it, one verdict per motion (the tables left out)."""
+    _, first = run("validate", "replica", "tennis_forehand", "--fit", "--retime", ok=(0, 1))
+    retimed = str(first / "retimed.csv")
+    out, _ = run("validate", "replica", "tennis_forehand", retimed, ok=(0, 1))
+    lines = [line.replace(retimed, "out/validate/retimed.csv") for line in out.splitlines()
+             if line.startswith(("PASS", "FAIL", "ERROR")) or " of " in line and "pass" in line]
+    lines = [line.replace(str(_SCRATCH), "out") for line in lines]
+    code("\n".join(wrap(line) for line in lines))
+
+
+def hal_catalogue_table() -> None:
+    """Every catalogue servo at its nominal voltage: the figures sizing reads (hal's SERVOS and
+    MOTORS, parts.toml's mass and armature), a published model's armature or an estimate's."""
+    from servodyn.hal.backend import servo_catalogue
+    from servodyn.model.modelfile import parts
+    print("| servo | model number | gear | V | stall (peak) torque | stall current | no-load speed | mass "
+          "| armature (kg m²) | current control |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for kind in ("dynamixel", "can"):
+        for name, s in servo_catalogue(kind).items():
+            part = parts()[name]
+            estimate = "estimate" in part["source"].lower().split("armature", 1)[-1]
+            number = getattr(s, "model_number", None)
+            print(f"| {name} | {number if number is not None else 'CAN'} | {s.gear_ratio:g}:1 | {s.nominal_voltage:g} "
+                  f"| {s.stall_torque:g} N m | {s.stall_current:.2f} A | {s.no_load_speed_rpm:g} rpm "
+                  f"| {part['mass'] * 1e3:g} g | {part['armature']:.3g}{' (est.)' if estimate else ''} "
+                  f"| {'yes' if s.current_control else '**no**'} |")

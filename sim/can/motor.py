@@ -5,8 +5,8 @@ Control law, every plant step: τ = kp (p − θ) + t_ff + kd (v − ω) from th
 limited to ±min(TMAX, peak torque) and, driving, by back-EMF to τ_peak·(1 − |ω|/ω₀(V)) — zero at
 the no-load speed at the supply voltage. The law runs at the plant's step (1 ms), coarser than a
 real driver's 10–40 kHz loop: with the host closing the PD (kp = kd = 0) the feed-forward it
-applies is the same. Current I = τ/Kt heats the winding, C·dT/dt = I²R − (T − T_amb)/R_th; over
-the motor's temperature limit it faults (Damiao status C, CubeMars error 1) and goes limp. A motor
+applies is the same. Current I = τ/Kt heats the winding by the validator's model (hal/thermal.py:
+C·dT/dt = I²R(1 + α(T − 25 °C)) − (T − T_amb)/R_th); over the motor's temperature limit it faults (Damiao status C, CubeMars error 1) and goes limp. A motor
 that gets no command for its CAN timeout goes limp (Damiao status D). Friction: viscous plus a
 smoothed Coulomb term at the output.
 
@@ -27,8 +27,8 @@ import math
 from servodyn.hal.can import dialects, frames
 from servodyn.hal.can.dialects import DIALECTS
 from servodyn.hal.can.motors import MotorSpec
+from servodyn.hal.thermal import AMBIENT, winding_step
 
-AMBIENT = 25.0                 # °C
 MIT_FIRMWARE_TIMEOUT = 0.025   # s: the mini-cheetah firmware's CAN_TIMEOUT default
 FRICTION_VELOCITY = 0.2       # rad/s
 COOL_MARGIN = 10.0             # K below the limit before an over-temperature fault clears
@@ -70,6 +70,11 @@ class CanMotor:
         # friction at the output (estimates: no vendor figures), a Coulomb step smoothed over
         # FRICTION_VELOCITY so the plant's explicit 1 ms step stays stable on the light wrist links
         self.viscous, self.coulomb = 0.001 * peak, 0.005 * peak   # N m s/rad, N m
+        # the motor as it really is (a simulated plant that is not its data sheet, sim/robot.py):
+        # the torque its current gives (its replies still convert with the data sheet's) and its
+        # winding's thermal resistance and time constant
+        self.torque_constant = spec.torque_constant          # N m / A at the output
+        self.thermal = (spec.thermal_resistance, spec.thermal_time_constant)
         self.flash = self._ram()             # the registers a power cycle comes back with
         self.on_nonvolatile = None           # a bench's: told after the flash or the zero changed
         self.saves = 0                       # flash writes (0xAA acted on)
@@ -176,17 +181,18 @@ class CanMotor:
         return current
 
     def _heat(self, current: float, dt: float) -> None:
-        r_th, tau_th = self.spec.thermal_resistance, self.spec.thermal_time_constant
+        """The validator's winding model (hal/thermal.py), a step at the held current."""
+        r_th, tau_th = self.thermal
         if r_th <= 0 or tau_th <= 0:
             return
-        capacity = tau_th / r_th
-        self.temperature += dt * (current ** 2 * self.spec.winding_resistance - (self.temperature - AMBIENT) / r_th) / capacity
+        self.temperature = winding_step(self.temperature, current * current, dt, self.spec.winding_resistance,
+                                        r_th, tau_th)
         if self.temperature > self.spec.temperature_limit and not self.fault:
             self.fault = 0xC if self.dialect.name == "damiao" else 1
 
     def output_torque(self, current: float, velocity: float) -> float:
         friction = self.viscous * velocity + self.coulomb * math.tanh(velocity / FRICTION_VELOCITY)
-        return current * self.spec.torque_constant - friction
+        return current * self.torque_constant - friction
 
     # ---------------------------------------------------------------- frames
     def status(self) -> int:

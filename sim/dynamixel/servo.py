@@ -14,15 +14,19 @@ import struct
 from collections.abc import Callable
 
 from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
-from servodyn.hal.dynamixel.control_table import (BAUD_RATES, DRIVE_MODE_REVERSE, EEPROM_END, GOAL_POSITION_SPAN,
+from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, DRIVE_MODE_REVERSE, EEPROM_END, GOAL_POSITION_SPAN,
                                                   PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE, TICKS_PER_REV,
                                                   VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item, Model,
                                                   OperatingMode)
 
+from servodyn.hal.thermal import winding_step
+
 from .drive import Mechanics, PositionPid
 
 WATCHDOG_TRIPPED = -1
-_FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "moving"})   # set_present
+OVERHEATING = HARDWARE_FAULTS["overheating"]
+_FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "present_load",
+                         "moving"})   # set_present
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 _CHANGES = frozenset({"operating_mode", "torque_enable"})    # items whose change, not the write, acts
 GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
@@ -53,7 +57,7 @@ class Servo:
 
     def __init__(self, model: Model = XM430_W350, servo_id: int = 1, *, position: float = 0.0,
                  zero_ticks: int = TICKS_PER_REV // 2, supply_voltage: float = 12.0,
-                 temperature: int = 30, mechanics: Mechanics | None = None, baud: int | None = None,
+                 temperature: float = 30.0, mechanics: Mechanics | None = None, baud: int | None = None,
                  firmware: int | None = None):
         if not 0 <= servo_id <= MAX_ID:
             raise ValueError(f"servo ID {servo_id}: 0..{MAX_ID}")
@@ -72,9 +76,12 @@ class Servo:
                     ("id", "drive_mode", "torque_enable", "status_return_level", "hardware_error_status",
                      "return_delay_time", "operating_mode", "bus_watchdog", "realtime_tick", "goal_pwm", "baud_rate",
                      "pwm_limit", "goal_current", "current_limit", "present_input_voltage", "homing_offset",
-                     "moving_threshold", "moving")}
+                     "moving_threshold", "moving")
+                    if name in self.items}       # a model without current control has no current items
+        # Present Current, or Present Load on a model without current control (its unit in current_unit)
         self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
-                                                              "present_current"))
+                                                              "present_current" if model.current_control
+                                                              else "present_load"))
         self._no_load_speed = model.no_load_speed
         self._owner: list[Item | None] = [None] * TABLE_SIZE      # the item holding each byte
         self._layouts: dict[tuple[int, int], tuple] = {}           # (address, length) -> items written
@@ -100,7 +107,11 @@ class Servo:
             self._set("firmware_version", self._checked("firmware_version", firmware))
         self.baud = BAUD_RATES[self.get("baud_rate")]
         self._set("present_input_voltage", round(supply_voltage * 10))
-        self._set("present_temperature", temperature)
+        # the winding: the validator's model (hal/thermal.py), stepped by heat(); Present
+        # Temperature reports it in whole degrees
+        self.thermal = (model.thermal_resistance, model.thermal_time_constant)    # K/W, s
+        self.temperature = float(temperature)
+        self._set("present_temperature", max(0, min(255, round(temperature))))
         self._power_up()
 
     # --- a device of the bench (sim/bench.py) -----------------------------------------------------
@@ -354,10 +365,16 @@ class Servo:
         for name in ("profile_acceleration", "profile_velocity", *GAIN_ITEMS):
             self._set(name, self.items[name].default)
         self._set("goal_pwm", self.get("pwm_limit"))
-        self._set("goal_current", self.get("current_limit"))
+        self._goal_current_to_limit()
         self._pid.reset()
         if mode == OperatingMode.POSITION:
             self._reset_turns()
+
+    def _goal_current_to_limit(self) -> None:
+        """Goal Current = Current Limit, as a mode switch or power-up leaves it (a model without
+        current control has neither)."""
+        if self.model.current_control:
+            self._set("goal_current", self.get("current_limit"))
 
     def _load_defaults(self, eeprom: bool, writable_only: bool = False) -> None:
         for item in self.items.values():
@@ -367,7 +384,7 @@ class Servo:
     def _power_up(self) -> None:
         self._load_defaults(eeprom=False)
         self._set("goal_pwm", self.get("pwm_limit"))
-        self._set("goal_current", self.get("current_limit"))
+        self._goal_current_to_limit()
         self._registered = None
         self._heard_at = None
         self._pid.reset()
@@ -402,6 +419,22 @@ class Servo:
         else:
             self._set("goal_position", self.get("present_position"))
             self._set("position_trajectory", self.get("present_position"))
+
+    # --- heat ------------------------------------------------------------------------------------------
+
+    def heat(self, current_squared: float, dt: float) -> None:
+        """The winding `dt` seconds on at a mean I² (A²); over Temperature Limit(31) the servo
+        raises Overheating (Hardware Error Status bit 2), which its Shutdown cuts the torque for."""
+        r_th, tau_th = self.thermal
+        if r_th <= 0 or tau_th <= 0:
+            return
+        self.temperature = winding_step(self.temperature, current_squared, dt, self.model.winding_resistance,
+                                        r_th, tau_th)
+        degrees = max(0, min(255, round(self.temperature)))
+        if degrees != self._table[self.items["present_temperature"].address]:
+            self._set("present_temperature", degrees)
+            if degrees > self.get("temperature_limit") and not self.get("hardware_error_status") & OVERHEATING:
+                self.set_hardware_error(OVERHEATING)
 
     # --- hardware errors ---------------------------------------------------------------------------
 

@@ -16,6 +16,7 @@ typedef struct sdt_test_ {
 // the test tables, one per core source file, each ended by {0, 0}
 extern const sdt_test sdt_model_tests[];
 extern const sdt_test sdt_rnea_tests[];
+extern const sdt_test sdt_regressor_tests[];
 extern const sdt_test sdt_ag_tests[];
 extern const sdt_test sdt_integrate_tests[];
 extern const sdt_test sdt_trajectory_tests[];

@@ -112,11 +112,18 @@ static void check_rejects_bad_configs(void) {
                 "an infinite gain is rejected");
   CHECK_REJECTS(g_cfg.tau_max[last] = (sd_real)INFINITY, SD_CONTROL_ERR_LIMIT,
                 "an infinite limit is rejected (0 means none)");
+  CHECK_REJECTS(g_cfg.error_lowpass[1] = SD_R(1.5), SD_CONTROL_ERR_FILTER,
+                "a low-pass coefficient over 1 would overshoot the measured error");
+  CHECK_REJECTS(g_cfg.error_lowpass[0] = SD_R(-0.1), SD_CONTROL_ERR_FILTER,
+                "a negative low-pass coefficient would run away from the measured error");
+  CHECK_REJECTS(g_cfg.error_lowpass[last] = (sd_real)NAN, SD_CONTROL_ERR_FILTER,
+                "a NaN low-pass coefficient is rejected");
 }
 
 static void check_codes_have_messages(void) {
   static const int codes[] = {SD_CONTROL_ERR_MODE, SD_CONTROL_ERR_UPDATE, SD_CONTROL_ERR_BALL,
-                              SD_CONTROL_ERR_GAIN, SD_CONTROL_ERR_LIMIT};
+                              SD_CONTROL_ERR_GAIN, SD_CONTROL_ERR_LIMIT, SD_CONTROL_ERR_FILTER,
+                              SD_CONTROL_ERR_FRICTION};
   const int n = (int)(sizeof codes / sizeof codes[0]);
   const char* unknown = sd_control_strerror(-100);
   for (int k = 0; k < n; k++) {
@@ -322,6 +329,41 @@ static void pd_mode_has_no_inverse_dynamics(void) {
       for (int j = 0; j < n; j++) {
         EXPECT_NEAR(tau[j], pd[j], CTL_REL * (fabs(pd[j]) + 1),
                     "PD mode: tau = kp e + kd e', no inverse dynamics");
+      }
+    }
+  }
+}
+
+// the errors the gains act on through their one-pole low-pass: the first step after a reset
+// starts it at the measured errors, each later one moves it the coefficient's share of the way
+static void pd_acts_on_lowpassed_errors(void) {
+  unsigned seed = 47;
+  for (int model = 0; model < SDT_NMODEL; model++) {
+    const char* name;
+    if (sdt_model_by_index(&g_model, model, &name) != SD_OK || g_model.free_root) continue;
+    int n = g_model.ndof;
+    configure(&g_cfg, &g_model, SD_MODE_PD, 3, 8);
+    for (int j = 0; j < n; j++) g_cfg.error_lowpass[j] = (sd_real)(0.05 + 0.1 * j);
+    memset(&g_data, 0, sizeof g_data);
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "coefficients in [0, 1] are accepted");
+    ctl_states s;
+    sd_real tau[SDT_MAXN];
+    double e[SDT_MAXN], de[SDT_MAXN];
+    for (int round = 0; round < 2; round++) {     // a reset starts the filter over
+      sd_control_reset(&g_state);
+      for (int t = 0; t < 5; t++) {
+        random_states(&seed, &g_model, &s);
+        step(&s, tau);
+        sdt_context("model %s, round %d, tick %d", name, round, t);
+        for (int j = 0; j < n; j++) {
+          double a = t == 0 ? 1.0 : (double)g_cfg.error_lowpass[j];
+          double e_now = (double)s.q_d[j] - (double)s.q[j], de_now = (double)s.qd_d[j] - (double)s.qd[j];
+          e[j] = t == 0 ? e_now : e[j] + a * (e_now - e[j]);
+          de[j] = t == 0 ? de_now : de[j] + a * (de_now - de[j]);
+          double expect = (double)g_cfg.kp[j] * e[j] + (double)g_cfg.kd[j] * de[j];
+          EXPECT_NEAR(tau[j], expect, CTL_REL * (fabs(expect) + 10),
+                      "tau = kp e_f + kd e'_f, e_f += a (e - e_f), started at the measured errors");
+        }
       }
     }
   }
@@ -757,7 +799,57 @@ static void closed_loop_holds_pendulum(void) {
   EXPECT_GE(last, 0.05, "PD alone leaves a gravity sag: the feed-forward does the holding");
 }
 
+// friction compensation: F_c tanh(qd_d / speed) + F_v qd_d on top of the held RNEA, every small
+// step, in the feed-forward modes; none in PD mode; a bad friction refused at the check
+static void friction_is_compensated_on_the_desired_velocity(void) {
+  unsigned seed = 77;
+  for (int model = 0; model < SDT_NMODEL; model++) {
+    const char* name;
+    if (sdt_model_by_index(&g_model, model, &name) != SD_OK || g_model.free_root) continue;
+    int n = g_model.ndof;
+    configure(&g_cfg, &g_model, SD_MODE_FEEDFORWARD, 1, 9);
+    g_cfg.friction_speed = SD_R(0.1);
+    for (int j = 0; j < n; j++) {
+      g_cfg.friction_coulomb[j] = (sd_real)sdt_uniform(&seed, 0.05, 0.5);
+      g_cfg.friction_viscous[j] = (sd_real)sdt_uniform(&seed, 0.0, 0.2);
+    }
+    EXPECT_INT(sd_control_check(&g_model, &g_cfg), SD_CONTROL_OK, "frictions >= 0 with a speed are accepted");
+    sd_control_reset(&g_state);
+    ctl_states s;
+    sd_real tau[SDT_MAXN], ref[SDT_MAXN];
+    random_states(&seed, &g_model, &s);
+    s.qd_d[0] = SD_R(0.0);          // at rest: no Coulomb term at all
+    sd_rnea(&g_model, &g_ref, s.q_d, s.qd_d, s.qdd_d, NULL, ref);
+    step(&s, tau);
+    double worst = 0;
+    for (int j = 0; j < n; j++) {
+      double qd = (double)s.qd_d[j];
+      double expected = (double)ref[j] + (double)g_cfg.friction_coulomb[j] * tanh(qd / 0.1) +
+                        (double)g_cfg.friction_viscous[j] * qd;
+      worst = fmax(worst, fabs((double)tau[j] - expected) / fmax(1.0, fabs(expected)));
+    }
+    sdt_context("model %s", name);
+    EXPECT_LE(worst, CTL_REL * 10, "tau = RNEA + F_c tanh(qd_d / 0.1) + F_v qd_d");
+    g_cfg.mode = SD_MODE_PD;
+    sd_control_reset(&g_state);
+    step(&s, tau);
+    double pd[SDT_MAXN], off = 0;
+    pd_torque(&g_model, &g_cfg, &s, pd);
+    for (int j = 0; j < n; j++) off = fmax(off, fabs((double)tau[j] - pd[j]));
+    EXPECT_LE(off, CTL_REL * 100, "PD mode compensates nothing: no feed-forward at all");
+  }
+  if (sdt_model_chain3(&g_model) != SD_OK) return;
+  CHECK_REJECTS(g_cfg.friction_coulomb[1] = SD_R(-0.1), SD_CONTROL_ERR_FRICTION,
+                "a negative Coulomb friction would push the joint along");
+  CHECK_REJECTS(g_cfg.friction_viscous[0] = (sd_real)NAN, SD_CONTROL_ERR_FRICTION, "a NaN viscous friction");
+  CHECK_REJECTS(g_cfg.friction_coulomb[0] = SD_R(0.2), SD_CONTROL_ERR_FRICTION,
+                "Coulomb friction needs a smoothing speed (0 would divide by zero)");
+  CHECK_REJECTS((g_cfg.friction_coulomb[0] = SD_R(0.2), g_cfg.friction_speed = (sd_real)INFINITY),
+                SD_CONTROL_ERR_FRICTION, "an infinite smoothing speed is refused");
+}
+
 const sdt_test sdt_control_tests[] = {
+  {"friction_is_compensated_on_the_desired_velocity", friction_is_compensated_on_the_desired_velocity},
   {"check_accepts_good_configs", check_accepts_good_configs},
   {"check_rejects_bad_configs", check_rejects_bad_configs},
   {"check_codes_have_messages", check_codes_have_messages},
@@ -766,6 +858,7 @@ const sdt_test sdt_control_tests[] = {
   {"feedforward_pd_adds_joint_pd", feedforward_pd_adds_joint_pd},
   {"computed_torque_is_rnea_at_measured_state", computed_torque_is_rnea_at_measured_state},
   {"pd_mode_has_no_inverse_dynamics", pd_mode_has_no_inverse_dynamics},
+  {"pd_acts_on_lowpassed_errors", pd_acts_on_lowpassed_errors},
   {"limits_clamp_and_count", limits_clamp_and_count},
   {"nonfinite_input_is_a_fault", nonfinite_input_is_a_fault},
   {"overflow_is_a_fault", overflow_is_a_fault},

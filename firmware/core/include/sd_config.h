@@ -14,6 +14,7 @@ typedef float sd_real;
 #define sd_cos(x)     cosf(x)
 #define sd_sqrt(x)    sqrtf(x)
 #define sd_fabs(x)    fabsf(x)
+#define sd_tanh(x)    tanhf(x)
 #define SD_EPS        1.1920929e-07f
 #else
 typedef double sd_real;
@@ -22,6 +23,7 @@ typedef double sd_real;
 #define sd_cos(x)     cos(x)
 #define sd_sqrt(x)    sqrt(x)
 #define sd_fabs(x)    fabs(x)
+#define sd_tanh(x)    tanh(x)
 #define SD_EPS        2.220446049250313e-16
 #endif
 

@@ -166,6 +166,16 @@ void sd_rnea(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
 void sd_forward(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
                 const sd_real* tau, const sd_real* f_ext, sd_real* qdd);
 
+// The inertial parameters of one body in the regressor, Pinocchio's order: mass, first moment
+// h = m c, inertia about the body origin (xx, xy, yy, xz, yz, zz), in the core's body frame.
+#define SD_NPARAM 10
+
+// The joint-torque regressor: Y (ndof x SD_NPARAM*nbody, row-major) with sd_rnea's torque equal
+// to Y pi plus the armature's part, pi = (mass, body_mcom, body_inertia0) of every body in order
+// (parameters above). Gravity is in Y; external wrenches and the root force are not.
+void sd_regressor(const sd_model* m, sd_data* d, const sd_real* q, const sd_real* qd,
+                  const sd_real* qdd, sd_real* Y);
+
 enum sd_integrator_ {
   SD_RK4 = 0,                // classical fourth-order Runge-Kutta, 4 sd_forward calls
   SD_EULER = 1,              // explicit Euler, 1 sd_forward call
