@@ -28,7 +28,7 @@ from ..hal.dynamixel import bench as dxl
 from ..hal.dynamixel.control_table import BAUD_RATES, ITEMS, TABLE_SIZE
 from ..hal.dynamixel.units import ServoMap
 from ..hal.errors import ConfigError, ServoError
-from .config_patch import ConfigPatch
+from .config_patch import ConfigPatch, ask
 from .swing import bus_ports
 
 
@@ -53,18 +53,6 @@ def config_and_ports(config_name: str, port) -> tuple[RobotConfig, dict[str, str
         raise BringUpError(f"'{config.name}' names no real port (port = \"auto\" is the simulated bus): give "
                            "--port PATH (`servodyn ports` lists the adapters)")
     return config, ports
-
-
-def ask(question: str, yes: bool, say: Callable = print) -> bool:
-    """A yes/no question on standard input (`yes`: answered yes without asking); no at end of input."""
-    if yes:
-        say(f"{question} [y/N] yes (--yes)")
-        return True
-    say(f"{question} [y/N] ", end="", flush=True)
-    answer = sys.stdin.readline()
-    if not sys.stdin.isatty():         # a piped answer is not echoed: the transcript shows it
-        say(answer.strip())
-    return answer.strip().lower() in ("y", "yes")
 
 
 def wait_enter(prompt: str, say: Callable = print) -> None:
@@ -537,22 +525,10 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
             link.__exit__(None, None, None) if isinstance(link, _CanPort) else link.close()
     for dof, values in results.items():
         patch.set_joint(dof, **values)
-    changes = patch.changes()
-    if not changes:
-        say("the configuration already holds these values: nothing to write")
-        return 0
-    say(f"changes to {patch.target}" + (f" (a copy of the built-in {patch.source.name})" if patch.copies else "") + ":")
-    for line in changes:
-        say(f"  {line}")
-    if not ask(f"write {patch.target}?", yes, say):
-        say("nothing written")
-        return 1
     try:
-        patch.write()
-    except (ConfigError, OSError) as err:
-        raise BringUpError(f"{patch.target}: not written: {err}") from None
-    say(f"wrote {patch.target}" + (f": use it with --config {patch.target}" if patch.copies else ""))
-    return 0
+        return patch.offer(yes, say)
+    except ConfigError as err:
+        raise BringUpError(str(err)) from None
 
 
 def _horn_reader(joint, link) -> Callable[[], float]:

@@ -189,8 +189,8 @@ def cmd_swing(args) -> int | None:
 
 
 def _confirm(question: str) -> bool:
-    """A yes/no question before a real arm moves (tools/bringup.ask)."""
-    from .bringup import ask
+    """A yes/no question before a real arm moves (tools/config_patch.ask)."""
+    from .config_patch import ask
     return ask(question, False)
 
 
@@ -425,7 +425,7 @@ def cmd_export_bvh(args) -> int:
 
 def _confirm_overwrite(path: str, yes: bool) -> bool:
     """A file that exists is replaced only when the user says so (a clip may be a capture)."""
-    from .bringup import ask
+    from .config_patch import ask
     return ask(f"{path} exists: overwrite it?", yes)
 
 

@@ -7,14 +7,17 @@ a file of the user's.
     patch.set_joint("r_elbow_flexion", zero_offset=2.113, direction=-1)
     print("\n".join(patch.changes()))                # what would change, one line per value
     patch.write()                                    # to patch.target
+    patch.offer(yes=False)                           # or: show the change, ask, then write
 """
 
 from __future__ import annotations
 
 import math
 import os
+import sys
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import tomlkit
 
@@ -35,6 +38,18 @@ def _shown(value) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_shown(v) for v in value) + "]"
     return str(value)
+
+
+def ask(question: str, yes: bool, say: Callable = print) -> bool:
+    """A yes/no question on standard input (`yes`: answered yes without asking); no at end of input."""
+    if yes:
+        say(f"{question} [y/N] yes (--yes)")
+        return True
+    say(f"{question} [y/N] ", end="", flush=True)
+    answer = sys.stdin.readline()
+    if not sys.stdin.isatty():         # a piped answer is not echoed: the transcript shows it
+        say(answer.strip())
+    return answer.strip().lower() in ("y", "yes")
 
 
 class ConfigPatch:
@@ -121,3 +136,23 @@ class ConfigPatch:
                 os.unlink(tmp)
             raise
         return self.target
+
+    def offer(self, yes: bool, say: Callable = print) -> int:
+        """Show the change, ask, and write it: 0 when written (or nothing changes), 1 when the user
+        declines. A write that fails raises ConfigError, naming the file; the file is untouched."""
+        changes = self.changes()
+        if not changes:
+            say("the configuration already holds these values: nothing to write")
+            return 0
+        say(f"changes to {self.target}" + (f" (a copy of the built-in {self.source.name})" if self.copies else "") + ":")
+        for line in changes:
+            say(f"  {line}")
+        if not ask(f"write {self.target}?", yes, say):
+            say("nothing written")
+            return 1
+        try:
+            self.write()
+        except (ConfigError, OSError) as err:
+            raise ConfigError(f"{self.target}: not written: {err}") from None
+        say(f"wrote {self.target}" + (f": use it with --config {self.target}" if self.copies else ""))
+        return 0

@@ -19,7 +19,6 @@ from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, Identifica
                               fit_thermal, identify, measured_torque, prepare)
 from ..identification.signals import DECIMATED_HZ, SignalError
 from ..loop.log import PER_DOF, RunLogError, read_run_log
-from .bringup import ask
 from .config_patch import ConfigPatch
 from .plots import _pyplot, short
 
@@ -274,21 +273,6 @@ def _apply(config, result: dict, target: str | None, yes: bool, say) -> int:
             patch.set_joint(dof, **values)
         if payload:
             patch.set_table("payload", **payload)
+        return patch.offer(yes, say)
     except (ConfigError, OSError) as err:
         raise IdentifyError(str(err)) from None
-    changes = patch.changes()
-    if not changes:
-        say("the configuration already holds these values: nothing to write")
-        return 0
-    say(f"changes to {patch.target}" + (f" (a copy of the built-in {patch.source.name})" if patch.copies else "") + ":")
-    for line in changes:
-        say(f"  {line}")
-    if not ask(f"write {patch.target}?", yes, say):
-        say("nothing written")
-        return 1
-    try:
-        patch.write()
-    except (ConfigError, OSError) as err:
-        raise IdentifyError(f"{patch.target}: not written: {err}") from None
-    say(f"wrote {patch.target}")
-    return 0
