@@ -849,7 +849,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="seconds, whole periods of about 10 s (default 30); with --heat the whole run (default "
-                        "3 of the slowest heated joint's thermal time constants each side of the move)")
+                        "3 of the slowest heated joint's thermal time constants each side of the move, at most "
+                        "600 s, the longest a swing plays)")
     p.add_argument("--joints", nargs="+", default=None, metavar="DOF",
                    help="only these joints move (default all); with --heat, only these are heated")
     p.add_argument("--heat", action="store_true",

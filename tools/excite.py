@@ -146,7 +146,7 @@ def _heating(config, heated: list[int], duration: float | None, out: Path, margi
     write_trajectory_csv(out, Trajectory(t=knots, q=q, qd=qd, qdd=qdd, derived=False), model.dof_names)
     width = max(len(d) for d in model.dof_names)
     say(f"{trial.duration:g} s: passes servodyn validate on '{config.name}'; on its thermal constants each "
-        f"winding stays within {HEAT_SHARE:.0%} of its headroom (the real one reaches its limit only with twice "
+        f"winding stays within {HEAT_SHARE:.0%} of its headroom (a real winding reaches its limit only with about twice "
         "the configured R_th; then the servo's Temperature Limit faults it and the swing stops, torque off)")
     for k in modelled:
         say(f"  {model.dof_names[k]:<{width}}  hold {math.degrees(trial.hold[k]):7.1f} deg, "

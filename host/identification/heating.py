@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..control.timing import MAX_PLAYED_DURATION
 from .excitation import MARGIN, SPEED_FRACTION
 
 CANDIDATES = 4000         # random poses the hold and the rest pose are chosen from
 HEAT_SHARE = 0.5          # of each winding's headroom (limit − ambient) the run may use, predicted
-HEAT_TAUS = 3.0           # each half of the default run lasts this many of the slowest τ_th
+HEAT_TAUS = 3.0           # each half of the default run lasts this many of the slowest τ_th, up to
+                          # MAX_PLAYED_DURATION in all (a swing samples its motion whole)
 MIN_MOVE_S = 1.0          # s: the shortest move between the poses
 MIN_JERK_PEAK = 1.875     # a minimum-jerk move's peak speed over its mean speed
 
@@ -80,7 +82,7 @@ def design_heating(model, lower, upper, velocity_limit, per_amp, resistance, the
                    seed: int = 0) -> HeatingRun:
     """The heating run of the `heated` dofs (indices; default every one with a thermal model,
     R_th > 0), `duration` s in all (default HEAT_TAUS of the slowest heated τ_th each side of the
-    move); per joint: `per_amp` N·m per A at the joint (torque constant × gear ratio), winding
+    move, at most MAX_PLAYED_DURATION in all); per joint: `per_amp` N·m per A at the joint (torque constant × gear ratio), winding
     `resistance` Ω, `thermal_resistance` K/W, `thermal_time_constant` s, `headroom` K."""
     lower, upper, velocity_limit, per_amp, resistance, thermal_resistance, thermal_time_constant, headroom = (
         np.asarray(x, dtype=float) for x in (lower, upper, velocity_limit, per_amp, resistance, thermal_resistance,
@@ -99,8 +101,10 @@ def design_heating(model, lower, upper, velocity_limit, per_amp, resistance, the
     rest = poses[int(np.argmin((rise[:, modelled] / target[modelled]).sum(axis=1)))]
     move_s = max(MIN_MOVE_S, float(np.max(MIN_JERK_PEAK * np.abs(rest - hold) / (speed_fraction * velocity_limit))))
     if duration is None:
-        half = HEAT_TAUS * float(thermal_time_constant[heated].max())
+        half = min(HEAT_TAUS * float(thermal_time_constant[heated].max()), (MAX_PLAYED_DURATION - move_s) / 2)
         return HeatingRun(hold, rest, half, move_s, half)
+    if duration > MAX_PLAYED_DURATION:
+        raise ValueError(f"a heating run of {duration:g} s is longer than a swing plays ({MAX_PLAYED_DURATION:g} s)")
     if not duration > move_s:
         raise ValueError(f"a heating run of {duration:g} s leaves no time to hold and rest around its "
                          f"{move_s:.3g} s move")
