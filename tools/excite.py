@@ -30,7 +30,7 @@ from ..hal.errors import ConfigError
 from ..hal.thermal import AMBIENT
 from ..identification import design_excitation
 from ..identification.excitation import HARMONICS, MARGIN
-from ..identification.heating import HEAT_SHARE, HeatingRun, design_heating
+from ..identification.heating import HEAT_SHARE, design_heating
 from ..validation import Limits, check, describe, judge, violations
 
 AMPLITUDE_STEP = 0.85      # the excursions' scale per failed validation
