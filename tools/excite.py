@@ -141,6 +141,10 @@ def _heating(config, heated: list[int], duration: float | None, out: Path, margi
     else:
         raise ExciteError(f"'{config.name}': no heating run passes the validator even with the hold pose at "
                           f"{factor / AMPLITUDE_STEP:.2g} of the way from the rest pose")
+    # the samples above are HEAT_CHECK_S apart; the validator's own verdict, at the control period
+    judged = judge(config, MotionPath("heating", trial.duration, trial.evaluate))
+    if not judged.passed:
+        raise ExciteError(f"'{config.name}': the heating run fails servodyn validate: {judged.violations[0]['message']}")
     knots = trial.knots
     q, qd, qdd = trial.evaluate(knots)
     write_trajectory_csv(out, Trajectory(t=knots, q=q, qd=qd, qdd=qdd, derived=False), model.dof_names)
