@@ -355,7 +355,7 @@ def cmd_excite(args) -> int:
     from .excite import ExciteError, run
     try:
         return run(args.config, args.duration, args.joints, Path(args.out), harmonics=args.harmonics,
-                   margin=args.margin, seed=args.seed)
+                   margin=args.margin, seed=args.seed, heat=args.heat)
     except ExciteError as err:
         raise CliError(str(err)) from None
 
@@ -954,11 +954,19 @@ def build_parser() -> argparse.ArgumentParser:
                        "trajectory CSV for servodyn swing --motion. The margin: each joint stays inside its "
                        "position limits less --margin of its range at both ends and under 0.6 of its velocity "
                        "limit; then servodyn validate checks it on the configuration, and while it fails every "
-                       "excursion is scaled by 0.85. Exit status 0 written, 2 bad input.")
+                       "excursion is scaled by 0.85. With --heat, a heating run for the thermal constants instead "
+                       "(README: the heating run). Exit status 0 written, 2 bad input.")
     p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
-    p.add_argument("--duration", type=float, default=30.0, metavar="S",
-                   help="seconds, whole periods of about 10 s (default 30)")
-    p.add_argument("--joints", nargs="+", default=None, metavar="DOF", help="only these joints move (default all)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="seconds, whole periods of about 10 s (default 30); with --heat the whole run (default "
+                        "3 of the slowest heated joint's thermal time constants each side of the move, at most "
+                        "600 s, the longest a swing plays)")
+    p.add_argument("--joints", nargs="+", default=None, metavar="DOF",
+                   help="only these joints move (default all); with --heat, only these are heated")
+    p.add_argument("--heat", action="store_true",
+                   help="a heating run instead, for the thermal constants: hold a pose gravity loads, then rest "
+                        "where the arm hangs while the windings cool; every winding predicted within half its "
+                        "headroom (temperature limit less 25 °C) on the configured thermal constants")
     p.add_argument("--harmonics", type=count(2, what="harmonics"), default=5, metavar="N",
                    help="harmonics per joint (default 5)")
     p.add_argument("--margin", type=float, default=0.1, metavar="F",

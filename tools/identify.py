@@ -16,7 +16,8 @@ import tomlkit
 from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, IdentificationError, Parameter,
-                              fit_thermal, identify, measured_torque, prepare)
+                              fit_thermal, identify, measured_torque, prepare,
+                              read_rows)
 from ..identification.signals import DECIMATED_HZ, SignalError
 from ..loop.log import PER_DOF, RunLogError, read_run_log
 from .config_patch import ConfigPatch
@@ -67,17 +68,25 @@ def _read(path: str, model, joints, cutoff: float):
 
 
 def _thermal(raw_logs, joints, dof_names) -> dict:
-    """Per joint, the thermal fit of the longest log with a temperature column (or why none)."""
+    """Per joint, the thermal fit of the longest log with a temperature column (or why none). The
+    readings are the rows the servos' values change on the grid of (identification.read_rows); the
+    ambient is the coolest servo's first reading (the one that had worked least before the log)."""
     out = {}
     with_heat = [r for r in raw_logs if r[2] is not None]
+    if not with_heat:
+        why = "not determined: no log has a temperature_<dof> column"
+        return {dof: {k: Parameter(None, None, why) for k in THERMAL_KEYS} for dof in dof_names}
+    t, current, temperature = max(with_heat, key=lambda r: r[0][-1] - r[0][0])
+    rows = read_rows(temperature)
+    first = [temperature[rows, j][np.isfinite(temperature[rows, j])] for j in range(len(dof_names))]
+    ambient = min((float(f[0]) for f in first if len(f)), default=None)
     for j, dof in enumerate(dof_names):
-        if not with_heat:
-            why = "not determined: no log has a temperature_<dof> column"
-            out[dof] = {k: Parameter(None, None, why) for k in THERMAL_KEYS}
-            continue
-        t, current, temperature = max(with_heat, key=lambda r: r[0][-1] - r[0][0])
-        fit = fit_thermal(t, current[:, j], temperature[:, j], joints[j].servo.winding_resistance)
+        fit = fit_thermal(t, current[:, j], temperature[:, j], joints[j].servo.winding_resistance,
+                          ambient=ambient, rows=rows)
         out[dof] = {"thermal_resistance_k_w": fit.resistance_k_w, "thermal_time_constant_s": fit.time_constant_s}
+        if fit.bound is not None:
+            for key, bound in zip(THERMAL_KEYS, fit.bound):
+                out[dof][key].bound = bound
     return out
 
 
@@ -100,8 +109,12 @@ def report(config, paths, estimate, thermal, payload_body, known_payload, cutoff
     not_determined = list(estimate.notes)
     for dof, entry in joints.items():
         for key, value in entry.items():
-            if value["value"] is None and "never moves" not in value.get("note", ""):
+            if value["value"] is None and "never moves" not in value.get("note", "") and key not in THERMAL_KEYS:
                 not_determined.append(f"{dof} {key}: {value['note']}")
+        # the heat: one line per joint (the two constants come from one fit)
+        heat = [k for k in THERMAL_KEYS if entry[k]["value"] is None]
+        if heat:
+            not_determined.append(f"{dof} {' and '.join(heat)}: {entry[heat[0]]['note']}")
     out = {"config": config.name, "logs": [str(p) for p in paths],
            "filter": {"kind": "Butterworth low-pass, forwards and backwards (scipy sosfiltfilt)",
                       "order": FILTER_ORDER, "cutoff_hz": cutoff, "lag_s": 0.0, "decimated_hz": DECIMATED_HZ,
@@ -216,6 +229,12 @@ def summary(result: dict) -> str:
     if base:
         found = sum(v["value"] is not None for v in base.values())
         lines.append(f"the arm's base parameters: {found} of {len(base)} determined (identified.json: base_parameters)")
+    unheated = {dof: entry["thermal_resistance_k_w"]["note"] for dof, entry in result["joints"].items()
+                if entry["thermal_resistance_k_w"]["value"] is None}
+    if unheated and len(set(unheated.values())) == 1 and len(unheated) == len(result["joints"]):
+        lines.append(f"thermal constants {next(iter(unheated.values()))}")
+    else:
+        lines.extend(f"{dof}: thermal constants {note}" for dof, note in unheated.items())
     lines.append(f"condition number {result['condition_number']:.3g} over {result['equations']} equations; "
                  "— = not determined (see identified.json)")
     return "\n".join(lines)

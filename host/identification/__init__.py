@@ -12,7 +12,9 @@ current (torque = current x torque constant x gear ratio) gives them by least sq
               armature; a payload at a body (or the arm's base parameters); a torque-constant scale
               per joint when a log carries a known payload (Gautier & Briot 2011)
   thermal     a servo's thermal resistance and time constant from a heating run's temperature, on
-              the winding model the validator and the simulated servos use (hal.thermal)
+              the winding model the validator and the simulated servos use (hal.thermal), fitted to
+              the whole-degree readings with their worst-case error
+  heating     the heating run: hold a pose gravity loads, then rest where the arm hangs
   excitation  Swevers' finite Fourier series, its coefficients chosen for a well conditioned
               observation matrix, at rest at both ends
 
@@ -27,8 +29,9 @@ from .estimate import (REL_SIGMA_MAX, STILL_SPEED, Estimate, IdentificationError
                        measured_torque)
 from .excitation import FourierExcitation, design_excitation
 from .signals import FILTER_HZ, FILTER_ORDER, Prepared, prepare
-from .thermal import ThermalFit, fit_thermal
+from .heating import HeatingRun, design_heating
+from .thermal import ThermalFit, fit_thermal, read_rows
 
 __all__ = ["FILTER_HZ", "FILTER_ORDER", "REL_SIGMA_MAX", "STILL_SPEED", "Estimate", "FourierExcitation",
-           "IdentificationError", "Parameter", "Prepared", "ThermalFit", "design_excitation", "fit_thermal",
-           "identify", "measured_torque", "prepare"]
+           "HeatingRun", "IdentificationError", "Parameter", "Prepared", "ThermalFit", "design_excitation",
+           "design_heating", "fit_thermal", "identify", "measured_torque", "prepare", "read_rows"]

@@ -45,10 +45,12 @@ class IdentificationError(ValueError):
 
 @dataclass
 class Parameter:
-    """An estimate and its standard error; value None when the data cannot determine it (`note` says why)."""
+    """An estimate and its standard error; value None when the data cannot determine it (`note` says why);
+    `bound` the worst case of errors that are not noise (a temperature's whole degrees), where known."""
     value: float | None
     std: float | None
     note: str = ""
+    bound: float | None = None
 
     @property
     def determined(self) -> bool:
@@ -58,6 +60,8 @@ class Parameter:
         out = {"value": self.value, "std": self.std}
         if self.note:
             out["note"] = self.note
+        if self.bound is not None:
+            out["bound"] = self.bound
         return out
 
 
