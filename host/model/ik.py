@@ -46,7 +46,6 @@ import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from .tree import Model, ModelError
 
@@ -523,6 +522,7 @@ class Arm:
     # ---------------------------------------------------------------- damped least squares
     def solve_dls(self, x0, pos, rot, lower=None, upper=None, iterations=100):
         """Bounded damped least squares from x0; (x, iterations, converged)."""
+        from scipy.optimize import lsq_linear      # half a second to import: only the fallback needs it
         lower = self.lower if lower is None else lower
         upper = self.upper if upper is None else upper
         x = np.clip(x0, lower, upper)

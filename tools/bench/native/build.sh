@@ -12,7 +12,7 @@ fail() { echo "build.sh: $*" >&2; exit 1; }
 command -v gcc >/dev/null && command -v g++ >/dev/null || fail "gcc and g++ are needed"
 python=$1
 out=$2
-root=$(cd "$(dirname "$0")/../.." && pwd)
+root=$(cd "$(dirname "$0")/../../.." && pwd)     # tools/bench/native -> the repository
 start=$SECONDS
 
 # locate the cmeel prefixes (Pinocchio, Boost, maybe Eigen) and the mujoco package
