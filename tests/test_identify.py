@@ -91,6 +91,22 @@ def test_one_log_leaves_the_torque_constant_free(replica):
     # within the scales' spread (0.85 to 1.2) of its truth
     mass = est.payload["mass_kg"].value
     assert 0.3 * 0.8 <= mass <= 0.3 * 1.25, f"payload {mass:.3g} kg"
+    assert any("torque constants taken as configured" in n and "--known-payload" in n for n in est.notes), \
+        f"one log: the user is told the scales are assumed, and what identifies them: {est.notes}"
+    # whatever the mismatch makes of the rest, no friction or armature is reported negative: a
+    # negative one is not the joint's (seen on a 0.85 elbow: viscous -0.16 N m s) and says so
+    for dof, got in est.joints.items():
+        for key in ("friction_coulomb_nm", "friction_viscous_nm_s", "armature_kg_m2"):
+            p = got[key]
+            assert p.value is None or p.value >= 0, f"{dof} {key} = {p.value}"
+            assert p.value is not None or "not determined" in p.note, f"{dof} {key}: {p.note}"
+
+
+def test_a_negative_friction_is_not_reported_as_the_joints():
+    from servodyn.identification.estimate import _judged
+    got = _judged(-0.16, 0.01, "N m s", physical=True)
+    assert got.value is None and "negative" in got.note and "--known-payload" in got.note, got
+    assert _judged(0.05, 0.001, "N m s", physical=True).value == 0.05, "a positive one stands"
 
 
 def test_thermal_constants_from_a_heating_run():

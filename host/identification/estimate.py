@@ -65,10 +65,16 @@ class Parameter:
         return out
 
 
-def _judged(value: float, std: float, unit: str) -> Parameter:
-    """The estimate, or not determined when its standard error is above REL_SIGMA_MAX of it."""
+def _judged(value: float, std: float, unit: str, physical: bool = False) -> Parameter:
+    """The estimate, or not determined when its standard error is above REL_SIGMA_MAX of it, or
+    (`physical`: a friction, an armature, a torque constant) when it comes out negative: no joint has
+    one, so the model misses something there and the number is not the joint's."""
     if not (math.isfinite(value) and math.isfinite(std)):
         return Parameter(None, None, "not determined: the data leave it free")
+    if physical and value < 0:
+        return Parameter(None, None, f"not determined: fitted {value:.4g} ± {std:.2g} {unit}, negative, which no "
+                                     f"joint has: the model misses something at this joint (its torque constant? "
+                                     f"a second log with --known-payload identifies it)")
     if std > REL_SIGMA_MAX * abs(value):
         return Parameter(None, None, f"not determined: {value:.4g} ± {std:.2g} {unit}, a standard error above "
                                      f"{REL_SIGMA_MAX:.0%} of the value")
@@ -166,6 +172,10 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
         raise IdentificationError("--known-payload needs two logs or more: the last one with the known mass, "
                                   "the others without it")
     notes = []
+    if not scaled:
+        notes.append("torque constants taken as configured (no --known-payload log): where one is off, that "
+                     "joint's friction and armature and the payload absorb it; a second log with a known mass "
+                     "added identifies each joint's scale")
 
     # joints that never move in any log: their columns are left out, their numbers not determined
     moving = np.zeros(n, dtype=bool)
@@ -246,7 +256,7 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
         entry = {}
         for key in JOINT_KEYS:
             if (key, j) in got:
-                entry[key] = _judged(*got[(key, j)], units[key])
+                entry[key] = _judged(*got[(key, j)], units[key], physical=True)
             elif key == "torque_constant_scale" and moving[j]:
                 entry[key] = Parameter(None, None, "not determined: needs a second log with a known payload "
                                                    "(--known-payload)")
