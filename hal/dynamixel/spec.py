@@ -8,7 +8,7 @@ import math
 from ..backend import Backend
 from ..servos import RPM
 from . import instructions
-from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_LENGTH, SERVOS
+from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_WITH_TEMPERATURE_LENGTH, SERVOS
 from .protocol import MAX_ID
 from .units import current_unit
 
@@ -34,11 +34,12 @@ class Dynamixel(Backend):
 
     @classmethod
     def wire_time(cls, joints, bus) -> tuple[float, str]:
-        """The tick's fast sync read (instruction and reply) and Goal Current sync write, 10 bits
-        a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside."""
+        """The worst tick's fast sync read (instruction and reply) and Goal Current sync write, 10
+        bits a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside. The worst tick is
+        the one in TEMPERATURE_EVERY whose read runs on to Present Temperature."""
         ids = [j.id for j in joints]
-        read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, ids).encode())
-        reply = instructions.fast_reply_size([PRESENT_LENGTH] * len(ids))
+        read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_WITH_TEMPERATURE_LENGTH, ids).encode())
+        reply = instructions.fast_reply_size([PRESENT_WITH_TEMPERATURE_LENGTH] * len(ids))
         write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
         total = read + reply + write
         return total * 10 / bus.baud, f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
