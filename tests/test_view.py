@@ -134,11 +134,13 @@ def test_play_advances_the_cursor_and_the_plots_follow(viewer):
             time.sleep(0.05)
     finally:
         viewer.player["playing"].value = False
-    t = viewer.cursor_t
+    with viewer.lock:            # the player's thread moves cursor, slider and plots under this lock
+        t = viewer.cursor_t
+        slider = viewer.player["time"].value
+        ranges = [handle.scales["x"]["range"] for handle in viewer.plots.values()]
     assert t > 0.0, "the player did not move the cursor"
-    assert viewer.player["time"].value == pytest.approx(t), "the time slider follows the cursor"
-    for handle in viewer.plots.values():
-        lo, hi = handle.scales["x"]["range"]
+    assert slider == pytest.approx(t), "the time slider follows the cursor"
+    for lo, hi in ranges:
         assert lo <= t <= hi, f"the plot shows {lo:.2f}..{hi:.2f} s, the cursor is at {t:.2f} s"
 
 
@@ -301,3 +303,39 @@ def test_dragging_the_hand_solves_ik_and_the_verdict_follows(viewer):
     assert ed.edits == edits, "a refused drag changes no keyframe"
     hand._on_drag(SimpleNamespace(phase="end"))
     assert np.abs(np.asarray(hand.gizmo.position) - hand.arm.hand(ed.motion.q[ed.k])[1]).max() < 1e-9
+
+
+def test_a_drag_delivered_in_a_burst_is_handled_in_order_and_the_gizmo_follows_the_next_keyframe(viewer):
+    """Drag events queued as viser's loop receives them — a start, 40 updates faster than IK, an
+    end — are handled in that order by the one worker: the last update is solved (the hand ends on
+    the last target to 1e-9 m), not every one; the drag has ended (a start handled after its end, as
+    viser's thread pool could do, left the gizmo deaf to the keyframes); and selecting another
+    keyframe then moves the gizmo to its hand."""
+    import asyncio
+    import time
+    from types import SimpleNamespace
+    ed = viewer.editor
+    hand = ed.hand
+    ed.key.value = 2
+    q0 = ed.motion.q[ed.k].copy()
+    _, p0 = hand.arm.hand(q0)
+    solves = hand.solves
+    asyncio.run(hand._receive(SimpleNamespace(phase="start")))
+    for step in range(1, 41):
+        hand.gizmo.position = tuple(p0 + step * np.array([0.0005, -0.00025, 0.0004]))
+        asyncio.run(hand._receive(SimpleNamespace(phase="update")))
+    last = np.asarray(hand.gizmo.position, dtype=float)
+    asyncio.run(hand._receive(SimpleNamespace(phase="end")))
+    deadline = time.monotonic() + 30.0
+    while (hand._events or hand.dragging or hand.solves == solves) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not hand._events and not hand.dragging, "the worker handled the drag through its end"
+    assert 1 <= hand.solves - solves <= 40, hand.solves - solves
+    _, p = hand.arm.hand(ed.motion.q[ed.k])
+    assert np.abs(p - last).max() < 1e-9, "the keyframe's hand is on the last target"
+    ed.key.value = 4
+    deadline = time.monotonic() + 10.0
+    _, p4 = hand.arm.hand(ed.motion.q[3])
+    while np.abs(np.asarray(hand.gizmo.position) - p4).max() > 1e-9 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert np.abs(np.asarray(hand.gizmo.position) - p4).max() < 1e-9, "the gizmo moved to keyframe 4's hand"

@@ -19,6 +19,7 @@ model file's frames). What the page shows:
 
 from __future__ import annotations
 
+import collections
 import errno
 import math
 import threading
@@ -596,8 +597,11 @@ class HandGizmo:
         self.refusals = 0
         self.arm_s = []              # s per handled event from its arrival to the arm redrawn (IK, pose)
         self.handler_s = []          # s per handled event in all: IK, arm, keyframe, torques, verdict
-        self._pending = None
-        self._busy = threading.Lock()
+        # viser runs a plain callback in a thread pool, where a drag's "start", "update"s and "end"
+        # can be handled out of order (an "end" before its "start" left the gizmo deaf to the
+        # keyframes); the events are queued in order on viser's loop and handled by one worker
+        self._events: collections.deque = collections.deque()
+        self._wake = threading.Condition()
         self._placing = False
         self.dragging = False
         server, gui = editor.viewer.server, editor.viewer.server.gui
@@ -610,7 +614,10 @@ class HandGizmo:
             self.turn = gui.add_checkbox("Turn the hand too", False)
             self.swivel = gui.add_slider("Elbow swivel (°)", min=-180.0, max=180.0, step=0.5, initial_value=0.0,
                                          disabled=self.arm.srs is None)
-        self.gizmo.on_update(self._on_drag)
+        self.gizmo.on_update(self._receive)
+        worker = threading.Thread(target=self._work, name="servodyn-view-hand", daemon=True)
+        worker.start()
+        editor.viewer._threads.append(worker)
         self.swivel.on_update(lambda _: None if self._placing else self.solve_to(*self._hand(), swivel=True))
 
     def _hand(self):
@@ -638,26 +645,41 @@ class HandGizmo:
         far = self.arm.max_reach()
         self.reach.content = f"reach {distance / far:.2f} ({distance:.3f} m of {far:.3f} m){note}"
 
-    def _on_drag(self, event) -> None:
+    async def _receive(self, event) -> None:
+        """On viser's event loop, in the order the page sent them: the event and the gizmo's pose
+        at that moment, queued for the worker (nothing awaited, nothing slow here)."""
         self.events += 1
-        if event.phase == "start":
+        with self._wake:
+            self._events.append((event.phase, self._hand()))
+            self._wake.notify()
+
+    def _work(self) -> None:
+        """The worker: the queued events in order; of a run of updates only the latest is solved
+        (a slow solve never falls behind the pointer)."""
+        stop = self.editor.viewer._stop
+        while not stop.is_set():
+            with self._wake:
+                if not self._events:
+                    self._wake.wait(timeout=0.25)
+                    continue
+                phase, pose = self._events.popleft()
+                while phase == "update" and self._events and self._events[0][0] == "update":
+                    phase, pose = self._events.popleft()
+            self._handle(phase, pose)
+
+    def _on_drag(self, event) -> None:
+        """One drag event handled at once, with the gizmo's present pose."""
+        self.events += 1
+        self._handle(event.phase, self._hand())
+
+    def _handle(self, phase: str, pose) -> None:
+        if phase == "start":
             self.dragging = True
-            return
-        if event.phase == "end":
-            self._pending = None
-            with self._busy:
-                self.dragging = False
-                self.follow_keyframe()        # a refused target snaps back to the hand
-            return
-        self._pending = self._hand()
-        # coalesce: whoever holds the lock handles the latest target before letting go
-        while self._pending is not None and self._busy.acquire(blocking=False):
-            try:
-                target, self._pending = self._pending, None
-                if target is not None:
-                    self.solve_to(*target)
-            finally:
-                self._busy.release()
+        elif phase == "end":
+            self.dragging = False
+            self.follow_keyframe()            # a refused target snaps back to the hand
+        else:
+            self.solve_to(*pose)
 
     def solve_to(self, position, rotation, swivel: bool = False) -> bool:
         """Keyframe k's hand to `position` (and `rotation` with "Turn the hand too"); False and the
