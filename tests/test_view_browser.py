@@ -134,6 +134,7 @@ def _drag_hand_outwards(browser, viewer, pixels: float):
     import time
     from servodyn.model.rotations import quat_to_matrix
     hand = viewer.editor.hand
+    settle(browser)              # the page has drawn the gizmo where the server put it
     project = _projector(browser, viewer)
     centre = np.asarray(hand.gizmo.position, dtype=float)
     w, x, y, z = hand.gizmo.wxyz
