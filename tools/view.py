@@ -477,14 +477,15 @@ class MotionEditor:
         return int(self.key.value) - 1
 
     def _load_keyframe(self) -> None:
-        self._loading = True
-        try:
-            self.key_time.value = float(self.motion.t[self.k])
-            for j, handle in enumerate(self.angles):
-                handle.value = round(math.degrees(self.motion.q[self.k, j]), 3)
-        finally:
-            self._loading = False
-        self._show_keyframe()
+        with self.viewer.lock:
+            self._loading = True
+            try:
+                self.key_time.value = float(self.motion.t[self.k])
+                for j, handle in enumerate(self.angles):
+                    handle.value = round(math.degrees(self.motion.q[self.k, j]), 3)
+            finally:
+                self._loading = False
+            self._show_keyframe()
 
     def _show_keyframe(self) -> None:
         v = self.viewer
@@ -494,13 +495,16 @@ class MotionEditor:
             self.hand.follow_keyframe()
 
     def _changed(self) -> None:
-        if self._loading:
-            return
-        t = self.motion.t.copy()
-        q = self.motion.q.copy()
-        t[self.k] = float(self.key_time.value)
-        q[self.k] = np.radians([float(h.value) for h in self.angles])
-        self.set_keyframe(self.k, t[self.k], q[self.k])
+        # viser runs these handlers in a thread pool: one edit at a time, whole, under the
+        # viewer's lock (the hand's worker and the player take it too)
+        with self.viewer.lock:
+            if self._loading:
+                return
+            t = self.motion.t.copy()
+            q = self.motion.q.copy()
+            t[self.k] = float(self.key_time.value)
+            q[self.k] = np.radians([float(h.value) for h in self.angles])
+            self.set_keyframe(self.k, t[self.k], q[self.k])
 
     def show_angles(self) -> None:
         """The number fields to keyframe k's angles (without counting it as an edit)."""
@@ -676,8 +680,9 @@ class HandGizmo:
         if phase == "start":
             self.dragging = True
         elif phase == "end":
-            self.dragging = False
-            self.follow_keyframe()            # a refused target snaps back to the hand
+            with self.editor.viewer.lock:
+                self.dragging = False
+                self.follow_keyframe()        # a refused target snaps back to the hand
         else:
             self.solve_to(*pose)
 
