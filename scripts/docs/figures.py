@@ -284,10 +284,24 @@ def readme_can() -> dict:
             "can_ff": deg(can["tracking_max_rad"]), "can_pd": deg(can_pd["tracking_max_rad"]),
             "mixed_mass": config("replica_mixed").model.total_mass, "mixed_scale": mixed["time_scale"],
             "mixed_ff": deg(mixed["tracking_max_rad"]),
+            "can_identified": deg(identified_can()["tracking_max_rad"]),
             "can_wire_ms": max(bus["seconds_per_tick"] for bus in wire) * 1e3,
             "can_period_ms": config("replica_can").control_period * 1e3,
             "can_hz": 1 / config("replica_can").control_period,
             "mixed_period_ms": config("replica_mixed").control_period * 1e3}
+
+
+def identified_can() -> dict:
+    """replica_can's forehand after its motors' friction is identified from one log, as the README's
+    identification section tells a user to: excite -> swing -> identify --apply -> swing."""
+    folder = _SCRATCH / "identified_can"
+    folder.mkdir(exist_ok=True)
+    excitation, patched = folder / "excitation.csv", folder / "patched.toml"
+    run("excite", "--config", "replica_can", "--duration", "10", "--out", str(excitation))
+    _, played = run("swing", "--config", "replica_can", "--motion", str(excitation))
+    run("identify", "--config", "replica_can", str(played / "swing_log.csv"), "--out", str(folder / "id"),
+        "--apply", "--write", str(patched), "--yes")
+    return swing("--config", str(patched))
 
 
 def readme_demo() -> None:
