@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -20,19 +19,11 @@ from ...mocap import ArmTarget, find_arms, guess_axes, read_bvh, retarget
 from ...mocap.retarget import capture, decompose
 from ...model import load_model
 from .loop import publish
+from .validate import timed
 
 ROOT = Path(__file__).resolve().parents[2]
 CLIP = Path("/usr/share/assimp/models/BVH/01_03.bvh")
 GOALS = {"retarget_s": 1.0}
-
-
-def timed(fn, reps: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(reps):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times)), out
 
 
 def main(argv=None) -> int:
