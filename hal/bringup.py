@@ -1,6 +1,6 @@
 """What bring-up finds, on every kind of bus: the devices a scan found (`Found`) and what a check
 found wrong, each with its fix (`Finding`). The host's side (ports, permissions, the latency timer,
-locks) is hal.host; each backend's side is its `bench` module (hal.dynamixel.bench, hal.can.bench);
+locks) is hal.ports; each backend's side is its `bench` module (hal.dynamixel.bringup, hal.can.bringup);
 the commands that print them are servodyn.tools.bringup.
 
     Finding("firmware", found=44, expected=">= 45", joint="r_elbow_flexion", id=4,

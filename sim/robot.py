@@ -11,7 +11,7 @@ servos' per-tick work in C where their tables allow), or a network of CAN motors
     robot.inject_fault(4, "silent")                 # device 4 stops answering (or "overload", ...)
 
 Each simulated servo starts as the configuration sets it up (its ID, its bus's baud rate in its
-Baud Rate register), unless a bench (sim/bench.py: `SimulatedRobot(config, bench=Bench(...))`)
+Baud Rate register), unless a bench (sim/lab.py: `SimulatedRobot(config, bench=Lab(...))`)
 says otherwise: factory-fresh devices, some of them not wired, memories kept in a store file, horns
 mounted otherwise than the configuration says. `power_cycle()` switches every device off and on. Two clocks, chosen by whoever serves the robot (sim/transport): `lockstep()`
 advances the plant by one control period once every bus has had the tick's commands (each CAN
@@ -45,9 +45,9 @@ from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.thermal import AMBIENT
 
-from .bench import Bench, require
+from .lab import Lab, require
 from .can import CanMotor, CanNetwork
-from .dynamixel import Servo, ServoChain, VirtualBus
+from .dynamixel import Servo, ServoChain, DynamixelWire
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import JointFriction, Plant, PlantView
 
@@ -62,7 +62,7 @@ class SimulatedRobot(PlantView):
     """Every device and the plant of a robot configuration; q in the model's dof order."""
 
     def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
-                 integrator: str = "rk4", bench: Bench | None = None):
+                 integrator: str = "rk4", bench: Lab | None = None):
         kinds = {bus.kind for bus in config.buses.values()}
         if not kinds <= {"can", "dynamixel"}:
             raise ValueError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
@@ -93,7 +93,7 @@ class SimulatedRobot(PlantView):
                            else None, friction=self._friction())
         # the servos' clock is the plant's until wall_clock(); no byte timeout until a port's wire_clock()
         self._servo_clock = lambda: self.plant.time
-        self.chains = {name: VirtualBus(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
+        self.chains = {name: DynamixelWire(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
                                         chain=chain if chain is not None and chain.covers(on_bus(name)) else None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
         self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
@@ -331,7 +331,7 @@ class DynamixelPort(_Port):
     """A Dynamixel bus: bytes in, the servos' replies out (with its wire's fault, if any)."""
 
     @property
-    def bus(self) -> VirtualBus:
+    def bus(self) -> DynamixelWire:
         return self.robot.chains[self.name]
 
     @property
@@ -348,7 +348,7 @@ class DynamixelPort(_Port):
 
     def hear_at(self, speed: int | None) -> None:
         """The host's bytes come at `speed` (bit/s) from now on: only the servos listening at it hear
-        them (VirtualBus.line_speed; None: every servo)."""
+        them (DynamixelWire.line_speed; None: every servo)."""
         self.bus.line_speed = speed
 
     def handle(self, data: bytes) -> bytes:

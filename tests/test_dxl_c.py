@@ -16,7 +16,7 @@ from servodyn.hal.dynamixel import (BROADCAST_ID, FastReadBlock, InstructionPack
                                     PacketReader, StatusPacket, decode_frame, encode_fast_reply,
                                     pack_field, split_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
-from servodyn.sim.dynamixel import Servo, VirtualBus
+from servodyn.sim.dynamixel import Servo, DynamixelWire
 from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from test_dynamixel_protocol import (EMANUAL_FAST_BULK_REPLY, EMANUAL_FAST_SYNC_REPLY,
                                      EMANUAL_INSTRUCTIONS, EMANUAL_STATUS)
@@ -467,7 +467,7 @@ def test_fast_reads_through_the_simulated_bus(dxl):
     rng = random.Random(29)
     ids = [3, 1, 7, 2]
     servos = [Servo(servo_id=i) for i in ids]
-    bus = VirtualBus(servos, clock=lambda: 0.0)
+    bus = DynamixelWire(servos, clock=lambda: 0.0)
     reader = dxl.reader()
     for trial in range(60):
         for servo in servos:
@@ -495,7 +495,7 @@ def test_fast_reads_through_the_simulated_bus(dxl):
 
 def test_sync_write_from_c_reaches_the_simulated_servos(dxl):
     servos = [Servo(servo_id=i) for i in (1, 2)]
-    bus = VirtualBus(servos, clock=lambda: 0.0)
+    bus = DynamixelWire(servos, clock=lambda: 0.0)
     bus.handle(dxl.write(BROADCAST_ID, 64, b"\x01"))
     goals = pack_field(1000, 4) + pack_field(3000, 4)
     assert bus.handle(dxl.sync_write(116, 4, [1, 2], goals)) == b"", "no reply to a sync write"

@@ -13,7 +13,7 @@ from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, ErrorNumber, Fault,
                                     StatusError, pack_field, split_fast_reply)
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.sim.dynamixel import (XM430_W350, XM540_W270, HardwareError, OperatingMode, Servo,
-                                    VirtualBus)
+                                    DynamixelWire)
 from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from servodyn.hal.dynamixel.backend import _patient
 from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
@@ -273,7 +273,7 @@ def test_position_step_settles_on_a_simulated_link():
     """A 0.01 kg·m² link on the servo, commanded over the bus: no overshoot beyond 5 %, settled
     within 2 ticks after 1.5 s (back-EMF damps it near critically, Coulomb friction leaves < 1 tick)."""
     servo = Servo()
-    bus = VirtualBus([servo], clock=lambda: 0.0)
+    bus = DynamixelWire([servo], clock=lambda: 0.0)
     bus.handle(inst.write(1, 116, le(2048 + 512, 4)).encode() + inst.write(1, 64, h("01")).encode())
     q = qd = peak = 0.0
     for _ in range(1500):
@@ -294,7 +294,7 @@ def exchange(bus, *packets, now=0.0):
 
 
 def test_broadcast_ping_answers_in_id_order():
-    bus = VirtualBus([Servo(XM540_W270, 3), Servo(XM430_W350, 1)])
+    bus = DynamixelWire([Servo(XM540_W270, 3), Servo(XM430_W350, 1)])
     replies = exchange(bus, inst.ping())
     assert [(r.id, r.params) for r in replies] == [(1, h("FC 03 2E")), (3, h("60 04 2E"))], \
         "models 1020 and 1120, firmware 46, lowest ID first"
@@ -302,7 +302,7 @@ def test_broadcast_ping_answers_in_id_order():
 
 def test_status_return_level():
     servo = Servo()
-    bus = VirtualBus([servo])
+    bus = DynamixelWire([servo])
     servo.write(68, h("01"))
     assert len(exchange(bus, inst.read(1, 0, 2))) == 1, "level 1 answers READ"
     assert exchange(bus, inst.write(1, 65, h("01"))) == [], "level 1 does not answer WRITE"
@@ -312,7 +312,7 @@ def test_status_return_level():
 
 
 def test_broadcast_write_executes_silently():
-    bus = VirtualBus([Servo(servo_id=1), Servo(servo_id=2)])
+    bus = DynamixelWire([Servo(servo_id=1), Servo(servo_id=2)])
     assert exchange(bus, inst.write(BROADCAST_ID, 65, h("01"))) == [], "no status for broadcast WRITE"
     assert [s.get("led") for s in bus.servos] == [1, 1], "both servos wrote it"
     assert exchange(bus, inst.read(BROADCAST_ID, 65, 1)) == [], "READ is not executed by broadcast"
@@ -327,12 +327,12 @@ def test_broadcast_write_executes_silently():
     (inst.write(1, 102, le(1500, 2)), ErrorNumber.DATA_LIMIT, "Goal Current beyond the limit"),
 ])
 def test_bus_error_replies(packet, number, reason):
-    reply = exchange(VirtualBus([Servo()]), packet)
+    reply = exchange(DynamixelWire([Servo()]), packet)
     assert [(r.id, r.error) for r in reply] == [(1, number)], reason
 
 
 def test_bad_crc_gets_a_crc_error_and_garbage_is_survived():
-    bus = VirtualBus([Servo()])
+    bus = DynamixelWire([Servo()])
     frame = bytearray(inst.write(1, 65, h("01")).encode())
     frame[-1] ^= 0xFF
     replies = PacketReader().feed(bus.handle(b"\x00\xFF\x13" + bytes(frame) + inst.ping(1).encode()))
@@ -345,25 +345,25 @@ def test_bad_crc_gets_a_crc_error_and_garbage_is_survived():
 def test_alert_bit_rides_on_every_status():
     servo = Servo()
     servo.set_hardware_error(HardwareError.MOTOR_ENCODER)
-    reply = exchange(VirtualBus([servo]), inst.read(1, 70, 1))[0]
+    reply = exchange(DynamixelWire([servo]), inst.read(1, 70, 1))[0]
     assert (reply.error, reply.params) == (ALERT_BIT, h("08")), "alert bit; encoder error in status 70"
 
 
 def test_secondary_id_executes_without_answering():
     primary, shadow = Servo(servo_id=1), Servo(servo_id=2)
     shadow.write(12, h("01"))
-    replies = exchange(VirtualBus([primary, shadow]), inst.write(1, 65, h("01")))
+    replies = exchange(DynamixelWire([primary, shadow]), inst.write(1, 65, h("01")))
     assert len(replies) == 1 and (primary.get("led"), shadow.get("led")) == (1, 1), "one answer, two LEDs"
 
 
 def test_broadcast_factory_reset_all_is_ignored():
     servo = Servo(servo_id=7)
-    exchange(VirtualBus([servo]), inst.factory_reset(BROADCAST_ID, ResetOption.ALL))
+    exchange(DynamixelWire([servo]), inst.factory_reset(BROADCAST_ID, ResetOption.ALL))
     assert servo.id == 7, "e-manual: broadcast with option 0xFF is not executed"
 
 
 def test_fast_sync_read_needs_every_listed_servo():
-    bus = VirtualBus([Servo(servo_id=1), Servo(servo_id=2)])
+    bus = DynamixelWire([Servo(servo_id=1), Servo(servo_id=2)])
     assert exchange(bus, inst.fast_sync_read(132, 4, [1, 9])) == [], "ID 9 missing: no reply at all"
     packet = exchange(bus, inst.fast_sync_read(132, 4, [2, 1]))[0]
     blocks = split_fast_reply(packet, [4, 4])
@@ -372,7 +372,7 @@ def test_fast_sync_read_needs_every_listed_servo():
 
 def test_on_instruction_reports_each_transaction():
     seen = []
-    bus = VirtualBus([Servo(servo_id=1)], on_instruction=seen.append)
+    bus = DynamixelWire([Servo(servo_id=1)], on_instruction=seen.append)
     bus.handle(inst.ping(1).encode() + inst.sync_write(65, 1, {1: h("01")}).encode(), 2.5)
     assert [(e.request.instruction, len(e.replies), e.time) for e in seen] == [(1, 1, 2.5), (0x83, 0, 2.5)], \
         "one exchange per instruction packet, with its replies and time"
@@ -380,7 +380,7 @@ def test_on_instruction_reports_each_transaction():
 
 
 def test_watchdog_runs_on_the_bus_clock():
-    bus = VirtualBus([Servo()])
+    bus = DynamixelWire([Servo()])
     exchange(bus, inst.write(1, 64, h("01")), inst.write(1, 98, h("01")), now=1.0)
     bus.tick(1.019)
     assert bus.servo(1).get("bus_watchdog") == 1, "19 ms < 20 ms"
@@ -394,13 +394,13 @@ sdk = pytest.importorskip("dynamixel_sdk")
 
 
 class PtyBus:
-    """A VirtualBus behind a pseudo-terminal: a thread reads what the SDK writes to the slave side
+    """A DynamixelWire behind a pseudo-terminal: a thread reads what the SDK writes to the slave side
     and writes the bus's answer back. The bus clock is ``self.now`` (seconds), set by the test."""
 
     def __init__(self, servos):
         self.now = 0.0
         self.exchanges = []
-        self.bus = VirtualBus(servos, clock=lambda: self.now, on_instruction=self.exchanges.append)
+        self.bus = DynamixelWire(servos, clock=lambda: self.now, on_instruction=self.exchanges.append)
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         self._stop = threading.Event()

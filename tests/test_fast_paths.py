@@ -16,7 +16,7 @@ from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import ADDR_PRESENT, PRESENT_LENGTH, TABLE_SIZE
 from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_reply
 from servodyn.hal.dynamixel.units import ServoMap
-from servodyn.sim.dynamixel import HardwareError, Servo, VirtualBus
+from servodyn.sim.dynamixel import HardwareError, Servo, DynamixelWire
 
 CONFIG = load_config("replica")
 
@@ -25,7 +25,7 @@ def _bus():
     servos = [Servo(servo_id=i, position=0.1 * i) for i in (1, 2, 3)]
     for k, servo in enumerate(servos):
         servo.set_present(0.3 * k - 0.2, 0.5 - k, 0.1 * k)
-    return VirtualBus(servos), servos
+    return DynamixelWire(servos), servos
 
 
 def _expected(servos, address, length, error=None):

@@ -142,7 +142,7 @@ def test_goal_current_sync_write_never_needs_stuffing():
 # --- a silent servo ------------------------------------------------------------------------------
 
 def test_fast_reply_stops_at_the_silent_servo():
-    """sim/dynamixel/device.py: the chain's fast reply holds the blocks of the servos before the
+    """sim/dynamixel/wire.py: the chain's fast reply holds the blocks of the servos before the
     silent one (each 14 bytes after the 8-byte header), with the LEN of the whole reply; a silent
     first servo leaves nothing; a plain sync read only loses the silent servo's own packet."""
     arm = SimulatedRobot(CONFIG).port()

@@ -30,7 +30,7 @@ from servodyn.model import ModelError, builtin_models, load_model
 from servodyn.model.modelfile import model_from_dict
 from servodyn.model.tree import Model
 from servodyn.model.urdf_write import write_urdf
-from servodyn.sim.dynamixel import Servo, VirtualBus
+from servodyn.sim.dynamixel import Servo, DynamixelWire
 
 # every property: no deadline (the machine is shared and slow); the tmp_path fixture is reused
 # across examples on purpose (each example writes its own file name)
@@ -130,7 +130,7 @@ hostile_piece = st.one_of(
 @settings(PROPERTY, max_examples=150)
 @given(st.lists(hostile_piece, max_size=8), st.lists(st.booleans(), max_size=8))
 def test_simulated_bus_answers_a_good_request_after_any_bytes(pieces, gaps):
-    bus = VirtualBus([Servo(servo_id=1), Servo(servo_id=2)])
+    bus = DynamixelWire([Servo(servo_id=1), Servo(servo_id=2)])
     now = 0.0
     for k, piece in enumerate(pieces):
         # nothing raises out of the bus; some pieces arrive together, some after a pause

@@ -16,7 +16,7 @@ from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, SERVOS, TABLE_SIZE,
                                                   HardwareError, OperatingMode)
 from servodyn.sim.robot import SimulatedRobot
-from servodyn.sim.dynamixel import Mechanics, Servo, ServoChain, VirtualBus
+from servodyn.sim.dynamixel import Mechanics, Servo, ServoChain, DynamixelWire
 from servodyn.sim.plant import STOP_TIME_CONSTANT, Drives
 
 CONFIG = load_config("replica")
@@ -123,7 +123,7 @@ def test_currents_shafts_and_present_registers_are_the_servos_own(seed):
 @pytest.mark.parametrize("seed", range(20))
 def test_clocks_watchdogs_and_writes_are_the_servos_own(seed):
     a, b, rng = _twins(seed)
-    bus_a, bus_b = VirtualBus(a, byte_timeout=None), VirtualBus(b, byte_timeout=None, chain=ServoChain([]))
+    bus_a, bus_b = DynamixelWire(a, byte_timeout=None), DynamixelWire(b, byte_timeout=None, chain=ServoChain([]))
     assert bus_a.chain.covers(bus_a.servos) and not bus_b.chain.covers(bus_b.servos), "one twin has the chain"
     for servo_a, servo_b in zip(a, b):
         if rng.random() < 0.5:
@@ -169,7 +169,7 @@ def _diff(a: Servo, b: Servo) -> str:
 @pytest.mark.parametrize("seed", range(20))
 def test_fast_reads_are_the_general_paths(seed):
     a, b, rng = _twins(seed)
-    bus_a, bus_b = VirtualBus(a, byte_timeout=None), VirtualBus(b, byte_timeout=None, chain=ServoChain([]))
+    bus_a, bus_b = DynamixelWire(a, byte_timeout=None), DynamixelWire(b, byte_timeout=None, chain=ServoChain([]))
     for step in range(30):
         position, velocity, current = _shafts(rng, len(a))
         for servos in (a, b):
@@ -305,7 +305,7 @@ def test_a_seeded_trace_of_every_instruction_is_answered_as_without_the_chain():
 
 def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
     servos = [Servo(servo_id=i) for i in range(1, 64)]         # 63: more than a chain's 62
-    bus = VirtualBus(servos, byte_timeout=None)
+    bus = DynamixelWire(servos, byte_timeout=None)
     assert not bus.chain.covers(bus.servos), "no chain for them"
     reply = bus.handle(inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1, 63]).encode(), 0.0)
     blocks = [inst.FastReadBlock(i, 0, servos[i - 1].read(ADDR_PRESENT, PRESENT_LENGTH)) for i in (1, 63)]
@@ -316,7 +316,7 @@ def test_servos_that_cannot_be_one_chain_are_served_each_on_its_own():
 
 def test_a_fast_read_of_hundreds_of_blocks_is_the_general_paths():
     a, b, _ = _twins(3)
-    bus_a, bus_b = VirtualBus(a, byte_timeout=None), VirtualBus(b, byte_timeout=None, chain=ServoChain([]))
+    bus_a, bus_b = DynamixelWire(a, byte_timeout=None), DynamixelWire(b, byte_timeout=None, chain=ServoChain([]))
     for count in (250, 300):            # the chain sorts up to 256 IDs, the reply's seal 256 blocks
         packet = inst.fast_sync_read(ADDR_PRESENT, PRESENT_LENGTH, [1 + k % 7 for k in range(count)]).encode()
         got, want = _outcome(lambda: bus_a.handle(packet, 0.0)), _outcome(lambda: bus_b.handle(packet, 0.0))

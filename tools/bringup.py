@@ -1,7 +1,7 @@
 """Bring-up commands: from a box of servos to an arm that moves. `scan`, `setup`, `doctor`,
 `monitor`, `calibrate`, `reboot`, `clear-errors` and `torque off`, on every bus a configuration
-names; each bus kind's protocol work is its bench module (hal.dynamixel.bench, hal.can.bench), the
-host's (ports, permissions, latency timer) hal.host.
+names; each bus kind's protocol work is its bench module (hal.dynamixel.bringup, hal.can.bringup), the
+host's (ports, permissions, latency timer) hal.ports.
 
 Every command that writes to a servo says what it will write first and asks (`--yes` skips the
 question); a command that moves nothing but switches torque off says so before it does.
@@ -16,15 +16,15 @@ import time
 from collections.abc import Callable
 
 
-from ..hal import host
+from ..hal import ports as hal_ports
 from ..loop.realtime import LOOP_PRIORITY
 from ..hal.bringup import ERROR, Finding
-from ..hal.can import bench as can_bench
+from ..hal.can import bringup as can_bench
 from ..hal.can.dialects import CTRL_MODES, DAMIAO_DISABLED, DAMIAO_ENABLED, DAMIAO_STATUS
 from ..hal.can.link import open_bus
 from ..hal.can.spec import SOCKETCAN_NAME, Can, interface_for
 from ..hal.config import RobotConfig, load_config
-from ..hal.dynamixel import bench as dxl
+from ..hal.dynamixel import bringup as dxl
 from ..hal.dynamixel.control_table import BAUD_RATES, ITEMS, TABLE_SIZE
 from ..hal.dynamixel.units import ServoMap
 from ..hal.errors import ConfigError, ServoError
@@ -253,14 +253,14 @@ def setup(config_name: str, joint_name: str, port, yes: bool, say=print) -> int:
 def host_findings(path: str) -> list[Finding]:
     """The host's side of a port: exists, permission, held by another process, latency timer. A
     pseudo-terminal is the simulator's, which holds its other end: none of these apply."""
-    if host.is_pseudo_terminal(path):
+    if hal_ports.is_pseudo_terminal(path):
         return []
-    return list(host.port_findings(path))
+    return list(hal_ports.port_findings(path))
 
 
 def doctor(config_name: str, port, as_json: bool, say=print) -> int:
     config, ports = config_and_ports(config_name, port)
-    findings: list[Finding] = list(host.realtime_findings(priority=LOOP_PRIORITY))
+    findings: list[Finding] = list(hal_ports.realtime_findings(priority=LOOP_PRIORITY))
     started = time.monotonic()
     for bus, path in ports.items():
         if _kind(config, bus) == "can":

@@ -201,13 +201,13 @@ def cmd_sim(args) -> None:
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
     from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
-    from ..sim.bench import Bench
+    from ..sim.lab import Lab
     from . import simulator
     mode = "lockstep" if args.lockstep else "realtime"
     bench = None
     if args.factory or args.connect is not None or args.bench is not None:
         connected = None if args.connect is None else [d.strip() for d in args.connect.split(",") if d.strip()]
-        bench = Bench(factory=args.factory, store=args.bench, connected=connected)
+        bench = Lab(factory=args.factory, store=args.bench, connected=connected)
     try:
         config = load_config(args.config)
         served = simulator.serve(config, mode, process=False, can="slcan", start=False, bench=bench)
@@ -237,7 +237,7 @@ def cmd_sim(args) -> None:
 
 
 def cmd_ports(args) -> int:
-    from .bringup_host import run_ports
+    from .ports import run_ports
     return run_ports(args.root, as_json=args.json)
 
 

@@ -27,7 +27,7 @@ from contextlib import nullcontext
 
 from ..hal.config import RobotConfig, load_config
 from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
-from ..sim.bench import Bench
+from ..sim.lab import Lab
 from ..sim.robot import SimulatedRobot
 from ..sim.transport.can import SlcanServer, VirtualCanServer
 from ..sim.transport.pty import PtyServer
@@ -87,13 +87,13 @@ class Served:
 
 
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
-          q0=None, start: bool = True, bench: Bench | None = None):
+          q0=None, start: bool = True, bench: Lab | None = None):
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
     SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
     else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
     can="slcan" on an SLCAN adapter's pseudo-terminal). Either has `.buses` (bus -> the backend's
     options), `status()`, `inject_fault(id, fault)`, `power_cycle()`, `servos` and `stop()`.
-    `bench`: the robot on a bench (sim/bench.py), in the child process too."""
+    `bench`: the robot on a bench (sim/lab.py), in the child process too."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     kinds = [bus.kind for bus in config.buses.values()]
@@ -139,7 +139,7 @@ class SimProcessError(RuntimeError):
 class SimProcess:
     """The simulated bus of a configuration file in a child process, on a pseudo-terminal."""
 
-    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, bench: Bench | None = None):
+    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, bench: Lab | None = None):
         if mode not in ("lockstep", "realtime"):
             raise ValueError("mode must be 'lockstep' or 'realtime'")
         self._control, child = socket.socketpair()
@@ -250,13 +250,13 @@ def main(argv=None) -> int:
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--control-fd", type=int, required=True)
     parser.add_argument("--parent", type=int, required=True)
-    parser.add_argument("--bench", default=None, help="the bench, as Bench.to_json gives it")
+    parser.add_argument("--bench", default=None, help="the bench, as Lab.to_json gives it")
     args = parser.parse_args(argv)
     _die_with_parent(args.parent)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     control = socket.socket(fileno=args.control_fd)
     try:
-        bench = Bench.from_json(args.bench) if args.bench is not None else None
+        bench = Lab.from_json(args.bench) if args.bench is not None else None
         arm = SimulatedRobot(load_config(args.config), bench=bench).port()
     except Exception as err:     # reported to the parent as one line, never a traceback
         control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())

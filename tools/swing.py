@@ -30,7 +30,7 @@ from ..errors import ServodynError, exit_code
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
-from ..hal.host import is_pseudo_terminal
+from ..hal.ports import is_pseudo_terminal
 from ..hal.robot import Robot
 from ..loop import CHATTER_CUTOFF_HZ, Interrupted, Overrun, RunLog, follow, summarize
 from ..loop.realtime import one_cpu

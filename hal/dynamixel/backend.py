@@ -40,8 +40,8 @@ from ..bringup import ERROR
 from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
 from ..errors import (BusStallError, ServoError, ServoHardwareError, ServoInitializationError,
                       ServoOperationError, ServoTimeoutError)
-from ..host import claim_port, is_pseudo_terminal, open_failure
-from . import bench
+from ..ports import claim_port, is_pseudo_terminal, open_failure
+from . import bringup as bench
 from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
                             PRESENT_LENGTH, PRESENT_WITH_TEMPERATURE_LENGTH, OperatingMode, hardware_faults,
@@ -537,7 +537,7 @@ class DynamixelBus(ServoBus):
 
     def _check_servo(self, joint) -> None:
         """At open: the servo answers, and its control table is one a run can accept (the checks
-        `servodyn doctor` makes, hal.dynamixel.bench.table_findings): the first that is not ends the
+        `servodyn doctor` makes, hal.dynamixel.bringup.table_findings): the first that is not ends the
         open in one line with its fix. A latched hardware error is a ServoHardwareError."""
         for _ in range(self.retries + 1):
             data, result, error = self.packets.readTxRx(self.port, joint.id, 0, TABLE_SIZE)

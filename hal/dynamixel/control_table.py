@@ -88,7 +88,7 @@ def _gain(name: str, address: int, default: int) -> Item:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Model(ServoSpec):
+class DynamixelSpec(ServoSpec):
     """One X-series servo model: its data sheet (ROBOTIS e-manual) and its control table.
     The HAL (configuration, units, backend) and the simulated servo both read it from here.
 
@@ -204,11 +204,11 @@ _EMANUAL = "ROBOTIS e-manual, emanual.robotis.com/docs/en/dxl/x/{}/ (specificati
 _THERMAL = "; no-load current, thermal resistance and time constant: estimates (not published)"
 
 
-def _dxl(name: str, page: str, nominal: tuple, others: tuple, **fields) -> Model:
-    """A Model from the e-manual's rows: `nominal` (V, N m, A, rpm) and the other rows alike."""
+def _dxl(name: str, page: str, nominal: tuple, others: tuple, **fields) -> DynamixelSpec:
+    """A DynamixelSpec from the e-manual's rows: `nominal` (V, N m, A, rpm) and the other rows alike."""
     voltage, torque, current, speed = nominal
     fields.setdefault("no_load_current", round(0.054 * current, 3))
-    return Model(name=name, nominal_voltage=voltage, stall_torque=torque, stall_current=current,
+    return DynamixelSpec(name=name, nominal_voltage=voltage, stall_torque=torque, stall_current=current,
                  no_load_speed_rpm=speed, ratings=others,
                  source=_EMANUAL.format(page) + _THERMAL + fields.pop("note", ""), **fields)
 

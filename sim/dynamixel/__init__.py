@@ -3,12 +3,12 @@ control table and drive (`servo`), and the chain that answers the host's packets
 The servo models and their control tables are the HAL's (`servodyn.hal.dynamixel.control_table`)."""
 
 from servodyn.hal.dynamixel.control_table import (MODELS, SERVOS, XH430_W350, XH540_W270, XM430_W350, XM540_W270,
-                                                  HardwareError, Item, Model, OperatingMode)
+                                                  HardwareError, Item, DynamixelSpec, OperatingMode)
 
 from .chain import ServoChain
-from .device import Exchange, Reply, VirtualBus
+from .wire import Exchange, Reply, DynamixelWire
 from .drive import Mechanics, PositionPid
 from .servo import Servo
 
 __all__ = ["MODELS", "SERVOS", "XH430_W350", "XH540_W270", "XM430_W350", "XM540_W270", "Exchange", "HardwareError",
-           "Item", "Mechanics", "Model", "OperatingMode", "PositionPid", "Reply", "Servo", "ServoChain", "VirtualBus"]
+           "Item", "Mechanics", "DynamixelSpec", "OperatingMode", "PositionPid", "Reply", "Servo", "ServoChain", "DynamixelWire"]

@@ -103,7 +103,7 @@ class ServoChain:
         self._c.refresh()
 
     def clock(self, now: float) -> None:
-        """Every servo not clocked at `now` yet is (VirtualBus.tick)."""
+        """Every servo not clocked at `now` yet is (DynamixelWire.tick)."""
         general = self._c.clock(now)
         if general:
             for k in _bits(general):
@@ -119,7 +119,7 @@ class ServoChain:
                 self.servos[k].heard(now)
 
     def write(self, address: int, length: int, params: bytes) -> bool:
-        """A broadcast SYNC WRITE's parameters (VirtualBus._writes) applied, when its span is one
+        """A broadcast SYNC WRITE's parameters (DynamixelWire._writes) applied, when its span is one
         RAM item that only Servo._check_value's common rules check (range, mask, limit, a
         tripped watchdog for a goal) for every servo alike; False (nothing done) otherwise."""
         rule = self._rules.get((address, length), False)
@@ -143,7 +143,7 @@ class ServoChain:
         return rules.pop() if len(rules) == 1 else None
 
     def fast_read(self, ids: bytes, address: int, length: int, frame: bytearray, starts: list[int]) -> int:
-        """VirtualBus._fast_reads of one span from every servo of `ids`, filled in the reply laid
+        """DynamixelWire._fast_reads of one span from every servo of `ids`, filled in the reply laid
         out in `frame` (block k at starts[k]): the blocks filled, -1 for no reply, -2 when it is
-        the servos' own (VirtualBus's general path)."""
+        the servos' own (DynamixelWire's general path)."""
         return self._c.fast_read(ids, address, length, frame, starts, ALERT_BIT, ErrorNumber.ACCESS)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from servodyn.hal.dynamixel.control_table import Model
+    from servodyn.hal.dynamixel.control_table import DynamixelSpec
 
 # The e-manual gives the gains' scaling (KP = P/128, KI = I/65536, KD = D/16) but not the firmware's
 # sample time; the I and D terms here count in samples of this period.
@@ -51,7 +51,7 @@ class Mechanics:
     coulomb_velocity: float = 0.01     # rad/s
 
     @classmethod
-    def of(cls, model: Model, **overrides: float) -> Mechanics:
+    def of(cls, model: DynamixelSpec, **overrides: float) -> Mechanics:
         return cls(model.stall_torque / model.stall_current, **overrides)
 
     def torque(self, current: float, velocity: float) -> float:

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
 from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, DRIVE_MODE_REVERSE, EEPROM_END, GOAL_POSITION_SPAN,
                                                   PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE, TICKS_PER_REV,
-                                                  VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item, Model,
+                                                  VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item, DynamixelSpec,
                                                   OperatingMode)
 
 from servodyn.hal.thermal import winding_step
@@ -45,7 +45,7 @@ class Servo:
     """One simulated servo. ``zero_ticks`` is the encoder reading at the plant's zero angle (2048,
     half a turn, so that a joint at zero can move both ways inside Position Control Mode's 0..4095).
 
-    On a bench (sim/bench.py) a servo is a device of its protocol: ``factory_fresh`` makes one as it
+    On a bench (sim/lab.py) a servo is a device of its protocol: ``factory_fresh`` makes one as it
     leaves the factory, ``nonvolatile`` and ``restore`` are its EEPROM (addresses below 64) as a
     JSON-able dict, ``power_cycle`` switches it off and on, and ``on_nonvolatile(servo)``, when set,
     is told after every write that reached its EEPROM. ``baud`` is the speed (bit/s) it listens and
@@ -53,9 +53,9 @@ class Servo:
     takes effect once the write's status is sent, as on the real servo; `listen`)."""
 
     wiring = 0      # counts changes of any servo's ID, Baud Rate or EEPROM: a bus's cached view of
-                    # who listens at which speed is stale when this moved (VirtualBus._rewire)
+                    # who listens at which speed is stale when this moved (DynamixelWire._rewire)
 
-    def __init__(self, model: Model = XM430_W350, servo_id: int = 1, *, position: float = 0.0,
+    def __init__(self, model: DynamixelSpec = XM430_W350, servo_id: int = 1, *, position: float = 0.0,
                  zero_ticks: int = TICKS_PER_REV // 2, supply_voltage: float = 12.0,
                  temperature: float = 30.0, mechanics: Mechanics | None = None, baud: int | None = None,
                  firmware: int | None = None):
@@ -114,10 +114,10 @@ class Servo:
         self._set("present_temperature", max(0, min(255, round(temperature))))
         self._power_up()
 
-    # --- a device of the bench (sim/bench.py) -----------------------------------------------------
+    # --- a device of the bench (sim/lab.py) -----------------------------------------------------
 
     @classmethod
-    def factory_fresh(cls, model: Model = XM430_W350, **hardware) -> "Servo":
+    def factory_fresh(cls, model: DynamixelSpec = XM430_W350, **hardware) -> "Servo":
         """A servo as it leaves the factory: every EEPROM item at its control-table default (ID,
         Baud Rate, Return Delay Time, Operating Mode, ...). `hardware`: the constructor's
         keywords for what is not its memory (position, zero_ticks, supply_voltage, firmware, ...)."""

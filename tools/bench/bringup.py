@@ -3,7 +3,7 @@ doctor` on the replica's seven servos, served by the simulator in another proces
 sim` serves them), measured
 
   - scan: servodyn's broadcast ping at each of the eight rates over the whole ID range, the
-    wait at each ending when the line has been quiet for the rate (hal.dynamixel.bench.scan);
+    wait at each ending when the line has been quiet for the rate (hal.dynamixel.bringup.scan);
     against, in the same run, dynamixel-sdk's own broadcastPing at each rate, which waits the
     whole window 252 servos could fill (what a scan with the SDK, or Wizard's, costs);
   - doctor: every servo pinged and its whole control table read and checked (in-process), and the
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ...hal.config import load_config
-from ...hal.dynamixel import bench as dxl
+from ...hal.dynamixel import bringup as dxl
 from ...hal.dynamixel.control_table import BAUD_RATES
 from ..simulator import SimProcess
 

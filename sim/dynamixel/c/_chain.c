@@ -23,12 +23,12 @@
 //   chain.publish(position, velocity, current)                        Servo.set_present
 //   chain.refresh() -> general                                        Servo._refresh_present
 //     The Present registers of every stale servo; a mask of those left to Python.
-//   chain.clock(now) -> general                                       VirtualBus.tick / Servo.clock
+//   chain.clock(now) -> general                                       DynamixelWire.tick / Servo.clock
 //   chain.heard(now) -> general                                       Servo.heard, every servo
 //     The servos whose watchdog trips now are left to Python (general).
-//   chain.write(params, rule) -> written, or -1                       VirtualBus._writes (SYNC WRITE)
+//   chain.write(params, rule) -> written, or -1                       DynamixelWire._writes (SYNC WRITE)
 //   chain.fast_read(ids, address, length, frame, starts, alert_bit, access_error) -> n, -1, -2
-//                                                                     VirtualBus._fast_reads
+//                                                                     DynamixelWire._fast_reads
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
@@ -397,7 +397,7 @@ static int clocked_at(Chain* self, int k, PyObject* now_obj) {
   return same;
 }
 
-// every servo clocked at `now` (VirtualBus.tick), or first told it heard a packet then (Servo.heard)
+// every servo clocked at `now` (DynamixelWire.tick), or first told it heard a packet then (Servo.heard)
 static PyObject* clock_every(Chain* self, PyObject* now_obj, int heard) {
   if (!PyFloat_CheckExact(now_obj) || !whole(self))             // not a float: Python's
     return PyLong_FromLongLong((1LL << self->n) - 1);
@@ -419,14 +419,14 @@ static PyObject* Chain_clock(Chain* self, PyObject* now_obj) { return clock_ever
 
 static PyObject* Chain_heard(Chain* self, PyObject* now_obj) { return clock_every(self, now_obj, 1); }
 
-// whether servo k listens to `id` as a broadcast write's block does (VirtualBus._writes): by its
+// whether servo k listens to `id` as a broadcast write's block does (DynamixelWire._writes): by its
 // ID, or by its Secondary ID where that differs
 static inline int listens(const uint8_t* t, const Field* F, long long id) {
   long long primary = get(t, F[F_ID]), secondary = get(t, F[F_SECONDARY_ID]);
   return primary == id || (secondary != primary && secondary == id);
 }
 
-// VirtualBus._writes of a SYNC WRITE's parameters whose span is one item that only the rule
+// DynamixelWire._writes of a SYNC WRITE's parameters whose span is one item that only the rule
 // checks (Servo._check_value): rule = (signed, goal, low, high, mask, limit) where low/high, mask
 // and limit (the limit item's (address, size, signed)) are None when the item has none. -1 when
 // the parameters are not whole blocks (Python's: it refuses them), else the writes applied.
@@ -487,7 +487,7 @@ static PyObject* Chain_write(Chain* self, PyObject* args) {
   return PyLong_FromLong(written);
 }
 
-// VirtualBus._fast_reads of one address and length for every servo of `ids` (bytes), into the
+// DynamixelWire._fast_reads of one address and length for every servo of `ids` (bytes), into the
 // reply laid out in `frame` with block k at starts[k]: -1 when nobody answers (a listed servo
 // missing or not answering reads), -2 when it is Python's (a servo's Present registers stale and
 // not to be written here, more than 256 IDs), else how many blocks were filled (a silent servo

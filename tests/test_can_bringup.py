@@ -1,4 +1,4 @@
-"""CAN bring-up (hal/can/bench.py) against simulated Damiao motors (sim/can/) served on python-can's
+"""CAN bring-up (hal/can/bringup.py) against simulated Damiao motors (sim/can/) served on python-can's
 virtual interface and behind the SLCAN adapter on a pseudo-terminal: scan finds replica_can's seven
 motors with their Master IDs, a factory-fresh motor is found on Master ID 0 and named with its fix,
 setup gives a fresh motor its joint's ids, mode and ranges (kept across a power cycle only when
@@ -17,7 +17,7 @@ import can
 import pytest
 
 from servodyn.hal.bringup import ERROR
-from servodyn.hal.can import bench, dialects, frames
+from servodyn.hal.can import bringup as bench, dialects, frames
 from servodyn.hal.can.motors import DM_J4310, DM_J4340
 from servodyn.hal.config import builtin_configs, config_from_dict, load_config
 from servodyn.hal.errors import ServoInitializationError

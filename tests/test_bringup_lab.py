@@ -1,5 +1,5 @@
 """From a box of factory-fresh servos to a swing, the way a user does it, every step through the
-command line against `servodyn sim` on a simulated bench (sim/bench.py): seven new servos, all at
+command line against `servodyn sim` on a simulated bench (sim/lab.py): seven new servos, all at
 ID 1 and 57600 baud, their horns mounted where the configuration does not say (zeros hundreds of
 ticks off, one joint reversed), their EEPROM kept in a store file from one power-up of the
 simulator to the next.
@@ -22,7 +22,7 @@ import pytest
 import tomlkit
 
 from servodyn.hal.config import load_config
-from servodyn.sim.bench import Bench
+from servodyn.sim.lab import Lab
 from servodyn.tools.simulator import serve
 
 CONFIG = load_config("replica")
@@ -78,7 +78,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
     """The bench's horns are not where the configuration says: calibrate finds each one's direction
     and zero (the store holds the truth), and the swing then plays on the calibrated copy."""
     truth = json.loads(bench_store.read_text())
-    served = serve(CONFIG, "lockstep", process=False, bench=Bench(store=bench_store))
+    served = serve(CONFIG, "lockstep", process=False, bench=Lab(store=bench_store))
     target = tmp_path / "replica.toml"
     try:
         port = served.buses["arm"]["port"]

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from ..bringup import WARNING, Finding, Found
 from ..errors import ServoInitializationError, ServoOperationError
-from ..host import claim_port, is_pseudo_terminal, open_failure
+from ..ports import claim_port, is_pseudo_terminal, open_failure
 from . import instructions
 from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
 from .protocol import BROADCAST_ID, MAX_ID, InstructionPacket, StatusPacket, pack_field, unpack_field
@@ -56,7 +56,7 @@ def quiet_gap(baud: int) -> float:
 
 class Link:
     """A serial port at one baud rate with servodyn's Protocol 2.0 codec. `open_port` (tests,
-    or hal.host's lock) is how the port is opened: path, baud -> a pyserial Serial."""
+    or hal.ports's lock) is how the port is opened: path, baud -> a pyserial Serial."""
 
     def __init__(self, path: str, baud: int = FACTORY_BAUD, *, open_port: Callable | None = None):
         self.path, self.baud = path, baud
@@ -194,7 +194,7 @@ def _silence(servo_id: int, link: Link, bad: list, what: str) -> str:
 
 
 def _open_serial(path: str, baud: int):
-    """pyserial's port; on a real adapter ours alone and its latency timer asked down (hal.host)."""
+    """pyserial's port; on a real adapter ours alone and its latency timer asked down (hal.ports)."""
     import serial
     try:
         port = serial.Serial(path, baud, timeout=0, write_timeout=0.5)

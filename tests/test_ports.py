@@ -1,4 +1,4 @@
-"""The host's side of bring-up (hal/host.py, `servodyn ports`): adapters and CAN links read from sysfs,
+"""The host's side of bring-up (hal/ports.py, `servodyn ports`): adapters and CAN links read from sysfs,
 and each thing on the host that stands between servodyn and a port — the port missing, permission,
 another process holding it, the FTDI latency timer, real-time priority — as one line with its fix.
 Everything runs on a stand-in tree of /dev, /sys, /proc and /etc built in tmp_path (as
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from servodyn.hal import host
+from servodyn.hal import ports as host
 from servodyn.hal.bringup import ERROR, WARNING
 from servodyn.hal.errors import ServoInitializationError
 from servodyn.tools.cli import main
@@ -230,7 +230,7 @@ def test_the_loop_says_the_same_fix_when_sched_fifo_is_refused(monkeypatch, caps
     with realtime.realtime_priority(realtime.LOOP_PRIORITY) as granted:
         assert granted is False
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and err.endswith(host.REALTIME_FIX), f"one line, its fix hal.host's: {err}"
+    assert "\n" not in err and err.endswith(host.REALTIME_FIX), f"one line, its fix hal.ports's: {err}"
 
 
 def test_open_failure_is_one_line_with_its_fix(tmp_path):

@@ -1,4 +1,4 @@
-"""The bench (sim/bench.py): simulated Dynamixel servos as a real bench has them before bring-up —
+"""The bench (sim/lab.py): simulated Dynamixel servos as a real bench has them before bring-up —
 factory-fresh (ID 1, 57600 baud), several on one ID colliding, each hearing only its own speed,
 their EEPROM kept across power cycles and runs, firmware, Drive Mode and Homing Offset with their
 effect — reached where it matters through the real wire: dynamixel-sdk's PortHandler and
@@ -23,10 +23,10 @@ from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.backend import _patient
 from servodyn.hal.dynamixel.control_table import (BAUD_RATES, FAST_READ_FIRMWARE, ITEMS, TICKS_PER_REV, XM430_W350,
                                                   XM540_W270)
-from servodyn.sim.bench import BENCH_METHODS, Bench, Mounting
+from servodyn.sim.lab import BENCH_METHODS, Lab, Mounting
 from servodyn.sim.can import CanMotor
-from servodyn.sim.dynamixel import Servo, VirtualBus
-from servodyn.sim.dynamixel.device import collide
+from servodyn.sim.dynamixel import Servo, DynamixelWire
+from servodyn.sim.dynamixel.wire import collide
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.tools.simulator import SIM_REPLY_TIMEOUT, SimProcess
@@ -80,7 +80,7 @@ def wire():
     opened = []
 
     def make(**bench):
-        opened.append(Wire(SimulatedRobot(CONFIG, bench=Bench(**bench))))
+        opened.append(Wire(SimulatedRobot(CONFIG, bench=Lab(**bench))))
         return opened[-1]
     yield make
     for w in opened:
@@ -114,7 +114,7 @@ def test_seven_fresh_servos_on_id_1_collide(wire):
 
 
 def test_collided_replies_never_check():
-    """The model (sim/dynamixel/device.py): the AND of the replies' bytes, and where that would be a
+    """The model (sim/dynamixel/wire.py): the AND of the replies' bytes, and where that would be a
     good packet — identical replies — the CRC's last byte inverted."""
     one = StatusPacket(1, 0, bytes([0xFC, 0x03, 46])).encode()
     assert collide([one, one]) == one[:-1] + bytes([one[-1] ^ 0xFF]), "identical replies: only the CRC spoiled"
@@ -160,7 +160,7 @@ def test_eeprom_survives_a_power_cycle_and_a_restart_from_the_store(tmp_path):
     """EEPROM (ID, Return Delay Time, Homing Offset) kept by power_cycle() and, through the store
     file, by a new simulator; RAM (LED, Torque Enable) back to its defaults either way."""
     store = tmp_path / "bench.json"
-    bench = Bench(factory=True, connected=[ELBOW], store=store)
+    bench = Lab(factory=True, connected=[ELBOW], store=store)
     robot = SimulatedRobot(CONFIG, bench=bench)
     arm = robot.port()
     arm.hear_at(57600)
@@ -178,7 +178,7 @@ def test_eeprom_survives_a_power_cycle_and_a_restart_from_the_store(tmp_path):
     assert eeprom == {"id": 5, "return_delay_time": 0, "homing_offset": -300}, "EEPROM kept"
     assert (servo.get("led"), servo.torque_enabled) == (DEFAULT["led"], False), "RAM at its defaults, torque off"
 
-    again = SimulatedRobot(CONFIG, bench=Bench(factory=True, connected=[ELBOW], store=store, seed=99))
+    again = SimulatedRobot(CONFIG, bench=Lab(factory=True, connected=[ELBOW], store=store, seed=99))
     restarted = again.device(ELBOW)
     assert {name: restarted.get(name) for name in eeprom} == eeprom, "the store's memory, in the same slot"
     assert (restarted.get("led"), restarted.torque_enabled) == (DEFAULT["led"], False)
@@ -193,7 +193,7 @@ def test_the_factory_mounting_differs_from_the_configuration_and_is_recorded(tmp
     mounted against the configuration's direction; the store holds the truth. The plant turns
     each horn as mounted: a servo's Present Position is the mounting's, not the configuration's."""
     store = tmp_path / "bench.json"
-    robot = SimulatedRobot(CONFIG, bench=Bench(factory=True, store=store))
+    robot = SimulatedRobot(CONFIG, bench=Lab(factory=True, store=store))
     truth = json.loads(store.read_text())["mounting"]
     reversed_ = [j.dof for j in robot.joints if truth[j.dof]["direction"] != j.direction]
     assert len(reversed_) >= 1, "one joint at least mounted reversed"
@@ -212,7 +212,7 @@ def test_the_factory_mounting_differs_from_the_configuration_and_is_recorded(tmp
 def test_unwired_joints_neither_hear_nor_answer_and_hang_limp():
     """Only the elbow wired: a broadcast ping finds one servo; the others are in the plant, torque
     off, out of the host's reach."""
-    robot = SimulatedRobot(CONFIG, bench=Bench(factory=True, connected=[ELBOW]))
+    robot = SimulatedRobot(CONFIG, bench=Lab(factory=True, connected=[ELBOW]))
     arm = robot.port()
     arm.hear_at(57600)
     assert arm.servos == [robot.device(ELBOW)], "one servo on the bus"
@@ -220,7 +220,7 @@ def test_unwired_joints_neither_hear_nor_answer_and_hang_limp():
     assert [(e.id, e.params[:2]) for e in answers] == [(1, XM430_W350.model_number.to_bytes(2, "little"))]
     assert len(robot.drives) == 7 and robot.status()["torque_off"] == [True] * 7, "every joint in the plant, limp"
     with pytest.raises(ValueError, match="connected: no dof 'r_tail'"):
-        Bench(connected=["r_tail"]).set_up(CONFIG, robot.joints)
+        Lab(connected=["r_tail"]).set_up(CONFIG, robot.joints)
 
 
 @pytest.mark.parametrize("firmware, answered", [(FAST_READ_FIRMWARE - 1, "refused"), (FAST_READ_FIRMWARE, "read")])
@@ -272,7 +272,7 @@ def test_drive_mode_reverse_and_homing_offset_as_the_e_manual_says(wire):
 def test_status_return_level_and_return_delay_time():
     """Status Return Level(68) exists and acts (0: only pings answered); Return Delay Time(9) is
     reported with every reply (metadata: 250 × 2 µs = 500 µs fresh), never waited for."""
-    robot = SimulatedRobot(CONFIG, bench=Bench(factory=True, connected=[ELBOW]))
+    robot = SimulatedRobot(CONFIG, bench=Lab(factory=True, connected=[ELBOW]))
     arm, seen = robot.port(), []
     arm.bus.on_instruction = seen.append
     arm.hear_at(57600)
@@ -302,7 +302,7 @@ def test_servo_memory_is_a_devices_protocol():
 def test_a_bench_served_by_its_own_process():
     """serve()'s SimProcess passes the bench to its child: a fresh servo at 57600, power-cycled over
     the control socket."""
-    with SimProcess(CONFIG.path, "lockstep", bench=Bench(factory=True, connected=[ELBOW])) as sim:
+    with SimProcess(CONFIG.path, "lockstep", bench=Lab(factory=True, connected=[ELBOW])) as sim:
         port = _patient(sdk.PortHandler(sim.path), SIM_REPLY_TIMEOUT["dynamixel"])
         handler = sdk.PacketHandler(2.0)
         try:

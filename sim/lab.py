@@ -1,7 +1,7 @@
 """The bench: a simulated robot as it stands on a real bench before bring-up, for the bring-up
 commands (scan, setup, doctor, calibrate, reboot, ...) to be tested without hardware.
 
-    bench = Bench(factory=True, connected=("r_elbow_flexion",), store="bench.json")
+    bench = Lab(factory=True, connected=("r_elbow_flexion",), store="bench.json")
     robot = SimulatedRobot(load_config("replica"), bench=bench)
 
 - ``factory``: every device starts as it leaves the factory (its kind's ``factory_fresh``: a
@@ -84,7 +84,7 @@ class Mounting:
 
 
 @dataclass(frozen=True)
-class Bench:
+class Lab:
     """A bench's description (the module's docstring). JSON-able (to_json, from_json), so a
     simulator in another process gets the same bench."""
     factory: bool = False
@@ -103,7 +103,7 @@ class Bench:
             "memory": {dof: dict(items) for dof, items in self.memory.items()}, "seed": self.seed})
 
     @classmethod
-    def from_json(cls, text: str) -> "Bench":
+    def from_json(cls, text: str) -> "Lab":
         d = json.loads(text)
         mounting = d.get("mounting")
         return cls(factory=d["factory"], connected=d["connected"], store=d["store"],
@@ -200,8 +200,8 @@ class Store:
 
 @dataclass
 class BenchSetup:
-    """A Bench resolved for one robot: each joint's mounting, the connected dofs, the store."""
-    bench: Bench
+    """A Lab resolved for one robot: each joint's mounting, the connected dofs, the store."""
+    bench: Lab
     store: Store | None
     mounting: dict[str, Mounting]
     connected: set[str]

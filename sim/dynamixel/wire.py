@@ -1,6 +1,6 @@
 """A bus of virtual servos that answers Protocol 2.0 byte streams as the e-manual defines.
 
-``VirtualBus.handle(data, time)`` takes whatever bytes the host sent (any chunking, garbage
+``DynamixelWire.handle(data, time)`` takes whatever bytes the host sent (any chunking, garbage
 included) and returns the status bytes the servos put on the wire. Replies follow Status Return
 Level (0: ping only, 1: ping and reads, 2: all); broadcast instructions other than ping and the
 sync/bulk reads get none. Return Delay Time is reported in each ``Reply`` but never waited for.
@@ -119,7 +119,7 @@ def _parsed(parser: Callable, params: bytes):
         raise StatusError(ErrorNumber.DATA_LENGTH) from None
 
 
-class VirtualBus:
+class DynamixelWire:
     """Servos on one simulated bus. ``clock`` gives the time when ``handle``/``tick`` get none;
     ``on_command()`` is called after every command transaction (a sync or bulk write, which ends a
     host's control tick), then ``on_instruction(exchange)`` after every instruction packet is
