@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..control.motion import DEFAULT_MOTION
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml, string_key
@@ -126,6 +127,11 @@ class RobotConfig:
     control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
     payload: "Payload | None" = None      # `[payload]`, already in `model`
     plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
+
+    def time_scale_for(self, motion: str) -> float:
+        """The time scale a motion plays at by default: the configuration's (`swing_time_scale`) for
+        the forehand it was tuned on, 1 for any other motion."""
+        return (self.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
 
     @property
     def friction(self) -> dict:

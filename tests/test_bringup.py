@@ -20,7 +20,7 @@ import tomlkit
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel.control_table import ITEMS
 from servodyn.tools.cli import main
-from servodyn.tools.simulator import serve
+from servodyn.sim.serve import serve
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = load_config("replica")

@@ -23,7 +23,7 @@ import tomlkit
 
 from servodyn.hal.config import load_config
 from servodyn.sim.lab import Lab
-from servodyn.tools.simulator import serve
+from servodyn.sim.serve import serve
 
 CONFIG = load_config("replica")
 DOFS = CONFIG.model.dof_names

@@ -30,7 +30,7 @@ from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
 from servodyn.sim.transport.pty import PtyServer
-from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
+from servodyn.sim.serve import SIM_REPLY_TIMEOUT
 
 CONFIG = load_config("replica_mixed")
 KIND = {name: bus.kind for name, bus in CONFIG.buses.items()}      # shoulder: can, wrist: dynamixel

@@ -16,7 +16,7 @@ import pytest
 
 from servodyn.control.timing import BUS_WATCHDOG
 from servodyn.hal.config import load_config
-from servodyn.tools.simulator import SIM_REPLY_TIMEOUT, SimProcess
+from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
 
 CONFIG = load_config("replica")
 SWING = [sys.executable, "-m", "servodyn.tools.cli", "swing"]

@@ -16,7 +16,7 @@ from servodyn.sim.dynamixel import (XM430_W350, XM540_W270, HardwareError, Opera
                                     DynamixelWire)
 from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from servodyn.hal.dynamixel.backend import _patient
-from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
+from servodyn.sim.serve import SIM_REPLY_TIMEOUT
 
 TICK = 2 * math.pi / 4096                  # rad per position unit
 NO_LOAD_SPEED = 46 * 2 * math.pi / 60      # XM430-W350 at 12 V, rad/s

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from servodyn.loop import realtime
+from servodyn.hal import realtime
 from servodyn.hal import JointCommand, load_config
 from servodyn.hal.dynamixel import (ALERT_BIT, ErrorNumber, FastReadBlock, PacketReader,
                                     encode_fast_reply)

@@ -16,9 +16,9 @@ import pytest
 
 from servodyn.tools.codegen import generate, model_fields
 from servodyn.hal.config import load_config
-from servodyn.tools.hil import default_elf, run_qemu, summarize
+from servodyn.hil import default_elf, run_qemu, summarize
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 
 ROOT = Path(__file__).resolve().parent.parent
 WHOLE_SWING_TIMEOUT = 900.0   # s of wall clock for the 7,201-tick swing under QEMU

@@ -199,7 +199,7 @@ def test_a_tiny_supply_voltage_is_refused_with_the_data_sheets_range(tmp_path):
 
 
 def test_report_json_is_strict_and_names_what_is_not_finite(tmp_path):
-    from servodyn.tools.validate import report_json
+    from servodyn.report.validation import report_json
     res = run("validate", "replica", "tennis_forehand", "--time-scale", "3", "--out", tmp_path)
     assert res.returncode == 0, res.stderr
     text = (tmp_path / "report.json").read_text()
@@ -277,7 +277,7 @@ def test_a_100k_character_name_is_cut_in_every_figure_title(tmp_path, monkeypatc
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
     from servodyn.hal.config import CONFIGS_DIR, load_config
-    from servodyn.tools.validate import validate
+    from servodyn.report.validation import validate
     config = tmp_path / "long.toml"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace('name = "replica"', f'name = "{"x" * 100_000}"'))
     texts = []
@@ -303,7 +303,7 @@ def test_the_swings_figure_reads_at_a_glance(tmp_path, monkeypatch):
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
     from servodyn.hal.config import load_config
-    from servodyn.tools.swing import run_swing
+    from runs import run_swing
     figures = []
     original = Figure.savefig
 

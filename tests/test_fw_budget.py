@@ -6,7 +6,7 @@ here by stand-ins whose wall times are given (no time is measured in the test su
 import pytest
 
 from servodyn.tools.bench import fw_budget
-from servodyn.tools.hil import FirmwareError
+from servodyn.hil import FirmwareError
 
 
 def _fake_runs(monkeypatch, start, per_tick):

@@ -11,8 +11,8 @@ import tomlkit
 
 from servodyn.hal.config import CONFIGS_DIR, load_config
 from servodyn.tools import excite, identify
-from servodyn.tools.swing import run_swing
-from servodyn.tools.validate import validate
+from runs import run_swing
+from servodyn.report.validation import validate
 
 KNOWN_KG = 0.5
 EXCITATION_S = 10.0

@@ -18,7 +18,7 @@ from servodyn.identification import read_rows
 from servodyn.identification.heating import HEAT_SHARE
 from servodyn.loop.log import read_run_log
 from servodyn.tools import excite, identify
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 from servodyn.validation import Limits, check
 
 HEAT_S = 24.0

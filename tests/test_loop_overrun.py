@@ -16,7 +16,7 @@ from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.hal.bus import make_bus
 from servodyn.hal.config import load_config
 from servodyn.loop import Overrun, RunLog, follow, summarize
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 
 QUIET = dict(say=lambda *a, **k: None)
 

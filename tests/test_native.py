@@ -17,9 +17,9 @@ from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel.units import ServoMap
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
-from servodyn.tools.hil import FirmwareLink, replay
-from servodyn.tools.native import NATIVE, run_native
-from servodyn.tools.swing import run_swing
+from servodyn.hil import FirmwareLink, replay
+from servodyn.loop.native import NATIVE, run_native
+from runs import run_swing
 
 ROOT = Path(__file__).resolve().parent.parent
 QUIET = dict(say=lambda *a, **k: None)

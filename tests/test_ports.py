@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from servodyn.hal import ports as host
+from servodyn.hal import port_access, ports
 from servodyn.hal.bringup import ERROR, WARNING
 from servodyn.hal.errors import ServoInitializationError
 from servodyn.tools.cli import main
@@ -112,10 +112,10 @@ def _checks(findings):
 # ---------------------------------------------------------------------------- what the host has
 
 def test_serial_ports_are_the_usb_adapters_with_their_descriptors(tmp_path):
-    ports = host.serial_ports(stand_in(tmp_path))
-    assert [p.device for p in ports] == ["/dev/ttyACM0", "/dev/ttyUSB0"], \
+    found = ports.serial_ports(stand_in(tmp_path))
+    assert [p.device for p in found] == ["/dev/ttyACM0", "/dev/ttyUSB0"], \
         "the USB adapters in name order; ttyS0 (no USB device above it) and the console are not adapters"
-    board, u2d2 = ports
+    board, u2d2 = found
     assert (u2d2.vid_pid, u2d2.manufacturer, u2d2.product, u2d2.serial, u2d2.driver) == \
         ("0403:6014", "FTDI", "USB <-> Serial Converter", "FT6Z5XYZ", "ftdi_sio"), \
         "read from the USB device above the tty"
@@ -123,18 +123,18 @@ def test_serial_ports_are_the_usb_adapters_with_their_descriptors(tmp_path):
     assert u2d2.adapter.name == "U2D2" and u2d2.adapter.bus == "dynamixel", "recognised by its VID:PID"
     assert (board.vid_pid, board.driver, board.adapter.name, board.by_id) == \
         ("2f5d:2202", "cdc_acm", "OpenRB-150", None), "a cdc_acm board: the interface's driver; no by-id link here"
-    assert host.serial_ports(tmp_path / "empty") == [], "a machine without sysfs entries has none"
+    assert ports.serial_ports(tmp_path / "empty") == [], "a machine without sysfs entries has none"
 
 
 def test_the_adapter_table_is_spelt_as_sysfs_spells_ids():
-    for vid, pid in host.ADAPTERS:
+    for vid, pid in ports.ADAPTERS:
         assert len(vid) == len(pid) == 4 and (vid + pid) == (vid + pid).lower(), \
             f"{vid}:{pid}: sysfs gives four lower-case hex digits, and lookups compare them so"
-    assert {a.bus for a in host.ADAPTERS.values()} == {"dynamixel", "can"}, "what each carries"
+    assert {a.bus for a in ports.ADAPTERS.values()} == {"dynamixel", "can"}, "what each carries"
 
 
 def test_can_links_are_the_links_of_type_280(tmp_path):
-    links = {link.name: link for link in host.can_links(stand_in(tmp_path))}
+    links = {link.name: link for link in ports.can_links(stand_in(tmp_path))}
     assert sorted(links) == ["can0", "vcan0"], "eth0 (type 1) is no CAN link"
     can0 = links["can0"]
     assert (can0.operstate, can0.driver, can0.vid_pid, can0.adapter.name) == \
@@ -147,81 +147,81 @@ def test_ip_details_give_the_bit_rate_and_controller_state():
     text = json.dumps([{"ifname": "lo", "linkinfo": None},
                        {"ifname": "can0", "linkinfo": {"info_kind": "can", "info_data": {
                            "state": "ERROR-ACTIVE", "restart_ms": 0, "bittiming": {"bitrate": 1000000}}}}])
-    assert host._ip_can_details(text) == {"can0": {"bitrate": 1000000, "state": "ERROR-ACTIVE", "restart_ms": 0}}, \
+    assert ports._ip_can_details(text) == {"can0": {"bitrate": 1000000, "state": "ERROR-ACTIVE", "restart_ms": 0}}, \
         "`ip -details -json link show`'s CAN links, the others left out"
-    assert host._ip_can_details("not json") == {}, "an ip that says something else is no CAN link"
+    assert ports._ip_can_details("not json") == {}, "an ip that says something else is no CAN link"
 
 
 # ---------------------------------------------------------------------------- findings, each with its fix
 
 def test_a_missing_port_names_the_ports_there_are(tmp_path):
     root = stand_in(tmp_path)
-    [missing] = host.port_findings("/dev/ttyUSB9", root)
+    [missing] = port_access.port_findings("/dev/ttyUSB9", root)
     assert missing.check == "port" and missing.severity == ERROR
     assert missing.line() == ("bus '/dev/ttyUSB9': port: found no /dev/ttyUSB9, expected a serial port; serial ports "
                               "here: /dev/ttyACM0 (OpenRB-150), /dev/ttyUSB0 (U2D2); `servodyn ports` lists them"), \
         "what does exist, by name, and where to look"
-    [none] = host.port_findings("/dev/ttyUSB0", tmp_path / "empty")
-    assert none.fix == host.NO_ADAPTERS and "dmesg | tail" in none.fix and "ftdi_sio" in none.fix, \
+    [none] = port_access.port_findings("/dev/ttyUSB0", tmp_path / "empty")
+    assert none.fix == ports.NO_ADAPTERS and "dmesg | tail" in none.fix and "ftdi_sio" in none.fix, \
         "no adapter at all: the cable, the kernel's log, the driver"
 
 
 def test_permission_names_the_group_and_the_usermod_line(tmp_path):
     root = stand_in(tmp_path, holder=False)
-    denied = _checks(host.port_findings("/dev/ttyUSB0", root))["permission"]
+    denied = _checks(port_access.port_findings("/dev/ttyUSB0", root))["permission"]
     assert "group 'dialout'" in denied.found, f"the group that owns the device: {denied.found}"
     assert denied.fix == "`sudo usermod -aG dialout $USER`, then log out and in", \
         "the exact line to run (servodyn never runs sudo), and that it takes a new login"
-    again = _checks(host.port_findings(f"/dev/serial/by-id/{BY_ID}", root))["permission"]
+    again = _checks(port_access.port_findings(f"/dev/serial/by-id/{BY_ID}", root))["permission"]
     assert again.fix == denied.fix, "the by-id name is the same device"
-    member = _checks(host.port_findings("/dev/ttyUSB0", stand_in(tmp_path / "m", holder=False, member=True)))
+    member = _checks(port_access.port_findings("/dev/ttyUSB0", stand_in(tmp_path / "m", holder=False, member=True)))
     assert member["permission"].fix.startswith("'alice' is in 'dialout' already") and \
         "log out and in" in member["permission"].fix, "added to the group, but this session began before"
 
 
 def test_another_process_holding_the_port_is_named(tmp_path):
     root = stand_in(tmp_path)
-    held = _checks(host.port_findings("/dev/ttyUSB0", root))["port in use"]
+    held = _checks(port_access.port_findings("/dev/ttyUSB0", root))["port in use"]
     assert held.found == "held by pid 4242 (DynamixelWizard2)", "its pid and command line, from /proc"
     assert "kill 4242" in held.fix and "Disconnect" in held.fix, held.fix
-    assert "port in use" not in _checks(host.port_findings("/dev/ttyACM0", root)), "nobody holds ttyACM0"
-    assert [str(h) for h in host.holders(f"/dev/serial/by-id/{BY_ID}", root)] == ["pid 4242 (DynamixelWizard2)"], \
+    assert "port in use" not in _checks(port_access.port_findings("/dev/ttyACM0", root)), "nobody holds ttyACM0"
+    assert [str(h) for h in port_access.holders(f"/dev/serial/by-id/{BY_ID}", root)] == ["pid 4242 (DynamixelWizard2)"], \
         "a by-id name finds the holders of the device it points to"
 
 
 def test_an_ftdi_latency_timer_above_1_ms_is_a_warning_with_the_udev_rule(tmp_path):
-    latency = _checks(host.port_findings("/dev/ttyUSB0", stand_in(tmp_path)))["latency timer"]
+    latency = _checks(port_access.port_findings("/dev/ttyUSB0", stand_in(tmp_path)))["latency timer"]
     assert (latency.found, latency.expected, latency.severity) == ("16 ms", "1 ms", WARNING), \
         "servodyn lowers it at open, so before open it is a warning"
-    assert latency.fix.startswith("servodyn asks it down to 1 ms at open") and host.LATENCY_UDEV_RULE in latency.fix, \
+    assert latency.fix.startswith("servodyn asks it down to 1 ms at open") and ports.LATENCY_UDEV_RULE in latency.fix, \
         "what open does, and the rule that sets it for every plug-in"
     assert latency.fix.endswith("(now: `echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer`)"), \
         "the machine's own path, never the stand-in tree's"
-    assert "latency timer" not in _checks(host.port_findings("/dev/ttyUSB0", stand_in(tmp_path / "1", latency="1"))), \
+    assert "latency timer" not in _checks(port_access.port_findings("/dev/ttyUSB0", stand_in(tmp_path / "1", latency="1"))), \
         "1 ms is what is wanted"
-    assert "latency timer" not in _checks(host.port_findings("/dev/ttyACM0", stand_in(tmp_path / "a"))), \
+    assert "latency timer" not in _checks(port_access.port_findings("/dev/ttyACM0", stand_in(tmp_path / "a"))), \
         "a cdc_acm board has no latency timer: no file means no FTDI adapter, not a finding"
 
 
 @pytest.mark.parametrize("rtprio, caps, fix", [
-    ((0, 0), 0, host.REALTIME_FIX),
+    ((0, 0), 0, ports.REALTIME_FIX),
     ((0, 99), 0, "`ulimit -r 99` in the shell that starts servodyn (the hard limit allows it)"),
     ((99, 99), 0, None),
-    ((0, 0), 1 << host.CAP_SYS_NICE, None),
-    ((50, 50), 0, host.REALTIME_FIX)])
+    ((0, 0), 1 << ports.CAP_SYS_NICE, None),
+    ((50, 50), 0, ports.REALTIME_FIX)])
 def test_realtime_priority_needs_rtprio_or_cap_sys_nice(tmp_path, rtprio, caps, fix):
-    found = host.realtime_findings(stand_in(tmp_path, rtprio=rtprio, caps=caps), priority=80)
+    found = port_access.realtime_findings(stand_in(tmp_path, rtprio=rtprio, caps=caps), priority=80)
     if fix is None:
         assert found == [], f"RLIMIT_RTPRIO {rtprio} with capabilities {caps:x}: SCHED_FIFO at 80 is allowed"
     else:
         [refused] = found
         assert refused.severity == WARNING and refused.fix == fix, \
             f"RLIMIT_RTPRIO {rtprio}: the loop would run at normal priority; the fix: {refused.fix}"
-        assert refused.found.startswith("SCHED_FIFO not allowed"), "the words loop.realtime uses"
+        assert refused.found.startswith("SCHED_FIFO not allowed"), "the words hal.realtime uses"
 
 
 def test_the_loop_says_the_same_fix_when_sched_fifo_is_refused(monkeypatch, capsys):
-    from servodyn.loop import realtime
+    from servodyn.hal import realtime
 
     def refuse(*args):
         raise PermissionError(errno.EPERM, "Operation not permitted")
@@ -230,18 +230,18 @@ def test_the_loop_says_the_same_fix_when_sched_fifo_is_refused(monkeypatch, caps
     with realtime.realtime_priority(realtime.LOOP_PRIORITY) as granted:
         assert granted is False
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and err.endswith(host.REALTIME_FIX), f"one line, its fix hal.ports's: {err}"
+    assert "\n" not in err and err.endswith(ports.REALTIME_FIX), f"one line, its fix hal.ports's: {err}"
 
 
 def test_open_failure_is_one_line_with_its_fix(tmp_path):
     root = stand_in(tmp_path, holder=False)
-    assert host.open_failure("/dev/ttyUSB0", errno.EACCES, root) == (
+    assert port_access.open_failure("/dev/ttyUSB0", errno.EACCES, root) == (
         "/dev/ttyUSB0: cannot open (Permission denied): -rw-rw---- group 'dialout' (this user is not in it); "
         "`sudo usermod -aG dialout $USER`, then log out and in"), "the group and the line"
-    missing = host.open_failure("/dev/ttyUSB3", errno.ENOENT, root)
+    missing = port_access.open_failure("/dev/ttyUSB3", errno.ENOENT, root)
     assert missing.startswith("/dev/ttyUSB3: cannot open (No such file or directory); serial ports here: ") \
         and "/dev/ttyUSB0 (U2D2)" in missing, missing
-    busy = host.open_failure("/dev/ttyUSB0", errno.EBUSY, stand_in(tmp_path / "b"))
+    busy = port_access.open_failure("/dev/ttyUSB0", errno.EBUSY, stand_in(tmp_path / "b"))
     assert "held by pid 4242 (DynamixelWizard2)" in busy, busy
 
 
@@ -262,14 +262,14 @@ def test_lock_port_refuses_a_second_holder_and_names_it(pty):
     fd, path = pty
     again = os.open(path, os.O_RDWR | os.O_NOCTTY)
     try:
-        host.lock_port(fd, path)                       # the first: ours alone
+        port_access.lock_port(fd, path)                       # the first: ours alone
         with pytest.raises(ServoInitializationError) as refused:
-            host.lock_port(again, path)
+            port_access.lock_port(again, path)
         line = str(refused.value)
         assert "\n" not in line and line.startswith(f"{path}: in use, locked by pid {os.getpid()} ("), line
         assert "this process" in line, f"the holder is this very process: {line}"
         os.close(fd)                                   # closing the first descriptor lets the lock go
-        host.lock_port(again, path)
+        port_access.lock_port(again, path)
     finally:
         os.close(again)
 
@@ -277,10 +277,10 @@ def test_lock_port_refuses_a_second_holder_and_names_it(pty):
 def test_the_latency_timer_is_lowered_at_open(tmp_path, pty):
     fd, _ = pty
     root = stand_in(tmp_path, holder=False)
-    assert host.lower_latency(fd, "/dev/ttyUSB0", root) == (16, 1), \
+    assert port_access.lower_latency(fd, "/dev/ttyUSB0", root) == (16, 1), \
         "a pseudo-terminal refuses TIOCSSERIAL, so the writable sysfs file is what lowered it"
-    assert host.latency_file("/dev/ttyUSB0", root).read_text().strip() == "1"
-    assert host.lower_latency(fd, "/dev/ttyACM0", root) == (None, None), "no latency timer: nothing to do"
+    assert port_access.latency_file("/dev/ttyUSB0", root).read_text().strip() == "1"
+    assert port_access.lower_latency(fd, "/dev/ttyACM0", root) == (None, None), "no latency timer: nothing to do"
 
 
 def test_a_latency_timer_that_stays_high_refuses_real_time_only(tmp_path, pty, monkeypatch):
@@ -291,11 +291,11 @@ def test_a_latency_timer_that_stays_high_refuses_real_time_only(tmp_path, pty, m
         raise PermissionError(errno.EACCES, "Permission denied", str(self))
     monkeypatch.setattr(pathlib.Path, "write_text", read_only)
     with pytest.raises(ServoInitializationError) as refused:
-        host.claim_port(fd, "/dev/ttyUSB0", realtime=True, root=root)
+        port_access.claim_port(fd, "/dev/ttyUSB0", realtime=True, root=root)
     line = str(refused.value)
     assert "\n" not in line and line.startswith("/dev/ttyUSB0: latency timer at 16 ms"), line
-    assert host.LATENCY_UDEV_RULE in line and "sudo tee" in line, f"the fix, for good and for now: {line}"
-    assert host.claim_port(fd, "/dev/ttyUSB0", realtime=False, root=root) == (16, 16), \
+    assert ports.LATENCY_UDEV_RULE in line and "sudo tee" in line, f"the fix, for good and for now: {line}"
+    assert port_access.claim_port(fd, "/dev/ttyUSB0", realtime=False, root=root) == (16, 16), \
         "bring-up commands open without refusing"
 
 
@@ -325,7 +325,7 @@ def test_a_port_that_does_not_exist_says_what_to_check(tmp_path):
         make_bus(load_config("replica"), port=str(tmp_path / "ttyUSB9")).open()
     line = str(refused.value)
     assert line.startswith(f"{tmp_path / 'ttyUSB9'}: cannot open (No such file or directory); ") and "\n" not in line
-    assert "servodyn ports" in line or line.endswith(host.NO_ADAPTERS), \
+    assert "servodyn ports" in line or line.endswith(ports.NO_ADAPTERS), \
         f"the ports this machine has, or what to check when it has none: {line}"
 
 
@@ -364,4 +364,4 @@ def test_servodyn_ports_json_and_none_found(tmp_path, capsys):
     assert [link["name"] for link in report["can"]] == ["can0", "vcan0"]
     (tmp_path / "bare").mkdir()
     assert main(["ports", "--root", str(tmp_path / "bare")]) == 0
-    assert capsys.readouterr().out.strip() == host.NO_ADAPTERS, "none found: what to check"
+    assert capsys.readouterr().out.strip() == ports.NO_ADAPTERS, "none found: what to check"

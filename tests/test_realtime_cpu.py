@@ -1,4 +1,4 @@
-"""The real-time path on one CPU (loop.realtime.one_cpu): the process pinned and the kernel's
+"""The real-time path on one CPU (hal.realtime.one_cpu): the process pinned and the kernel's
 work queues steered for the block, each put back after, and left alone — with one line — whenever
 they cannot or should not be touched. A file stands in for the sysfs mask here (the real one is
 steered by the real-time swings of other tests, and put back by them)."""
@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from servodyn.loop import realtime
+from servodyn.hal import realtime
 
 ALLOWED = sorted(os.sched_getaffinity(0))
 ONLINE = sum(1 << c for c in range(os.cpu_count() or 1))

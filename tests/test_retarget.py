@@ -23,7 +23,7 @@ from servodyn.mocap.skeleton import UNITS, segment_rotations
 from servodyn.model import load_model
 from servodyn.tools.cli import main
 from servodyn.tools.mocap import run_retarget
-from servodyn.tools.validate import validate
+from servodyn.report.validation import validate
 
 CLIPS = Path("/usr/share/assimp/models/BVH")
 needs_clips = pytest.mark.skipif(not (CLIPS / "01_01.bvh").exists(),

@@ -29,7 +29,7 @@ from servodyn.sim.dynamixel import Servo, DynamixelWire
 from servodyn.sim.dynamixel.wire import collide
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
-from servodyn.tools.simulator import SIM_REPLY_TIMEOUT, SimProcess
+from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
 
 sdk = pytest.importorskip("dynamixel_sdk")
 

@@ -16,7 +16,7 @@ from servodyn.hal.thermal import winding_step
 from servodyn.loop.log import read_run_log
 from servodyn.sim.dynamixel import Servo
 from servodyn.sim.robot import SimulatedRobot
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)

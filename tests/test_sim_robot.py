@@ -1,6 +1,6 @@
 """One simulated robot for every configuration (sim/robot.py): its devices set up as the
 configuration says, every fault class of both buses on one class, and one way to serve it
-(servodyn.tools.simulator.serve)."""
+(servodyn.sim.serve.serve)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from servodyn.sim.can import CanMotor
 from servodyn.sim.dynamixel import Servo
 from servodyn.sim.faults import CAN_WIRE_FAULTS, WIRE_FAULTS
 from servodyn.sim.robot import FAULTS, SimulatedRobot
-from servodyn.tools.simulator import SimProcess, serve
+from servodyn.sim.serve import SimProcess, serve
 
 
 @pytest.mark.parametrize("name", ["replica", "replica_can", "replica_mixed"])

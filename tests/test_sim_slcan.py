@@ -21,7 +21,7 @@ from servodyn.hal.config import load_config
 from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
-from servodyn.tools.simulator import SIM_REPLY_TIMEOUT
+from servodyn.sim.serve import SIM_REPLY_TIMEOUT
 
 CLIENT = textwrap.dedent(r'''
     import json, struct, sys, time

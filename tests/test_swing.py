@@ -17,7 +17,7 @@ import pytest
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.hal.errors import ServoInitializationError
 from servodyn.loop import CHATTER_GOAL, TRACKING_GOAL_RAD
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 
 QUIET = dict(say=lambda *a, **k: None)
 SWING_TICKS = 7201            # the 1.8 s forehand at the replica's time scale 4, every 1 ms
@@ -178,7 +178,7 @@ def test_any_motion_plays(tmp_path):
 
 
 @pytest.mark.parametrize("scale,words", [
-    (0.0, "--time-scale must be a positive number, got 0"),
+    (0.0, "a time scale is a positive number, not 0"),
     (1e9, "at most 600 s"),
     (1e-6, "too fast"),
 ])
@@ -213,7 +213,7 @@ def test_each_bus_gets_its_port():
     """--port PATH for a one-bus configuration, --port BUS=PATH for each bus of a configuration with
     several; all real or all simulated, every mistake one line naming it."""
     from servodyn.hal.config import load_config
-    from servodyn.tools.swing import bus_ports
+    from servodyn.hal.ports import bus_ports
     replica, mixed = load_config("replica"), load_config("replica_mixed")
     assert bus_ports(replica) == {} and bus_ports(mixed) == {}, "port = 'auto': the simulated buses"
     assert bus_ports(replica, "/dev/ttyUSB0") == {"arm": "/dev/ttyUSB0"}
@@ -232,7 +232,7 @@ def test_a_pseudo_terminal_port_is_a_simulated_bus():
     """`servodyn sim` serves pseudo-terminals; a swing given one waits as patiently as for the bus it
     starts itself, since no adapter is a pty."""
     import os
-    from servodyn.tools.swing import is_pseudo_terminal
+    from servodyn.hal.ports import is_pseudo_terminal
     master, slave = os.openpty()
     try:
         assert is_pseudo_terminal(os.ttyname(slave)), os.ttyname(slave)

@@ -15,7 +15,7 @@ import pytest
 from servodyn.control.timing import HOME_DURATION
 from servodyn.hal.config import load_config
 from servodyn.loop import CHATTER_GOAL
-from servodyn.tools.swing import run_swing
+from runs import run_swing
 
 QUIET = dict(say=lambda *a, **k: None)
 CAN_PERIOD = load_config("replica_can").control_period

@@ -15,7 +15,7 @@ import pytest
 from servodyn.hal.config import CONFIGS_DIR, config_from_dict, load_config
 from servodyn.hal.dynamixel.control_table import XM540_W270
 from servodyn.control.motion import motion_path
-from servodyn.tools.validate import validate
+from servodyn.report.validation import validate
 from servodyn.validation import CHECKS, Limits, check
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:

@@ -180,7 +180,7 @@ def test_a_logged_run_plays_planned_against_measured(tmp_path):
     feed as the loop's observer: the feed saw every tick, drew frames, and the run's log replays with
     the tracking error between the ghost (planned) and the solid arm (measured)."""
     from servodyn.hal.config import CONFIGS_DIR
-    from servodyn.tools.swing import run_swing
+    from runs import run_swing
     config = tmp_path / "replica_loopback.toml"
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace('kind = "dynamixel"', 'kind = "loopback"')
                       .replace("baud = 4000000", "baud = 1000000"))

@@ -16,8 +16,8 @@ import time
 from collections.abc import Callable
 
 
-from ..hal import ports as hal_ports
-from ..loop.realtime import LOOP_PRIORITY
+from ..hal import port_access, ports as hal_ports
+from ..hal.realtime import LOOP_PRIORITY
 from ..hal.bringup import ERROR, Finding
 from ..hal.can import bringup as can_bench
 from ..hal.can.dialects import CTRL_MODES, DAMIAO_DISABLED, DAMIAO_ENABLED, DAMIAO_STATUS
@@ -28,8 +28,9 @@ from ..hal.dynamixel import bringup as dxl
 from ..hal.dynamixel.control_table import BAUD_RATES, ITEMS, TABLE_SIZE
 from ..hal.dynamixel.units import ServoMap
 from ..hal.errors import ConfigError, ServoError
-from .config_patch import ConfigPatch, ask
-from .swing import bus_ports
+from ..hal.config_patch import ConfigPatch
+from .prompt import ask
+from ..hal.ports import bus_ports
 
 
 class BringUpError(Exception):
@@ -255,12 +256,12 @@ def host_findings(path: str) -> list[Finding]:
     pseudo-terminal is the simulator's, which holds its other end: none of these apply."""
     if hal_ports.is_pseudo_terminal(path):
         return []
-    return list(hal_ports.port_findings(path))
+    return list(port_access.port_findings(path))
 
 
 def doctor(config_name: str, port, as_json: bool, say=print) -> int:
     config, ports = config_and_ports(config_name, port)
-    findings: list[Finding] = list(hal_ports.realtime_findings(priority=LOOP_PRIORITY))
+    findings: list[Finding] = list(port_access.realtime_findings(priority=LOOP_PRIORITY))
     started = time.monotonic()
     for bus, path in ports.items():
         if _kind(config, bus) == "can":
@@ -526,7 +527,7 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
     for dof, values in results.items():
         patch.set_joint(dof, **values)
     try:
-        return patch.offer(yes, say)
+        return patch.offer(lambda question: ask(question, yes, say), say)
     except ConfigError as err:
         raise BringUpError(str(err)) from None
 

@@ -149,26 +149,25 @@ def _overrun_tolerance(ms: float | None) -> float | None:
 
 
 def cmd_swing(args) -> int | None:
-    from ..hal.errors import ConfigError, ServoError
-    from .simulator import SimProcessError
-    from .hil import FirmwareError
-    from .swing import Declined, run_swing
+    from ..errors import ServodynError
+    from ..loop.run import Declined, RunOptions
+    from ..report.swing import play
     viewer = feed = None
     try:
         if args.view:
             from .view import live_viewer
             viewer, feed = live_viewer(args.config, args.view_host, args.view_port)
-        summary = run_swing(args.config, port=args.port, out=Path(args.out),
-                            feedforward=not args.no_feedforward, time_scale=args.time_scale,
-                            realtime=args.realtime, motion=args.motion, force=args.force, native=args.native,
-                            observer=feed.observe if feed else None,
-                            overrun_tolerance=_overrun_tolerance(args.overrun_tolerance),
-                            confirm=None if args.yes else _confirm, hold=args.hold, dry_run=args.dry_run)
+        options = RunOptions(motion=args.motion, time_scale=args.time_scale, feedforward=not args.no_feedforward,
+                             realtime=args.realtime, force=args.force, native=args.native, port=args.port,
+                             overrun_tolerance=_overrun_tolerance(args.overrun_tolerance), hold=args.hold,
+                             dry_run=args.dry_run)
+        summary = play(args.config, options, Path(args.out), observer=feed.observe if feed else None,
+                       confirm=None if args.yes else _confirm)
     except Declined as err:
         if viewer is not None:
             viewer.close()
         raise CliError(str(err), err.exit_code) from None
-    except (ConfigError, ServoError, ValueError, FirmwareError, SimProcessError) as err:
+    except (ServodynError, ValueError) as err:
         if viewer is not None:
             viewer.close()
         if args.verbose and getattr(err, "violations", None):      # the validator's refusal, in full
@@ -190,19 +189,19 @@ def cmd_swing(args) -> int | None:
 
 def _confirm(question: str) -> bool:
     """A yes/no question before a real arm moves (tools/config_patch.ask)."""
-    from .config_patch import ask
+    from .prompt import ask
     return ask(question, False)
 
 
 def cmd_sim(args) -> None:
     """The configuration's buses simulated, each on a pseudo-terminal (a CAN bus behind an SLCAN
-    adapter), one plant behind all of them (servodyn.tools.simulator.serve); lock-step advances the
+    adapter), one plant behind all of them (servodyn.sim.serve.serve); lock-step advances the
     plant when every bus has had its tick's commands."""
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
-    from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
+    from ..hal.realtime import SIMULATOR_PRIORITY, realtime_priority
     from ..sim.lab import Lab
-    from . import simulator
+    from ..sim import serve as simulator
     mode = "lockstep" if args.lockstep else "realtime"
     bench = None
     if args.factory or args.connect is not None or args.bench is not None:
@@ -210,7 +209,7 @@ def cmd_sim(args) -> None:
         bench = Lab(factory=args.factory, store=args.bench, connected=connected)
     try:
         config = load_config(args.config)
-        served = simulator.serve(config, mode, process=False, can="slcan", start=False, bench=bench)
+        served = simulator.serve(config, mode, process=False, can="slcan", start=False, lab=bench)
     except (ConfigError, ValueError) as err:
         raise CliError(str(err)) from None
     robot, paths = served.robot, {name: options["port"] for name, options in served.buses.items()}
@@ -318,7 +317,7 @@ def cmd_firmware(args) -> None:
 def cmd_validate(args) -> int:
     from ..hal.config import load_config
     from ..hal.errors import ConfigError
-    from .validate import expand_motions, validate, validate_many
+    from ..report.validation import expand_motions, validate, validate_many
     options = dict(time_scale=args.time_scale, payload=args.payload, payload_body=args.payload_body,
                    payload_com=args.payload_com, supply_voltage=args.supply_voltage, margin=args.margin,
                    repeat=args.repeat, ambient=args.ambient, fit=args.fit, retime_motion=args.retime,
@@ -425,7 +424,7 @@ def cmd_export_bvh(args) -> int:
 
 def _confirm_overwrite(path: str, yes: bool) -> bool:
     """A file that exists is replaced only when the user says so (a clip may be a capture)."""
-    from .config_patch import ask
+    from .prompt import ask
     return ask(f"{path} exists: overwrite it?", yes)
 
 

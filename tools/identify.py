@@ -20,8 +20,9 @@ from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, Identifica
                               read_rows)
 from ..identification.signals import DECIMATED_HZ, SignalError
 from ..loop.log import PER_DOF, RunLogError, read_run_log
-from .config_patch import ConfigPatch
-from .plots import _pyplot, short
+from ..hal.config_patch import ConfigPatch
+from .prompt import ask
+from ..report.plots import _pyplot, short
 
 THERMAL_KEYS = ("thermal_resistance_k_w", "thermal_time_constant_s")
 
@@ -292,6 +293,6 @@ def _apply(config, result: dict, target: str | None, yes: bool, say) -> int:
             patch.set_joint(dof, **values)
         if payload:
             patch.set_table("payload", **payload)
-        return patch.offer(yes, say)
+        return patch.offer(lambda question: ask(question, yes, say), say)
     except (ConfigError, OSError) as err:
         raise IdentifyError(str(err)) from None

@@ -18,8 +18,8 @@ from ..control.trajectory import write_trajectory_csv
 from ..mocap import ArmTarget, Clip, find_arms, guess_axes, read_bvh, retarget, write_bvh
 from ..mocap.export import ORDERS, arm_clip
 from ..mocap.skeleton import ROLES, UNITS, ArmChain, rest_frame, skeleton_height, guess_unit
-from .plots import _pyplot, short
-from .validate import validate
+from ..report.plots import _pyplot, short
+from ..report.validation import validate
 
 # a retargeted motion is flagged (exit 1) past these
 FLAG_LIMIT_FRACTION = 0.01        # frames of one dof outside its soft limits, clamped

@@ -1,6 +1,6 @@
 """`servodyn ports`: the serial adapters and SocketCAN links of this machine in one table each —
 what each adapter is (hal.ports.ADAPTERS), its latency timer and who holds it — and under each
-port what on the host stands in its way, with the fix (hal.ports.port_findings).
+port what on the host stands in its way, with the fix (hal.port_access.port_findings).
 
     serial adapters
       device        adapter  VID:PID    product                   latency  held by  by-id
@@ -17,7 +17,8 @@ import json
 from pathlib import Path
 
 from ..hal.can.spec import Can
-from ..hal.ports import NO_ADAPTERS, ROOT, can_links, holders, latency_timer, port_findings, serial_ports
+from ..hal.port_access import holders, latency_timer, port_findings
+from ..hal.ports import NO_ADAPTERS, ROOT, can_links, serial_ports
 
 
 def ports_report(root: Path = ROOT) -> dict:

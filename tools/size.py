@@ -22,7 +22,7 @@ from ..readable import fixed
 from ..validation import judge
 from ..validation import sizing
 from ..validation.sizing import SizingError
-from .config_patch import ask
+from .prompt import ask
 
 SHOWN = 6             # candidates per joint in the printed table (every one is in size.json)
 

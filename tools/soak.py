@@ -38,8 +38,9 @@ from ..hal.config import load_config
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
 from ..loop.log import PER_DOF
 from .argtypes import OneLineParser, count
-from .hil import run_qemu
-from .swing import run_swing
+from ..hil import run_qemu
+from ..loop.run import RunOptions
+from ..report.swing import play
 
 SMALL = 1e-3                 # s, the swing's small_time_step (checked against timing below); a
                              # configuration's [control] period replaces it (replica_can: 2.5 ms)
@@ -144,8 +145,9 @@ def run_host(spec: dict, folder: Path) -> dict:
     lines = []
     period = config.control_period
     fault_t = spec["tick"] * period
-    summary = run_swing(config, out=out, motion=str(motion), time_scale=1.0, say=lines.append,
-                        fault_at=(fault_t, spec["servo"], spec["fault"]), home_duration=HOME_TIME, figure=False)
+    options = RunOptions(motion=str(motion), time_scale=1.0, fault_at=(fault_t, spec["servo"], spec["fault"]),
+                         home_duration=HOME_TIME)
+    summary = play(config, options, out, say=lines.append, figure=False)
     problems = []
     error = summary.get("error")
     expected = CAN_CLASSES[spec["class"]][2] if can else CLASSES[spec["class"]][1]

@@ -40,7 +40,8 @@ from ..bringup import ERROR
 from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
 from ..errors import (BusStallError, ServoError, ServoHardwareError, ServoInitializationError,
                       ServoOperationError, ServoTimeoutError)
-from ..ports import claim_port, is_pseudo_terminal, open_failure
+from ..port_access import claim_port, open_failure
+from ..ports import is_pseudo_terminal
 from . import bringup as bench
 from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_HARDWARE_ERROR,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,

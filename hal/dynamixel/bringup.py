@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 
 from ..bringup import WARNING, Finding, Found
 from ..errors import ServoInitializationError, ServoOperationError
-from ..ports import claim_port, is_pseudo_terminal, open_failure
+from ..port_access import claim_port, open_failure
+from ..ports import is_pseudo_terminal
 from . import instructions
 from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
 from .protocol import BROADCAST_ID, MAX_ID, InstructionPacket, StatusPacket, pack_field, unpack_field

@@ -11,10 +11,12 @@ priority, its CPU, the garbage collector paused).
 
 from __future__ import annotations
 
+import json
 import math
 import signal
 import time
 from contextlib import nullcontext
+from pathlib import Path
 
 import numpy as np
 
@@ -23,7 +25,7 @@ from ..control.timing import OVERRUN_TOLERANCE
 from ..hal.bus import JointCommand
 from ..errors import ExitCode, ServodynError
 from .log import RunLog, read_run_log
-from .realtime import LOOP_PRIORITY, collector_paused, realtime_priority
+from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 
 
 def tick(controller, segment: Segment, k: int, q, qd) -> np.ndarray:
@@ -63,7 +65,7 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
     once by the next (the loop catches up on its schedule); a tick that begins more than
     `tolerance` (default OVERRUN_TOLERANCE) behind its schedule raises Overrun before it reads:
     the caller stops the bus. The garbage collector waits for the end of the segment; in real
-    time the loop runs under SCHED_FIFO where it may (loop.realtime)."""
+    time the loop runs under SCHED_FIFO where it may (hal.realtime)."""
     with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
         return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer)
 
@@ -136,6 +138,11 @@ def chatter(tau, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
     with np.errstate(invalid="ignore", divide="ignore"):
         share = np.where(peak > 0, np.sqrt(np.mean(high**2, axis=0)) / np.where(peak > 0, peak, 1.0), 0.0)
     return share, np.ptp(high, axis=0)
+
+
+def write_summary(out, summary: dict) -> None:
+    """OUT/summary.json: a run's summary (`summarize` and what the run adds)."""
+    (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
 def summarize(log: RunLog, planned_ticks: int, period: float, realtime: bool, error=None) -> dict:

@@ -86,7 +86,7 @@ def _in_process(argv: list[str]) -> subprocess.CompletedProcess:
     from servodyn.tools import cli
     out, err = io.StringIO(), io.StringIO()
     import importlib
-    for name in ("servodyn.tools.plots", "servodyn.tools.validate"):
+    for name in ("servodyn.report.plots", "servodyn.report.validation"):
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
     with contextlib.ExitStack() as stack:

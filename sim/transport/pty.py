@@ -12,7 +12,7 @@ a background thread (`start()`, for tests and tools that share the process) or i
 thread (`serve_forever()`).
 
 A control socket (`serve_forever(control)`) takes requests between two packets, so a server in
-another process (servodyn.tools.simulator.SimProcess) injects faults, power-cycles the robot,
+another process (servodyn.sim.serve.SimProcess) injects faults, power-cycles the robot,
 reads the plant's clock and the servos' torque deterministically, or pauses it.
 
 Line speed. The servos hear only bytes sent at their own speed, so the server learns the speed

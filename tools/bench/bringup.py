@@ -28,7 +28,7 @@ import numpy as np
 from ...hal.config import load_config
 from ...hal.dynamixel import bringup as dxl
 from ...hal.dynamixel.control_table import BAUD_RATES
-from ..simulator import SimProcess
+from ...sim.serve import SimProcess
 
 ROOT = Path(__file__).resolve().parents[2]
 GOALS = {"scan": 2.0, "doctor": 1.0}

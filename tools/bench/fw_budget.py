@@ -36,7 +36,7 @@ import sys
 import time
 from pathlib import Path
 
-from servodyn.tools.hil import BOARDS, FirmwareError, default_elf, run_qemu, summarize
+from servodyn.hil import BOARDS, FirmwareError, default_elf, run_qemu, summarize
 
 ROOT = Path(__file__).resolve().parents[2]
 BUDGET = 300.0                # s of wall clock per board

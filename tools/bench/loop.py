@@ -41,8 +41,9 @@ from ...hal.dynamixel.control_table import (ADDR_GOAL_CURRENT, ADDR_OPERATING_MO
                                            ADDR_TORQUE_ENABLE, PRESENT_LENGTH, OperatingMode)
 from ...hal.dynamixel.units import ServoMap
 from ...sim.robot import SimulatedRobot
-from ..simulator import SimProcess
-from ..swing import run_swing
+from ...sim.serve import SimProcess
+from ...loop.run import RunOptions
+from ...report.swing import play
 
 ROOT = Path(__file__).resolve().parents[2]
 RAW_TRANSACTIONS = 3000
@@ -181,7 +182,8 @@ def measure() -> dict:
                               ("python real time", {"realtime": True}),
                               ("native real time", {"realtime": True, "native": True})):
             print(f"  {name} ...", flush=True)
-            summary = run_swing(out=Path(tmp) / name.replace(" ", "_"), say=lambda *a, **k: None, **options)
+            summary = play("replica", RunOptions(**options), Path(tmp) / name.replace(" ", "_"),
+                           say=lambda *a, **k: None)
             results[name] = swing_figures(summary)
     results["load_after"] = os.getloadavg()
     return results
@@ -237,7 +239,7 @@ def table(r: dict) -> str:
         lines.append(f"| {name.split()[0]} loop | {x['ticks']} | {_f(x['period_median_ms'])} | {_f(x['error_p99_ms'])} | "
                      f"{_f(x['error_max_ms'])} | {x['missed']} | {x['error'] or 'completed'} |")
     placed = {name.split()[0]: r[name].get("cpu") for name in ("python real time", "native real time")}
-    lines += ["", "real time, the loop, the simulator and the kernel's tty work on one CPU (loop.realtime."
+    lines += ["", "real time, the loop, the simulator and the kernel's tty work on one CPU (hal.realtime."
               "one_cpu): " + ", ".join(f"{loop} on CPU {cpu}" if cpu is not None else f"{loop} not placed"
                                        for loop, cpu in placed.items()),
               "", f"simulator serving real time, nobody talking: {sim['realtime_idle_cores']:.2f} core",

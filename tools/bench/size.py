@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ...hal.config import load_config
 from ...tools.size import run_size
-from ...tools.validate import validate_many
+from ...report.validation import validate_many
 from .loop import publish
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from .loop import ROOT, publish
-from ..swing import run_swing
+from ...loop.run import RunOptions
+from ...report.swing import play
 from ..view import PUBLISH_HZ, live_viewer
 
 
@@ -31,8 +32,8 @@ def measure(reps: int, realtime: bool) -> dict:
                     print(f"  {name}, run {r + 1} of {reps} ...", flush=True)
                     feed = viewer.live() if name == "with the view" else None
                     began = time.perf_counter()
-                    s = run_swing(out=Path(tmp) / f"{r}{len(name)}", say=lambda *a, **k: None, realtime=realtime,
-                                  observer=feed.observe if feed else None)
+                    s = play("replica", RunOptions(realtime=realtime), Path(tmp) / f"{r}{len(name)}",
+                             say=lambda *a, **k: None, observer=feed.observe if feed else None)
                     seconds = time.perf_counter() - began
                     if feed is not None:
                         feed.stop()

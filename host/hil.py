@@ -1,4 +1,4 @@
-"""`servodyn firmware`: the firmware under QEMU, hardware in the loop with the simulated bus.
+"""The firmware under QEMU, hardware in the loop with the simulated bus (`servodyn firmware`, the soak).
 
 QEMU runs the firmware image with its UART on a TCP socket
 (`-serial tcp:127.0.0.1:PORT,server=on,wait=on,nodelay=on`); this side connects and serves the
@@ -34,25 +34,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control import ControlConfig, Controller
-from ..control.motion import load_motion
-from ..control.schedule import plan_run
-from ..hal.backend import joint_sensors
-from ..hal.config import load_config
-from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
-from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
-from ..hal.dynamixel.instructions import parse_sync_write
-from ..hal.dynamixel.units import ServoMap
-from ..loop import tick
-from ..sim.robot import SimulatedRobot
+from .control import ControlConfig, Controller
+from .control.motion import load_motion
+from .control.schedule import plan_run
+from .hal.backend import joint_sensors
+from .hal.config import load_config
+from .hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
+from .hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
+from .hal.dynamixel.instructions import parse_sync_write
+from .hal.dynamixel.units import ServoMap
+from .loop import tick
+from .loop.native import FirmwareError, parse_report
+from .sim.robot import SimulatedRobot
 
 BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
 ROOT = Path(__file__).resolve().parent.parent
 SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
-
-
-class FirmwareError(RuntimeError):
-    """The firmware could not be run (no image, no QEMU, no connection, no report)."""
 
 
 @dataclass
@@ -172,22 +169,6 @@ def _connect(proc: subprocess.Popen, port: int, deadline: float) -> socket.socke
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.settimeout(1.0)
         return sock
-
-
-def parse_report(text: str) -> dict:
-    """The firmware's report lines (`servodyn-fw: ...`) as numbers."""
-    report = {"counts": {}}
-    for line in text.splitlines():
-        if not line.startswith("servodyn-fw: "):
-            continue
-        words = line.split()[1:]
-        values = {k: int(v) for k, v in (w.split("=", 1) for w in words if "=" in w)}
-        if words[0] == "counts":
-            report["counts"][words[1]] = values
-        else:
-            report["result"], report["fault"] = words[0], words[1]
-            report.update(values)
-    return report
 
 
 def check_arm_elf(elf: Path) -> None:

@@ -23,7 +23,7 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..hal.ports import REALTIME_FIX
+from .ports import REALTIME_FIX
 
 LOOP_PRIORITY = 80       # SCHED_FIFO priority of a real-time control loop (firmware/posix: the same)
 SIMULATOR_PRIORITY = 81  # the simulated servos answer ahead of the loop, as hardware does

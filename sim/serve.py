@@ -6,11 +6,12 @@ SLCAN adapter on a pseudo-terminal (SlcanServer) — and gives the options that 
 backend at it.
 
 A configuration of one Dynamixel bus read from a file is served by a child process of its own
-(`SimProcess`, `python -m servodyn.tools.simulator`), so the host loop's figures are its own: the
+(`SimProcess`, `python -m servodyn.sim.serve`), so the host loop's figures are its own: the
 child dies with its parent (PR_SET_PDEATHSIG, and the end of its control socket), and the parent
 injects faults and reads the plant's clock and the servos' torque through that socket, each request
 answered before the next packet is sent (deterministic). Any other configuration is served by
-threads of this process, one plant behind all of its buses.
+threads of this process, one plant behind all of its buses (`Served`). Both are `SimulatedBuses`:
+the one interface a run, `servodyn sim`, the soak and the benchmarks use.
 """
 
 from __future__ import annotations
@@ -23,26 +24,68 @@ import signal
 import socket
 import subprocess
 import sys
+from abc import ABC, abstractmethod
 from contextlib import nullcontext
 
-from ..hal.config import RobotConfig, load_config
-from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
-from ..sim.lab import Lab
-from ..sim.robot import SimulatedRobot
-from ..sim.transport.can import SlcanServer, VirtualCanServer
-from ..sim.transport.pty import PtyServer
+from servodyn.control.timing import plant_step
+from servodyn.errors import ServodynError
+from servodyn.hal.config import RobotConfig, load_config
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
+from servodyn.hal.realtime import SIMULATOR_PRIORITY, realtime_priority
+
+from .lab import Lab
+from .robot import SimulatedRobot
+from .transport.can import SlcanServer, VirtualCanServer
+from .transport.pty import PtyServer
 
 MODES = ("lockstep", "realtime")
 
-# s to wait for replies from a simulated bus, per bus kind: a pseudo-terminal under CPU load can hold
-# bytes back for over 100 ms (measured here), far beyond a real bus's deadline (Dynamixel 34 ms
-# packet timeout, CAN 20 ms). Dynamixel: the simulator's own process; on a machine loaded 4x over
-# its cores a reply was seen to wait over 250 ms. CAN: the motors' server is a thread of this
-# process, and on a loaded 2-core machine a read waited 0.46 s once in 6000 ticks (measured).
-SIM_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
+SIM_REPLY_TIMEOUT = PTY_REPLY_TIMEOUT      # the patience a simulated bus gets (hal.ports says why)
 
 
-class Served:
+class SimProcessError(ServodynError):
+    """The simulator's child process could not start or stopped answering its control socket."""
+    exit_code = 2
+
+
+class SimulatedBuses(ABC):
+    """A configuration's buses simulated and served, one plant behind them: `buses` (bus -> the
+    options that point its backend at the simulated bus), the plant's `status()`, faults to
+    inject and clear, a power cycle, and `stop()`. A run drives it through these alone."""
+
+    buses: dict
+    servos: int
+
+    @abstractmethod
+    def status(self) -> dict:
+        """The plant's time (s) and each device's torque_off, as the simulator sees them now."""
+
+    @abstractmethod
+    def inject_fault(self, device_id, fault="silent") -> None:
+        """The fault is in place when this returns: the next packet or frame sees it."""
+
+    @abstractmethod
+    def clear_faults(self) -> None: ...
+
+    @abstractmethod
+    def power_cycle(self) -> None:
+        """Every device off and on (SimulatedRobot.power_cycle) before the next packet or frame."""
+
+    @abstractmethod
+    def stop(self) -> None: ...
+
+    @abstractmethod
+    def describe(self, config: RobotConfig, clock: str) -> list[str]:
+        """What is served where, in a line a bus."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+class Served(SimulatedBuses):
     """A simulated robot's buses served in this process, started and stopped together."""
 
     def __init__(self, robot: SimulatedRobot, servers: dict, buses: dict, where: dict):
@@ -79,29 +122,26 @@ class Served:
             if "can_bus" in options:
                 options["can_bus"].shutdown()
 
-    def __enter__(self) -> "Served":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
+    def describe(self, config: RobotConfig, clock: str) -> list[str]:
+        return [f"simulated {config.buses[name].kind} bus '{name}': {len(config.joints_on(name))} devices of "
+                f"'{config.name}' on {where} ({clock})" for name, where in self.where.items()]
 
 
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
-          q0=None, start: bool = True, bench: Lab | None = None):
+          q0=None, start: bool = True, lab: Lab | None = None) -> SimulatedBuses:
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
     SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
     else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
-    can="slcan" on an SLCAN adapter's pseudo-terminal). Either has `.buses` (bus -> the backend's
-    options), `status()`, `inject_fault(id, fault)`, `power_cycle()`, `servos` and `stop()`.
-    `bench`: the robot on a bench (sim/lab.py), in the child process too."""
+    can="slcan" on an SLCAN adapter's pseudo-terminal). `lab`: the robot on a simulated lab bench
+    (sim/lab.py), in the child process too."""
     if mode not in MODES:
-        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        raise SimProcessError(f"a simulated bus runs {' or '.join(MODES)}, not {mode!r}")
     kinds = [bus.kind for bus in config.buses.values()]
     if process is None:
         process = kinds == ["dynamixel"] and config.path is not None and q0 is None
     if process:
-        return SimProcess(config.path, mode, bench=bench)
-    robot = SimulatedRobot(config, q0=q0, bench=bench)
+        return SimProcess(config.path, mode, lab=lab)
+    robot = SimulatedRobot(config, q0=q0, bench=lab)
     servers, buses, where = {}, {}, {}
     for name, bus in config.buses.items():
         # the first bus's server keeps the real-time clock; the others follow it
@@ -132,21 +172,17 @@ def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None =
     return served
 
 
-class SimProcessError(RuntimeError):
-    """The simulator's child process could not start or stopped answering its control socket."""
-
-
-class SimProcess:
+class SimProcess(SimulatedBuses):
     """The simulated bus of a configuration file in a child process, on a pseudo-terminal."""
 
-    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, bench: Lab | None = None):
-        if mode not in ("lockstep", "realtime"):
-            raise ValueError("mode must be 'lockstep' or 'realtime'")
+    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, lab: Lab | None = None):
+        if mode not in MODES:
+            raise SimProcessError(f"a simulated bus runs {' or '.join(MODES)}, not {mode!r}")
         self._control, child = socket.socketpair()
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "servodyn.tools.simulator", "--config", str(config_path), "--mode", mode,
+            [sys.executable, "-m", "servodyn.sim.serve", "--config", str(config_path), "--mode", mode,
              "--control-fd", str(child.fileno()), "--parent", str(os.getpid()),
-             *(["--bench", bench.to_json()] if bench is not None else [])],
+             *(["--lab", lab.to_json()] if lab is not None else [])],
             pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL)
         child.close()
         self._control.settimeout(start_timeout)
@@ -161,12 +197,6 @@ class SimProcess:
             raise SimProcessError(f"simulated bus: {hello.get('error')}")
         self.path, self.servos, self.bus = hello["path"], hello["servos"], hello["bus"]
         self._control.settimeout(10.0)
-
-    def __enter__(self) -> "SimProcess":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
     def _receive(self) -> dict:
         while b"\n" not in self._buffer:
@@ -187,12 +217,11 @@ class SimProcess:
             raise SimProcessError(f"simulated bus: its process is gone ({err})") from None
         answer = self._receive()
         if not answer.get("ok", False):
-            raise ValueError(answer.get("error", "refused"))
+            raise SimProcessError(f"simulated bus: {answer.get('error', 'refused')}")
         return answer
 
-    def inject_fault(self, servo_id: int, fault: str | int = "silent") -> None:
-        """The fault is in place when this returns: the next packet sees it."""
-        self.request("fault", id=servo_id, fault=fault)
+    def inject_fault(self, device_id: int, fault: str | int = "silent") -> None:
+        self.request("fault", id=device_id, fault=fault)
 
     def clear_faults(self) -> None:
         self.request("clear")
@@ -203,12 +232,14 @@ class SimProcess:
         self.request("pause", seconds=seconds)
 
     def status(self) -> dict:
-        """The plant's time (s) and each servo's torque_off, as the simulator sees them now."""
         return self.request("status")
 
     def power_cycle(self) -> None:
-        """Every servo off and on (SimulatedRobot.power_cycle) before the next packet."""
         self.request("power_cycle")
+
+    def describe(self, config: RobotConfig, clock: str) -> list[str]:
+        return [f"simulated bus: {self.servos} virtual servos of '{config.name}' on {self.path} ({clock}, its own "
+                f"process), the plant integrated by RK4 at {plant_step(config.control_period) * 1e3:g} ms"]
 
     @property
     def buses(self) -> dict:
@@ -244,20 +275,20 @@ def _die_with_parent(parent: int) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m servodyn.tools.simulator",
+    parser = argparse.ArgumentParser(prog="python -m servodyn.sim.serve",
                                      description="the simulated bus in a child process (SimProcess)")
     parser.add_argument("--config", required=True)
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--control-fd", type=int, required=True)
     parser.add_argument("--parent", type=int, required=True)
-    parser.add_argument("--bench", default=None, help="the bench, as Lab.to_json gives it")
+    parser.add_argument("--lab", default=None, help="the lab bench, as Lab.to_json gives it")
     args = parser.parse_args(argv)
     _die_with_parent(args.parent)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     control = socket.socket(fileno=args.control_fd)
     try:
-        bench = Lab.from_json(args.bench) if args.bench is not None else None
-        arm = SimulatedRobot(load_config(args.config), bench=bench).port()
+        lab = Lab.from_json(args.lab) if args.lab is not None else None
+        arm = SimulatedRobot(load_config(args.config), bench=lab).port()
     except Exception as err:     # reported to the parent as one line, never a traceback
         control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())
         return 2

@@ -7,22 +7,27 @@ a file of the user's.
     patch.set_joint("r_elbow_flexion", zero_offset=2.113, direction=-1)
     print("\n".join(patch.changes()))                # what would change, one line per value
     patch.write()                                    # to patch.target
-    patch.offer(yes=False)                           # or: show the change, ask, then write
+    patch.offer(confirm)                             # or: show the change, ask confirm(question), write
+
+The file is written in place of the old one only once the patched text loads as a configuration;
+it keeps the old file's permissions, a symbolic link is followed to the file it names (that file is
+patched, the link stays), and anything but a regular file (a device, a folder) is refused. The
+question itself is the command line's (`confirm`).
 """
 
 from __future__ import annotations
 
 import math
 import os
-import sys
+import stat
 import tempfile
 from pathlib import Path
 from typing import Callable
 
 import tomlkit
 
-from ..hal.config import load_config
-from ..hal.errors import ConfigError
+from .config import load_config
+from .errors import ConfigError
 
 
 def _plain(value):
@@ -38,18 +43,6 @@ def _shown(value) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_shown(v) for v in value) + "]"
     return str(value)
-
-
-def ask(question: str, yes: bool, say: Callable = print) -> bool:
-    """A yes/no question on standard input (`yes`: answered yes without asking); no at end of input."""
-    if yes:
-        say(f"{question} [y/N] yes (--yes)")
-        return True
-    say(f"{question} [y/N] ", end="", flush=True)
-    answer = sys.stdin.readline()
-    if not sys.stdin.isatty():         # a piped answer is not echoed: the transcript shows it
-        say(answer.strip())
-    return answer.strip().lower() in ("y", "yes")
 
 
 class ConfigPatch:
@@ -68,6 +61,10 @@ class ConfigPatch:
             raise ConfigError(f"'{config.name}' was not loaded from a file: nothing to patch")
         if target is None:
             target = Path(f"{config.name}.toml") if config.builtin else config.path
+            if config.builtin and target.exists():
+                # the change would be shown against the built-in, then replace the user's own file
+                raise ConfigError(f"{target} exists and '{config.name}' named the built-in configuration: give "
+                                  f"--config ./{target} to patch your file, or --write FILE for a new copy")
         return cls(config.path, Path(target))
 
     @property
@@ -88,7 +85,10 @@ class ConfigPatch:
             old = _plain(table.get(key)) if key in table else None
             if old == new:
                 continue
-            if isinstance(new, list):
+            if isinstance(new, list) and isinstance(old, list) and len(old) == len(new):
+                for i, value in enumerate(new):       # in place: the array's comments and layout kept
+                    table[key][i] = value
+            elif isinstance(new, list):
                 array = tomlkit.array()
                 array.extend(new)
                 table[key] = array
@@ -122,24 +122,38 @@ class ConfigPatch:
 
     def write(self) -> Path:
         """Write the patched text to the target (atomically: a temporary file renamed over it), after
-        checking that it still loads as a configuration."""
+        checking that it still loads as a configuration. A link is followed (its file is patched),
+        the file's permissions are kept, and a target that is no regular file is refused."""
         text = self.text()
-        folder = self.target.resolve().parent
-        fd, tmp = tempfile.mkstemp(prefix=".servodyn-", suffix=".toml", dir=folder)
+        real = Path(os.path.realpath(self.target))
+        try:
+            mode = stat.S_IMODE(real.stat().st_mode) if real.exists() else None
+        except OSError as err:
+            raise ConfigError(f"{self.target}: {err.strerror or err}") from None
+        if real.exists() and not real.is_file():
+            raise ConfigError(f"{self.target} is not a regular file: a configuration is written to a file")
+        fd, tmp = tempfile.mkstemp(prefix=".servodyn-", suffix=".toml", dir=real.parent)
         try:
             with os.fdopen(fd, "w") as out:
                 out.write(text)
+            if mode is not None:
+                os.chmod(tmp, mode)
+            else:
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(tmp, 0o666 & ~umask)      # a new file as any other the user makes
             load_config(tmp)           # a patch that breaks the file is refused, the file untouched
-            os.replace(tmp, self.target)
+            os.replace(tmp, real)
         except BaseException:
             if os.path.exists(tmp):
                 os.unlink(tmp)
             raise
         return self.target
 
-    def offer(self, yes: bool, say: Callable = print) -> int:
-        """Show the change, ask, and write it: 0 when written (or nothing changes), 1 when the user
-        declines. A write that fails raises ConfigError, naming the file; the file is untouched."""
+    def offer(self, confirm: Callable[[str], bool], say: Callable = print) -> int:
+        """Show the change, ask confirm(question), and write it: 0 when written (or nothing
+        changes), 1 when the user declines. A write that fails raises ConfigError, naming the file;
+        the file is untouched."""
         changes = self.changes()
         if not changes:
             say("the configuration already holds these values: nothing to write")
@@ -147,7 +161,7 @@ class ConfigPatch:
         say(f"changes to {self.target}" + (f" (a copy of the built-in {self.source.name})" if self.copies else "") + ":")
         for line in changes:
             say(f"  {line}")
-        if not ask(f"write {self.target}?", yes, say):
+        if not confirm(f"write {self.target}?"):
             say("nothing written")
             return 1
         try:

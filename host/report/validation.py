@@ -1,8 +1,8 @@
-"""`servodyn validate`: the command and its report over the validation layer (servodyn.validation:
-the limits, the checks, the winding model, the uniform fit and the TOPP-RA retime). With
---simulate the motion is also played on the simulated servos under the swing's controller.
-
-Exit status 0 pass, 1 fail, 2 bad input; DIR/report.json and plots in DIR.
+"""A motion validated and reported: `validate` runs the validation layer (servodyn.validation: the
+limits, the checks, the winding model, the uniform fit and the TOPP-RA retime) and writes
+DIR/report.json with its figures; with `simulate_motion` the motion is also played on the simulated
+servos under the swing's controller (`simulate`). `validate_many` does it for many motions in
+parallel. `servodyn validate` is the command over it (exit 0 pass, 1 fail, 2 bad input).
 """
 
 from __future__ import annotations
@@ -21,11 +21,12 @@ from ..control.motion import motion_path
 from ..control.trajectory import TrajectoryError, write_trajectory_csv
 from ..hal.config import supply_voltage_error
 from ..loop import RunLog
+from ..loop.run import RunOptions
 from ..model import ModelError
 from ..readable import fixed
 from ..validation import AMBIENT, CHECKS, Judgement, Limits, Result, fit_time_scale, judge, retime
 from .plots import envelope_figure, limits_in_time_figure
-from .swing import run_swing
+from .swing import play
 
 MAX_REPEAT = 10_000         # plays of a motion for the heat: hours of even a short motion
 
@@ -47,8 +48,8 @@ def simulate(config, motion: str, scale: float, result: Result, limits: Limits, 
     SATURATION_UNITS of the wire's command step. Per joint: the first saturated tick against the
     validator's first torque_speed or current violation; and the whole run's tracking."""
     log = RunLog(config.model.dof_names)
-    summary = run_swing(config, out=out, time_scale=scale, motion=motion, force=True, log=log,
-                        say=lambda *a, **k: None)
+    summary = play(config, RunOptions(motion=motion, time_scale=scale, force=True), out, log=log,
+                   say=lambda *a, **k: None)
     t = np.asarray(log.t)
     asked = np.asarray(log.tau).reshape(len(t), -1)                       # N m commanded, per tick
     delivered = np.asarray(log.current).reshape(len(t), -1) * (limits.torque_constant * limits.gear)
