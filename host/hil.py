@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from .control import ControlConfig, Controller
-from .control.motion import load_motion
+from .control.motion import DEFAULT_MOTION, load_motion
+from .control.timing import HOME_DURATION
 from .control.schedule import plan_run
 from .hal.backend import joint_sensors
 from .hal.config import load_config
@@ -283,12 +284,33 @@ def summarize(report: dict, record: Record, config_name: str, icount_shift: int,
     return summary
 
 
+PROGRESS_EVERY = 1.0      # s of wall time between two progress lines of a firmware run
+
+
+def _with_progress(on_tick, config: str, say):
+    """on_tick for FirmwareLink that also says, about once a second, how far the run is: the
+    ticks the firmware has commanded out of its homing and swing (the run takes a minute)."""
+    loaded = load_config(config)
+    motion = load_motion(DEFAULT_MOTION, loaded.model)
+    planned = round((HOME_DURATION + motion.duration * loaded.time_scale_for(DEFAULT_MOTION)) / loaded.control_period)
+    last = [time.monotonic()]
+
+    def tick_and_say(k, arm):
+        if on_tick is not None:
+            on_tick(k, arm)
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_EVERY:
+            last[0] = now
+            say(f"  tick {k + 1} of about {planned} ({min(100.0, 100 * (k + 1) / planned):.0f} %)")
+    return tick_and_say
+
+
 def run_firmware(board: str = "an386", elf=None, config: str = "replica", out: Path = Path("out/firmware"),
                  icount_shift: int = 3, args: str = "", on_tick=None, say=print) -> dict:
     say(f"QEMU {BOARDS[board][0]} ({BOARDS[board][1]}), -icount shift={icount_shift}: the firmware drives "
         f"the simulated '{config}' bus in lock-step ...")
     began = time.perf_counter()
-    report, record, arm = run_qemu(board, elf, config, icount_shift, args, on_tick)
+    report, record, arm = run_qemu(board, elf, config, icount_shift, args, _with_progress(on_tick, config, say))
     summary = summarize(report, record, config, icount_shift, board)
     summary["wall_s"] = round(time.perf_counter() - began, 2)
     summary["torque_off"] = [not s.torque_enabled for s in arm.servos]

@@ -302,7 +302,7 @@ def test_servo_memory_is_a_devices_protocol():
 def test_a_bench_served_by_its_own_process():
     """serve()'s SimProcess passes the bench to its child: a fresh servo at 57600, power-cycled over
     the control socket."""
-    with SimProcess(CONFIG.path, "lockstep", bench=Lab(factory=True, connected=[ELBOW])) as sim:
+    with SimProcess(CONFIG.path, "lockstep", lab=Lab(factory=True, connected=[ELBOW])) as sim:
         port = _patient(sdk.PortHandler(sim.path), SIM_REPLY_TIMEOUT["dynamixel"])
         handler = sdk.PacketHandler(2.0)
         try:

@@ -240,3 +240,22 @@ def test_a_pseudo_terminal_port_is_a_simulated_bus():
         os.close(master)
         os.close(slave)
     assert not is_pseudo_terminal("/dev/ttyUSB0") and not is_pseudo_terminal("can0"), "adapters and channels"
+
+
+@pytest.mark.parametrize("seconds", [1e308, 86400.0, float("nan"), -1.0, 0.0])
+def test_an_impossible_hold_is_refused_before_anything_is_made(tmp_path, seconds):
+    """--hold 1e308 once built a 4.5 GiB array before the 600 s rule refused it: a hold is checked
+    first, bad input (exit 2), and nothing ran or was written."""
+    from servodyn.loop.run import RunError
+    with pytest.raises(RunError) as refused:
+        run_swing("replica", out=tmp_path / "out", hold=seconds, **QUIET)
+    assert refused.value.exit_code == 2, "bad input"
+    assert not (tmp_path / "out").exists(), "nothing ran, nothing was written"
+
+
+def test_a_hold_keeps_the_pose_it_found(tmp_path):
+    """--hold 0.3: the pose the arm is in held under the controller, no motion played."""
+    summary = run_swing("replica", out=tmp_path, hold=0.3, **QUIET)
+    assert summary["completed"] and summary["hold_s"] == 0.3, summary.get("error")
+    assert summary["ticks"] == 301, "0.3 s at 1 kHz, both ends"
+    assert summary["tracking_max_rad"] < math.radians(0.5), "a held pose tracks within the swing's goal"

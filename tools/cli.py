@@ -812,7 +812,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "each report, OUT/summary.json, exit status the worst")
     p.add_argument("--jobs", type=count(1, 256, "processes"), default=1, metavar="N",
                    help="validate several motions in N processes (default 1)")
-    p.add_argument("--time-scale", type=float, default=1.0, metavar="S",
+    p.add_argument("--time-scale", type=float, default=None, metavar="S",
                    help="play the motion S times slower (default 1: as written)")
     p.add_argument("--payload", type=float, default=0.0, metavar="KG", help="a point mass carried at the hand")
     p.add_argument("--payload-body", default=None, metavar="BODY", help="the body carrying it (default: the last)")

@@ -21,7 +21,7 @@ from ..control.motion import load_motion
 from ..control.timing import SMALL_TIME_STEP, TIME_STEP
 from ..control.trajectory import Trajectory, write_columns_csv
 from ..model import load_model
-from . import plots
+from ..report import plots
 
 
 

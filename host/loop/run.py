@@ -29,7 +29,7 @@ import numpy as np
 from ..control import ControlConfig, ControlFault, Controller
 from ..control.motion import DEFAULT_MOTION, motion_path
 from ..control.schedule import plan_run
-from ..control.timing import HOME_DURATION, TIME_STEP
+from ..control.timing import HOME_DURATION, MAX_PLAYED_DURATION, TIME_STEP
 from ..control.trajectory import MotionPath, Trajectory
 from ..errors import ServodynError, exit_code
 from ..hal.backend import joint_sensors
@@ -127,8 +127,10 @@ class Run:
         self.scale = o.time_scale if o.time_scale is not None else self.config.time_scale_for(o.motion)
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise RunError(f"a time scale is a positive number, not {self.scale}")
-        if o.hold is not None and not (math.isfinite(o.hold) and o.hold > 0):
-            raise RunError(f"a hold lasts a positive number of seconds, not {o.hold:g}")
+        if o.hold is not None and not (math.isfinite(o.hold) and 0 < o.hold <= MAX_PLAYED_DURATION):
+            # checked before the hold's samples are made: 1e308 s would be terabytes
+            raise RunError(f"a hold lasts a positive number of seconds up to {MAX_PLAYED_DURATION:g} (the longest "
+                           f"a run plays), not {o.hold:g}")
         self.path = motion_path(o.motion, self.config.model)
         self.verdict = judge(self.config, self.path, self.scale) if o.hold is None else None
         self.ports = bus_ports(self.config, o.port)

@@ -20,13 +20,13 @@ import numpy as np
 from ..control.motion import motion_path
 from ..control.trajectory import TrajectoryError, write_trajectory_csv
 from ..hal.config import supply_voltage_error
-from ..loop import RunLog
-from ..loop.run import RunOptions
+from ..loop.run import Run, RunOptions
+from ..sim.serve import serve
 from ..model import ModelError
 from ..readable import fixed
 from ..validation import AMBIENT, CHECKS, Judgement, Limits, Result, fit_time_scale, judge, retime
 from .plots import envelope_figure, limits_in_time_figure
-from .swing import play
+from .swing import report_run
 
 MAX_REPEAT = 10_000         # plays of a motion for the heat: hours of even a short motion
 
@@ -38,7 +38,7 @@ TRACKING_TOLERANCE = math.radians(5.0)   # what a passing motion must track with
 MAX_LAG = 3                   # ticks between a command and the read that sees its current, at most
 
 
-def simulate(config, motion: str, scale: float, result: Result, limits: Limits, out: Path) -> dict:
+def simulate(config, motion: str, scale: float, result: Result, limits: Limits, out: Path, say=print) -> dict:
     """Play the motion on the simulated servos of any configuration (lock-step) under the swing's
     controller and compare with the prediction. A servo saturates where it delivers less torque
     than the controller asked for: its drive ran out of voltage against the back-EMF (the
@@ -47,9 +47,10 @@ def simulate(config, motion: str, scale: float, result: Result, limits: Limits, 
     backend converts) against the torque commanded `lag` ticks before (measured from the run), by more than
     SATURATION_UNITS of the wire's command step. Per joint: the first saturated tick against the
     validator's first torque_speed or current violation; and the whole run's tracking."""
-    log = RunLog(config.model.dof_names)
-    summary = play(config, RunOptions(motion=motion, time_scale=scale, force=True), out, log=log,
-                   say=lambda *a, **k: None)
+    run = Run(config, RunOptions(motion=motion, time_scale=scale, force=True), serve=serve, say=say)
+    summary = run.play(out)          # its progress said, a line a second of motion
+    log = run.log
+    report_run(out, log, summary, run.config, say=lambda *a, **k: None)      # the figure, not the table
     t = np.asarray(log.t)
     asked = np.asarray(log.tau).reshape(len(t), -1)                       # N m commanded, per tick
     delivered = np.asarray(log.current).reshape(len(t), -1) * (limits.torque_constant * limits.gear)
@@ -128,11 +129,16 @@ def make_report(config, judged: Judgement, *, margin: float, repeat: int, ambien
 
 # ---------------------------------------------------------------------------- the command
 
-def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0.0, payload_body=None,
+def validate(config, motion: str, *, time_scale: float | None = None, payload: float = 0.0, payload_body=None,
              payload_com=None, supply_voltage: float | None = None, margin: float = 1.0, repeat: int = 1,
              ambient: float = AMBIENT, fit: bool = False, retime_motion: bool = False, simulate_motion: bool = False,
              out: Path | None = None, say=print) -> dict:
-    """Validate `motion` on the configuration's servos; the report (and its files in `out`)."""
+    """Validate `motion` on the configuration's servos; the report (and its files in `out`). The
+    time scale is the configuration's for the motion (RobotConfig.time_scale_for: what a swing plays
+    it at) unless given."""
+    told = time_scale is not None
+    if not told:
+        time_scale = config.time_scale_for(motion)
     if not (math.isfinite(time_scale) and time_scale > 0):
         raise ValueError(f"--time-scale must be a positive number, got {time_scale}")
     if not (math.isfinite(margin) and 0 < margin <= 10):
@@ -158,7 +164,9 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
     report = make_report(config, judged, margin=margin, repeat=repeat, ambient=ambient, payload=payload_info)
     say(f"validate '{path.name}' on '{config.name}': {report['duration_s']:.3f} s at time scale {time_scale:g}, "
         f"{report['samples']} samples every {report['sample_period_s'] * 1e3:g} ms, supply {voltage:g} V, "
-        f"margin {margin:g}{f', {repeat} plays' if repeat > 1 else ''}")
+        f"margin {margin:g}{f', {repeat} plays' if repeat > 1 else ''}"
+        + ("" if told else f" (time scale {time_scale:g}: {config.name}'s for {motion}, as a swing plays it; "
+                           "--time-scale S to change it)"))
     say(summary_table(report))
     if report["violations"]:
         say(f"\nFAIL: {report['violations'][0]['message']}")
@@ -188,8 +196,9 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
     if simulate_motion:
         if payload_info is not None:
             config = replace(config, model=model)
+        say("simulating: the motion played on the simulated servos under the swing's controller ...")
         report["simulation"] = simulate(config, motion, time_scale, result, limits,
-                                        (out or Path("out/validate")) / "simulation")
+                                        (out or Path("out/validate")) / "simulation", say)
         say(simulation_summary(report["simulation"]))
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -201,7 +210,12 @@ def validate(config, motion: str, *, time_scale: float = 1.0, payload: float = 0
         envelope_figure(out / "envelopes.png", result, limits, model.dof_names, title)
         limits_in_time_figure(out / "current_temperature.png", result, limits, model.dof_names, title)
         (out / "report.json").write_text(text)
-        say(f"wrote {out / 'report.json'}, {out / 'envelopes.png'}, {out / 'current_temperature.png'}")
+        files = [out / "report.json", out / "envelopes.png", out / "current_temperature.png"]
+        if report.get("retime", {}).get("passed"):
+            files.append(out / "retimed.csv")
+        if "simulation" in report:
+            files.append(f"{out / 'simulation'}/ (swing_log.csv, summary.json, swing_tracking.png)")
+        say("wrote " + ", ".join(map(str, files)))
     return report
 
 
