@@ -4,7 +4,9 @@ follow its time cursor — and starts the shaping editor (editor.py) and the liv
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import io
 import math
 import socket
 import threading
@@ -44,6 +46,12 @@ def check_address(host: str, http_port: int) -> None:
             raise ViewError(f"cannot serve on {host}:{http_port}: {err.strerror or err}") from None
 
 
+def _quiet():
+    """viser prints a banner with the URL on stdout when it starts, and a line when it stops, even
+    unasked (verbose=False): the command says the URL itself, and stdout is for data."""
+    return contextlib.redirect_stdout(io.StringIO())
+
+
 def _set_page_title(server, title: str) -> None:
     """The browser tab's title (viser's page says "Viser"): a script every page runs on connecting.
     viser has no call for it; its message for running a script on the page is kept for new pages."""
@@ -60,7 +68,8 @@ class Viewer:
         check_address(host, http_port)
         self.config, self.model, self.say = config, model, say
         try:
-            self.server = viser.ViserServer(host=host, port=http_port, verbose=False)
+            with _quiet():
+                self.server = viser.ViserServer(host=host, port=http_port, verbose=False)
         except OSError as err:
             raise ViewError(f"cannot serve on {host}:{http_port}: {err.strerror or err}") from None
         self.lock = threading.RLock()
@@ -247,6 +256,7 @@ class Viewer:
         self._stop.set()
         for thread in self._threads:
             thread.join(timeout=2.0)
-        self.server.stop()
+        with _quiet():
+            self.server.stop()
 
 
