@@ -1,6 +1,6 @@
 """`servodyn view` and `servodyn swing --view`: the command's side of the browser view (the page
 itself is the servodyn.view library). Its arguments are checked here in the command's words; the
-page is served until Ctrl-C."""
+page is served until Ctrl-C; its messages go to stderr."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def _check_port(port: int) -> None:
 
 def open_view(spec: str | None = None, log: str | None = None, motion: str | None = None,
               time_scale: float | None = None, host: str = "127.0.0.1", port: int = 8080,
-              save_to: Path | None = None, source: str | None = None, say=print) -> Viewer:
+              save_to: Path | None = None, source: str | None = None, say=_stderr) -> Viewer:
     """`servodyn view`'s page (servodyn.view.open_view; `port` is the page's TCP port)."""
     _check_port(port)
     if time_scale is not None and not (math.isfinite(time_scale) and time_scale > 0):
@@ -36,7 +36,7 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
                       save_to=save_to, source=source, say=say)
 
 
-def serve_forever(viewer: Viewer, say=print) -> None:
+def serve_forever(viewer: Viewer, say=_stderr) -> None:
     say(f"servodyn view: {viewer.url}  (Ctrl-C stops)", flush=True)
     try:
         while True:
@@ -67,7 +67,7 @@ def live_viewer(spec: str | None, host: str = "127.0.0.1", port: int = 8080, say
     return viewer, feed
 
 
-def replay_after_live(viewer: Viewer, feed: LiveFeed, out: Path, say=print) -> None:
+def replay_after_live(viewer: Viewer, feed: LiveFeed, out: Path, say=_stderr) -> None:
     """After the run: its log in the player, served until Ctrl-C."""
     feed.stop()
     if (out / "swing_log.csv").exists():
