@@ -17,7 +17,7 @@ import trimesh
 import servodyn
 from servodyn.control.motion import load_motion
 from servodyn.model.shapes import box_sides, local_mesh, solid_mesh
-from servodyn.tools.view import ViewError, Viewer, load_subject, log_timeline, open_view, share_rgb
+from servodyn.view import ViewError, Viewer, load_subject, log_timeline, open_view, share_rgb
 
 QUIET = dict(say=lambda *a, **k: None)
 
@@ -105,7 +105,7 @@ def test_subject_is_a_configuration_or_a_model():
 
 @pytest.fixture(scope="module")
 def viewer():
-    v = open_view("replica", port=0, **QUIET)
+    v = open_view("replica", http_port=0, **QUIET)
     yield v
     v.close()
 
@@ -189,7 +189,7 @@ def test_a_logged_run_plays_planned_against_measured(tmp_path):
     motion.write_text('name = "reach"\n' + "".join(
         f"[[keyframe]]\nt = {t}\nq = {{ " + ", ".join(f"{n} = {a}" for n, a in zip(model.dof_names, q)) + " }\n"
         for t, q in ((0.0, [0.3, 0.2, 0, 0.5, 0, 0, 0]), (0.3, [0.5, 0.3, 0.1, 0.9, 0.1, 0, 0]))))
-    v = Viewer(cfg, model, port=0, **QUIET)
+    v = Viewer(cfg, model, http_port=0, **QUIET)
     try:
         feed = v.live()
         summary = run_swing(str(config), out=tmp_path / "run", motion=str(motion), observer=feed.observe, **QUIET)
@@ -202,7 +202,7 @@ def test_a_logged_run_plays_planned_against_measured(tmp_path):
         assert feed.ticks == homing + summary["ticks"], "the observer saw every tick, homing and motion"
         assert feed.frames >= 1, "the live view drew the arm"
         v.close()
-        v = open_view(str(config), log=str(tmp_path / "run"), port=0, **QUIET)
+        v = open_view(str(config), log=str(tmp_path / "run"), http_port=0, **QUIET)
         tl = v.timeline
         assert len(tl.t) == summary["ticks"] and tl.measured is not None
         error = np.abs(tl.planned - tl.measured).max()
@@ -255,7 +255,7 @@ def test_a_trajectory_csv_plays_with_its_torques(tmp_path):
     csv = tmp_path / "reach.csv"
     rows = [f"{t},{0.5 * t},{0.2 * t},0,{0.3 + 0.4 * t},0,0,0" for t in (0.0, 0.5, 1.0)]
     csv.write_text("t," + ",".join(f"q_{n}" for n in model.dof_names) + "\n" + "\n".join(rows) + "\n")
-    v = open_view("replica", motion=str(csv), port=0, **QUIET)
+    v = open_view("replica", motion=str(csv), http_port=0, **QUIET)
     try:
         assert v.editor is None, "a CSV has no keyframes to shape"
         result = check(model, Limits.of(config, config.supply.voltage), motion_path(str(csv), model).at_scale(1.0))
@@ -339,3 +339,64 @@ def test_a_drag_delivered_in_a_burst_is_handled_in_order_and_the_gizmo_follows_t
     while np.abs(np.asarray(hand.gizmo.position) - p4).max() > 1e-9 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert np.abs(np.asarray(hand.gizmo.position) - p4).max() < 1e-9, "the gizmo moved to keyframe 4's hand"
+
+
+def test_swing_view_waits_for_a_browser_before_the_swing(tmp_path):
+    """`swing --view`'s page (tools.view.live_viewer) returns only once a browser has the page drawn:
+    a lock-step swing is over in seconds, before a page opened later could draw. The URL is said
+    first (on stderr in the command); then a client as the page's script is to viser (its websocket,
+    and the camera it reports once it has drawn the scene) ends the wait within the deadline."""
+    import threading
+    import msgspec
+    import viser
+    from viser._messages import ViewerCameraMessage
+    from websockets.sync.client import connect
+    from servodyn.tools.view import live_viewer
+    said, result = [], []
+    waiting = threading.Thread(target=lambda: result.append(live_viewer("replica", port=0,
+                                                                        say=lambda *a, **k: said.append(a[0]))))
+    waiting.start()
+    deadline = time.monotonic() + 60
+    while not said and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert said and "http://127.0.0.1:" in said[0] and "Ctrl-C" in said[0], said
+    url = said[0].split("open ", 1)[1].split(" ", 1)[0]
+    time.sleep(0.5)
+    assert not result, "it returned before any browser had the page"
+    camera = ViewerCameraMessage(wxyz=(1.0, 0.0, 0.0, 0.0), position=(1.0, 0.0, 0.0), fov=1.0, near=0.01, far=100.0,
+                                 image_height=600, image_width=800, look_at=(0.0, 0.0, 0.0), up_direction=(0.0, 0.0, 1.0))
+    with connect(url.replace("http://", "ws://"), subprotocols=[f"viser-v{viser.__version__}"],
+                 open_timeout=30, max_size=None) as page:
+        time.sleep(0.5)
+        assert not result, "a page that has not drawn yet does not end the wait"
+        page.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        waiting.join(timeout=30)
+        assert result, "a browser has the page, and the wait did not end"
+    viewer, feed = result[0]
+    try:
+        assert viewer.title == "servodyn — replica", viewer.title
+        assert feed.ticks == 0, "no tick before the swing"
+    finally:
+        viewer.close()
+
+
+def test_a_source_clip_whose_frame_time_would_fill_the_memory_is_one_line(tmp_path):
+    """view --source CLIP.bvh with `Frame Time: 1e-9`: the overlay would resample the clip at 1 GHz
+    on the motion's clock (tens of GiB for a 2 s motion); it is refused in one line, exit 2, before
+    anything is sampled or served."""
+    import subprocess
+    import sys
+    _, model = load_subject("replica")
+    csv = tmp_path / "reach.csv"
+    csv.write_text("t," + ",".join(f"q_{n}" for n in model.dof_names) + "\n"
+                   + "".join(f"{t},0,0,0,{0.3 + 0.2 * t},0,0,0\n" for t in (0.0, 1.0, 2.0)))
+    clip = tmp_path / "clip.bvh"
+    clip.write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition Zposition Zrotation "
+                    "Xrotation Yrotation\n  End Site\n  {\n    OFFSET 0 1 0\n  }\n}\nMOTION\nFrames: 2\n"
+                    "Frame Time: 1e-9\n0 0 0 0 0 0\n0 0 0 0 0 0\n")
+    with pytest.raises(ViewError, match="Frame Time 1e-09 s"):
+        open_view("replica", motion=str(csv), source=str(clip), http_port=0, **QUIET)
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "view", "--motion", str(csv), "--source",
+                          str(clip), "--port", "0"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"
+    assert res.stderr.count("\n") == 1 and "Frame Time" in res.stderr, res.stderr

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 from browser import SCREEN, Browser, settle, wait_for
-from servodyn.tools.view import open_view
+from servodyn.view import open_view
 
 CANVAS_RIGHT = 780       # px: the GUI panel covers the page right of about here
 
 
 @pytest.fixture(scope="module")
 def page():
-    viewer = open_view("replica", port=0, say=lambda *a, **k: None)
+    viewer = open_view("replica", http_port=0, say=lambda *a, **k: None)
     try:
         with Browser() as browser:
             browser.open(viewer.url)
@@ -57,7 +57,7 @@ def test_a_can_arm_is_drawn_from_its_own_solids():
     verdict at the configuration's own 2.5 ms period (a 1 ms sample fails its bus check), and the
     arm drawn in the middle of the canvas. First in the file, so that its browser is closed before
     the shared page's opens."""
-    viewer = open_view("replica_can", port=0, say=lambda *a, **k: None)
+    viewer = open_view("replica_can", http_port=0, say=lambda *a, **k: None)
     try:
         with Browser() as browser:
             browser.open(viewer.url)
@@ -78,6 +78,9 @@ def test_page_reports_the_model_and_draws_the_arm(page, tmp_path):
     text = wait_for(lambda: (lambda t: t if "loaded: 7 bodies, 7 dofs" in t else None)(browser.text()),
                     "the page to report the model loaded")
     assert "model 'replica' loaded" in text and "PASS" in text, text[:500]
+    title = wait_for(lambda: (lambda t: t if t != "Viser" else None)(browser.eval("document.title")),
+                     "the page's title to be servodyn's")
+    assert title == "servodyn — replica", f"the browser tab reads {title!r}"
     shown, mask = _arm_pixels(browser, viewer)
     ys, xs = np.nonzero(mask)
     assert len(xs) > 500, f"only {len(xs)} pixels differ where the arm stands"

@@ -27,8 +27,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from .loop import ROOT, publish
-from ..view import open_view
 from ...model import ik, load_model
+from ...view import open_view
 
 GOAL_IK_MS = 1.0
 GOAL_REDRAW_MS = 16.0
@@ -99,7 +99,7 @@ def time_pink(model, arm, q0, targets) -> dict:
 
 
 def time_view(events: int) -> dict:
-    viewer = open_view("replica", port=0, say=lambda *a, **k: None)
+    viewer = open_view("replica", http_port=0, say=lambda *a, **k: None)
     try:
         ed, hand = viewer.editor, viewer.editor.hand
         ed.key.value = 4

@@ -19,12 +19,12 @@ import numpy as np
 from .loop import ROOT, publish
 from ...loop.run import RunOptions
 from ...report.swing import play
-from ..view import PUBLISH_HZ, live_viewer
+from ...view import PUBLISH_HZ, live_viewer
 
 
 def measure(reps: int, realtime: bool) -> dict:
     rows = {"without the view": [], "with the view": []}
-    viewer, _ = live_viewer("replica", port=0, say=lambda *a, **k: None)
+    viewer, _ = live_viewer("replica", http_port=0, say=lambda *a, **k: None)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for r in range(reps):
