@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..control.motion import builtin_motions, load_motion, motion_path
+from ..control.motion import DEFAULT_MOTION, builtin_motions, load_motion, motion_path
 from ..control.trajectory import TrajectoryError
 from ..mocap import BvhError, RetargetError, SkeletonError, find_arms, guess_axes, read_bvh
 from ..mocap.retarget import source_arm
@@ -16,7 +16,6 @@ from .drawing import SourceOverlay
 from .live import LiveFeed
 from .timeline import Timeline, ViewError, load_subject, log_timeline, trajectory_timeline
 
-DEFAULT_MOTION = "tennis_forehand"
 MAX_SOURCE_FRAMES = 1_000_000   # frames of a captured arm overlaid (a 2.3 h clip at 120 Hz): a clip
                                 # whose Frame Time makes more is refused before it is resampled
 
@@ -56,7 +55,7 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
             except (TrajectoryError, ModelError) as err:
                 raise ViewError(str(err)) from None
     if time_scale is None:
-        time_scale = (config.swing_time_scale if config is not None and motion is None else None) or 1.0
+        time_scale = config.time_scale_for(DEFAULT_MOTION) if config is not None and motion is None else 1.0
     if not (math.isfinite(time_scale) and time_scale > 0):
         raise ViewError(f"the time scale must be a positive number, got {time_scale}")
     overlay = None
