@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 
 
+from ..errors import ExitCode, ServodynError
 from ..hal import ports as hal_ports
 from ..loop.realtime import LOOP_PRIORITY
 from ..hal.bringup import ERROR, Finding
@@ -32,12 +33,12 @@ from .config_patch import ConfigPatch, ask
 from .swing import bus_ports
 
 
-class BringUpError(Exception):
+class BringUpError(ServodynError):
     """One line for the user; `code` the exit status (2 bad input, 1 findings)."""
 
-    def __init__(self, message: str, code: int = 2):
+    def __init__(self, message: str, code: int = ExitCode.BAD_INPUT):
         super().__init__(message)
-        self.code = code
+        self.exit_code = code
 
 
 # ---------------------------------------------------------------------------- shared

@@ -37,6 +37,7 @@ import numpy as np
 from ..control import ControlConfig, Controller
 from ..control.motion import load_motion
 from ..control.schedule import plan_run
+from ..errors import ServodynError
 from ..hal.backend import joint_sensors
 from ..hal.config import load_config
 from ..hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_reply
@@ -51,7 +52,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
 
 
-class FirmwareError(RuntimeError):
+class FirmwareError(ServodynError, RuntimeError):
     """The firmware could not be run (no image, no QEMU, no connection, no report)."""
 
 

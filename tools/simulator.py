@@ -25,6 +25,7 @@ import subprocess
 import sys
 from contextlib import nullcontext
 
+from ..errors import ServodynError
 from ..hal.config import RobotConfig, load_config
 from ..loop.realtime import SIMULATOR_PRIORITY, realtime_priority
 from ..sim.lab import Lab
@@ -132,7 +133,7 @@ def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None =
     return served
 
 
-class SimProcessError(RuntimeError):
+class SimProcessError(ServodynError, RuntimeError):
     """The simulator's child process could not start or stopped answering its control socket."""
 
 

@@ -26,7 +26,7 @@ from ..control.motion import motion_path
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, TIME_STEP, plant_step
 from ..control.trajectory import MotionPath, Trajectory
-from ..errors import ServodynError, exit_code
+from ..errors import InputError, ServodynError, exit_code
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
@@ -94,14 +94,14 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     else:
         scale = (config.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
     if not (math.isfinite(scale) and scale > 0):
-        raise ValueError(f"--time-scale must be a positive number, got {scale}")
+        raise InputError(f"--time-scale must be a positive number, got {scale}")
     path = motion_path(motion, model)
     verdict = judge(config, path, scale) if hold is None else None
     ports = bus_ports(config, port)
     bus_config = next(iter(config.buses.values()))
     simulated = not ports or bus_config.kind == "loopback"
     if hold is not None and not (math.isfinite(hold) and hold > 0):
-        raise ValueError(f"--hold must be a positive number of seconds, got {hold:g}")
+        raise InputError(f"--hold must be a positive number of seconds, got {hold:g}")
     if verdict is not None and not verdict.passed:
         first = verdict.violations[0]["message"]
         if not (force and simulated):
@@ -117,7 +117,7 @@ def run_swing(config_name: str | RobotConfig = "replica", port: str | None = Non
     paced = None
     if native:
         if hold is not None or dry_run:
-            raise ValueError("--hold and --dry-run run in the Python loop, not with --native")
+            raise InputError("--hold and --dry-run run in the Python loop, not with --native")
         _check_native(config, motion, scale, mode, fault_at)
     if not simulated and not realtime and any(not is_pseudo_terminal(path) for path in ports.values()):
         # lock-step means "as fast as the bus answers": on real servos that would play the motion
@@ -252,7 +252,7 @@ class Declined(ServodynError):
     exit_code = 1
 
 
-class _DryRunDone(Exception):
+class _DryRunDone(ServodynError):
     """The dry run's homing is logged: the run ends there (not an error)."""
 
 
@@ -325,10 +325,10 @@ def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
         elif len(config.buses) == 1:
             name, path = next(iter(config.buses)), item
         else:
-            raise ValueError(f"'{config.name}' has {len(config.buses)} buses ({', '.join(config.buses)}): give "
+            raise InputError(f"'{config.name}' has {len(config.buses)} buses ({', '.join(config.buses)}): give "
                              f"each its port as --port BUS=PATH, not {item!r}")
         if not path or name in given:
-            raise ValueError(f"--port {name}=...: {'an empty path' if not path else 'given twice'}")
+            raise InputError(f"--port {name}=...: {'an empty path' if not path else 'given twice'}")
         given[name] = path
     ports = {name: given.get(name) or (bus.port if bus.port != "auto" else None)
              for name, bus in config.buses.items()}
@@ -336,7 +336,7 @@ def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
     if len(missing) == len(ports):
         return {}
     if missing:
-        raise ValueError(f"bus '{missing[0]}' of '{config.name}' has no port while "
+        raise InputError(f"bus '{missing[0]}' of '{config.name}' has no port while "
                          f"{', '.join(repr(n) for n in ports if n not in missing)} has one: give it as --port "
                          f"{missing[0]}=PATH (all buses real, or all simulated)")
     return ports
@@ -345,10 +345,10 @@ def bus_ports(config: RobotConfig, port=None) -> dict[str, str]:
 def _check_native(config: RobotConfig, motion: str, scale: float, mode: str, fault_at) -> None:
     """ValueError unless the native loop's generated tables are this run's."""
     if config.name != BUILT_FOR or motion != DEFAULT_MOTION or scale != config.swing_time_scale:
-        raise ValueError(f"--native plays what the firmware was generated for ('{BUILT_FOR}', {DEFAULT_MOTION}, "
+        raise InputError(f"--native plays what the firmware was generated for ('{BUILT_FOR}', {DEFAULT_MOTION}, "
                          f"its configuration's time scale): not '{config.name}', {motion} at {scale:g}")
     if mode != "feedforward_pd" or fault_at is not None:
-        raise ValueError("--native runs feed-forward + PD and injects no fault")
+        raise InputError("--native runs feed-forward + PD and injects no fault")
 
 
 def _native_swing(server, port, config, swing, verdict, scale, mode, realtime, out, say,

@@ -32,6 +32,7 @@ import numpy as np
 from ..control.motion import Motion, builtin_motions, check_limits, load_motion, motion_path, save_motion
 from ..control.timing import SMALL_TIME_STEP
 from ..control.trajectory import TrajectoryError
+from ..errors import ServodynError
 from ..hal.config import builtin_configs, load_config
 from ..hal.errors import ConfigError
 from ..loop.log import RunLogError, read_run_log
@@ -56,7 +57,7 @@ GIZMO_SCALE = 0.3          # of the arm's length: the hand's transform gizmo
 SOURCE_RGB = (255, 140, 40)  # the captured arm of --source
 
 
-class ViewError(ValueError):
+class ViewError(ServodynError, ValueError):
     """Bad input to the view: one line."""
 
 
