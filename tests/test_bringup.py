@@ -160,7 +160,7 @@ def test_calibrate_through_standard_input_finds_the_configuration(bench, tmp_pat
     buffer = ""
     try:
         while True:
-            ch = proc.stdout.read(1)
+            ch = proc.stderr.read(1)                  # its steps and questions
             if not ch:
                 break
             buffer += ch
@@ -180,7 +180,7 @@ def test_calibrate_through_standard_input_finds_the_configuration(bench, tmp_pat
     finally:
         proc.kill()
     text = "".join(transcript)
-    assert code == 0, text + proc.stderr.read()
+    assert code == 0, text + proc.stdout.read()
     joint = next(j for j in tomlkit.parse(target.read_text())["joint"] if j["dof"] == dof)
     configured = next(j for j in CONFIG.joints if j.dof == dof)
     assert joint["direction"] == configured.direction

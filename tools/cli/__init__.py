@@ -131,7 +131,10 @@ NUMPY_WARNINGS = r"(overflow|invalid value|divide by zero) encountered"
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     verb = next((a for a in argv if not a.startswith("-")), None)
-    args = parser_for(verb if verb in VERBS else None).parse_args(argv)
+    try:
+        args = parser_for(verb if verb in VERBS else None).parse_args(argv)
+    except SystemExit as done:       # --help, --version, or argparse's one line: its status, returned
+        return done.code if isinstance(done.code, int) else ExitCode.BAD_INPUT
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=NUMPY_WARNINGS, category=RuntimeWarning)
         return _run(args)

@@ -1,7 +1,8 @@
 """The bring-up verbs, from a box of servos to an arm that moves (tools/bringup.py): scan, setup,
-doctor, monitor, calibrate, reboot, clear-errors and `torque off`. What they find (scan's servos,
-doctor's findings, monitor's table) is their data, on stdout; setup's, calibrate's and the rest's
-messages and questions on stderr."""
+doctor, monitor, calibrate, reboot, clear-errors and `torque off`. What they find or read back
+(scan's servos, doctor's findings, monitor's table, each servo's state after reboot, clear-errors
+and torque off) is their data, on stdout; the steps and questions of setup and calibrate, which
+write to the servos and the configuration, on stderr."""
 
 from __future__ import annotations
 
@@ -97,6 +98,6 @@ doctor = Verb(_doctor_arguments, lambda a: bringup.doctor(a.config, a.port, a.js
 monitor = Verb(_monitor_arguments, lambda a: bringup.monitor(a.config, a.port, a.count, a.rate))
 calibrate = Verb(_calibrate_arguments,
                  lambda a: bringup.calibrate(a.config, a.port, a.joint, a.margin, a.yes, a.write, say=say))
-reboot = Verb(_reboot_arguments, lambda a: bringup.reboot(a.config, a.port, a.yes, say=say))
-clear_errors = Verb(_clear_errors_arguments, lambda a: bringup.clear_errors(a.config, a.port, say=say))
-torque = Verb(_torque_arguments, lambda a: bringup.torque_off(a.config, a.port, say=say))
+reboot = Verb(_reboot_arguments, lambda a: bringup.reboot(a.config, a.port, a.yes))
+clear_errors = Verb(_clear_errors_arguments, lambda a: bringup.clear_errors(a.config, a.port))
+torque = Verb(_torque_arguments, lambda a: bringup.torque_off(a.config, a.port))
