@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+from servodyn.errors import InputError
 from servodyn.hal.dynamixel.control_table import TICKS_PER_REV
 
 FORMAT = 1                      # the store file's "format"
@@ -68,7 +69,7 @@ class Device(Protocol):
 def require(kind: type, what: str) -> None:
     """ValueError (one line) unless devices of `kind` ("CAN motors") take part in a bench."""
     if not all(hasattr(kind, name) for name in BENCH_METHODS):
-        raise ValueError(f"the bench's factory state for {what} is not available")
+        raise InputError(f"the bench's factory state for {what} is not available")
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,7 @@ class Mounting:
 
     def __post_init__(self):
         if self.direction not in (1, -1) or not math.isfinite(self.zero_offset):
-            raise ValueError(f"a mounting's direction is +1 or -1 and its zero offset a finite angle "
+            raise InputError(f"a mounting's direction is +1 or -1 and its zero offset a finite angle "
                              f"(got {self.direction}, {self.zero_offset})")
 
 
@@ -118,7 +119,7 @@ class Lab:
                             (self.memory, "memory")):
             unknown = [dof for dof in named if dof not in dofs]
             if unknown:
-                raise ValueError(f"the bench's {what}: no dof {', '.join(map(repr, unknown))} in "
+                raise InputError(f"the bench's {what}: no dof {', '.join(map(repr, unknown))} in "
                                  f"'{config.name}' (dofs: {', '.join(dofs)})")
         store = Store(self.store) if self.store is not None else None
         mounting = {j.dof: Mounting(j.direction, j.zero_offset) for j in joints}
@@ -162,13 +163,13 @@ class Store:
         try:
             data = json.loads(self.path.read_text())
             if data.get("format") != FORMAT:
-                raise ValueError(f"format {data.get('format')!r}, not {FORMAT}")
+                raise InputError(f"format {data.get('format')!r}, not {FORMAT}")
             self.devices = {dof: {"kind": str(d["kind"]), "memory": dict(d["memory"])}
                             for dof, d in data.get("devices", {}).items()}
             self.mounting = {dof: Mounting(int(m["direction"]), float(m["zero_offset"]))
                              for dof, m in data.get("mounting", {}).items()}
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
-            raise ValueError(f"the bench's store {self.path}: {err}") from None
+            raise InputError(f"the bench's store {self.path}: {err}") from None
 
     def memory(self, dof: str, kind: str) -> dict | None:
         """The memory the store holds for the device in `dof`'s slot, or None."""
@@ -176,7 +177,7 @@ class Store:
         if held is None:
             return None
         if held["kind"] != kind:
-            raise ValueError(f"the bench's store {self.path}: {dof} holds a {held['kind']} device, "
+            raise InputError(f"the bench's store {self.path}: {dof} holds a {held['kind']} device, "
                              f"the configuration a {kind} one")
         return held["memory"]
 

@@ -40,6 +40,7 @@ import time as _time
 import numpy as np
 
 from servodyn.control.timing import plant_step
+from servodyn.errors import InputError
 from servodyn.hal.config import RobotConfig
 from servodyn.hal.dynamixel.control_table import HARDWARE_FAULTS
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
@@ -65,7 +66,7 @@ class SimulatedRobot(PlantView):
                  integrator: str = "rk4", bench: Lab | None = None):
         kinds = {bus.kind for bus in config.buses.values()}
         if not kinds <= {"can", "dynamixel"}:
-            raise ValueError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
+            raise InputError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
                              f"(this configuration has {', '.join(sorted(kinds))})")
         self.config = config
         self.model = config.plant.model if config.plant is not None else config.model

@@ -61,8 +61,8 @@ def test_2_setup_one_by_one(bench_store):
         with sim(bench_store, "--factory", "--connect", dof) as port:
             result = cli("setup", "--config", "replica", "--joint", dof, "--port", port, "--yes")
         assert result.returncode == 0, (dof, result.stdout + result.stderr)
-        assert "found XM" in result.stdout and "at ID 1, 57600 baud" in result.stdout, result.stdout
-        assert f"answers at ID {k + 1}, 4000000 baud" in result.stdout, result.stdout
+        assert "found XM" in result.stderr and "at ID 1, 57600 baud" in result.stderr, result.stderr   # its steps
+        assert f"answers at ID {k + 1}, 4000000 baud" in result.stderr, result.stderr
     # every servo now at its ID and the bus's rate, as the configuration says
     with sim(bench_store) as port:
         scan = cli("scan", "--port", port, "--config", "replica", "--json")
@@ -99,7 +99,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         buffer, text = "", ""
         try:
-            while (ch := proc.stdout.read(1)):
+            while (ch := proc.stderr.read(1)):             # its steps and questions
                 buffer += ch
                 if buffer.endswith("[Enter] "):
                     dof, angle = next(moves)
@@ -114,7 +114,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
             code = proc.wait(timeout=120)
         finally:
             proc.kill()
-        assert code == 0, text + buffer + proc.stderr.read()
+        assert code == 0, text + buffer + proc.stdout.read()
     finally:
         served.stop()
     joints = {j["dof"]: j for j in tomlkit.parse(target.read_text())["joint"]}

@@ -44,7 +44,7 @@ def test_torques_with_full_state_equal_the_api(tmp_path):
     write_traj(tmp_path / "traj.csv", t, arm.dof_names, q, qd, qdd)
     res = run("torques", "human_arm", tmp_path / "traj.csv", "-o", tmp_path / "tau.csv")
     assert res.returncode == 0, res.stderr
-    assert "2001 samples" in res.stdout, "the 2.0 s reach every 1 ms, both ends included"
+    assert "2001 samples" in res.stderr, "the 2.0 s reach every 1 ms, both ends included (a message: stderr)"
     header, data = read_csv(tmp_path / "tau.csv")
     assert header == ["t"] + [f"tau_{n}" for n in arm.dof_names], "t, then one tau column per dof in model order"
     assert np.array_equal(data[:, 0], t), "the time column is the trajectory's, unchanged"

@@ -54,7 +54,7 @@ def loop(tmp_path_factory):
         assert summary["completed"], summary.get("error")
         logs.append(str(folder / label / "swing_log.csv"))
     patched = folder / "patched.toml"
-    code = identify.run(str(config), logs, None, KNOWN_KG, False, folder / "id", apply_to=str(patched), yes=True,
+    code = identify.run(str(config), logs, None, KNOWN_KG, False, folder / "id", apply_to=str(patched), confirm=lambda question: True,
                         say=quiet, warn=quiet)
     assert code == 0
     result = json.loads((folder / "id" / "identified.json").read_text())
@@ -119,7 +119,7 @@ def test_the_can_replica_identified_from_one_log_tracks_the_forehand_within_half
     assert log["completed"], log.get("error")
     patched = tmp_path / "patched.toml"
     assert identify.run(str(config), [str(tmp_path / "excited" / "swing_log.csv")], None, 0.0, False,
-                        tmp_path / "id", apply_to=str(patched), yes=True, say=quiet, warn=quiet) == 0
+                        tmp_path / "id", apply_to=str(patched), confirm=lambda question: True, say=quiet, warn=quiet) == 0
     before = run_swing(load_config(config), out=tmp_path / "before", figure=False, say=quiet)
     after = run_swing(load_config(patched), out=tmp_path / "after", figure=False, say=quiet)
     assert before["completed"] and after["completed"]

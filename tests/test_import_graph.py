@@ -10,9 +10,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = {"host": "servodyn", "hal": "servodyn.hal", "sim": "servodyn.sim", "tools": "servodyn.tools"}
-# a command's module is loaded when that command runs: the CLI's dispatcher alone imports inside
-# its functions, so `servodyn --help` does not load every application
-LAZY_ALLOWED = {"servodyn.tools.cli"}
+# none: a command's module is loaded when that command runs because the CLI finds its verb by
+# name (servodyn.tools.cli.VERBS, importlib), so `servodyn --help` loads no application
+LAZY_ALLOWED: set[str] = set()
 
 
 def modules() -> dict[str, Path]:

@@ -226,9 +226,9 @@ def test_bad_log_and_share_colours(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["nothing"], "nothing: no such file, and not a built-in configuration"),
-    (["--port", "99999"], "--port must be from 0 to 65535"),
+    (["--http-port", "99999"], "argument --http-port: must be from 0 to 65535"),
     (["--host", "192.0.2.1"], "cannot serve on 192.0.2.1:8080"),
-    (["--time-scale", "0"], "--time-scale must be a positive number"),
+    (["--time-scale", "0"], "argument --time-scale: must be a positive number"),
     (["--motion", "LOG"], "unknown column 'q_x'"),
     (["--log", "LOG"], "not a swing log of model 'replica'"),
 ])

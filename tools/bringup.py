@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 from ..hal import port_access, ports as hal_ports
 from ..hal.realtime import LOOP_PRIORITY
+from ..errors import ExitCode, ServodynError
 from ..hal.bringup import ERROR, Finding
 from ..hal.can import bringup as can_bench
 from ..hal.can.dialects import CTRL_MODES, DAMIAO_DISABLED, DAMIAO_ENABLED, DAMIAO_STATUS
@@ -29,16 +30,16 @@ from ..hal.dynamixel.control_table import BAUD_RATES, ITEMS, TABLE_SIZE
 from ..hal.dynamixel.units import ServoMap
 from ..hal.errors import ConfigError, ServoError
 from ..hal.config_patch import ConfigPatch
-from .prompt import ask
+from .cli.prompt import ask
 from ..hal.ports import bus_ports
 
 
-class BringUpError(Exception):
+class BringUpError(ServodynError):
     """One line for the user; `code` the exit status (2 bad input, 1 findings)."""
 
-    def __init__(self, message: str, code: int = 2):
+    def __init__(self, message: str, code: int = ExitCode.BAD_INPUT):
         super().__init__(message)
-        self.code = code
+        self.exit_code = code
 
 
 # ---------------------------------------------------------------------------- shared

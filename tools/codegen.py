@@ -26,6 +26,7 @@ from ..control.controller import FRICTION_SPEED
 from ..control.motion import load_motion
 from ..control.schedule import plan_gains
 from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
+from ..errors import InputError
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, PRESENT_LENGTH, watchdog_units
@@ -71,7 +72,7 @@ def model_fields(model) -> dict[str, np.ndarray]:
 
 def _num(x: float) -> str:
     if not math.isfinite(x):
-        raise ValueError(f"codegen: a non-finite number ({x}) in the generated data")
+        raise InputError(f"codegen: a non-finite number ({x}) in the generated data")
     if x == 0:
         return "0"
     text = f"{x:.9g}"
@@ -93,14 +94,14 @@ def _fields(fields: dict, names: list[str], integer: set[str], indent: str = "  
 def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[str, str]:
     """The generated files of a configuration: {file name: C source}."""
     if str(motion_name).lower().endswith(".csv"):
-        raise ValueError(f"codegen: --motion takes keyframes, a built-in motion or a keyframe .toml file (the "
+        raise InputError(f"codegen: --motion takes keyframes, a built-in motion or a keyframe .toml file (the "
                          f"firmware interpolates them itself, in flash), not a sampled trajectory: {motion_name}")
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
-        raise ValueError(f"codegen: the firmware drives hinge joints only; '{config.model_ref}' has "
+        raise InputError(f"codegen: the firmware drives hinge joints only; '{config.model_ref}' has "
                          "a free root or ball joints")
     if any(bus.kind != "dynamixel" for bus in config.buses.values()) or len(config.buses) != 1:
-        raise ValueError("codegen: the firmware drives one Dynamixel bus")
+        raise InputError("codegen: the firmware drives one Dynamixel bus")
     bus = next(iter(config.buses.values()))
     scale = config.swing_time_scale or 1.0
     motion = load_motion(motion_name, model)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control.trajectory import MotionPath, Trajectory, write_trajectory_csv
+from ..errors import ServodynError
 from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..hal.thermal import AMBIENT
@@ -40,7 +41,7 @@ HEAT_CHECK_S = 0.02        # s between the samples a heating run is validated at
                            # or more; its holds are still): a run of an hour stays a few MB of checks
 
 
-class ExciteError(Exception):
+class ExciteError(ServodynError):
     """A one-line reason the command cannot go on (exit status 2)."""
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import tomlkit
 
+from ..errors import ServodynError
 from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, IdentificationError, Parameter,
@@ -21,13 +22,12 @@ from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, Identifica
 from ..identification.signals import DECIMATED_HZ, SignalError
 from ..loop.log import PER_DOF, RunLogError, read_run_log
 from ..hal.config_patch import ConfigPatch
-from .prompt import ask
 from ..report.plots import _pyplot, short
 
 THERMAL_KEYS = ("thermal_resistance_k_w", "thermal_time_constant_s")
 
 
-class IdentifyError(Exception):
+class IdentifyError(ServodynError):
     """A one-line reason the command cannot go on (exit status 2)."""
 
 
@@ -243,7 +243,7 @@ def summary(result: dict) -> str:
 
 def run(config_name: str, paths: list[str], payload_body: str | None, known_payload: float, arm: bool,
         out: Path, cutoff: float = FILTER_HZ, apply_to: str | None = None, apply: bool = False,
-        yes: bool = False, say=print, warn=print) -> int:
+        confirm=None, say=print, warn=print) -> int:
     try:
         config = load_config(config_name)
     except ConfigError as err:
@@ -280,11 +280,11 @@ def run(config_name: str, paths: list[str], payload_body: str | None, known_payl
     say(summary(result))
     say(f"wrote {out / 'identified.json'}, {out / 'patch.toml'}, {out / 'torque_fit.png'}")
     if apply or apply_to:
-        return _apply(config, result, apply_to, yes, say)
+        return _apply(config, result, apply_to, confirm, say)
     return 0
 
 
-def _apply(config, result: dict, target: str | None, yes: bool, say) -> int:
+def _apply(config, result: dict, target: str | None, confirm, say) -> int:
     """The configuration patched with the determined values, comments kept, after asking."""
     per_joint, payload = patch_values(result, config)
     try:
@@ -293,6 +293,6 @@ def _apply(config, result: dict, target: str | None, yes: bool, say) -> int:
             patch.set_joint(dof, **values)
         if payload:
             patch.set_table("payload", **payload)
-        return patch.offer(lambda question: ask(question, yes, say), say)
+        return patch.offer(confirm or (lambda question: False), say)
     except (ConfigError, OSError) as err:
         raise IdentifyError(str(err)) from None

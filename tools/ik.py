@@ -24,12 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from ..control.trajectory import Trajectory, spline_derivatives, write_trajectory_csv
+from ..errors import ServodynError
 from ..model import Model
 from ..model import ik
 from ..model.rotations import matrix_to_quat, quat_to_matrix, rpy_to_matrix
 
 
-class IkInputError(ValueError):
+class IkInputError(ServodynError, ValueError):
     """A targets file or option that cannot be used (exit 2); the message names it."""
 
 

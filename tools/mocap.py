@@ -15,6 +15,7 @@ import numpy as np
 
 from ..control.motion import motion_path
 from ..control.trajectory import write_trajectory_csv
+from ..errors import ServodynError
 from ..mocap import ArmTarget, Clip, find_arms, guess_axes, read_bvh, retarget, write_bvh
 from ..mocap.export import ORDERS, arm_clip
 from ..mocap.skeleton import ROLES, UNITS, ArmChain, rest_frame, skeleton_height, guess_unit
@@ -30,7 +31,7 @@ FLAG_TORQUE_SPIKE = 3.0           # ... and over the dof's own 99th percentile (
 FLAG_TIME_SCALE = 10.0            # validate --fit's scale beyond which the servos are far too slow
 
 
-class MocapError(ValueError):
+class MocapError(ServodynError, ValueError):
     """Bad input to a mocap command: one line."""
 
 

@@ -22,7 +22,6 @@ from ..readable import fixed
 from ..validation import judge
 from ..validation import sizing
 from ..validation.sizing import SizingError
-from .prompt import ask
 
 SHOWN = 6             # candidates per joint in the printed table (every one is in size.json)
 
@@ -51,7 +50,7 @@ def _check_inputs(time_scale, margin, payload, jobs, repeat):
 def run_size(model_ref: str, motions: list[str], *, time_scale: float = 1.0, payload: float = 0.0,
              supply_voltage: float | None = None, margin: float = 1.0, family: str = "dynamixel",
              objective: str = "mass", jobs: int = 1, repeat: int = 1, out: Path | None = None,
-             yes: bool = False, say=print, progress=None) -> dict:
+             confirm=None, say=print, progress=None) -> dict:
     """Size, write and validate; the report (see the module's docstring)."""
     _check_inputs(time_scale, margin, payload, jobs, repeat)
     if not motions:
@@ -89,7 +88,7 @@ def run_size(model_ref: str, motions: list[str], *, time_scale: float = 1.0, pay
         outcome["fit"] = sizing.fit_scale(problem)
     report = _report(problem, outcome, family, objective, [p.voltage for p, _ in tries])
     if outcome["sizing"].passed:
-        report["files"] = _write(problem, outcome, out, yes, say) if out is not None else {}
+        report["files"] = _write(problem, outcome, out, confirm, say) if out is not None else {}
         if out is not None:
             report["validated"] = _validate_written(out, problem, paths, motions)
             report["passed"] = all(v["passed"] for v in report["validated"].values())
@@ -156,11 +155,11 @@ def _report(problem, outcome, family, objective, voltages) -> dict:
 
 # ---------------------------------------------------------------------------- the files
 
-def _write(problem, outcome, out: Path, yes: bool, say) -> dict:
+def _write(problem, outcome, out: Path, confirm, say) -> dict:
     found = outcome["sizing"]
     targets = {"config": out / "config.toml", "model": out / "model.toml"}
     there = [p for p in targets.values() if p.exists()]
-    if there and not ask(f"{', '.join(map(str, there))} exist: overwrite?", yes, say=say):
+    if there and not (confirm is not None and confirm(f"{', '.join(map(str, there))} exist: overwrite?")):
         raise SizingError(f"{there[0]} exists and was kept (give --yes to overwrite, or another --out)")
     out.mkdir(parents=True, exist_ok=True)
     targets["model"].write_text(_model_text(problem, found))

@@ -3,6 +3,8 @@ generated tables (`servodyn codegen`), the experiments and the demo all read the
 
 import math
 
+from ..errors import InputError
+
 SMALL_TIME_STEP = 1e-3   # s: the default control period (one servo read and write; a configuration
                          # may set its own, `[control] period`) and the longest RK4 step of the plant
 MIN_CONTROL_PERIOD = 1e-4   # s: 10 kHz, beyond any servo bus's round trip
@@ -57,13 +59,13 @@ def played_periods(duration: float, time_scale: float, dt: float = SMALL_TIME_ST
     to sample, or so much faster than written that it spans under MIN_PLAYED_PERIODS (a motion
     played as written or slower is sampled at least as finely as its own clock: never refused)."""
     if not (time_scale > 0 and time_scale < float("inf")):
-        raise ValueError(f"the time scale must be a positive number, got {time_scale}")
+        raise InputError(f"the time scale must be a positive number, got {time_scale}")
     played = duration * time_scale
     if played > MAX_PLAYED_DURATION:
-        raise ValueError(f"at time scale {time_scale:g} the motion would last {played:.3g} s; at most "
+        raise InputError(f"at time scale {time_scale:g} the motion would last {played:.3g} s; at most "
                          f"{MAX_PLAYED_DURATION:g} s is played or checked, sampled every {dt * 1e3:g} ms")
     if time_scale < 1 and duration > 0 and played < MIN_PLAYED_PERIODS * dt:
-        raise ValueError(f"at time scale {time_scale:g} the motion would last {played * 1e3:.3g} ms, under "
+        raise InputError(f"at time scale {time_scale:g} the motion would last {played * 1e3:.3g} ms, under "
                          f"{MIN_PLAYED_PERIODS} control periods ({MIN_PLAYED_PERIODS * dt * 1e3:g} ms): too "
                          "fast to play, and its samples would skip the motion between its ends")
     return max(1, int(round(played / dt)))

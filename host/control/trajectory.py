@@ -21,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ServodynError
 from .timing import SMALL_TIME_STEP, played_periods
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(ServodynError, ValueError):
     """A trajectory file that cannot be used; the message names the file, row and column."""
 
 
@@ -50,7 +51,7 @@ class MotionPath:
         its end (velocities / scale, accelerations / scale²); the last sample is held at the end
         when the played duration is not a whole number of periods."""
         if not (dt > 0 and math.isfinite(dt)):
-            raise ValueError(f"the sampling period must be a positive number of seconds, got {dt}")
+            raise TrajectoryError(f"the sampling period must be a positive number of seconds, got {dt}")
         n = played_periods(self.duration, scale, dt)
         t = np.arange(n + 1) * dt
         q, qd, qdd = self.evaluate(np.minimum(t / scale, self.duration))

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from ..errors import ServodynError
 from .signals import Prepared
 
 REL_SIGMA_MAX = 0.3        # a parameter with a larger relative standard error is "not determined"
@@ -44,7 +45,7 @@ INERTIAL = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz",
 JOINT_KEYS = ("friction_coulomb_nm", "friction_viscous_nm_s", "armature_kg_m2", "torque_constant_scale")
 
 
-class IdentificationError(ValueError):
+class IdentificationError(ServodynError, ValueError):
     """Logs that identify nothing (no joint moves, no current); the message is one line."""
 
 
@@ -171,10 +172,10 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
         raise IdentificationError(f"no body '{body_name}' in model '{model.name}' ({', '.join(model.body_names)})")
     b = model.body_names.index(body_name)
     if not (math.isfinite(known_payload) and known_payload >= 0):
-        raise IdentificationError(f"--known-payload must be a finite mass >= 0 kg, got {known_payload:g}")
+        raise IdentificationError(f"a known payload must be a finite mass >= 0 kg, got {known_payload:g}")
     scaled = known_payload > 0
     if scaled and len(logs) < 2:
-        raise IdentificationError("--known-payload needs two logs or more: the last one with the known mass, "
+        raise IdentificationError("a known payload needs two logs or more: the last one with the known mass, "
                                   "the others without it")
     notes = []
     if not scaled:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ServodynError
+
 FLUSH_EVERY = 0.1      # s of wall-clock time between two writes of a streamed log to disk
 PER_DOF = ("q_d", "q", "qd", "tau", "current", "temperature")     # the columns of each dof, after t
 # every column but temperature must be a finite number; temperature (°C, the winding's as the servo
@@ -22,7 +24,7 @@ PER_DOF = ("q_d", "q", "qd", "tau", "current", "temperature")     # the columns 
 NEEDED = PER_DOF[:-1]
 
 
-class RunLogError(ValueError):
+class RunLogError(ServodynError, ValueError):
     """A run log that cannot be read; the message names the file and what is wrong."""
 
 

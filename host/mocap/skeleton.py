@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ServodynError
 from ..model.files import read_toml
 from .angles import rotation_angle
 from .bvh import Clip
@@ -36,7 +37,7 @@ REST_STEP_RATIO = 10.0
 REST_STEP_MIN = math.radians(20.0)
 
 
-class SkeletonError(ValueError):
+class SkeletonError(ServodynError, ValueError):
     """A skeleton the retargeting cannot use: one line that says what is missing."""
 
 

@@ -63,10 +63,12 @@ class IkError(ModelError):
 
 class OutOfReach(IkError):
     """The target is farther from the shoulder than the arm reaches (or nearer than it folds)."""
+    exit_code = 1       # a refusal, not bad input
 
 
 class NoSwivel(IkError):
     """The target is within reach, but every arm pose reaching it has a joint outside its limits."""
+    exit_code = 1       # a refusal, not bad input
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import _core, _core32
+from ..errors import ServodynError
 from .rotations import axis_angle, frame_with_z, matrix_to_quat, quat_to_matrix, rot_z
 from .shapes import Solid
 from .urdf_write import write_urdf
@@ -28,7 +29,7 @@ INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
 
-class ModelError(ValueError):
+class ModelError(ServodynError, ValueError):
     """A model description that cannot be built; the message names the body or key."""
 
 

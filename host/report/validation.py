@@ -19,6 +19,7 @@ import numpy as np
 
 from ..control.motion import motion_path
 from ..control.trajectory import TrajectoryError, write_trajectory_csv
+from ..errors import InputError
 from ..hal.config import supply_voltage_error
 from ..loop.run import Run, RunOptions
 from ..sim.serve import serve
@@ -140,14 +141,14 @@ def validate(config, motion: str, *, time_scale: float | None = None, payload: f
     if not told:
         time_scale = config.time_scale_for(motion)
     if not (math.isfinite(time_scale) and time_scale > 0):
-        raise ValueError(f"--time-scale must be a positive number, got {time_scale}")
+        raise InputError(f"--time-scale must be a positive number, got {time_scale}")
     if not (math.isfinite(margin) and 0 < margin <= 10):
-        raise ValueError(f"--margin must be a fraction of each limit in (0, 10], got {margin}")
+        raise InputError(f"--margin must be a fraction of each limit in (0, 10], got {margin}")
     if not 1 <= repeat <= MAX_REPEAT:
-        raise ValueError(f"--repeat must be from 1 to {MAX_REPEAT} plays (the winding settles within a few "
+        raise InputError(f"--repeat must be from 1 to {MAX_REPEAT} plays (the winding settles within a few "
                          f"thermal time constants: minutes of play), got {repeat}")
     if not math.isfinite(ambient) or ambient >= min(j.servo.temperature_limit for j in config.joints):
-        raise ValueError(f"--ambient must be a temperature below the servos' limits, got {ambient}")
+        raise InputError(f"--ambient must be a temperature below the servos' limits, got {ambient}")
     model = config.model
     payload_info = None
     if payload or payload_body or payload_com is not None:
@@ -157,7 +158,7 @@ def validate(config, motion: str, *, time_scale: float | None = None, payload: f
     voltage = supply_voltage if supply_voltage is not None else config.supply.voltage
     why = supply_voltage_error(voltage, config.joints)
     if why:
-        raise ValueError(f"--supply-voltage {why}")
+        raise InputError(f"--supply-voltage {why}")
     judged = judge(config, motion_path(motion, model), time_scale, model=model, voltage=voltage, margin=margin,
                    repeat=repeat, ambient=ambient)
     path, limits, result = judged.path, judged.limits, judged.result
@@ -282,7 +283,7 @@ def expand_motions(specs: list[str]) -> list[str]:
         else:
             matches, what = [spec], ""
         if not matches:
-            raise ValueError(what)
+            raise InputError(what)
         found += matches
     return found
 
@@ -331,7 +332,7 @@ def validate_many(config, motions: list[str], *, jobs: int = 1, out: Path | None
     given, each report in OUT/<motion>/. The summary's `code` is the worst: 2 a motion that
     cannot be read, 1 one that fails, 0 all pass."""
     if not 1 <= jobs <= 256:
-        raise ValueError(f"--jobs must be from 1 to 256 processes, got {jobs}")
+        raise InputError(f"--jobs must be from 1 to 256 processes, got {jobs}")
     folders = _folders(motions)
     _MANY.update(config=config, motions=motions, folders=folders, options=options, out=out)
     if jobs > 1 and len(motions) > 1:

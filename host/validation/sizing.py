@@ -62,6 +62,7 @@ import numpy as np
 
 from ..control.timing import SMALL_TIME_STEP
 from ..control.trajectory import Trajectory
+from ..errors import ServodynError
 from ..hal.backend import servo_catalogue
 from ..hal.config import config_from_dict
 from ..model import builtin_models
@@ -88,7 +89,7 @@ BUSES = {"dynamixel": ("arm", {"kind": "dynamixel", "port": "auto", "baud": 4_00
 DEVICE_KEY = {"dynamixel": "servo", "can": "motor"}
 
 
-class SizingError(ValueError):
+class SizingError(ServodynError, ValueError):
     """Input sizing cannot work with; one line."""
 
 
@@ -119,7 +120,7 @@ def unusable(servo, voltage: float) -> str | None:
 def catalogue(family: str) -> dict:
     """The servos of a family by name (every backend's for 'any')."""
     if family not in FAMILIES:
-        raise SizingError(f"--family must be one of {', '.join(FAMILIES)}, got {family!r}")
+        raise SizingError(f"no servo family {family!r} (the families: {', '.join(FAMILIES)})")
     kinds = ("dynamixel", "can") if family == "any" else (family,)
     found = {}
     for kind in kinds:
@@ -505,7 +506,7 @@ def size(p: Problem, objective: str = "mass", jobs: int = 1, progress=None, fit:
     """Size the problem's model for its motions: the choice, each dof's candidates, and when none
     passes (and `fit`) the time scale at which a set passes, and that set."""
     if objective not in OBJECTIVES:
-        raise SizingError(f"--objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+        raise SizingError(f"no sizing objective {objective!r} (the objectives: {', '.join(OBJECTIVES)})")
     with _pool(p, jobs) as pool:
         found = greedy(p, p.time_scale, p.margin, pool, progress)
         outcome = {"sizing": found, "reached_margin": None, "fit": None}

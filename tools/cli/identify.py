@@ -1,0 +1,43 @@
+"""`servodyn identify --config FILE LOG...`: friction, armature, torque constants, payload from logs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ...identification.signals import FILTER_HZ
+from ..argtypes import number, positive
+from ..identify import run as run_identify
+from .common import describe, out_folder, say
+from .prompt import ask
+
+
+def add_arguments(p) -> None:
+    describe(p, "Least squares on swing logs (t, q_*, current_*; torque = current x torque_constant x gear_ratio): "
+             "per joint Coulomb and viscous friction, armature, with --known-payload a torque-constant scale, from "
+             "temperature_* columns the thermal resistance and time constant; the payload's mass and centre of mass "
+             "at a body. q and the current go through one 4th-order Butterworth low-pass forwards and backwards "
+             "(zero lag, -6 dB at --cutoff) before q is differentiated twice. Writes OUT/identified.json, "
+             "OUT/patch.toml and OUT/torque_fit.png; what the logs cannot determine is reported so, never invented.",
+             "servodyn identify --config replica out/bare out/loaded --known-payload 0.5 --out out/identify",
+             exits="0 done, 1 patch declined")
+    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders)")
+    p.add_argument("--payload-body", default=None, metavar="BODY",
+                   help="the body carrying the payload (default: the last)")
+    p.add_argument("--known-payload", type=number(0, what="kg"), default=0.0, metavar="KG",
+                   help="the last LOG carried this mass more, at the payload body's centre of mass (as validate "
+                        "--payload puts it): makes each joint's torque-constant scale identifiable")
+    p.add_argument("--arm", action="store_true", help="the whole arm's base inertial parameters instead of a payload")
+    p.add_argument("--cutoff", type=positive, default=FILTER_HZ, metavar="HZ",
+                   help=f"the low-pass's cut-off (default {FILTER_HZ:g} Hz)")
+    out_folder(p, "out/identify")
+    p.add_argument("--apply", action="store_true",
+                   help="also patch the configuration (comments kept), after showing the change and asking")
+    p.add_argument("--write", default=None, metavar="FILE", help="with --apply: write the patched configuration here")
+    p.add_argument("--yes", action="store_true", help="with --apply: write without asking")
+
+
+def run(args) -> int:
+    return run_identify(args.config, args.logs, args.payload_body, args.known_payload, args.arm, Path(args.out),
+                        cutoff=args.cutoff, apply_to=args.write, apply=args.apply,
+                        confirm=lambda question: ask(question, args.yes, say), say=say, warn=say)
