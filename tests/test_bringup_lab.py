@@ -78,7 +78,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
     """The bench's horns are not where the configuration says: calibrate finds each one's direction
     and zero (the store holds the truth), and the swing then plays on the calibrated copy."""
     truth = json.loads(bench_store.read_text())
-    served = serve(CONFIG, "lockstep", process=False, bench=Lab(store=bench_store))
+    served = serve(CONFIG, "lockstep", process=False, lab=Lab(store=bench_store))
     target = tmp_path / "replica.toml"
     try:
         port = served.buses["arm"]["port"]
