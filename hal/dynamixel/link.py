@@ -11,6 +11,7 @@ silence. The operations over it are hal.dynamixel.bringup.
 
 from __future__ import annotations
 
+import errno
 import os
 import select
 import time
@@ -83,9 +84,7 @@ class Link:
         dropped = 0
         fd = self.serial.fileno()
         while select.select([fd], [], [], quiet)[0]:
-            chunk = os.read(fd, 4096)
-            if not chunk:
-                break
+            chunk = _read(fd)
             dropped += len(chunk)
         return dropped
 
@@ -118,9 +117,7 @@ class Link:
             left = deadline - time.monotonic()
             if left <= 0 or not select.select([fd], [], [], left)[0]:
                 break
-            chunk = os.read(fd, 4096)
-            if not chunk:
-                break
+            chunk = _read(fd)
             for event in reader.feed(chunk):
                 if isinstance(event, StatusPacket):
                     packets.append(event)
@@ -174,6 +171,15 @@ class Link:
         """REBOOT; True when the servo acknowledged it."""
         packets, _ = self.exchange(instructions.reboot(servo_id))
         return any(p.id == servo_id and not p.error_number for p in packets)
+
+
+def _read(fd: int) -> bytes:
+    """What a port that select() found readable holds. Nothing at all is a hang-up (the adapter
+    unplugged, the simulator's end closed): the OS's EIO, as a lost port says elsewhere."""
+    chunk = os.read(fd, 4096)
+    if not chunk:
+        raise OSError(errno.EIO, os.strerror(errno.EIO))
+    return chunk
 
 
 _ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
