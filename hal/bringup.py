@@ -27,8 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from .backend import BACKENDS, backend
-from .errors import HalError, ServoInitializationError, ServoOperationError
-from .ports import ROOT, _under, is_pseudo_terminal
+from .bus import port_gone
+from .config import load_config
+from .errors import ConfigError, HalError, ServoInitializationError, ServoOperationError
+from .ports import ROOT, _under, bus_ports, is_pseudo_terminal
 
 ERROR, WARNING = "error", "warning"
 
@@ -101,7 +103,6 @@ class PortLost(ServoOperationError):
 
 def _gone(err: BaseException) -> str | None:
     """Why the port is gone, if `err` or an error in its chain says so (hal.bus.port_gone)."""
-    from .bus import port_gone
     seen, todo = set(), [err]
     while todo:
         e = todo.pop()
@@ -342,11 +343,15 @@ class BringUp(ABC):
             raise
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, err, tb) -> None:
         try:
-            self._close()
-        except (OSError, termios.error, ServoOperationError):
-            pass                               # a lost port: the error under way says so
+            with self._guard():
+                self._close()
+        except PortLost:
+            if err is None:                    # lost after the last operation: still said
+                raise
+        except Exception:                      # noqa: BLE001 - the operations are done; a close that
+            pass                               # fails (a driver's goodbye on a dying port) changes nothing
         finally:
             self._termios.restore()
 
@@ -411,9 +416,6 @@ def bringup_for_path(path: str) -> type[BringUp]:
 def config_and_ports(config_name: str, port) -> tuple:
     """The configuration (hal.config.RobotConfig) and the real port of each of its buses; one
     line (ConfigError) when a bus has none."""
-    from .config import load_config
-    from .errors import ConfigError
-    from .ports import bus_ports
     config = load_config(config_name)
     ports = bus_ports(config, port)
     if not ports:

@@ -392,3 +392,51 @@ def test_setup_on_a_lost_port_says_which_steps_were_written(capsys):
         assert len(fresh) == 1 and fresh[0].get("id") == 1, "only the first step reached the servo"
     finally:
         served.stop()
+
+
+def test_a_can_adapter_lost_under_monitor_is_one_line_naming_it(capsys):
+    """The SLCAN adapter's far end closes mid-monitor (the simulator stopped, as an adapter
+    unplugged): one line naming the port, not python-can's traceback."""
+    served = serve(load_config("replica_can"), "lockstep", process=False, can="slcan")
+    try:
+        port = served.buses["arm"]["port"]
+        server = served.servers["arm"]
+        handle, frames_seen = server.arm.handle, []
+
+        def handle_until(arbitration_id, data):
+            frames_seen.append(arbitration_id)
+            if len(frames_seen) == 40:             # torque off and a few refreshes: then the adapter goes
+                threading.Thread(target=server.stop).start()
+            return handle(arbitration_id, data)
+        server.arm.handle = handle_until
+        code, out, err = run(capsys, "monitor", "--config", "replica_can", "--port", port, "--count", "1000",
+                             "--rate", "100")
+        line = one_line(err)
+        assert code == 12 and f"{port}: the port was lost" in line, (code, line)
+    finally:
+        served.stop()
+
+
+def test_can_setup_shows_the_motor_and_every_change_before_it_asks(capsys, monkeypatch):
+    """CAN setup asked to save to flash before it had shown anything: now the motor found and every
+    register it changes come first, then one question; a no leaves the motor as it was."""
+    dof = "r_elbow_flexion"
+    config = load_config("replica_can")
+    served = serve(config, "lockstep", process=False, can="slcan", lab=Lab(factory=True, connected=(dof,)))
+    try:
+        port = served.buses["arm"]["port"]
+        motor = served.robot.motors[[j.dof for j in config.joints].index(dof)]
+        assert (motor.can_id, motor.feedback_id) == (1, 0), "factory-fresh"
+        for answer, code_wanted in (("n\n", 1), ("y\n", 0)):
+            monkeypatch.setattr(sys, "stdin", io.StringIO(answer))
+            code, out, err = run(capsys, "setup", "--config", "replica_can", "--joint", dof, "--port", port)
+            assert code == code_wanted, out + err
+            shown, _, after = out.partition("write these? [y/N]")
+            assert "found DM-J4340 at CAN ID 1, Master ID 0x0" in shown, out
+            assert "CAN ID (ESC_ID): 1 -> 4" in shown and "Master ID: 0x0 -> 0x14" in shown, out
+            assert "flash" in shown and out.count("[y/N]") == 1, out
+            if answer == "n\n":
+                assert "nothing written" in after and (motor.can_id, motor.feedback_id, motor.saves) == (1, 0, 0)
+        assert "saved to flash" in after and (motor.can_id, motor.feedback_id, motor.saves) == (4, 0x14, 1), after
+    finally:
+        served.stop()

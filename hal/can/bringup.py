@@ -363,7 +363,7 @@ def apply_setup(bus, motor: Found, joint, steps: list[Step], written: list | Non
     link = CanLink(_name(bus), bus, timeout=timeout)
     can_id, reply_id = motor.id, motor.extra["reply_id"]
     _special(link, can_id, frames.EXIT)
-    lines = [f"disabled it (exit motor mode, {frames.SPECIALS[frames.EXIT]})"]
+    lines = [f"disabled it ({frames.SPECIALS[frames.EXIT]})"]
     for step in steps:
         answer = link.register(can_id, frames.REG_WRITE, step.rid, register_bits(step.rid, step.new),
                                answer_ids={can_id, joint.id})
