@@ -239,7 +239,6 @@ class BringUp(ABC):
     `PortLost`); a kind implements the `_` ones (as python-can's recv and _recv_internal)."""
 
     device = "device"             # what the kind calls the things on its bus: "servo", "motor"
-    has_reboot = True
 
     def __init__(self, config, bus: str | None, path: str):
         self.config, self.bus, self.path = config, bus, path

@@ -31,7 +31,6 @@ def _state(reply) -> str:
 
 class CanBringUp(BringUp):
     device = "motor"
-    has_reboot = False
 
     def __init__(self, config, bus, path):
         """Without a configuration (a scan of a bare channel): the channel's interface, the CAN

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from ..bringup import WARNING, Finding, Found
 from ..errors import ServoInitializationError, ServoOperationError
 from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
-from .link import ADAPTER_LATENCY, FACTORY_BAUD, FACTORY_ID, STATUS_BYTES, Link, quiet_gap, wire_time  # noqa: F401
+from .link import FACTORY_BAUD, FACTORY_ID, Link
 from . import instructions
 from .protocol import BROADCAST_ID, MAX_ID, StatusPacket, unpack_field
 
