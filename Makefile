@@ -57,7 +57,7 @@ bench: venv
 
 soak: venv fw
 	@echo "== fault-injection soak"
-	@$(VENV)/bin/python -m servodyn.tools.soak $(SOAK_ARGS)
+	@$(VENV)/bin/servodyn soak $(SOAK_ARGS)
 
 #---------------------------------- set-up -------------------------------------------------------
 

@@ -39,6 +39,7 @@ class Backend:
     bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
 
     bus: str = ""                              # "module:class" of its ServoBus
+    bringup: str = ""                          # "module:class" of its bring-up (hal.bringup.BringUp), if any
 
     @classmethod
     def bus_class(cls):

@@ -5,11 +5,14 @@ line with its fix."""
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
+import select
 import subprocess
 import sys
+import termios
 import threading
 from pathlib import Path
 
@@ -18,7 +21,9 @@ import pytest
 import tomlkit
 
 from servodyn.hal.config import load_config
+from servodyn.hal.dynamixel import Instruction, InstructionPacket, PacketReader
 from servodyn.hal.dynamixel.control_table import ITEMS
+from servodyn.sim.lab import Lab
 from servodyn.tools.cli import main
 from servodyn.sim.serve import serve
 
@@ -229,5 +234,209 @@ def test_can_bus_scan_doctor_and_torque_off_through_the_cli(capsys):
         code, out, _ = run(capsys, "torque", "off", "--config", "replica_can", "--port", port)
         assert code == 0 and out.count("disabled") == 7, out
         assert not any(m.enabled for m in served.robot.motors)
+    finally:
+        served.stop()
+
+
+# ---------------------------------------------------------------------------- hostile input
+
+COMMANDS = [ROOT / "tools" / name for name in ("bringup.py", "monitor.py", "calibrate.py")]
+
+
+def test_the_commands_know_no_bus_kind():
+    """Each backend describes its own bring-up (hal.bringup.BringUp, found by name): the commands
+    drive every bus through it, with no branch on a kind and no backend module imported."""
+    import re
+    for path in COMMANDS:
+        text = path.read_text()
+        found = re.findall(r"kind\s*[!=]=|[\"'](?:can|dynamixel)[\"']|"
+                           r"from\s+[.\w]*hal\.(?:can|dynamixel)\b|hal\s+import\s+.*\b(?:can|dynamixel)\b", text)
+        assert found == [], f"{path.name} branches on a bus kind: {found}"
+    assert all(len(p.read_text().splitlines()) <= 500 for p in COMMANDS)
+
+
+def one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.mark.parametrize("argv", [
+    ["scan", "--port", "/dev/tty"],
+    ["doctor", "--config", "replica", "--port", "/dev/tty"],
+    ["monitor", "--config", "replica", "--port", "/dev/tty", "--count", "1"],
+    ["torque", "off", "--config", "replica_can", "--port", "/dev/tty"],
+    ["scan", "--port", "/dev/null"],
+])
+def test_a_terminal_or_another_device_is_refused_before_anything_is_sent(capsys, argv):
+    """`--port /dev/tty` (a typo for /dev/ttyUSB0) would put pings on the user's terminal and leave
+    it raw at 4 Mbaud: refused before the port is opened, in one line naming it and `servodyn ports`."""
+    code, out, err = run(capsys, *argv)
+    line = one_line(err)
+    assert code == 2, (argv, out, err)
+    assert argv[argv.index("--port") + 1] in line and "servodyn ports" in line and "nothing sent" in line, line
+    assert "torque off" not in out, "no bus was opened"
+
+
+def test_a_shells_pseudo_terminal_is_not_a_simulated_bus(capsys):
+    """A terminal emulator's (or ssh's) pseudo-terminal is the controlling terminal of the shell on
+    it; `servodyn sim`'s is no one's. The shell's is refused, and nothing reaches it."""
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    shell = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, termios, time\n"
+                              "fcntl.ioctl(0, termios.TIOCSCTTY, 0); print('ready', flush=True); time.sleep(60)"],
+                             stdin=slave, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert shell.stdout.readline().strip() == "ready"
+        before = termios.tcgetattr(slave)
+        code, out, err = run(capsys, "scan", "--port", path)
+        line = one_line(err)
+        assert code == 2 and path in line and f"pid {shell.pid}" in line and "servodyn ports" in line, line
+        assert select.select([master], [], [], 0.2)[0] == [], "not a byte was written to the terminal"
+        assert termios.tcgetattr(slave) == before, "its settings untouched"
+    finally:
+        shell.kill()
+        shell.wait()
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_ports_termios_settings_are_restored_on_close(bench, capsys):
+    """Bring-up leaves a port as it found it: raw at the bus's rate while it runs, the user's
+    settings (here 9600 baud, echo on) back when it closes."""
+    served, port = bench
+    fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        attrs = termios.tcgetattr(fd)
+        attrs[3] |= termios.ECHO
+        attrs[4] = attrs[5] = termios.B9600
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        before = termios.tcgetattr(fd)
+        code, out, err = run(capsys, "torque", "off", "--config", "replica", "--port", port)
+        assert code == 0, out + err
+        assert out.count("torque off") == 8, out      # the bus line and its seven servos: it ran at 4 Mbaud
+        assert termios.tcgetattr(fd) == before
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize("rate", ["0", "-1", "nan", "1e-300", "inf", "1000"])
+def test_monitor_checks_its_rate_before_anything_is_sent(bench, capsys, rate):
+    """`monitor --rate 0` switched torque off on every servo, then failed as a traceback: the rate
+    (0.1 to 100 refreshes a second) is checked first; a servo with torque on keeps it."""
+    served, port = bench
+    with served.robot.lock:
+        for s in served.robot.servos:
+            s.write(ITEMS["torque_enable"].address, b"\x01")
+    code, out, err = run(capsys, "monitor", "--config", "replica", "--port", port, "--count", "1", "--rate", rate)
+    assert code == 2 and "--rate" in one_line(err), (out, err)
+    assert out == "" and all(s.torque_enabled for s in served.robot.servos), "nothing was sent"
+
+
+def dies_at(served, instruction: int, nth: int) -> None:
+    """The simulated bus's port is lost (as an adapter unplugged) when the host's `nth` packet of
+    `instruction` arrives, before that packet is answered or acted on."""
+    server = served.servers["arm"]
+    handle, seen = server.arm.handle, []
+
+    def handle_until(data: bytes) -> bytes:
+        seen.extend(p for p in PacketReader(None).feed(data)
+                    if isinstance(p, InstructionPacket) and p.instruction == instruction)
+        if len(seen) >= nth:
+            server._stop.set()
+            with open(os.devnull, "rb") as null:
+                os.dup2(null.fileno(), server.master)      # the pseudo-terminal's far end closes: a hang-up
+            return b""
+        return handle(data)
+    server.arm.handle = handle_until
+
+
+@pytest.mark.parametrize("argv, instruction, nth", [
+    (["scan", "--baud", "4000000,57600"], Instruction.PING, 2),
+    (["monitor", "--config", "replica", "--count", "3"], Instruction.READ, 10),
+])
+def test_a_port_lost_under_a_command_is_one_line_naming_it(bench, capsys, argv, instruction, nth):
+    served, port = bench
+    dies_at(served, instruction, nth)
+    code, out, err = run(capsys, *argv, "--port", port)
+    line = one_line(err)
+    assert code == 12 and f"{port}: the port was lost (Input/output error)" in line, (code, line)
+
+
+def test_calibrate_on_a_lost_port_writes_nothing(bench, capsys, tmp_path, monkeypatch):
+    served, port = bench
+    dies_at(served, Instruction.READ, 8)          # some reads into the first joint
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n" * 40))
+    target = tmp_path / "replica.toml"
+    code, out, err = run(capsys, "calibrate", "--config", "replica", "--port", port, "--write", str(target), "--yes")
+    assert code == 12 and port in one_line(err) and "lost" in one_line(err), (out, err)
+    assert not target.exists(), "no configuration written from a calibration that did not end"
+
+
+def test_setup_on_a_lost_port_says_which_steps_were_written(capsys):
+    """A factory-fresh servo alone on the bench; the port is lost while setup writes its EEPROM:
+    the one line names the port and the steps the servo took before (and those it did not)."""
+    dof = "r_elbow_flexion"
+    served = serve(CONFIG, "lockstep", process=False, lab=Lab(factory=True, connected=(dof,)))
+    try:
+        port = served.buses["arm"]["port"]
+        dies_at(served, Instruction.WRITE, 3)       # torque off, the first EEPROM step, then lost
+        code, out, err = run(capsys, "setup", "--config", "replica", "--joint", dof, "--port", port, "--yes")
+        line = one_line(err)
+        plan = [step.split(":")[0].strip() for step in out.split("to make it joint")[1].splitlines()[1:]
+                if "->" in step]
+        assert code == 12 and f"{port}: the port was lost" in line, (out, err)
+        assert plan[0] == "return delay time" and "id" in plan, plan
+        assert f"written before it stopped: {plan[0]}; not written: {', '.join(plan[1:])}" in line, line
+        fresh = [s for s in served.robot.servos if s.get("return_delay_time") == 0]
+        assert len(fresh) == 1 and fresh[0].get("id") == 1, "only the first step reached the servo"
+    finally:
+        served.stop()
+
+
+def test_a_can_adapter_lost_under_monitor_is_one_line_naming_it(capsys):
+    """The SLCAN adapter's far end closes mid-monitor (the simulator stopped, as an adapter
+    unplugged): one line naming the port, not python-can's traceback."""
+    served = serve(load_config("replica_can"), "lockstep", process=False, can="slcan")
+    try:
+        port = served.buses["arm"]["port"]
+        server = served.servers["arm"]
+        handle, frames_seen = server.arm.handle, []
+
+        def handle_until(arbitration_id, data):
+            frames_seen.append(arbitration_id)
+            if len(frames_seen) == 40:             # torque off and a few refreshes: then the adapter goes
+                threading.Thread(target=server.stop).start()
+            return handle(arbitration_id, data)
+        server.arm.handle = handle_until
+        code, out, err = run(capsys, "monitor", "--config", "replica_can", "--port", port, "--count", "1000",
+                             "--rate", "100")
+        line = one_line(err)
+        assert code == 12 and f"{port}: the port was lost" in line, (code, line)
+    finally:
+        served.stop()
+
+
+def test_can_setup_shows_the_motor_and_every_change_before_it_asks(capsys, monkeypatch):
+    """CAN setup asked to save to flash before it had shown anything: now the motor found and every
+    register it changes come first, then one question; a no leaves the motor as it was."""
+    dof = "r_elbow_flexion"
+    config = load_config("replica_can")
+    served = serve(config, "lockstep", process=False, can="slcan", lab=Lab(factory=True, connected=(dof,)))
+    try:
+        port = served.buses["arm"]["port"]
+        motor = served.robot.motors[[j.dof for j in config.joints].index(dof)]
+        assert (motor.can_id, motor.feedback_id) == (1, 0), "factory-fresh"
+        for answer, code_wanted in (("n\n", 1), ("y\n", 0)):
+            monkeypatch.setattr(sys, "stdin", io.StringIO(answer))
+            code, out, err = run(capsys, "setup", "--config", "replica_can", "--joint", dof, "--port", port)
+            assert code == code_wanted, out + err
+            shown, _, after = out.partition("write these? [y/N]")
+            assert "found DM-J4340 at CAN ID 1, Master ID 0x0" in shown, out
+            assert "CAN ID (ESC_ID): 1 -> 4" in shown and "Master ID: 0x0 -> 0x14" in shown, out
+            assert "flash" in shown and out.count("[y/N]") == 1, out
+            if answer == "n\n":
+                assert "nothing written" in after and (motor.can_id, motor.feedback_id, motor.saves) == (1, 0, 0)
+        assert "saved to flash" in after and (motor.can_id, motor.feedback_id, motor.saves) == (4, 0x14, 1), after
     finally:
         served.stop()

@@ -174,14 +174,21 @@ def test_setup_gives_a_fresh_motor_its_joints_ids_mode_and_ranges(serve, transpo
     motor = CanMotor.factory_fresh(DM_J4340, ctrl_mode=2)     # shipped in position-velocity mode
     served = serve([motor], transport)
     asked = []
-    done = bench.setup(served.bus, elbow, confirm=lambda what: asked.append(what) or True, timeout=PATIENT)
+
+    def confirm(what):
+        # asked once, with every change named, before anything was written
+        asked.append(what)
+        assert (motor.can_id, motor.feedback_id, motor.saves) == (1, 0, 0), "nothing written before the yes"
+        return True
+    done = bench.setup(served.bus, elbow, confirm=confirm, timeout=PATIENT)
     assert (motor.can_id, motor.feedback_id, motor.registers[dialects.REG_CTRL_MODE]) == (4, 0x14, 1), done
     assert motor.ranges == frames.Ranges(12.5, 8.0, 20.0), "PMAX/VMAX/TMAX from the joint's ranges"
     assert len(asked) == 1 and "flash" in asked[0] and "10,000" in asked[0], asked
+    for change in ("CAN ID (ESC_ID): 1 -> 4", "Master ID: 0x0 -> 0x14", "CTRL_MODE: 2 (position-velocity) -> 1 (MIT)",
+                   "TMAX: 28 -> 20"):
+        assert change in asked[0] and change in done, (change, asked, done)
+    assert "PMAX" not in asked[0], "a register already as the joint wants it is no change"
     assert done[0] == "found DM-J4340 at CAN ID 1, Master ID 0x0"
-    assert "CAN ID (ESC_ID) 1 -> 4" in done and "Master ID 0x0 -> 0x14" in done and \
-        "CTRL_MODE 2 (position-velocity) -> 1 (MIT)" in done and "TMAX 28 -> 20" in done and \
-        "PMAX 12.5: already so" in done, done
     assert done[-1] == "saved to flash (the motor confirmed)" and motor.saves == 1, done
     served.network.power_cycle()
     found = bench.scan(served.bus, timeout=PATIENT)
@@ -190,16 +197,21 @@ def test_setup_gives_a_fresh_motor_its_joints_ids_mode_and_ranges(serve, transpo
     assert motor.ranges.t_max == 20.0, "and keeps the joint's TMAX"
 
 
-def test_an_unsaved_setup_is_lost_at_a_power_cycle(serve):
+def test_a_setup_declined_writes_nothing(serve):
+    """The plan is shown, the question asked once: a no leaves the motor as it was, RAM and flash."""
     motor = CanMotor.factory_fresh(DM_J4340)
     served = serve([motor])
     done = bench.setup(served.bus, ELBOW, confirm=lambda what: False, timeout=PATIENT)
-    assert done[-1] == "not saved: the motor keeps these until its power is cut", done
-    assert (motor.can_id, motor.feedback_id) == (4, 0x14), "in RAM until the power is cut"
-    served.network.power_cycle()
-    found = bench.scan(served.bus, timeout=PATIENT)
-    assert [(f.id, f.extra["master_id"]) for f in found] == [(1, 0)], "back at the factory's ids"
-    assert motor.saves == 0
+    assert done[-1] == "nothing written", done
+    assert (motor.can_id, motor.feedback_id, motor.saves) == (1, 0, 0), "not even in RAM"
+
+
+def test_a_set_up_motor_has_nothing_to_write(serve):
+    served = serve(replica_motors()[3:4])
+    asked = []
+    done = bench.setup(served.bus, ELBOW, confirm=lambda what: asked.append(what) or True, timeout=PATIENT)
+    assert done[-1] == "nothing to write" and asked == [], (done, asked)
+    assert served.network.motors[0].saves == 0, "no flash cycle spent"
 
 
 def test_setup_refuses_a_second_motor_and_a_wrong_model(serve):

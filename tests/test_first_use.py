@@ -91,7 +91,7 @@ def test_a_count_that_makes_no_sense_is_refused_in_one_line(tmp_path, args, word
 
 
 def test_the_soak_refuses_no_workers():
-    res = subprocess.run([sys.executable, "-m", "servodyn.tools.soak", "--jobs", "0"], capture_output=True,
+    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "soak", "--jobs", "0"], capture_output=True,
                          text=True, timeout=60)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, f"one line, exit 2: {res.stderr}"
     assert "--jobs" in res.stderr and "1 or more" in res.stderr, res.stderr

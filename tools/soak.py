@@ -37,7 +37,6 @@ from ..errors import ExitCode
 from ..hal.config import load_config
 from ..hal.dynamixel.control_table import HARDWARE_FAULTS
 from ..loop.log import PER_DOF
-from .argtypes import OneLineParser, count
 from ..hil import run_qemu
 from ..loop.run import RunOptions
 from ..report.swing import play
@@ -234,16 +233,8 @@ def _where(result: dict) -> str:
     return {"replica": "host", "replica_can": "can", "replica_mixed": "mixed"}[result["config"]]
 
 
-def main(argv=None) -> int:
-    parser = OneLineParser(prog="soak", description=__doc__.split("\n\n")[1])
-    parser.add_argument("--runs", type=count(0), default=207, help="swings on the host (default 207: 23 per class)")
-    parser.add_argument("--firmware", type=count(0), default=14, help="runs through the firmware under QEMU "
-                        "(default 14: 2 per class that can run there; 0 for none)")
-    parser.add_argument("--can", type=count(0), default=48, help="swings on the simulated CAN motors (default 48: 6 "
-                        f"per class, every {MIXED_EVERY}th on replica_mixed; 0 for none)")
-    parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--jobs", type=count(1, what="worker processes"), default=2, help="worker processes (default 2)")
-    args = parser.parse_args(argv)
+def run(args) -> int:
+    """The soak of `servodyn soak` (tools/cli/soak.py: its options)."""
     assert SMALL_TIME_STEP == SMALL, "the soak's tick is the swing's small_time_step"
     specs = plan(args.runs, args.seed, args.firmware, args.can)
     print(f"soak: {args.runs} swings on the simulated Dynamixel bus + {args.can} on simulated CAN motors + "
@@ -299,6 +290,3 @@ def main(argv=None) -> int:
         print(f"  HUNG: run {hung[0]} did not finish within its time")
     return 1 if failed or hung or len(results) < len(specs) else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

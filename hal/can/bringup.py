@@ -4,7 +4,9 @@
 
     scan(bus)                         every motor that answers a register read, wherever it answers
     compare(config, "arm", found)     what differs from the configuration, each with its fix
-    setup(bus, joint, confirm=ask)    one motor alone on the bus: its ids, MIT mode, ranges, flash
+    find_alone(bus, joint)            the one motor on the bus, for a set-up
+    setup_plan(bus, motor, joint)     its ids, MIT mode and ranges as register writes (reads only)
+    apply_setup(bus, motor, joint, steps)   the writes, then a save to flash
     doctor(config, "arm", bus)        read-only: presence, mode, ranges, status, temperatures, errors
     zero(bus, joint, confirm)         the motor's zero where it stands
     clear_errors(bus, joints), torque_off(bus, joints)
@@ -24,6 +26,7 @@ is shipped in (setup writes MIT whatever it finds).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Callable, Iterable
 
 from ..bringup import ERROR, WARNING, Finding, Found
@@ -274,14 +277,41 @@ def _error_findings(errors: list, bus_name: str) -> list[Finding]:
 
 
 # ---------------------------------------------------------------- setup
-def setup(bus, joint_config, from_id: int | None = None, confirm: Callable[[str], bool] = lambda what: False, *,
-          listen: float = SCAN_LISTEN, timeout: float = REPLY_TIMEOUT) -> list[str]:
-    """With only this joint's motor on the bus: find it (at `from_id`, or at any CAN ID), disable
-    it, write its CAN ID (ESC_ID), Master ID, CTRL_MODE MIT and PMAX/VMAX/TMAX from the joint's
-    ranges (RAM), check each by reading it back, and save them to flash only if `confirm(what)`
-    says yes (a flash wears out after about 10,000 saves; the motor is disabled first, as a save
-    needs). The lines of what was done. A second motor on the bus, or none, is one line's error."""
-    joint = joint_config
+NAMES = {REG_ESC_ID: "CAN ID (ESC_ID)", REG_MST_ID: "Master ID", REG_CTRL_MODE: "CTRL_MODE",
+         **{rid: name.upper().replace("_", "") for rid, name in RANGE_REGISTERS.items()}}
+
+
+def _show(rid: int, value) -> str:
+    if value is None:
+        return "?"
+    return (f"0x{int(value):X}" if rid == REG_MST_ID else
+            f"{int(value)} ({CTRL_MODES.get(int(value), '?')})" if rid == REG_CTRL_MODE else f"{value:g}")
+
+
+def _same(rid: int, a, b) -> bool:
+    return a is not None and (range_matches(a, b) if rid in RANGE_REGISTERS else a == b)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One register write of a set-up: the register, its value now (None: it did not answer) and
+    the value it gets."""
+    rid: int
+    old: float | None
+    new: float
+
+    @property
+    def what(self) -> str:
+        return NAMES[self.rid]
+
+    def line(self) -> str:
+        return f"{self.what}: {_show(self.rid, self.old)} -> {_show(self.rid, self.new)}"
+
+
+def find_alone(bus, joint, from_id: int | None = None, *, listen: float = SCAN_LISTEN,
+               timeout: float = REPLY_TIMEOUT) -> Found:
+    """The one motor on the bus (at `from_id`, or at any CAN ID) for the joint's set-up; one line's
+    error for a joint whose motor has no registers, no motor, several, or another model."""
     if not DIALECTS[joint.options["dialect"]].registers:
         raise ServoInitializationError(f"joint '{joint.dof}': a {joint.options['dialect']} motor has no registers "
                                        "to set up over CAN: use its vendor's tool")
@@ -303,51 +333,78 @@ def setup(bus, joint_config, from_id: int | None = None, confirm: Callable[[str]
         raise ServoInitializationError(
             f"joint '{joint.dof}' is configured for a {joint.servo.name}, the motor found is a {motor.model} "
             f"(its gear ratio register): connect the joint's own motor, or correct 'motor' in the configuration")
-    old, reply_id = motor.id, motor.extra["reply_id"]
-    new, master, ranges = joint.id, joint.options["feedback_id"], joint.options["ranges"]
-    lines = [f"found {motor.model or 'a Damiao motor'} at CAN ID {old}, Master ID 0x{motor.extra['master_id']:X}"]
-    _special(link, old, frames.EXIT)
-    lines.append(f"disabled it (exit motor mode, {frames.SPECIALS[frames.EXIT]})")
-    wanted = [(REG_ESC_ID, new), (REG_MST_ID, master), (REG_CTRL_MODE, MIT_MODE),
+    return motor
+
+
+def describe(motor: Found) -> str:
+    return f"found {motor.model or 'a Damiao motor'} at CAN ID {motor.id}, Master ID 0x{motor.extra['master_id']:X}"
+
+
+def setup_plan(bus, motor: Found, joint, *, timeout: float = REPLY_TIMEOUT) -> list[Step]:
+    """The register writes that make `motor` the joint's: its CAN ID (ESC_ID), Master ID, CTRL_MODE
+    MIT and PMAX/VMAX/TMAX from the joint's ranges, each read first (nothing is written)."""
+    link = CanLink(_name(bus), bus, timeout=timeout)
+    ranges = joint.options["ranges"]
+    wanted = [(REG_ESC_ID, joint.id), (REG_MST_ID, joint.options["feedback_id"]), (REG_CTRL_MODE, MIT_MODE),
               *[(rid, getattr(ranges, name)) for rid, name in RANGE_REGISTERS.items()]]
-    names = {REG_ESC_ID: "CAN ID (ESC_ID)", REG_MST_ID: "Master ID", REG_CTRL_MODE: "CTRL_MODE",
-             **{rid: name.upper().replace("_", "") for rid, name in RANGE_REGISTERS.items()}}
-    show = lambda rid, v: (f"0x{int(v):X}" if rid == REG_MST_ID else
-                           f"{int(v)} ({CTRL_MODES.get(int(v), '?')})" if rid == REG_CTRL_MODE else f"{v:g}")
-    can_id, written = old, []
+    steps = []
     for rid, value in wanted:
-        before = _read(link, can_id, rid, {reply_id})
-        if before is not None and (range_matches(before, value) if rid in RANGE_REGISTERS else before == value):
-            lines.append(f"{names[rid]} {show(rid, value)}: already so")
-            continue
-        answer = link.register(can_id, frames.REG_WRITE, rid, register_bits(rid, value), answer_ids={can_id, new})
-        if rid == REG_ESC_ID:
-            can_id = new
-        elif rid == REG_MST_ID:
-            reply_id = master
-        after = _read(link, can_id, rid, {reply_id})
-        if after is None or not (range_matches(after, value) if rid in RANGE_REGISTERS else after == value):
+        before = _read(link, motor.id, rid, {motor.extra["reply_id"]})
+        if not _same(rid, before, value):
+            steps.append(Step(rid, before, value))
+    return steps
+
+
+def apply_setup(bus, motor: Found, joint, steps: list[Step], written: list | None = None, *,
+                timeout: float = REPLY_TIMEOUT) -> list[str]:
+    """The steps written to a disabled motor (RAM), each checked by reading it back and appended to
+    `written` once taken, then saved to flash (a save is taken only from a disabled motor). The
+    lines of what was done."""
+    link = CanLink(_name(bus), bus, timeout=timeout)
+    can_id, reply_id = motor.id, motor.extra["reply_id"]
+    _special(link, can_id, frames.EXIT)
+    lines = [f"disabled it ({frames.SPECIALS[frames.EXIT]})"]
+    for step in steps:
+        answer = link.register(can_id, frames.REG_WRITE, step.rid, register_bits(step.rid, step.new),
+                               answer_ids={can_id, joint.id})
+        if step.rid == REG_ESC_ID:
+            can_id = int(step.new)
+        elif step.rid == REG_MST_ID:
+            reply_id = int(step.new)
+        after = _read(link, can_id, step.rid, {reply_id})
+        if not _same(step.rid, after, step.new):
             raise ServoInitializationError(
-                f"joint '{joint.dof}': the motor did not take {names[rid]} = {show(rid, value)} "
-                f"({'no echo' if answer is None else 'echoed'}, reads back "
-                f"{'nothing' if after is None else show(rid, after)}): power-cycle it and run setup again")
-        lines.append(f"{names[rid]} {'?' if before is None else show(rid, before)} -> {show(rid, value)}")
-        written.append(names[rid])
-    if not written:
-        lines.append("nothing to write (if an earlier setup was not saved, a power cycle will show it: "
-                     "run servodyn scan after one)")
-        return lines
-    what = (f"save {', '.join(written)} of joint '{joint.dof}' to the motor's flash "
-            f"(it lasts about {FLASH_CYCLES:,} saves)")
-    if not confirm(what):
-        lines.append("not saved: the motor keeps these until its power is cut")
-        return lines
+                f"joint '{joint.dof}': the motor did not take {step.what} = {_show(step.rid, step.new)} "
+                f"({'no echo' if answer is None else 'echoed'}, reads back {_show(step.rid, after)}): "
+                "power-cycle it and run setup again")
+        if written is not None:
+            written.append(step)
+        lines.append(step.line())
     _special(link, can_id, frames.EXIT)          # a save is taken only from a disabled motor
     answer = link.register(can_id, frames.REG_STORE, 1, reply_ids={reply_id})
     lines.append("saved to flash" + (" (the motor confirmed)" if answer is not None else
                                      ": sent, the motor sent no confirmation (not every firmware does): "
                                      "power-cycle it and run servodyn scan to check"))
     return lines
+
+
+def setup(bus, joint_config, from_id: int | None = None, confirm: Callable[[str], bool] = lambda what: False, *,
+          listen: float = SCAN_LISTEN, timeout: float = REPLY_TIMEOUT) -> list[str]:
+    """With only this joint's motor on the bus: find it (find_alone), plan its writes (setup_plan),
+    then, only if `confirm(what)` says yes to the whole plan (`what` names every change and the
+    flash's wear: about 10,000 saves), write and save them (apply_setup). The lines of what was
+    found and done; a "no" writes nothing."""
+    joint = joint_config
+    motor = find_alone(bus, joint, from_id, listen=listen, timeout=timeout)
+    steps = setup_plan(bus, motor, joint, timeout=timeout)
+    lines = [describe(motor)]
+    if not steps:
+        return lines + ["nothing to write"]
+    what = (f"write {'; '.join(s.line() for s in steps)} to joint '{joint.dof}''s motor and save them to its "
+            f"flash (it lasts about {FLASH_CYCLES:,} saves)")
+    if not confirm(what):
+        return lines + ["nothing written"]
+    return lines + apply_setup(bus, motor, joint, steps, timeout=timeout)
 
 
 def _special(link: CanLink, can_id: int, code: int) -> None:
@@ -388,12 +445,13 @@ def torque_off(bus, joints, *, timeout: float = REPLY_TIMEOUT) -> dict[str, fram
     return _states(link, joints)
 
 
-def states(bus, joints, *, timeout: float = REPLY_TIMEOUT) -> dict[str, frames.Reply]:
-    """Each joint's state as its motor reports it now, changing nothing (monitor, calibrate)."""
-    return _states(CanLink(_name(bus), bus, timeout=timeout), joints)
+def states(bus, joints, *, timeout: float = REPLY_TIMEOUT, partial: bool = False) -> dict[str, frames.Reply]:
+    """Each joint's state as its motor reports it now, changing nothing (monitor, calibrate);
+    `partial`: a motor that does not answer is left out rather than an error."""
+    return _states(CanLink(_name(bus), bus, timeout=timeout), joints, partial)
 
 
-def _states(link: CanLink, joints) -> dict[str, frames.Reply]:
+def _states(link: CanLink, joints, partial: bool = False) -> dict[str, frames.Reply]:
     """Each joint's state as its motor reports it now: a Damiao motor's answer to a status request
     (0xCC, which changes nothing), another dialect's to exit motor mode (its only question)."""
     for joint in joints:
@@ -401,11 +459,12 @@ def _states(link: CanLink, joints) -> dict[str, frames.Reply]:
             link.send(frames.REGISTER_ID, frames.pack_register(frames.Register(joint.id, frames.REG_REFRESH, 0)))
         else:
             _special(link, joint.id, frames.EXIT)
-    return _collect(link, joints)
+    return _collect(link, joints, partial)
 
 
-def _collect(link: CanLink, joints) -> dict[str, frames.Reply]:
-    """One answer from each joint's motor, on its Master ID, within the link's timeout."""
+def _collect(link: CanLink, joints, partial: bool = False) -> dict[str, frames.Reply]:
+    """One answer from each joint's motor, on its Master ID, within the link's timeout (`partial`:
+    those that answered; else a silent one is a ServoTimeoutError)."""
     pending = {(j.options["feedback_id"], j.id): j for j in joints}
     states = {}
     deadline = time.monotonic() + link.timeout
@@ -422,7 +481,7 @@ def _collect(link: CanLink, joints) -> dict[str, frames.Reply]:
             states[joint.dof] = dialect.unpack(joint.options["ranges"], data)
             del pending[(reply_id, can_id)]
             break
-    if pending:
+    if pending and not partial:
         (reply_id, can_id), joint = next(iter(pending.items()))
         raise ServoTimeoutError(joint.dof, can_id, f"no answer on Master ID 0x{reply_id:X}: run servodyn doctor")
     return states

@@ -33,6 +33,7 @@ def interface_for(channel: str | None, configured: str | None) -> str:
 class Can(Backend):
     kind = "can"
     bus = "servodyn.hal.can.backend:CanBus"
+    bringup = "servodyn.hal.can.session:CanBringUp"
     servos = MOTORS
     bauds = BITRATES
     default_baud = 1_000_000

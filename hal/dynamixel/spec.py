@@ -16,6 +16,7 @@ from .units import current_unit
 class Dynamixel(Backend):
     kind = "dynamixel"
     bus = "servodyn.hal.dynamixel.backend:DynamixelBus"
+    bringup = "servodyn.hal.dynamixel.session:DynamixelBringUp"
     servos = SERVOS
     bauds = BAUD_RATES
     default_baud = 4_000_000

@@ -31,7 +31,7 @@ from ..control.motion import DEFAULT_MOTION, motion_path
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, MAX_PLAYED_DURATION, TIME_STEP
 from ..control.trajectory import MotionPath, Trajectory
-from ..errors import ServodynError, exit_code
+from ..errors import InputError, ServodynError, exit_code
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
 from ..hal.errors import ServoError
@@ -46,9 +46,8 @@ MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
 STALE = ("summary.json", "swing_tracking.png")     # a previous run's results, removed before this one
 
 
-class RunError(ServodynError, ValueError):
-    """A run's options that cannot be played together (e.g. --hold with --native)."""
-    exit_code = 2
+class RunError(InputError):
+    """A run's options that cannot be played (a hold of no length, --hold with --native)."""
 
 
 class Declined(ServodynError):
@@ -107,7 +106,7 @@ class DryRun:
         pass
 
 
-class _DryRunDone(Exception):
+class _DryRunDone(ServodynError):
     """The dry run's homing is logged: the run ends there (not an error)."""
 
 

@@ -76,6 +76,7 @@ from .fit import FIT_GRID, smallest_passing_scale
 from .limits import Limits
 from ..hal.thermal import AMBIENT
 
+SIZING_MARGIN = 0.8     # the share of each limit a sized servo may use by default: 20 % kept in reserve
 FAMILIES = ("dynamixel", "can", "any")
 OBJECTIVES = ("mass", "margin")
 JOINT_CHECKS = tuple(c for c in CHECKS if c not in ("supply", "bus"))   # a joint's own checks

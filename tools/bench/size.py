@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from ...hal.config import load_config
-from ...tools.size import run_size
+from ...report.sizing import run_size
 from ...report.validation import validate_many
 from .loop import publish
 

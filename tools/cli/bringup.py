@@ -7,8 +7,14 @@ write to the servos and the configuration, on stderr."""
 from __future__ import annotations
 
 from .. import bringup
-from ..argtypes import count, number
+from .argtypes import count, number
 from .common import Verb, bus_options, describe, port_option, say
+from .prompt import ask
+
+
+def _confirm(args):
+    """The question a writing verb asks before it writes (--yes answers it)."""
+    return lambda question: ask(question, args.yes, say)
 
 FINDINGS = "0 all well, 1 findings"
 
@@ -93,11 +99,11 @@ def _torque_arguments(p) -> None:
 
 
 scan = Verb(_scan_arguments, lambda a: bringup.scan(a.port, a.baud, a.config, a.json))
-setup = Verb(_setup_arguments, lambda a: bringup.setup(a.config, a.joint, a.port, a.yes, say=say))
+setup = Verb(_setup_arguments, lambda a: bringup.setup(a.config, a.joint, a.port, _confirm(a), say=say))
 doctor = Verb(_doctor_arguments, lambda a: bringup.doctor(a.config, a.port, a.json))
 monitor = Verb(_monitor_arguments, lambda a: bringup.monitor(a.config, a.port, a.count, a.rate))
 calibrate = Verb(_calibrate_arguments,
-                 lambda a: bringup.calibrate(a.config, a.port, a.joint, a.margin, a.yes, a.write, say=say))
-reboot = Verb(_reboot_arguments, lambda a: bringup.reboot(a.config, a.port, a.yes))
+                 lambda a: bringup.calibrate(a.config, a.port, a.joint, a.margin, _confirm(a), a.write, say=say))
+reboot = Verb(_reboot_arguments, lambda a: bringup.reboot(a.config, a.port, _confirm(a)))
 clear_errors = Verb(_clear_errors_arguments, lambda a: bringup.clear_errors(a.config, a.port))
 torque = Verb(_torque_arguments, lambda a: bringup.torque_off(a.config, a.port))

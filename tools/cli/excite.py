@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..argtypes import count, positive
+from .argtypes import count, positive
 from ..excite import run as run_excite
 from .common import describe, say
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..argtypes import count
+from .argtypes import count
 from ...hil import BOARDS, run_firmware
 from .common import CliError, describe, out_folder, say
 

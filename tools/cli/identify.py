@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...identification.signals import FILTER_HZ
-from ..argtypes import number, positive
+from .argtypes import number, positive
 from ..identify import run as run_identify
 from .common import describe, out_folder, say
 from .prompt import ask

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..argtypes import positive
+from .argtypes import positive
 from ..ik import IkInputError, parse_triple, pose_report, read_targets, solve_pose, solve_targets, write_path
 from ...model import load_model
 from .common import describe, say

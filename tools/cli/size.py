@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ...validation.sizing import FAMILIES, OBJECTIVES
-from ..argtypes import count, positive
-from ..size import run_size, text
+from ...validation.sizing import FAMILIES, OBJECTIVES, SIZING_MARGIN
+from .argtypes import count, number, positive
+from ...report.sizing import run_size, text
 from .common import describe, out_folder, say
 from .prompt import ask
 
@@ -30,8 +30,10 @@ def add_arguments(p) -> None:
     p.add_argument("--payload", type=float, default=0.0, metavar="KG", help="a point mass carried at the hand")
     p.add_argument("--supply-voltage", type=float, default=None, metavar="V",
                    help="supply voltage (default: each of the family's nominal voltages, the best result)")
-    p.add_argument("--margin", type=float, default=1.0, metavar="F",
-                   help="fraction of each limit allowed (default 1.0; 0.8 keeps 20%% in reserve)")
+    p.add_argument("--margin", type=number(0, 1, "of each limit", above=True), default=SIZING_MARGIN, metavar="F",
+                   help=f"fraction of each limit allowed (default {SIZING_MARGIN:g}: {100 * (1 - SIZING_MARGIN):.0f}%% "
+                        "of every limit kept in reserve for what the model does not know — friction, a supply "
+                        "that sags, a warm room; 1 keeps none)")
     p.add_argument("--family", choices=FAMILIES, default=FAMILIES[0],
                    help=f"which servos: {', '.join(FAMILIES)} (default {FAMILIES[0]})")
     p.add_argument("--objective", choices=OBJECTIVES, default=OBJECTIVES[0],

@@ -9,7 +9,7 @@ from pathlib import Path
 from ...control.motion import DEFAULT_MOTION
 from ...control.timing import MAX_PLAYED_DURATION, OVERRUN_TOLERANCE
 from ...errors import FAULT_CODES, ExitCode, ServodynError, exit_codes_help
-from ..argtypes import number, positive, tcp_port
+from .argtypes import number, positive, tcp_port
 from ...loop.run import RunOptions
 from ...report.swing import play as play_and_report
 from .prompt import ask

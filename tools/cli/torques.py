@@ -12,7 +12,7 @@ from ...control.trajectory import read_trajectory_csv, write_columns_csv
 from ...errors import InputError
 from ...model import load_model
 from ...readable import fixed
-from ..argtypes import count
+from .argtypes import count
 from .common import CliError, describe, say
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ...hal.config import load_config
 from ...validation import AMBIENT
-from ..argtypes import count, positive
+from .argtypes import count, positive
 from ...report.validation import expand_motions, validate, validate_many
 from .common import CliError, describe, out_folder
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ...control.motion import DEFAULT_MOTION
-from ..argtypes import positive, tcp_port
+from .argtypes import positive, tcp_port
 from ..view import open_view, serve_forever
 from .common import CliError, describe, say
 

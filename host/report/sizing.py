@@ -1,5 +1,6 @@
-"""`servodyn size`: which servo at each joint makes these motions pass, as light as possible (or
-with the largest reserve) — the command and its report over validation.sizing.
+"""Which servo at each joint makes these motions pass, as light as possible (or with the largest
+reserve): `run_size` sizes (servodyn.validation.sizing), writes and validates, and reports; `servodyn
+size` is the command over it.
 
 Writes DIR/config.toml and DIR/model.toml (the model file with the chosen servos' housings in
 place of its own, its comments kept), validates the written files on every motion as `servodyn
@@ -231,7 +232,8 @@ def _validate_written(out: Path, problem, paths, motions) -> dict:
 
 def text(report: dict) -> str:
     lines = [f"size '{Path(report['model']).stem}' for {', '.join(report['motions'])} at time scale "
-             f"{report['time_scale']:g}, {report['supply_voltage']:g} V, margin {report['margin']:g}, "
+             f"{report['time_scale']:g}, {report['supply_voltage']:g} V, margin {report['margin']:g} "
+             f"({100 * (1 - report['margin']):.0f} % of each limit in reserve), "
              f"{report['family']} servos, objective {report['objective']}"]
     lines.append(f"  {'dof':<22} {'chosen':<11} {'g':>4}  {'worst check':<13}{'ratio':>6}   candidates (mass "
                  "order: servo worst-check ratio)")

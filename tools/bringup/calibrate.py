@@ -1,0 +1,103 @@
+"""`servodyn calibrate`: torque off on every bus of a configuration; per joint, its + direction, its
+zero (the mean of two approaches) and both stops, moved by hand and read through its bus kind's
+bring-up (hal.bringup); then the configuration patched (comments kept) after the change is shown
+and confirmed. Its errors are the HAL's, one line each (tools/bringup makes them the command's);
+nothing is written unless every joint asked for was calibrated."""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from contextlib import ExitStack
+
+from ...hal.bringup import BadRequest, PortLost, config_and_ports, open_limp
+from ...hal.config_patch import ConfigPatch
+from ...hal.errors import ServoError, ServoOperationError
+
+MIN_TRAVEL = math.radians(3.0)      # a "move it" step that turns the horn less is asked again
+
+
+def wait_enter(prompt: str, say: Callable = print) -> None:
+    """A step a person does by hand, then Enter; end of input stops the command."""
+    say(f"{prompt} [Enter] ", end="", flush=True)
+    if not sys.stdin.readline():
+        say("")
+        raise BadRequest("no more input: stopped before the end (nothing was written)")
+
+
+def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: float, confirm,
+              write_to: str | None, say=print) -> int:
+    """Torque off; per joint: its + direction, its zero (the mean of two approaches), both stops;
+    then the configuration patched (comments kept) after the change is shown and confirmed."""
+    config, ports = config_and_ports(config_name, port)
+    chosen = [j for j in config.joints if joints is None or j.dof in joints]
+    unknown = sorted(set(joints or ()) - {j.dof for j in config.joints})
+    if unknown:
+        raise BadRequest(f"'{config.name}' has no joint '{unknown[0]}'")
+    if not math.isfinite(margin_deg) or margin_deg < 0:
+        raise BadRequest(f"--margin must be a finite number of degrees >= 0, got {margin_deg:g}")
+    margin = math.radians(margin_deg)
+    try:
+        patch = ConfigPatch.of(config, write_to)
+    except OSError as err:
+        raise BadRequest(str(err)) from None
+    results = {}
+    with ExitStack() as stack:
+        sessions = open_limp(config, ports, stack, ": move the joints by hand", say)
+        for joint in chosen:
+            results[joint.dof] = _calibrate_joint(joint, _horn(joint, sessions[joint.bus]), config, margin, say)
+    for dof, values in results.items():
+        patch.set_joint(dof, **values)
+    return patch.offer(confirm, say)
+
+
+def _horn(joint, here) -> Callable[[], float]:
+    """The joint's horn (motor output) angle now, rad; a device that fails is named."""
+    def horn() -> float:
+        try:
+            return here.horn(joint)
+        except ServoError as err:
+            if isinstance(err, PortLost) or f"joint '{joint.dof}'" in str(err):
+                raise
+            raise ServoOperationError(f"joint '{joint.dof}': {err}") from None
+    return horn
+
+
+def _calibrate_joint(joint, horn: Callable[[], float], config, margin: float, say) -> dict:
+    name = f"joint '{joint.dof}' (id {joint.id})"
+    for _ in range(3):
+        before = horn()
+        wait_enter(f"{name}: move it a little (10-30°) in its + direction ({joint.dof} increasing)", say)
+        travel = horn() - before
+        if abs(travel) >= MIN_TRAVEL:
+            break
+        say(f"  it turned {math.degrees(travel):.1f}°, less than {math.degrees(MIN_TRAVEL):g}°: again")
+    else:
+        raise BadRequest(f"{name} did not move: is it the servo at id {joint.id}? (`servodyn monitor` shows them live)")
+    direction = 1 if travel > 0 else -1
+    wait_enter(f"{name}: put it in its zero pose, coming from the - side", say)
+    low_side = horn()
+    wait_enter(f"{name}: move it away, then back to its zero pose from the + side", say)
+    high_side = horn()
+    zero = (low_side + high_side) / 2
+    backlash = abs(high_side - low_side)
+    wait_enter(f"{name}: move it to its - stop", say)
+    stop_a = horn()
+    wait_enter(f"{name}: move it to its + stop", say)
+    stop_b = horn()
+    scale = direction * joint.gear_ratio
+    q_stops = sorted(((stop_a - zero) / scale, (stop_b - zero) / scale))
+    lower, upper = q_stops[0] + margin, q_stops[1] - margin
+    model_lower, model_upper = (config.model.lower[config.model.dof_names.index(joint.dof)],
+                                config.model.upper[config.model.dof_names.index(joint.dof)])
+    clipped = lower < model_lower or upper > model_upper
+    lower, upper = max(lower, model_lower), min(upper, model_upper)
+    if not lower < upper:
+        raise BadRequest(f"{name}: its stops ({math.degrees(q_stops[0]):.1f}° .. {math.degrees(q_stops[1]):.1f}°) "
+                         f"leave no range inside a {math.degrees(margin):g}° margin and the model's limits")
+    say(f"  direction {direction:+d}, zero at horn {math.degrees(zero):.2f}° (approaches {math.degrees(backlash):.2f}° "
+        f"apart), stops {math.degrees(q_stops[0]):.1f}° .. {math.degrees(q_stops[1]):.1f}°"
+        + (" (limited to the model's range)" if clipped else ""))
+    zero = math.remainder(zero, 2 * math.pi) if abs(zero) > 2 * math.pi else zero
+    return {"direction": direction, "zero_offset": zero, "position_limits": (lower, upper)}
