@@ -26,7 +26,6 @@ from __future__ import annotations
 import csv
 import multiprocessing
 import random
-import sys
 import tempfile
 import time
 from collections import Counter, defaultdict
