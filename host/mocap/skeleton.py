@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.files import read_toml
-from .angles import rotation_angle
+from ..model.rotations import rotation_angle
 from .bvh import Clip
 
 NAMES_FILE = Path(__file__).with_name("names.toml")
