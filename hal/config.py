@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..control.motion import DEFAULT_MOTION
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml, string_key
@@ -126,6 +127,14 @@ class RobotConfig:
     control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
     payload: "Payload | None" = None      # `[payload]`, already in `model`
     plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
+
+    def time_scale_for(self, motion: str | None = None) -> float:
+        """How many times slower than written this configuration plays `motion`: its `[swing]
+        time_scale` for the default motion (DEFAULT_MOTION, also meant by None), which is what that
+        scale was chosen for; 1.0 for any other motion, or when the file gives no scale."""
+        if motion is None or motion == DEFAULT_MOTION:
+            return self.swing_time_scale or 1.0
+        return 1.0
 
     @property
     def friction(self) -> dict:

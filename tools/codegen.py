@@ -23,7 +23,7 @@ import numpy as np
 from .. import _core
 from ..control import ControlConfig
 from ..control.controller import FRICTION_SPEED
-from ..control.motion import load_motion
+from ..control.motion import DEFAULT_MOTION, load_motion
 from ..control.schedule import plan_gains
 from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
 from ..hal.backend import joint_sensors
@@ -90,7 +90,7 @@ def _fields(fields: dict, names: list[str], integer: set[str], indent: str = "  
     return "".join(f"{indent}.{n} = {_c(fields[n], n in integer)},\n" for n in names)
 
 
-def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[str, str]:
+def generate(config: RobotConfig, motion_name: str = DEFAULT_MOTION) -> dict[str, str]:
     """The generated files of a configuration: {file name: C source}."""
     if str(motion_name).lower().endswith(".csv"):
         raise ValueError(f"codegen: --motion takes keyframes, a built-in motion or a keyframe .toml file (the "
@@ -102,7 +102,7 @@ def generate(config: RobotConfig, motion_name: str = "tennis_forehand") -> dict[
     if any(bus.kind != "dynamixel" for bus in config.buses.values()) or len(config.buses) != 1:
         raise ValueError("codegen: the firmware drives one Dynamixel bus")
     bus = next(iter(config.buses.values()))
-    scale = config.swing_time_scale or 1.0
+    scale = config.time_scale_for(motion_name)
     motion = load_motion(motion_name, model)
     period = config.control_period
     swing = motion.sample(period, time_scale=scale)
@@ -201,7 +201,7 @@ const fw_plan fw_plan_ = {{
     return {"servodyn_gen.h": header, "servodyn_gen.c": source}
 
 
-def write(config_name: str, out: Path, motion: str = "tennis_forehand") -> list[Path]:
+def write(config_name: str, out: Path, motion: str = DEFAULT_MOTION) -> list[Path]:
     config = load_config(config_name)
     files = generate(config, motion)          # a refusal leaves no folder behind
     out.mkdir(parents=True, exist_ok=True)

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control import ControlConfig, Controller
-from ..control.motion import load_motion
+from ..control.motion import DEFAULT_MOTION, load_motion
 from ..control.schedule import plan_run
 from ..hal.backend import joint_sensors
 from ..hal.config import load_config
@@ -249,8 +249,8 @@ def replay(config_name: str, record: Record) -> dict:
     config = load_config(config_name)
     model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
-    scale = config.swing_time_scale or 1.0
-    swing = load_motion("tennis_forehand", model).sample(config.control_period, time_scale=scale)
+    swing = load_motion(DEFAULT_MOTION, model).sample(config.control_period,
+                                                     time_scale=config.time_scale_for(DEFAULT_MOTION))
     controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period,
                                                  **config.friction))
     reads = record.reads
