@@ -32,6 +32,8 @@ from . import instructions
 from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
 from .protocol import BROADCAST_ID, MAX_ID, InstructionPacket, StatusPacket, pack_field, unpack_field
 from .reader import BadFrame, PacketReader
+from .spec import wire_seconds
+from .units import current_unit
 
 MIN_FIRMWARE = 45          # fast sync read (0x8A), which every tick uses, needs X430/540 firmware 45
 FACTORY_ID, FACTORY_BAUD = ITEMS["id"].default, BAUD_RATES[ITEMS["baud_rate"].default]
@@ -41,15 +43,10 @@ VOLTAGE_TOLERANCE = 0.10   # Present Input Voltage within ±10 % of the supply's
 SCAN_RATES = tuple(sorted(BAUD_RATES, key=lambda b: (b != FACTORY_BAUD, -b)))   # factory's first, then fastest
 
 
-def wire_time(nbytes: int, baud: int) -> float:
-    """Seconds `nbytes` take on the wire at `baud` (10 bits a byte)."""
-    return nbytes * 10 / baud
-
-
 def quiet_gap(baud: int) -> float:
     """How long the line must stay quiet after a reply before no more will come: the adapter's
     latency plus three status packets' time at the rate."""
-    return ADAPTER_LATENCY + 3 * wire_time(STATUS_BYTES, baud)
+    return ADAPTER_LATENCY + 3 * wire_seconds(STATUS_BYTES, baud)
 
 
 # ---------------------------------------------------------------------------- the link
@@ -114,7 +111,7 @@ class Link:
         self.drain(0.0)
         self.send(packet)
         request = len(packet.encode())
-        wait = first if first is not None else ADAPTER_LATENCY + wire_time(request + STATUS_BYTES, self.baud) + 0.01
+        wait = first if first is not None else ADAPTER_LATENCY + wire_seconds(request + STATUS_BYTES, self.baud) + 0.01
         gap = quiet_gap(self.baud)
         reader = PacketReader(None)
         packets: list[StatusPacket] = []
@@ -352,7 +349,7 @@ def table_findings(joint, table: dict[str, int], supply_voltage: float | None = 
         out.append(Finding("status return level", table["status_return_level"], "2 (every instruction answered)",
                            "power-cycle or `servodyn reboot` (it is RAM and comes back as 2)", **where))
     if "current_limit" in table:
-        unit = joint.options.get("current_unit", joint.servo.current_unit)
+        unit = current_unit(joint)
         amps = table["current_limit"] * unit
         if amps + unit / 2 < joint.current_limit:
             out.append(Finding("current limit", f"{amps:.3g} A ({table['current_limit']} units)",
@@ -472,7 +469,7 @@ def setup_plan(link: Link, found: Found, joint, bus) -> list[Step]:
     link.set_baud(found.baud)
     table = servo_table(link, found.id)
     steps = []
-    unit = joint.options.get("current_unit", joint.servo.current_unit)
+    unit = current_unit(joint)
     wanted = {"id": joint.id, "return_delay_time": 0, "drive_mode": table["drive_mode"] & ~0x01,
               "homing_offset": 0,
               "current_limit": max(table["current_limit"], min(joint.servo.current_limit_max,
