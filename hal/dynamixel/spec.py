@@ -31,6 +31,10 @@ class Dynamixel(Backend):
     joint_keys = frozenset({"current_unit"})
 
     @classmethod
+    def new_bus(cls) -> dict:
+        return {**super().new_bus(), "protocol": cls.protocols[-1]}
+
+    @classmethod
     def joint_options(cls, checker, servo) -> dict:
         return {"current_unit": checker.positive("current_unit", servo.current_unit)}
 
