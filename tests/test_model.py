@@ -1,5 +1,5 @@
-"""Model building and validation (firmware/core/model.c, host/model.py, host/modelfile.py,
-host/urdf.py): built-in models, primitives, bad models, URDF in and out."""
+"""Model building and validation (firmware/core/model.c, host/model/tree.py, host/model/modelfile.py,
+host/model/urdf.py): built-in models, primitives, bad models, URDF in and out."""
 
 import math
 import textwrap
