@@ -128,13 +128,10 @@ class RobotConfig:
     payload: "Payload | None" = None      # `[payload]`, already in `model`
     plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
 
-    def time_scale_for(self, motion: str | None = None) -> float:
-        """How many times slower than written this configuration plays `motion`: its `[swing]
-        time_scale` for the default motion (DEFAULT_MOTION, also meant by None), which is what that
-        scale was chosen for; 1.0 for any other motion, or when the file gives no scale."""
-        if motion is None or motion == DEFAULT_MOTION:
-            return self.swing_time_scale or 1.0
-        return 1.0
+    def time_scale_for(self, motion: str) -> float:
+        """The time scale a motion plays at by default: the configuration's (`swing_time_scale`) for
+        the forehand it was tuned on, 1 for any other motion."""
+        return (self.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
 
     @property
     def friction(self) -> dict:

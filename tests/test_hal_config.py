@@ -53,10 +53,9 @@ def test_builtin_replica():
 
 def test_time_scale_applies_to_the_default_motion_only():
     """The [swing] time_scale was chosen for the default motion: time_scale_for gives it for that
-    motion (by name or None), 1.0 for any other, and 1.0 when the file has no [swing] table."""
+    motion, 1.0 for any other, and 1.0 when the file has no [swing] table."""
     config = load_config("replica")
     assert config.time_scale_for(DEFAULT_MOTION) == 4.0, "the forehand at the file's scale"
-    assert config.time_scale_for(None) == 4.0, "no motion named: the default one"
     assert config.time_scale_for("wave") == 1.0, "another motion as written"
     unscaled = dataclasses.replace(config, swing_time_scale=None)
     assert unscaled.time_scale_for(DEFAULT_MOTION) == 1.0, "no [swing] time_scale: as written"

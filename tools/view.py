@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control.motion import DEFAULT_MOTION, Motion, builtin_motions, check_limits, load_motion, motion_path, save_motion
+from ..control.motion import Motion, builtin_motions, check_limits, load_motion, motion_path, save_motion
 from ..control.timing import SMALL_TIME_STEP
 from ..control.trajectory import TrajectoryError
 from ..hal.config import builtin_configs, load_config
@@ -43,6 +43,7 @@ from ..model.rotations import matrix_to_quat, quat_to_matrix
 from ..model.shapes import solid_mesh
 from ..validation import Limits, check, describe, torque_speed_ratio, violations
 
+DEFAULT_MOTION = "tennis_forehand"
 PUBLISH_HZ = 30.0          # live view: frames a second drawn at most (a tick's state, decimated)
 PLAY_HZ = 30.0             # playback: frames a second
 PLOT_POINTS = 600          # samples per plotted series (decimated from the 1 ms samples)
@@ -791,7 +792,7 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
             except (TrajectoryError, ModelError) as err:
                 raise ViewError(str(err)) from None
     if time_scale is None:
-        time_scale = config.time_scale_for(motion) if config is not None else 1.0
+        time_scale = (config.swing_time_scale if config is not None and motion is None else None) or 1.0
     if not (math.isfinite(time_scale) and time_scale > 0):
         raise ViewError(f"--time-scale must be a positive number, got {time_scale}")
     try:

@@ -17,7 +17,7 @@ from ..model.files import read_toml, string_key
 from .trajectory import MotionPath, Trajectory, TrajectoryError, read_trajectory_csv
 
 MOTIONS_DIR = Path(__file__).parent / "motions"
-DEFAULT_MOTION = "tennis_forehand"    # the built-in motion a command plays when none is named
+DEFAULT_MOTION = "tennis_forehand"   # what a swing plays unless told otherwise: the paper's forehand
 
 
 def builtin_motions() -> dict[str, Path]:
