@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from servodyn.hal.dynamixel.control_table import ITEMS, OperatingMode
 from servodyn.tools.codegen import generate, model_fields
 from servodyn.hal.config import load_config
-from servodyn.hal.dynamixel.control_table import ITEMS, OperatingMode
 from servodyn.tools.hil import default_elf, run_qemu, summarize
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.tools.swing import run_swing
