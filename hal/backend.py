@@ -51,6 +51,12 @@ class Backend:
             raise ServoInitializationError(f"bus kind {cls.kind!r}: cannot load {cls.bus} ({err})") from err
 
     @classmethod
+    def new_bus(cls) -> dict:
+        """The [bus] table a new configuration of this kind starts from (servodyn size writes it):
+        the port found when the bus opens ('auto') at the default rate."""
+        return {"kind": cls.kind, cls.port_key: "auto", cls.baud_key: cls.default_baud}
+
+    @classmethod
     def bus_options(cls, checker) -> dict:
         """This backend's own keys of a [bus] table, checked (checker: hal.config's)."""
         return {}

@@ -231,8 +231,8 @@ def replay(config_name: str, record: Record) -> dict:
     config = load_config(config_name)
     model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
-    scale = config.swing_time_scale or 1.0
-    swing = load_motion("tennis_forehand", model).sample(config.control_period, time_scale=scale)
+    swing = load_motion(DEFAULT_MOTION, model).sample(config.control_period,
+                                                     time_scale=config.time_scale_for(DEFAULT_MOTION))
     controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period,
                                                  **config.friction))
     reads = record.reads

@@ -24,7 +24,7 @@ from servodyn.hal.can.frames import CAN_ERR_BUSOFF, CAN_ERR_PROT
 
 WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
 # s the simulator pauses for a stall, and a delayed reply waits: past the patience a swing gives the
-# simulated bus (tools/swing.py's SIM_REPLY_TIMEOUT, 1 s for Dynamixel; tests/test_soak.py checks),
+# simulated bus (hal/ports.py's PTY_REPLY_TIMEOUT, 1 s for Dynamixel; tests/test_soak.py checks),
 # or the host rightly rides through them (a 0.3 s pause did, once that patience grew from 0.25 s)
 STALL = 1.5
 DELAY = 1.5

@@ -25,7 +25,7 @@ from servodyn.sim.can import CanMotor, CanNetwork
 from servodyn.sim.transport.can import SlcanServer, VirtualCanServer
 
 # s for one answer: a loaded machine can hold the motors' server thread back far beyond a real
-# bus's millisecond (the simulated buses' patience elsewhere, tools/simulator.py)
+# bus's millisecond (the simulated buses' patience elsewhere, hal/ports.py)
 PATIENT = 0.5
 CHANNELS = (f"test-can-bench-{k}" for k in itertools.count())
 CONFIG = load_config("replica_can")

@@ -1,4 +1,4 @@
-"""The paper's experiments (host/experiments.py) and their goals, as `servodyn experiment` runs them."""
+"""The paper's experiments (tools/experiments.py) and their goals, as `servodyn experiment` runs them."""
 
 import json
 import subprocess

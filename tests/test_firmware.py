@@ -7,6 +7,7 @@ each test runs one in QEMU with its UART on a TCP socket served by the simulated
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import time
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from servodyn.hal.dynamixel.control_table import ITEMS, OperatingMode
 from servodyn.tools.codegen import generate, model_fields
 from servodyn.hal.config import load_config
 from servodyn.hil import default_elf, run_qemu, summarize
@@ -68,6 +70,19 @@ def test_codegen_model_is_the_hosts(tmp_path):
     for key in ("const sd_model fw_model", "const sd_trajectory fw_swing", "const fw_servo fw_servos",
                 "const fw_gains fw_swing_gains", ".swing_ticks = 7201"):
         assert key in files["servodyn_gen.c"], key
+
+
+def test_register_addresses_come_from_the_control_table():
+    """Every Dynamixel register the firmware names is generated from hal/dynamixel/control_table.py:
+    the header defines each at the table's address, and fw_main.c writes no number of its own."""
+    header = generate(load_config("replica"))["servodyn_gen.h"]
+    for name, item in (("RETURN_DELAY", "return_delay_time"), ("OPERATING_MODE", "operating_mode"),
+                       ("TORQUE_ENABLE", "torque_enable"), ("BUS_WATCHDOG", "bus_watchdog")):
+        assert f"#define FW_ADDR_{name} {ITEMS[item].address}\n" in header, f"{name} at the table's address"
+    assert f"#define FW_MODE_CURRENT {int(OperatingMode.CURRENT)}\n" in header, "current mode's value"
+    source = (ROOT / "firmware/app/fw_main.c").read_text()
+    defined = re.findall(r"^#define\s+(\w*(?:ADDR|MODE|ALERT)\w*)", source, flags=re.M)
+    assert defined == [], f"fw_main.c defines {defined}: generated from the control table instead"
 
 
 def test_codegen_cli_refuses_bad_config(tmp_path):

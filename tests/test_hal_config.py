@@ -2,6 +2,7 @@
 replica's servos can follow the tennis swing."""
 
 import copy
+import dataclasses
 import math
 import shutil
 import tomllib
@@ -12,7 +13,7 @@ import pytest
 import servodyn
 from servodyn.hal.dynamixel.control_table import SERVOS
 from servodyn.hal.config import CONFIGS_DIR, ConfigError, config_from_dict, load_config
-from servodyn.control.motion import load_motion
+from servodyn.control.motion import DEFAULT_MOTION, load_motion
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
@@ -48,6 +49,16 @@ def test_builtin_replica():
              config.model.upper[config.model.dof_names.index(j.dof)])), \
             f"{j.dof}: position_limits left out, so the model's"
     assert config.swing_time_scale == 4.0, "the [swing] time_scale, the smallest that fits (test below)"
+
+
+def test_time_scale_applies_to_the_default_motion_only():
+    """The [swing] time_scale was chosen for the default motion: time_scale_for gives it for that
+    motion, 1.0 for any other, and 1.0 when the file has no [swing] table."""
+    config = load_config("replica")
+    assert config.time_scale_for(DEFAULT_MOTION) == 4.0, "the forehand at the file's scale"
+    assert config.time_scale_for("wave") == 1.0, "another motion as written"
+    unscaled = dataclasses.replace(config, swing_time_scale=None)
+    assert unscaled.time_scale_for(DEFAULT_MOTION) == 1.0, "no [swing] time_scale: as written"
 
 
 def test_servo_table():

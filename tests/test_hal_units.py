@@ -1,4 +1,4 @@
-"""Joint (SI) ↔ servo unit conversions (hal/units.py)."""
+"""Joint (SI) ↔ servo unit conversions (hal/dynamixel/units.py)."""
 
 import numpy as np
 import pytest

@@ -1,8 +1,9 @@
-"""Model building and validation (firmware/core/model.c, host/model.py, host/modelfile.py,
-host/urdf.py): built-in models, primitives, bad models, URDF in and out."""
+"""Model building and validation (firmware/core/model.c, host/model/tree.py, host/model/modelfile.py,
+host/model/urdf.py): built-in models, primitives, bad models, URDF in and out."""
 
 import math
 import textwrap
+import threading
 
 import numpy as np
 import pytest
@@ -26,15 +27,19 @@ def test_builtin_models_have_the_papers_masses():
     assert np.allclose(body.gravity, [0.0, 0.0, -9.81]), "default gravity: 9.81 m/s² down world z"
 
 
-def test_gravity_is_settable():
+def test_with_gravity_is_a_new_model():
     arm = servodyn.load_model("human_arm")
     q = np.full(arm.nq, 0.3)
     zero = np.zeros(arm.nq)
     tau = arm.inverse_dynamics(q, zero, zero)
-    arm.gravity = (0.0, 0.0, -2 * 9.81)
-    assert np.allclose(arm.inverse_dynamics(q, zero, zero), 2 * tau, rtol=1e-12), "static torque is linear in g"
-    with pytest.raises(ValueError, match="gravity"):
-        arm.gravity = (0.0, np.nan, 0.0)
+    heavy = arm.with_gravity((0.0, 0.0, -2 * 9.81))
+    assert np.allclose(heavy.inverse_dynamics(q, zero, zero), 2 * tau, rtol=1e-12), "static torque is linear in g"
+    assert np.array_equal(arm.inverse_dynamics(q, zero, zero), tau), "the original model is unchanged"
+    assert np.array_equal(arm.gravity, [0.0, 0.0, -9.81]), "the original keeps its gravity"
+    with pytest.raises(ModelError, match="gravity"):
+        arm.with_gravity((0.0, np.nan, 0.0))
+    with pytest.raises(AttributeError):
+        arm.gravity = (0.0, 0.0, 0.0)      # no setter: a Model does not change once built
 
 
 @pytest.mark.parametrize("kind,dims,expected", [
@@ -383,3 +388,40 @@ def test_mass_scale_scales_every_rigid_body_torque():
     assert scaled.total_mass == pytest.approx(1.2 * model.total_mass, rel=1e-14)
     with pytest.raises(ModelError, match="mass scale must be a finite number > 0, got 0"):
         model.with_mass_scale(0.0)
+
+
+def test_mass_matrix_is_pinocchios_crba_and_changes_nothing(twin):
+    """M(q) equals Pinocchio's CRBA (to 1e-9 relative, a few ulps of sums of products) on the
+    built-in models under a doubled and a sideways gravity, which must not leak into M. A thread
+    computing M(q) 2,000 times leaves the model's gravity and its static torques untouched, as read
+    meanwhile from this thread (a simulator's real-time thread steps the same Model object)."""
+    rng = np.random.default_rng(5)
+    for name in ("human_arm", "replica", "replica_dm"):
+        for g in ((0.0, 0.0, -2 * 9.81), (3.0, -4.0, 0.0)):
+            model = servodyn.load_model(name).with_gravity(g)
+            pin = twin(model)
+            q = rng.uniform(model.lower, model.upper)
+            M = pin.pin.crba(pin.model, pin.data, pin.to_pin_q(q))
+            M = np.triu(M) + np.triu(M, 1).T
+            expected = M[np.ix_(pin.index, pin.index)]
+            assert np.max(np.abs(model.mass_matrix(q) - expected)) <= 1e-9 * np.max(np.abs(expected)), \
+                f"{name}, g = {g}: M(q) is the CRBA's, gravity plays no part"
+    arm = servodyn.load_model("human_arm")
+    q, zero = np.full(arm.nq, 0.3), np.zeros(arm.nq)
+    tau = arm.inverse_dynamics(q, zero, zero)
+    done = threading.Event()
+
+    def masses():
+        for _ in range(2000):
+            arm.mass_matrix(q)
+        done.set()
+
+    worker = threading.Thread(target=masses)
+    worker.start()
+    reads = changed = 0
+    while not done.is_set():
+        reads += 1
+        changed += not (np.array_equal(arm.gravity, [0.0, 0.0, -9.81])
+                        and np.array_equal(arm.inverse_dynamics(q, zero, zero), tau))
+    worker.join()
+    assert reads > 0 and changed == 0, f"{changed} of {reads} reads saw the model changed during M(q)"

@@ -45,7 +45,7 @@ def test_friction_stops_a_spinning_joint_as_coulomb_says():
     joints["r_elbow_flexion"] = {"friction_coulomb_nm": 0.4}
     robot = SimulatedRobot(with_sim({"joint": joints}))
     plant = robot.plant
-    plant.model.gravity = (0.0, 0.0, 0.0)
+    plant.model = plant.model.with_gravity((0.0, 0.0, 0.0))
     q0 = middle(plant.model)
     plant.q, plant.qd = q0.copy(), np.zeros(plant.model.nv)
     plant.qd[ELBOW] = 1.0

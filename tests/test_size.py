@@ -1,4 +1,4 @@
-"""servodyn size (tools/size.py over validation/sizing.py) and validate over many motions: the
+"""servodyn size (host/report/sizing.py over host/validation/sizing.py) and validate over many motions: the
 hand-inward greedy against a brute force over the catalogue, the written files against the
 validator, the replica against its own servos, and validate --jobs against one process."""
 

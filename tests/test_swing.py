@@ -1,4 +1,4 @@
-"""The tennis swing through dynamixel-sdk against the simulated Dynamixel bus (tools/swing.py,
+"""The tennis swing through dynamixel-sdk against the simulated Dynamixel bus (host/loop/run.py,
 servodyn.loop, hal/dynamixel/backend.py, sim/): feed-forward against PD alone, a servo that stops
 answering mid-swing, a hardware error, real-time pacing, and a loopback configuration.
 

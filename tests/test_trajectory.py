@@ -1,4 +1,4 @@
-"""Keyframe motions (firmware/core/trajectory.c through host/motion.py): C2 continuity, rest at
+"""Keyframe motions (firmware/core/trajectory.c through host/control/motion.py): C2 continuity, rest at
 the ends, the built-in forehand, and clear errors for bad keyframe files and trajectories."""
 
 import textwrap

@@ -1,4 +1,4 @@
-"""The offline validator (tools/validate.py): torques against Pinocchio, one motion per check
+"""The offline validator (host/report/validation.py): torques against Pinocchio, one motion per check
 built to break exactly that check, the margin, the fit, and one line with exit 2 for bad input."""
 
 import copy

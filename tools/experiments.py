@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control import ControlConfig, Controller
-from ..control.motion import load_motion
+from ..control.motion import DEFAULT_MOTION, load_motion
 from ..control.timing import SMALL_TIME_STEP, TIME_STEP
 from ..control.trajectory import Trajectory, write_columns_csv
 from ..model import load_model
@@ -277,7 +277,7 @@ def _drift_plot(path: Path, t, ff_error, pd_error) -> None:
 def run_swing(mode: str = "feedforward_pd", ratio: int = 10, integrator: str = "rk4",
               small_time_step: float = SMALL_TIME_STEP):
     model = load_model("human_arm")
-    motion = load_motion("tennis_forehand", model)
+    motion = load_motion(DEFAULT_MOTION, model)
     traj = motion.sample(small_time_step)
     config = ControlConfig(mode=mode, small_time_step=small_time_step,
                            time_step=ratio * small_time_step)

@@ -131,15 +131,6 @@ def pose_report(model: Model, result: ik.IkResult, end: str | None = None) -> li
     return lines
 
 
-@dataclass
-class PathSummary:
-    samples: int
-    slowed: int
-    worst_position_error_m: float
-    worst_rotation_error_rad: float
-    worst_t_s: float
-
-
 def solve_targets(model: Model, targets: Targets, dt: float, max_speed=None, swivel_deg=None,
                   end=None, progress=None) -> tuple[Trajectory, ik.PathResult]:
     """The dense joint trajectory of a targets path (and the per-sample IK result)."""

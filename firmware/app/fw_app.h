@@ -8,7 +8,7 @@
 #include "servodyn.h"
 #include "servodyn_gen.h"
 
-// One joint's servo: register units <-> joint SI units (hal/units.py's conventions):
+// One joint's servo: register units <-> joint SI units (hal/dynamixel/units.py's conventions):
 //   horn angle = direction * gear_ratio * q + zero_offset,  position ticks = horn / rad_per_tick
 //   joint torque = nm_per_amp * motor current,  Goal Current = direction * current / amp_per_unit
 typedef struct fw_servo_ {

@@ -29,14 +29,6 @@
 #define FW_TOLERATE_OVERRUN 0          // 1: fall behind up to the plan's overrun tolerance (a host OS)
 #endif
 #define FW_TX_MAX 160                  // bytes of the largest instruction packet
-#define ADDR_RETURN_DELAY 9
-#define ADDR_OPERATING_MODE 11
-#define ADDR_TORQUE_ENABLE 64
-#define ADDR_HARDWARE_ERROR 70
-#define ADDR_BUS_WATCHDOG 98
-#define MODE_CURRENT 0
-#define DXL_ALERT 0x80u
-#define BLOCK_CAP (2 + 4 + 4)          // Present Current (2) + Velocity (4) + Position (4)
 
 // where a tick's time goes: the fast sync read (send, parse), the plan's point, the controller
 // step on ticks with and without inverse dynamics, torque -> current, the sync write (build, send)
@@ -155,7 +147,7 @@ static int bus_write(uint8_t id, uint16_t address, uint8_t value) {
 
 static void torque_off_all(void) {
   uint8_t zeros[FW_NJOINT] = {0};
-  size_t n = dxl_sync_write(g.tx, sizeof g.tx, ADDR_TORQUE_ENABLE, 1, g.ids, FW_NJOINT, zeros);
+  size_t n = dxl_sync_write(g.tx, sizeof g.tx, FW_ADDR_TORQUE_ENABLE, 1, g.ids, FW_NJOINT, zeros);
   board_uart_write(g.tx, n);        // a sync write is never answered: nothing to wait for
 }
 
@@ -217,10 +209,10 @@ static int setup_servo(int i) {
   int err = bus_status(s->id);
   if (err == FW_OK && (g.reader.nparam < 3 || dxl_get_u16(g.reader.param) != s->model_number))
     err = FW_FAULT_SETUP;
-  if (err == FW_OK) err = bus_write(s->id, ADDR_TORQUE_ENABLE, 0);    // EEPROM needs torque off
-  if (err == FW_OK) err = bus_write(s->id, ADDR_RETURN_DELAY, 0);
-  if (err == FW_OK) err = bus_write(s->id, ADDR_OPERATING_MODE, MODE_CURRENT);
-  if (err == FW_OK) err = bus_write(s->id, ADDR_BUS_WATCHDOG, 0);     // clear a tripped one
+  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_TORQUE_ENABLE, 0);    // EEPROM needs torque off
+  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_RETURN_DELAY, 0);
+  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_OPERATING_MODE, FW_MODE_CURRENT);
+  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_BUS_WATCHDOG, 0);     // clear a tripped one
   return err;
 }
 
@@ -237,8 +229,8 @@ static int setup(void) {
   const uint8_t zero_current[2] = {0, 0};
   for (int i = 0; i < FW_NJOINT; i++) {
     int err = bus_write_bytes(fw_servos[i].id, fw_plan_.goal_address, zero_current, 2);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, ADDR_TORQUE_ENABLE, 1);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, ADDR_BUS_WATCHDOG, fw_plan_.watchdog_units);
+    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_TORQUE_ENABLE, 1);
+    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_BUS_WATCHDOG, fw_plan_.watchdog_units);
     if (err) {
       g.fault_servo = fw_servos[i].id;
       return err;
@@ -249,7 +241,7 @@ static int setup(void) {
 
 //---------------------------------- the plan ----------------------------------------------------
 
-// the minimum-jerk move of host/swing.py's homing(): at rest at both ends
+// the minimum-jerk move of host/control/schedule.py's homing(): at rest at both ends
 static void home_point(long k) {
   long n = fw_plan_.home_ticks;
   sd_real duration = (sd_real)(n - 1) * fw_plan_.small_time_step;

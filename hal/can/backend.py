@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from ..bus import JointCommand, JointState, ServoBus, port_gone
+from ..bus import JointCommand, JointState, ServoBus
 from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, ServoOperationError,
                       ServoTimeoutError)
 from . import frames

@@ -1,5 +1,5 @@
 """One python-can bus as servodyn's CAN code speaks on it, shared by the run (backend.CanBus) and
-bring-up (bench): a frame sent, or a failed send as one line; the next frame that can be a motor's
+bring-up (bringup): a frame sent, or a failed send as one line; the next frame that can be a motor's
 answer, with error frames decoded into their classes (frames.error_frame) and 29-bit, CAN FD and
 remote frames counted and skipped (no motor here sends them); a Damiao register transaction through
 id 0x7FF matched to its echo."""

@@ -14,6 +14,7 @@ from .motors import MOTORS
 BITRATES = (125_000, 250_000, 500_000, 1_000_000)
 MAX_ID = 0x7FE                  # 11-bit ids; 0x7FF carries Damiao's register frames
 FRAME_BITS = (111, 135)         # an 8-byte standard data frame, without and with the worst stuffing
+DEFAULT_INTERFACE = "slcan"     # python-can's interface when the configuration names none
 
 
 SOCKETCAN_NAME = re.compile(r"^v?can\d+$")     # a Linux network interface: can0, vcan0
@@ -27,7 +28,7 @@ def interface_for(channel: str | None, configured: str | None) -> str:
         return "socketcan"
     if channel and channel.startswith("/dev/"):
         return "slcan"
-    return configured or "slcan"
+    return configured or DEFAULT_INTERFACE
 
 
 class Can(Backend):
@@ -44,8 +45,12 @@ class Can(Backend):
     joint_keys = frozenset({"dialect", "feedback_id", "p_max", "v_max", "t_max", "kp_max", "kd_max"})
 
     @classmethod
+    def new_bus(cls) -> dict:
+        return {"kind": cls.kind, "interface": DEFAULT_INTERFACE, **super().new_bus()}
+
+    @classmethod
     def bus_options(cls, checker) -> dict:
-        return {"interface": checker.get("interface", "str", "slcan")}
+        return {"interface": checker.get("interface", "str", DEFAULT_INTERFACE)}
 
     @classmethod
     def joint_options(cls, checker, servo) -> dict:

@@ -1,5 +1,8 @@
-"""DYNAMIXEL Protocol 2.0: the packet codec (``protocol``), every instruction (``instructions``)
-and an incremental frame reader (``reader``)."""
+"""DYNAMIXEL X-series servos on Protocol 2.0: the packet codec (``protocol``), every instruction
+(``instructions``), an incremental frame reader (``reader``), the servos' data sheets and control
+table (``control_table``), joint <-> register units (``units``), the bus described for the
+configuration and the validator (``spec``), the run-time bus (``backend``, ``DynamixelBus``) and
+bring-up (``bringup``); ``c/`` is the codec in C, for the firmware and the run-time reads."""
 
 from . import instructions
 from .instructions import BadParameters, FastReadBlock, ResetOption, encode_fast_reply, split_fast_reply

@@ -158,13 +158,6 @@ class DynamixelBus(ServoBus):
                 self.port.closePort()
                 raise
         self.packets = _stuffing_packet_handler()
-        if self.reply_timeout is not None:      # the SDK's own transactions are as patient
-            sdk_timeout = self.port.setPacketTimeout
-
-            def patient(packet_length):
-                sdk_timeout(packet_length)
-                self.port.packet_timeout = max(self.port.packet_timeout, self.reply_timeout * 1e3)
-            self.port.setPacketTimeout = patient
         for joint in self.joints:
             self._check_servo(joint)
             self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)      # EEPROM writes need torque off

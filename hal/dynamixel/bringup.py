@@ -24,6 +24,7 @@ from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV,
 from .link import FACTORY_BAUD, FACTORY_ID, Link
 from . import instructions
 from .protocol import BROADCAST_ID, MAX_ID, StatusPacket, unpack_field
+from .units import current_unit
 
 MIN_FIRMWARE = 45          # fast sync read (0x8A), which every tick uses, needs X430/540 firmware 45
 VOLTAGE_TOLERANCE = 0.10   # Present Input Voltage within ±10 % of the supply's
@@ -172,7 +173,7 @@ def table_findings(joint, table: dict[str, int], supply_voltage: float | None = 
         out.append(Finding("status return level", table["status_return_level"], "2 (every instruction answered)",
                            "power-cycle or `servodyn reboot` (it is RAM and comes back as 2)", **where))
     if "current_limit" in table:
-        unit = joint.options.get("current_unit", joint.servo.current_unit)
+        unit = current_unit(joint)
         amps = table["current_limit"] * unit
         if amps + unit / 2 < joint.current_limit:
             out.append(Finding("current limit", f"{amps:.3g} A ({table['current_limit']} units)",
@@ -296,7 +297,7 @@ def setup_plan(link: Link, found: Found, joint, bus) -> list[Step]:
     link.set_baud(found.baud)
     table = servo_table(link, found.id)
     steps = []
-    unit = joint.options.get("current_unit", joint.servo.current_unit)
+    unit = current_unit(joint)
     wanted = {"id": joint.id, "return_delay_time": 0, "drive_mode": table["drive_mode"] & ~0x01,
               "homing_offset": 0,
               "current_limit": max(table["current_limit"], min(joint.servo.current_limit_max,

@@ -24,21 +24,17 @@ from . import instructions
 from .control_table import BAUD_RATES, ITEMS, TABLE_SIZE
 from .protocol import BROADCAST_ID, InstructionPacket, StatusPacket, pack_field, unpack_field
 from .reader import BadFrame, PacketReader
+from .spec import wire_seconds
 
 FACTORY_ID, FACTORY_BAUD = ITEMS["id"].default, BAUD_RATES[ITEMS["baud_rate"].default]
 ADAPTER_LATENCY = 0.020    # s: a USB adapter holds bytes up to its latency timer (16 ms by default)
 STATUS_BYTES = 14          # a ping's status packet: header 4, ID, LEN 2, INST, ERR, model 2, firmware, CRC 2
 
 
-def wire_time(nbytes: int, baud: int) -> float:
-    """Seconds `nbytes` take on the wire at `baud` (10 bits a byte)."""
-    return nbytes * 10 / baud
-
-
 def quiet_gap(baud: int) -> float:
     """How long the line must stay quiet after a reply before no more will come: the adapter's
     latency plus three status packets' time at the rate."""
-    return ADAPTER_LATENCY + 3 * wire_time(STATUS_BYTES, baud)
+    return ADAPTER_LATENCY + 3 * wire_seconds(STATUS_BYTES, baud)
 
 
 # ---------------------------------------------------------------------------- the link
@@ -104,7 +100,7 @@ class Link:
         self.drain(0.0)
         self.send(packet)
         request = len(packet.encode())
-        wait = first if first is not None else ADAPTER_LATENCY + wire_time(request + STATUS_BYTES, self.baud) + 0.01
+        wait = first if first is not None else ADAPTER_LATENCY + wire_seconds(request + STATUS_BYTES, self.baud) + 0.01
         if first is None and expect is not None and packet.id != BROADCAST_ID:
             wait = max(wait, self.patience)
         gap = quiet_gap(self.baud)

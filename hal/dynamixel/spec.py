@@ -12,6 +12,13 @@ from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_
 from .protocol import MAX_ID
 from .units import current_unit
 
+BITS_PER_BYTE = 10      # on the wire: start, 8 data, stop
+
+
+def wire_seconds(nbytes: int, baud: int) -> float:
+    """Seconds `nbytes` take on the wire at `baud`, stuffing aside."""
+    return nbytes * BITS_PER_BYTE / baud
+
 
 class Dynamixel(Backend):
     kind = "dynamixel"
@@ -25,6 +32,10 @@ class Dynamixel(Backend):
     joint_keys = frozenset({"current_unit"})
 
     @classmethod
+    def new_bus(cls) -> dict:
+        return {**super().new_bus(), "protocol": cls.protocols[-1]}
+
+    @classmethod
     def joint_options(cls, checker, servo) -> dict:
         return {"current_unit": checker.positive("current_unit", servo.current_unit)}
 
@@ -35,15 +46,15 @@ class Dynamixel(Backend):
 
     @classmethod
     def wire_time(cls, joints, bus) -> tuple[float, str]:
-        """The worst tick's fast sync read (instruction and reply) and Goal Current sync write, 10
-        bits a byte (start, 8 data, stop) at the bus's baud rate, stuffing aside. The worst tick is
-        the one in TEMPERATURE_EVERY whose read runs on to Present Temperature."""
+        """The worst tick's fast sync read (instruction and reply) and Goal Current sync write on
+        the wire (wire_seconds). The worst tick is the one in TEMPERATURE_EVERY whose read runs on
+        to Present Temperature."""
         ids = [j.id for j in joints]
         read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_WITH_TEMPERATURE_LENGTH, ids).encode())
         reply = instructions.fast_reply_size([PRESENT_WITH_TEMPERATURE_LENGTH] * len(ids))
         write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
         total = read + reply + write
-        return total * 10 / bus.baud, f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
+        return wire_seconds(total, bus.baud), f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
 
     @classmethod
     def command_range(cls, joint) -> tuple[float, float]:

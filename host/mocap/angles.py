@@ -1,6 +1,7 @@
-"""Batched rotation arithmetic for captured motion: rotations about an axis, the smallest rotation
-between two directions, and the split of a rotation into three angles about given axes
+"""Batched rotation arithmetic for captured motion: the smallest rotation between two directions,
+signed angles about an axis, and the split of a rotation into three angles about given axes
 (Davenport angles: Euler and Cardan angles are the cases where the axes are coordinate axes).
+Rotations about an axis and the angle of a rotation are servodyn.model.rotations'.
 
 Every function takes a leading frame axis; angles in radians."""
 
@@ -8,16 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.rotations import axis_angle, skew, unit
-
-
-def about(axis, angles) -> np.ndarray:
-    """(F, 3, 3) rotations by `angles` (F,) about the unit vector `axis` (Rodrigues)."""
-    a = unit(axis)
-    K = skew(a)
-    angles = np.asarray(angles, dtype=float)
-    s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
+from ..model.rotations import axis_angle, unit
 
 
 def smallest_rotation(a, b) -> np.ndarray:
@@ -54,19 +46,14 @@ def split3(R: np.ndarray, n1, n2, n3) -> tuple[np.ndarray, np.ndarray]:
     sets = []
     for b in (phi + delta, phi - delta):
         b = (b + np.pi) % (2 * np.pi) - np.pi
-        v = np.einsum("fij,j->fi", about(n2, b), n3)            # Rot(n2, b) n3
+        v = np.einsum("fij,j->fi", axis_angle(n2, b), n3)            # Rot(n2, b) n3
         r = np.einsum("fij,j->fi", R, n3)                        # = Rot(n1, a) v
         a = angle_about(n1, v, r)
         locked = np.linalg.norm(np.cross(v, n1), axis=-1) < 1e-9
         a = np.where(locked, 0.0, a)
         # c: Rot(n3, c) Rᵀ n1' = Rot(n2, -b) Rot(n1, -a) n1'... solved on the remainder
-        rest = np.einsum("fji,fjk->fik", about(n1, a) @ about(n2, b), R)   # = Rot(n3, c)
+        rest = np.einsum("fji,fjk->fik", axis_angle(n1, a) @ axis_angle(n2, b), R)   # = Rot(n3, c)
         p = np.broadcast_to(np.cross(n3, np.eye(3)[int(np.argmin(np.abs(n3)))]), (len(R), 3))
         c = angle_about(n3, p, np.einsum("fij,fj->fi", rest, p))
         sets.append(np.stack([a, b, c], axis=-1))
     return sets[0], sets[1]
-
-
-def rotation_angle(R: np.ndarray) -> np.ndarray:
-    """(F,) angle of each rotation (rad, 0..π)."""
-    return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0))

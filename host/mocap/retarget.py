@@ -38,8 +38,8 @@ import numpy as np
 from ..control.trajectory import Trajectory, spline_derivatives
 from ..errors import ServodynError
 from ..model import ik
-from ..model.rotations import unit
-from .angles import about, angle_about, smallest_rotation, split3
+from ..model.rotations import axis_angle, unit
+from .angles import angle_about, smallest_rotation, split3
 from .bvh import Clip
 from .skeleton import ArmChain, Axes, rest_frame, segment_rotations
 
@@ -126,10 +126,10 @@ class ArmTarget:
 
     def rotations(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(F, 3, 3) world rotations of the upper arm, forearm and hand relative to q = 0."""
-        P = about(self.axes[0], q[:, 0])
+        P = axis_angle(self.axes[0], q[:, 0])
         out = []
         for k in range(1, 7):
-            P = P @ about(self.axes[k], q[:, k])
+            P = P @ axis_angle(self.axes[k], q[:, k])
             if k in (2, 4, 6):
                 out.append(P)
         return tuple(out)
@@ -183,8 +183,8 @@ def capture(clip: Clip, chain: ArmChain, axes: Axes, target: ArmTarget, frames: 
     calibration = calibrate(u_local, target) if twist is None else {"twist_deg": math.degrees(twist),
                                                                     "fitted": False, "why": "given"}
     psi = math.radians(calibration["twist_deg"])
-    F_upper = G @ about(target.upper_dir, [psi])[0]
-    F_hand = M_hand @ S_fore @ about(target.fore_dir, [psi])[0]
+    F_upper = G @ axis_angle(target.upper_dir, psi)
+    F_hand = M_hand @ S_fore @ axis_angle(target.fore_dir, psi)
     t = np.arange(len(u)) * clip.frame_time
     return Capture(t, F_upper, F_hand, u, psi, calibration)
 
@@ -270,7 +270,7 @@ def decompose(cap: Capture, target: ArmTarget) -> tuple[np.ndarray, dict]:
     elbow = angle_about(w[3], np.broadcast_to(target.fore_dir, v.shape), v)
     elbow = _wrap_into(elbow[:, None], lo[3:4], hi[3:4])[:, 0]
     off_hinge = np.degrees(np.arcsin(np.clip(v @ w[3], -1, 1)))
-    N = np.einsum("fji,fjk->fik", about(w[3], elbow), np.einsum("fji,fjk->fik", cap.F_upper, cap.F_hand))
+    N = np.einsum("fji,fjk->fik", axis_angle(w[3], elbow), np.einsum("fji,fjk->fik", cap.F_upper, cap.F_hand))
     wrist, flips_wrist = _choose(split3(N, w[4], w[5], w[6]), lo[4:], hi[4:])
     q = np.concatenate([shoulder, elbow[:, None], wrist], axis=1)
     return q, {"flips_avoided": max(0, flips_shoulder) + max(0, flips_wrist),

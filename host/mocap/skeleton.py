@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import ServodynError
 from ..model.files import read_toml
-from .angles import rotation_angle
+from ..model.rotations import rotation_angle
 from .bvh import Clip
 
 NAMES_FILE = Path(__file__).with_name("names.toml")

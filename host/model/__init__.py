@@ -1,4 +1,5 @@
-"""The model layer: a tree of rigid bodies (`Model`), built-in models, model files and URDF.
+"""The model layer: a tree of rigid bodies (`Model`), built-in models, model files and URDF, the
+rotation arithmetic of the package (`rotations`) and inverse kinematics (`ik`).
 
     >>> from servodyn.model import load_model
     >>> arm = load_model("human_arm")            # built-in, or a .urdf / servodyn .toml file

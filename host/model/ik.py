@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .rotations import axis_angle, rotation_angle, rotation_log, skew, turn
 from .tree import Model, ModelError
 
 TOL_LIMIT = 1e-10      # rad: a solution this far past a limit is clipped onto it (changes the hand < 1e-10 m)
@@ -93,7 +94,10 @@ class PathResult:
     reach: np.ndarray           # (N,)
 
 
-# ---------------------------------------------------------------------------------------- rotations
+_EYE = np.eye(3)
+
+
+# ------------------------------------------------------------------------------ the three-angle split
 def _cross(a, b):
     """a x b over the last axis, broadcasting (numpy's cross costs ten times more on small arrays)."""
     a, b = np.asarray(a), np.asarray(b)
@@ -102,53 +106,10 @@ def _cross(a, b):
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-_EYE = np.eye(3)
-
-
-def _rot(w, angle):
-    """Rotation matrices (..., 3, 3) about the unit axis w (3,) by angles (...)."""
-    K = _skew(w)
-    if np.ndim(angle) == 0:
-        return _EYE + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
-    a = np.asarray(angle, dtype=float)[..., None, None]
-    return _EYE + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
-
-
-def _rotation_angle(R) -> float:
-    """The angle of a rotation matrix, exact near 0 as well (an arccos of the trace is not)."""
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return float(math.atan2(np.linalg.norm(v) / 2, (np.trace(R) - 1) / 2))
-
-
-def _log(R) -> np.ndarray:
-    """Axis times angle of a rotation matrix."""
-    angle = _rotation_angle(R)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if angle < 1e-6:
-        return v / 2
-    if angle > math.pi - 1e-6:
-        # near half a turn: the axis from the symmetric part
-        axis = np.sqrt(np.clip((np.diag(R) + 1) / 2, 0, None))
-        k = int(np.argmax(axis))
-        axis[np.arange(3) != k] = (R[k] + R[:, k])[np.arange(3) != k] / (4 * axis[k])
-        return axis / np.linalg.norm(axis) * angle * (1 if v @ axis >= 0 else -1)
-    return v * angle / (2 * math.sin(angle))
-
-
-def _skew(w) -> np.ndarray:
-    return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-
-
-def _turn(w, K, angle, v):
-    """v (..., 3) turned by angle (...) about the constant unit axis w (K its cross matrix)."""
-    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + (v @ K.T) * s + w * ((v @ w)[..., None] * (1 - c))
-
-
 def _euler(G, w0, w1, w2, hint0):
     """Both branches of G = Rot(w0, a) Rot(w1, b) Rot(w2, c) for any axes with w1 across w0 and w2:
     angles (N, 2, 3) for G (N, 3, 3). In gimbal lock (a and c turn about one line) a = hint0."""
-    K0, K1 = _skew(w0), _skew(w1)
+    K0, K1 = skew(w0), skew(w1)
     w12 = K1 @ w2
     c1 = w0 @ w2 - (w0 @ w1) * (w1 @ w2)
     s1 = w0 @ w12
@@ -170,8 +131,8 @@ def _euler(G, w0, w1, w2, hint0):
     # c: what Rot(w1, -b) Rot(w0, -a) G does to a vector x across w2
     x = _cross(w2, w0 if abs(w0 @ w2) < 0.9 else w1)
     x /= np.linalg.norm(x)
-    y = _turn(w1, K1, -b, _turn(w0, K0, -a, (G @ x)[:, None, :]))
-    c = np.arctan2(y @ (_skew(w2) @ x), y @ x)
+    y = turn(w1, -b, turn(w0, -a, (G @ x)[:, None, :]))
+    c = np.arctan2(y @ (skew(w2) @ x), y @ x)
     return np.stack([a, b, c], axis=-1)
 
 
@@ -271,9 +232,10 @@ class Arm:
 
     # ---------------------------------------------------------------- forward kinematics
     def _exp(self, k, angle):
-        """The rotation of dof k by angle (its cross matrices kept from the first call)."""
+        """The rotation of dof k by angle: rotations.axis_angle with the dofs' cross matrices kept
+        from the first call (the inner loop of the iterative solve)."""
         if "K" not in self._cache:
-            K = np.array([_skew(w) for w in self.axis])
+            K = np.array([skew(w) for w in self.axis])
             self._cache["K"], self._cache["KK"] = K, K @ K
         return _EYE + math.sin(angle) * self._cache["K"][k] + (1 - math.cos(angle)) * self._cache["KK"][k]
 
@@ -339,7 +301,7 @@ class Arm:
         # reach over the elbow's range: |W(θ) - S| at the ends and where it is longest or shortest
         lo, hi = self.lower[-4], self.upper[-4]
         theta = np.linspace(max(lo, -math.pi), min(hi, math.pi), 2001)
-        d = np.linalg.norm(_turn(we, _skew(we), theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
+        d = np.linalg.norm(turn(we, theta, np.broadcast_to(W - re, (len(theta), 3))) + re - S, axis=1)
         return _Srs(S=S, W=W, min_reach=float(d.min()), max_reach=float(d.max()),
                     elbow_lo=lo, elbow_hi=hi), ""
 
@@ -396,7 +358,7 @@ class Arm:
         N, ne = len(phi), len(elbows)
         Rs, E3s = np.empty((ne, N, 3, 3)), np.empty((ne, 3, 3))
         for e, t3 in enumerate(elbows):
-            E3 = E3s[e] = _rot(we, t3)
+            E3 = E3s[e] = axis_angle(we, t3)
             s0 = (E3 @ (s.W - re) + re) - s.S
             s0 /= np.linalg.norm(s0)
             # the smallest rotation taking s0 onto n, then the swivel about n
@@ -405,10 +367,10 @@ class Arm:
             if sin_a < 1e-12:
                 axis = _cross(s0, we if abs(s0 @ we) < 0.9 else w[0])
                 sin_a = 0.0
-            R_min = _rot(axis / np.linalg.norm(axis), math.atan2(sin_a, cos_a))
+            R_min = axis_angle(axis, math.atan2(sin_a, cos_a))
             bend = _cross(n_hat, R_min @ we)
             phi0 = math.atan2(_cross(ref, bend) @ n_hat, ref @ bend)
-            Rs[e] = _rot(n_hat, phi - phi0) @ R_min
+            Rs[e] = axis_angle(n_hat, phi - phi0) @ R_min
         Rs = Rs.reshape(ne * N, 3, 3)
         shoulder = _euler(Rs, w[0], w[1], w[2], x_prev[0])                  # (ne N, 2, 3)
         if rot is not None:
@@ -534,7 +496,7 @@ class Arm:
             R, p, axes, pivots = self.forward(x)
             e = pos - p
             if rot is not None:
-                e = np.concatenate([e, ROTATION_LENGTH * _log(rot @ R.T)])
+                e = np.concatenate([e, ROTATION_LENGTH * rotation_log(rot @ R.T)])
             return e, p, axes, pivots
 
         e, p, axes, pivots = error(x)
@@ -648,7 +610,7 @@ def solve(model: Model, position, rotation=None, q_prev=None, swivel: float | No
     q = _put(q, arm, x)
     R, p = arm.hand(q)
     return IkResult(q=q, position_error=float(np.linalg.norm(p - pos)),
-                    rotation_error=0.0 if rot is None else _rotation_angle(R @ rot.T),
+                    rotation_error=0.0 if rot is None else float(rotation_angle(R @ rot.T)),
                     reach=reach_m / arm.max_reach(), reach_m=reach_m, swivel=float(phi), method=how,
                     iterations=iterations)
 
@@ -708,7 +670,7 @@ def solve_path(model: Model, positions, rotations=None, q0=None, dt: float = 0.0
                 q_new = _put(q, arm, x)
                 R, p = arm.hand(q_new)
                 r = IkResult(q=q_new, position_error=float(np.linalg.norm(p - positions[i])),
-                             rotation_error=0.0 if rot is None else _rotation_angle(R @ rot.T),
+                             rotation_error=0.0 if rot is None else float(rotation_angle(R @ rot.T)),
                              reach=r.reach, reach_m=r.reach_m,
                              swivel=arm.swivel_of(x) if arm.srs is not None else math.nan, method="dls")
                 out.slowed[i] = True

@@ -1,6 +1,12 @@
-"""Rotation helpers for building models: roll-pitch-yaw, axis-angle, and frames aligned to an axis."""
+"""Rotation arithmetic, once for the package: roll-pitch-yaw, axis-angle (Rodrigues) and its inverse,
+the angle of a rotation, quaternions, and frames aligned to an axis.
+
+Angles come from atan2 rather than an arccos of the trace, so that they are exact near 0 and near a
+half turn alike. The axis-angle forms take one angle or an array of them (a leading batch axis)."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -16,15 +22,6 @@ def rpy_to_matrix(rpy) -> np.ndarray:
     ])
 
 
-def matrix_to_rpy(R) -> np.ndarray:
-    """The inverse of rpy_to_matrix; at pitch = ±90° the roll is set to zero."""
-    R = np.asarray(R, dtype=float)
-    pitch = np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0]))
-    if np.hypot(R[0, 0], R[1, 0]) < 1e-12:
-        return np.array([0.0, pitch, np.arctan2(-R[0, 1], R[1, 1])])
-    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
-
-
 def unit(v) -> np.ndarray:
     """v / |v|, scaled first so that no square overflows or underflows (an axis of 1e300 or
     1e-200 is a direction like any other)."""
@@ -33,11 +30,56 @@ def unit(v) -> np.ndarray:
     return a / np.linalg.norm(a)
 
 
+_EYE = np.eye(3)
+
+
+def skew(v) -> np.ndarray:
+    """The cross-product matrix of v: skew(v) @ x = v x x."""
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=float)
+
+
 def axis_angle(axis, angle) -> np.ndarray:
-    """Rotation by `angle` about the unit vector `axis` (Rodrigues)."""
-    a = unit(axis)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    """Rotation by `angle` about the direction `axis` (Rodrigues): (3, 3) for one angle, (..., 3, 3)
+    for an array of angles (...)."""
+    K = skew(unit(axis))
+    a = np.asarray(angle, dtype=float)[..., None, None]
+    return _EYE + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+
+
+def turn(axis, angle, v) -> np.ndarray:
+    """The vectors v (..., 3) turned by angles (...) about the unit vector `axis` (Rodrigues on a
+    vector, without building the matrix)."""
+    w = np.asarray(axis, dtype=float)
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return v * c + (v @ skew(w).T) * s + w * ((v @ w)[..., None] * (1 - c))
+
+
+def _vee(R) -> np.ndarray:
+    """Twice the axial vector of the skew part of R (..., 3, 3): 2 sin(angle) axis."""
+    return np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+
+
+def rotation_angle(R) -> np.ndarray:
+    """The angle (rad, 0..π) of a rotation matrix (3, 3), or of each of (..., 3, 3). From atan2 of the
+    skew part's size and the trace: exact near 0 and near π, where an arccos of the trace is not."""
+    R = np.asarray(R, dtype=float)
+    return np.arctan2(np.linalg.norm(_vee(R), axis=-1) / 2, (np.trace(R, axis1=-2, axis2=-1) - 1) / 2)
+
+
+def rotation_log(R) -> np.ndarray:
+    """Axis times angle of a rotation matrix (3, 3): the inverse of axis_angle."""
+    R = np.asarray(R, dtype=float)
+    angle = float(rotation_angle(R))
+    v = _vee(R)
+    if angle < 1e-6:
+        return v / 2
+    if angle > math.pi - 1e-6:
+        # near half a turn: the axis from the symmetric part
+        axis = np.sqrt(np.clip((np.diag(R) + 1) / 2, 0, None))
+        k = int(np.argmax(axis))
+        axis[np.arange(3) != k] = (R[k] + R[:, k])[np.arange(3) != k] / (4 * axis[k])
+        return axis / np.linalg.norm(axis) * angle * (1 if v @ axis >= 0 else -1)
+    return v * angle / (2 * math.sin(angle))
 
 
 def rot_z(angle) -> np.ndarray:
@@ -69,10 +111,6 @@ def orthonormalize(R) -> np.ndarray:
         u[:, -1] *= -1
         M = u @ vt
     return M
-
-
-def skew(v) -> np.ndarray:
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=float)
 
 
 def quat_to_matrix(quat) -> np.ndarray:

@@ -14,6 +14,7 @@ rotation `frame_rot` (user frame ← core body frame) to translate wrenches at t
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
 
@@ -371,13 +372,15 @@ class Model:
     def gravity(self) -> np.ndarray:
         return np.array(self.core.gravity)
 
-    @gravity.setter
-    def gravity(self, g):
+    def with_gravity(self, g) -> "Model":
+        """The same model under gravity g (m/s², world frame). A Model never changes once built, so
+        that threads stepping it (a simulator's real-time thread) and threads asking it for M(q)
+        share it safely."""
         g = np.asarray(g, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError("gravity must be 3 finite numbers (m/s^2)")
-        self.core.gravity = g
-        self.core32.gravity = g
+            raise ModelError(f"gravity must be 3 finite numbers (m/s²), got {g.tolist()}")
+        return Model(self.bodies, name=self.name, gravity=g, description=self.description,
+                     source=self.source)
 
     def _limits(self, which: str) -> np.ndarray:
         values = []
@@ -483,15 +486,17 @@ class Model:
         armatures on its diagonal)."""
         q = np.asarray(q, dtype=float)
         n = self.nv
-        g = self.gravity
-        self.core.gravity = (0.0, 0.0, 0.0)
-        try:
-            # minus the torques at zero acceleration, which a root force would otherwise add
-            columns = self.core.rnea(np.tile(q, (n + 1, 1)), np.zeros((n + 1, n)),
-                                     np.vstack([np.eye(n), np.zeros(n)]))
-        finally:
-            self.core.gravity = g
+        # minus the torques at zero acceleration, which a root force would otherwise add
+        columns = self._weightless.rnea(np.tile(q, (n + 1, 1)), np.zeros((n + 1, n)),
+                                        np.vstack([np.eye(n), np.zeros(n)]))
         return (columns[:n] - columns[n]).T
+
+    @functools.cached_property
+    def _weightless(self):
+        """The core of this model without gravity, for M(q): its columns are then the inertial
+        torques alone, as exact as the RNEA (with gravity, M e_i + g(q) - g(q) rounds away the low
+        bits of small columns). Built on first use; the model's own cores are never changed."""
+        return _core.Core(**{**self._arrays, "gravity": np.zeros(3)})
 
     # ------------------------------------------------------------------ kinematics and energy
     def body_poses(self, q) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .tree import Body, Dof, Model, ModelError, combine
-from .rotations import orthonormalize, unit
+from .rotations import orthonormalize
 
 MASSLESS = 1e-12   # kg: below this a link is a connector between the dofs of one joint
 

@@ -28,7 +28,7 @@ scale, heat with each joint's thermal constants (the servo's data sheet's unless
 every check over a trajectory sampled at the control period (`control.MotionPath.at_scale`);
 `violations` and `describe` say where and why it fails (`judge` does all three for a motion); `fit_time_scale` finds the slowest
 uniform timing needed, `retime` a TOPP-RA timing (toppra) that passes. `servodyn validate`
-(tools/validate.py) is the command and its report; the swing and the view ask the same checks.
+(host/report/validation.py) is its report, `servodyn validate` the command; the swing and the view ask the same checks.
 """
 
 from .checks import (CHECKS, Judgement, MotionRefused, Result, check, describe, judge, torque_speed_ratio,

@@ -63,7 +63,7 @@ import numpy as np
 from ..control.timing import SMALL_TIME_STEP
 from ..control.trajectory import Trajectory
 from ..errors import ServodynError
-from ..hal.backend import servo_catalogue
+from ..hal.backend import backend, servo_catalogue
 from ..hal.config import config_from_dict
 from ..model import builtin_models
 from ..model.files import read_toml
@@ -85,9 +85,7 @@ BUS_SHARE = 0.8             # of the control period one tick's transactions may 
 PERIODS = (0.001, 0.002, 0.0025, 0.005, 0.01)   # s: control periods that divide the ID period
 MARGIN_TOLERANCE = 0.01     # relative width the margin objective's bisection stops at
 SIZE_FIT_TOLERANCE = 0.01   # relative width of the time-scale scan when nothing passes
-BUSES = {"dynamixel": ("arm", {"kind": "dynamixel", "port": "auto", "baud": 4_000_000, "protocol": 2.0}),
-         "can": ("can", {"kind": "can", "interface": "slcan", "channel": "auto", "bitrate": 1_000_000})}
-DEVICE_KEY = {"dynamixel": "servo", "can": "motor"}
+BUS_NAMES = {"dynamixel": "arm", "can": "can"}   # a sized configuration's bus of each kind (its table: the backend's)
 
 
 class SizingError(ServodynError, ValueError):
@@ -304,12 +302,12 @@ def config_data(name: str, model_ref: str, dofs, choice: dict, voltage: float, p
     """A configuration's tables: the chosen servos at the horn on one bus per kind, ids from 1 in
     model order, the supply voltage and the control period."""
     kinds = [servos[choice[d]].kind for d in dofs]
-    buses = {BUSES[k][0]: dict(BUSES[k][1]) for k in dict.fromkeys(kinds)}
+    buses = {BUS_NAMES[k]: backend(k).new_bus() for k in dict.fromkeys(kinds)}
     joints, ids = [], {}
     for dof, kind in zip(dofs, kinds):
-        bus = BUSES[kind][0]
+        bus = BUS_NAMES[kind]
         ids[bus] = ids.get(bus, 0) + 1
-        joints.append({"dof": dof, "bus": bus, "id": ids[bus], DEVICE_KEY[kind]: choice[dof], "direction": 1,
+        joints.append({"dof": dof, "bus": bus, "id": ids[bus], backend(kind).device_key: choice[dof], "direction": 1,
                        "gear_ratio": 1.0})
     data = {"name": name, "model": model_ref, "bus": buses, "joint": joints, "supply": {"voltage": float(voltage)}}
     if period != SMALL_TIME_STEP:

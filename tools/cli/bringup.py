@@ -1,4 +1,4 @@
-"""The bring-up verbs, from a box of servos to an arm that moves (tools/bringup.py): scan, setup,
+"""The bring-up verbs, from a box of servos to an arm that moves (tools/bringup/): scan, setup,
 doctor, monitor, calibrate, reboot, clear-errors and `torque off`. What they find or read back
 (scan's servos, doctor's findings, monitor's table, each servo's state after reboot, clear-errors
 and torque off) is their data, on stdout; the steps and questions of setup and calibrate, which
