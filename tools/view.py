@@ -248,6 +248,9 @@ def check_address(host: str, port: int) -> None:
             raise ViewError(f"cannot serve on {host}:{port}: {err.strerror or err}") from None
 
 
+TITLE = "servodyn view"     # the page's title (viser's own page is titled "Viser")
+
+
 class Viewer:
     """One viser server and its page: the arm, the ghost, the plots, the player and the editor."""
 
@@ -255,7 +258,8 @@ class Viewer:
         import viser
         check_address(host, port)
         self.config, self.model, self.say = config, model, say
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server = viser.ViserServer(host=host, port=port, label=TITLE, verbose=False)
+        self.server.gui.add_html(f'<img src="data:," hidden onerror="document.title=\'{TITLE}\'">')   # the tab's title
         self.lock = threading.RLock()
         server = self.server
         server.scene.set_up_direction("+z")
