@@ -25,6 +25,9 @@ would exceed its bound the joint slips at it and the rest are solved again (an a
 most one solve per joint), held over the RK4 step
 like the drives' currents. A joint at rest stays there exactly until the torque on it exceeds the
 static friction, and no step can make friction push a joint forwards.
+
+`external`, when set, is a torque from outside the arm at its joints, asked every step as
+external(time, q, qd) -> (nv,): a hand turning limp joints on the bench (sim/console.py).
 """
 
 from __future__ import annotations
@@ -154,6 +157,7 @@ class Plant:
         self.lower, self.upper = np.array(model.lower, dtype=float), np.array(model.upper, dtype=float)
         self._stop_inertia = np.diag(model.mass_matrix(self.q)).copy()
         self.stops = np.ones(model.nv, dtype=bool)
+        self.external = None                       # external(time, q, qd) -> joint torques, or None
         self.publish()
 
     def horn(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
@@ -177,6 +181,8 @@ class Plant:
             self.chain.output(position, velocity, self.small_time_step, self.current, horn_torque)
             self.charge_squared += self.current * self.current      # x small_time_step in take_heat
             tau = scale * horn_torque + self.stop_torque()
+            if self.external is not None:
+                tau = tau + self.external(self.time, self.q, self.qd)
             if self.friction is not None:
                 tau = tau + self.friction.torque(self.model, self.q, self.qd, tau, self.small_time_step)
             self.q, self.qd = self.model.step(self.q, self.qd, tau, self.small_time_step, self.integrator)

@@ -9,6 +9,7 @@ the documents mark them as measured on this machine, with a date."""
 
 import contextlib
 import io
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +70,36 @@ def test_timings_are_masked():
         "2001 samples in … ms = … us per sample"
     assert figures.mask_timings("passes the dense check (1 plan, 0.03 s); as written") == \
         "passes the dense check (1 plan, … s); as written"
+
+
+DOCS = sorted((ROOT / "docs").glob("*.md"))
+LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)]*)?\)")
+
+
+def test_the_docs_pages_are_documents_the_check_runs_on():
+    """docs/*.md hold cog blocks moved from the README: each such page is among the documents
+    `make docs` rewrites and the first test checks (tracked by git, so committed with its page)."""
+    sys.path.insert(0, str(ROOT / "scripts" / "docs"))
+    import docs
+    checked = set(docs.documents())
+    with_blocks = [p.relative_to(ROOT).as_posix() for p in DOCS if "[[[cog" in p.read_text(encoding="utf-8")]
+    assert len(with_blocks) >= 4, with_blocks          # the swing, validate, method and motions pages
+    assert [p for p in with_blocks if p not in checked] == []
+
+
+def test_the_readme_is_short_and_lists_every_page():
+    """The README starts with the person who has an arm (install, a tour, the bring-up) in under
+    300 lines; the depth is in docs/, every page linked from its contents."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) < 300, len(readme.splitlines())
+    linked = set(LINK.findall(readme))
+    assert [p.name for p in DOCS if f"docs/{p.name}" not in linked] == []
+
+
+def test_every_relative_link_in_the_documents_exists():
+    broken = []
+    for page in [ROOT / "README.md", ROOT / "hal" / "README.md", *DOCS]:
+        for target in LINK.findall(page.read_text(encoding="utf-8")):
+            if not re.match(r"[a-z]+:", target) and not (page.parent / target).exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert broken == []

@@ -1,6 +1,7 @@
 """Regenerate (or, with --check, verify) the figures the documents quote from the commands.
 
-    python scripts/docs/docs.py            # rewrite every document's cog blocks (make docs)
+    python scripts/docs/docs.py            # rewrite every document's cog blocks and the view's
+                                           # pictures (make docs; scripts/docs/screenshots.py)
     python scripts/docs/docs.py --check    # fail, with a diff, where a document is out of date
 
 The documents are every tracked Markdown (and TOML: a configuration's comments) file with a cog
@@ -32,7 +33,10 @@ def main(argv: list[str]) -> int:
     args = ["cog", "-P", "-I", str(ROOT / "scripts" / "docs"), "-p", "import figures as F",
             "--markers=[[[cog ]]] [[[end]]]"]
     args += ["--check", "--diff", "--check-fail-msg=make docs rewrites them"] if check else ["-r"]
-    return Cog().main(args + [str(ROOT / f) for f in documents()])
+    status = Cog().main(args + [str(ROOT / f) for f in documents()])
+    if check or status:
+        return status
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "docs" / "screenshots.py")]).returncode
 
 
 if __name__ == "__main__":

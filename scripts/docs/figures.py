@@ -701,3 +701,17 @@ def hal_catalogue_table() -> None:
                   f"| {s.stall_torque:g} N m | {s.stall_current:.2f} A | {s.no_load_speed_rpm:g} rpm "
                   f"| {part['mass'] * 1e3:g} g | {part['armature']:.3g}{' (est.)' if estimate else ''} "
                   f"| {'yes' if s.current_control else '**no**'} |")
+
+
+# ------------------------------------------------------------------ README: the five-minute tour
+
+def readme_tour() -> dict:
+    """The tour's figures: the demo's swing (readme_swing's runs) and `servodyn validate replica
+    tennis_forehand --time-scale 1 --fit` (human speed, as the motion is written)."""
+    human = validate("replica", "tennis_forehand", "--time-scale", "1", "--fit")
+    first = human["violations"][0] if human["violations"] else None
+    failing = sum(not row["passed"] for row in human["joints"].values())
+    return {**readme_swing(), "verdict": "passes" if human["passed"] else "fails",
+            "failing": failing, "first_dof": first["dof"] if first else "none",
+            "first_check": first["check"].replace("_", "-") if first else "none",
+            "fit": human["fit_time_scale"], "fit_s": human["fit_time_scale"] * human["duration_s"]}

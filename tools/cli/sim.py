@@ -4,11 +4,13 @@ other programs connect to, on stdout)."""
 from __future__ import annotations
 
 import gc
+import sys
 import time
 from contextlib import nullcontext
 
 from ...hal.config import load_config
 from ...hal.realtime import SIMULATOR_PRIORITY, realtime_priority
+from ...sim.console import start_console
 from ...sim.lab import Lab
 from ...sim import serve as simulator
 from .common import describe
@@ -25,6 +27,9 @@ def add_arguments(p) -> None:
                    help="a bench of devices as they leave the factory (Dynamixel: ID 1 at 57600 baud), their horns "
                         "mounted otherwise than the configuration says (zeros off, one joint reversed), unless the "
                         "--bench store holds them")
+    p.add_argument("--console", action="store_true",
+                   help="read the hand's commands (move, push, zero, release, where) from standard input even "
+                        "when it is not a terminal (on a terminal they are read anyway)")
     p.add_argument("--connect", default=None, metavar="DOF[,DOF...]",
                    help="only these joints' devices are wired to their bus (default every one); the others neither "
                         "hear nor answer, their joints hang limp")
@@ -48,6 +53,11 @@ def run(args) -> int:
         _announce_bench(args, config, robot, paths)
     else:
         _announce(args, config, robot, paths, kinds)
+    if args.console or sys.stdin.isatty():
+        # a hand on the simulated arm, typed here: what a person does by hand during bring-up
+        print("type `help` for the hand on the arm (move JOINT DEG, push JOINT +|-, zero, release, where)"
+              + ("; the hand moves while the plant runs: without --lockstep" if args.lockstep else ""), flush=True)
+        start_console(served, sys.stdin, lambda *a, **k: print(*a, **k, flush=True))
     gc.freeze()        # the set-up's objects out of every later collection, as the swing's simulator
     try:
         if len(served.servers) == 1 and kinds == {"dynamixel"}:
