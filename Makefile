@@ -31,6 +31,7 @@ test: venv toolchain browser mocap-clips
 demo: venv
 	@echo "== servodyn demo"
 	@$(VENV)/bin/servodyn swing
+	@echo "servodyn is $(VENV)/bin/servodyn: run it as that, or after 'source $(VENV)/bin/activate' as servodyn (servodyn --help lists the verbs)"
 
 # the READMEs' cog blocks run the commands whose figures they quote (scripts/docs/figures.py)
 docs: venv

@@ -53,7 +53,7 @@ def run(args) -> int:
         _announce_bench(args, config, robot, paths)
     else:
         _announce(args, config, robot, paths, kinds)
-    if args.console or sys.stdin.isatty():
+    if args.console or (sys.stdin is not None and sys.stdin.isatty()):
         # a hand on the simulated arm, typed here: what a person does by hand during bring-up
         print("type `help` for the hand on the arm (move JOINT DEG, push JOINT +|-, zero, release, where)"
               + ("; the hand moves while the plant runs: without --lockstep" if args.lockstep else ""), flush=True)
