@@ -25,12 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from ..control.trajectory import MotionPath, Trajectory, write_trajectory_csv
+from ..errors import ServodynError
 from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..hal.thermal import AMBIENT
 from ..identification import design_excitation
 from ..identification.excitation import HARMONICS, MARGIN
 from ..identification.heating import HEAT_SHARE, design_heating
+from ..outputs import refuse_input_as_output
 from ..validation import Limits, check, describe, judge, violations
 
 AMPLITUDE_STEP = 0.85      # the excursions' scale per failed validation
@@ -40,7 +42,7 @@ HEAT_CHECK_S = 0.02        # s between the samples a heating run is validated at
                            # or more; its holds are still): a run of an hour stays a few MB of checks
 
 
-class ExciteError(Exception):
+class ExciteError(ServodynError):
     """A one-line reason the command cannot go on (exit status 2)."""
 
 
@@ -53,6 +55,7 @@ def run(config_name: str, duration: float | None, dofs: list[str] | None, out: P
         config = load_config(config_name)
     except ConfigError as err:
         raise ExciteError(str(err)) from None
+    refuse_input_as_output(out, "--out", {"--config": config.path})
     model = config.model
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         raise ExciteError(f"--duration must be a positive number of seconds, got {duration:g}")

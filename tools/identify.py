@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import tomlkit
 
+from ..errors import ServodynError
 from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..identification import (FILTER_HZ, FILTER_ORDER, REL_SIGMA_MAX, IdentificationError, Parameter,
@@ -27,7 +28,7 @@ from ..report.plots import _pyplot, short
 THERMAL_KEYS = ("thermal_resistance_k_w", "thermal_time_constant_s")
 
 
-class IdentifyError(Exception):
+class IdentifyError(ServodynError):
     """A one-line reason the command cannot go on (exit status 2)."""
 
 

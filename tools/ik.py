@@ -24,12 +24,14 @@ from pathlib import Path
 import numpy as np
 
 from ..control.trajectory import Trajectory, spline_derivatives, write_trajectory_csv
+from ..errors import ServodynError
 from ..model import Model
 from ..model import ik
 from ..model.rotations import matrix_to_quat, quat_to_matrix, rpy_to_matrix
+from ..outputs import refuse_input_as_output
 
 
-class IkInputError(ValueError):
+class IkInputError(ServodynError, ValueError):
     """A targets file or option that cannot be used (exit 2); the message names it."""
 
 
@@ -38,6 +40,13 @@ class Targets:
     t: np.ndarray                   # (N,) s
     position: np.ndarray            # (N, 3) m
     rotation: np.ndarray | None     # (N, 3, 3) or None
+    source: Path | None = None      # the targets file read
+
+
+@dataclass
+class PathTrajectory(Trajectory):
+    """A hand path's joint trajectory, and the targets file it was solved from (never written over)."""
+    targets: Path | None = None
 
 
 def parse_triple(text: str, what: str) -> np.ndarray:
@@ -87,7 +96,7 @@ def read_targets(path: str | Path) -> Targets:
         row = int(np.argmax(np.diff(t) <= 0)) + 3
         raise IkInputError(f"{path}: row {row}: t must increase")
     rotation = np.array([rpy_to_matrix(r) for r in data[:, 4:7]]) if angles else None
-    return Targets(t=t - t[0], position=data[:, 1:4], rotation=rotation)
+    return Targets(t=t - t[0], position=data[:, 1:4], rotation=rotation, source=path)
 
 
 def densify(targets: Targets, dt: float) -> Targets:
@@ -147,8 +156,10 @@ def solve_targets(model: Model, targets: Targets, dt: float, max_speed=None, swi
     result = ik.solve_path(model, dense.position, dense.rotation, dt=dt, max_speed=max_speed,
                            swivel=swivel, end=end, progress=progress)
     qd, qdd = spline_derivatives(dense.t, result.q)
-    return Trajectory(t=dense.t, q=result.q, qd=qd, qdd=qdd, derived=True), result
+    return PathTrajectory(t=dense.t, q=result.q, qd=qd, qdd=qdd, derived=True, targets=targets.source), result
 
 
 def write_path(model: Model, traj: Trajectory, out: str | Path) -> None:
+    """The trajectory CSV; never over the targets file it was solved from."""
+    refuse_input_as_output(out, "-o", {"--path": getattr(traj, "targets", None)})
     write_trajectory_csv(out, traj, model.dof_names)

@@ -15,9 +15,11 @@ import numpy as np
 
 from ..control.motion import motion_path
 from ..control.trajectory import write_trajectory_csv
+from ..errors import ServodynError
 from ..mocap import ArmTarget, Clip, find_arms, guess_axes, read_bvh, retarget, write_bvh
 from ..mocap.export import ORDERS, arm_clip
 from ..mocap.skeleton import ROLES, UNITS, ArmChain, rest_frame, skeleton_height, guess_unit
+from ..outputs import refuse_input_as_output
 from ..report.plots import _pyplot, short
 from ..report.validation import validate
 
@@ -30,7 +32,7 @@ FLAG_TORQUE_SPIKE = 3.0           # ... and over the dof's own 99th percentile (
 FLAG_TIME_SCALE = 10.0            # validate --fit's scale beyond which the servos are far too slow
 
 
-class MocapError(ValueError):
+class MocapError(ServodynError, ValueError):
     """Bad input to a mocap command: one line."""
 
 
@@ -145,6 +147,8 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
                  output: str | Path | None = None, report_dir: str | Path | None = None, say=print) -> dict:
     """Retarget; the report (written to report_dir/report.json when given), `flags` non-empty when
     the result needs a look."""
+    output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
+    refuse_input_as_output(output, "-o", {"the clip": clip_path, "--config": config and config.path, "--map": map_file})
     clip = _clip(clip_path)
     arms = _arms(clip, map_file)
     if arm not in arms:
@@ -166,9 +170,6 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
             print(f"  ik: {i}/{n} frames", file=sys.stderr, flush=True)
     result = retarget(clip, chain, axes, target, span, twist, method=method, progress=progress)
     traj = result.trajectory
-    output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
-    if output.resolve() == Path(clip_path).resolve():
-        raise MocapError(f"-o {output}: that is the clip itself; name another file for the motion")
     write_trajectory_csv(output, traj, robot_model.dof_names)
     report = {"clip": str(clip_path), "model": robot_model.name, "config": config.name if config else None,
               "arm": arm, "chain": chain.names(clip), "names_from": chain.source, "method": method,

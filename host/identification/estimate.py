@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from ..errors import ServodynError
 from .signals import Prepared
 
 REL_SIGMA_MAX = 0.3        # a parameter with a larger relative standard error is "not determined"
@@ -44,7 +45,7 @@ INERTIAL = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz",
 JOINT_KEYS = ("friction_coulomb_nm", "friction_viscous_nm_s", "armature_kg_m2", "torque_constant_scale")
 
 
-class IdentificationError(ValueError):
+class IdentificationError(ServodynError, ValueError):
     """Logs that identify nothing (no joint moves, no current); the message is one line."""
 
 

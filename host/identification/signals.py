@@ -14,13 +14,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from ..errors import ServodynError
+
 FILTER_HZ = 10.0          # Hz: the low-pass's cut-off
 FILTER_ORDER = 4
 DECIMATED_HZ = 50.0       # Hz: the rate the least squares see (5 samples per period of the cut-off)
 EDGE_S = 0.25             # s dropped at each end, where the filter runs into the log's ends
 
 
-class SignalError(ValueError):
+class SignalError(ServodynError, ValueError):
     """Samples that cannot be filtered: too short, or not evenly spaced."""
 
 

@@ -21,12 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ServodynError
+
 ROTATIONS = ("Xrotation", "Yrotation", "Zrotation")
 POSITIONS = ("Xposition", "Yposition", "Zposition")
 AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 
 
-class BvhError(ValueError):
+class BvhError(ServodynError, ValueError):
     """A BVH file that cannot be used; the message names the file and line."""
 
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..control.trajectory import Trajectory, spline_derivatives
+from ..errors import ServodynError
 from ..model import ik
 from ..model.rotations import unit
 from .angles import about, angle_about, smallest_rotation, split3
@@ -55,7 +56,7 @@ EASE_IN = 0.25                      # s of the clip's start played from stillnes
 FLIP = math.radians(30.0)           # a step this large between frames is a flip, not motion
 
 
-class RetargetError(ValueError):
+class RetargetError(ServodynError, ValueError):
     """A model or clip the retargeting cannot use: one line."""
 
 
