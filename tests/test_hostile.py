@@ -79,3 +79,19 @@ def test_ik_refuses_to_write_over_its_targets(tmp_path, capsys):
     code = main(["ik", "human_arm", "--path", str(targets), "-o", str(targets)])
     one_line_refusal(code, capsys.readouterr().err)
     assert digest(targets) == before, "the targets file is untouched"
+
+
+# ------------------------------------------------------------------ a hang, a design out of bounds
+
+@pytest.mark.parametrize("args, words", [
+    (["--harmonics", "1000"], "to 59"),          # 120 samples a period tell 59 harmonics apart
+    (["--duration", "2", "--harmonics", "30"], "to 20"),    # 20 x 0.5 Hz = identify's 10 Hz low-pass
+    (["--duration", "700"], "600 s"),            # the longest a swing plays
+    (["--duration", "0.1"], "from 0.2 s"),       # two harmonics inside the 10 Hz low-pass
+])
+def test_excite_refuses_a_design_out_of_bounds_at_once(tmp_path, capsys, args, words):
+    out = tmp_path / "x.csv"
+    code = main(["excite", "--config", "replica", *args, "--out", str(out)])
+    err = capsys.readouterr().err
+    one_line_refusal(code, err)
+    assert words in err and not out.exists(), err
