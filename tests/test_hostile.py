@@ -6,9 +6,14 @@ import hashlib
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from servodyn.hal.config import CONFIGS_DIR
+from servodyn.mocap.bvh import BvhError, format_bvh, read_bvh
+from servodyn.mocap.export import arm_clip
+from servodyn.mocap.retarget import ArmTarget
+from servodyn.model import load_model
 from servodyn.tools.cli import main
 
 BAD_INPUT = 2        # servodyn.errors.ExitCode.BAD_INPUT
@@ -95,3 +100,57 @@ def test_excite_refuses_a_design_out_of_bounds_at_once(tmp_path, capsys, args, w
     err = capsys.readouterr().err
     one_line_refusal(code, err)
     assert words in err and not out.exists(), err
+
+
+# ------------------------------------------------------------------ numbers no one checked: mocap
+
+@pytest.fixture(scope="module")
+def arm_bvh(tmp_path_factory) -> str:
+    """An arm waving for 40 frames at 120 Hz, as export-bvh writes it (the CMU naming)."""
+    target = ArmTarget.of(load_model("human_arm"))
+    q = np.zeros((40, 7)) + np.linspace(0, 0.6, 40)[:, None] * np.array([1, 0.5, 0, 1, 0, 0.2, 0])
+    return format_bvh(arm_clip(target, q, 1 / 120.0), 6)
+
+
+def line_of(text: str, word: str) -> int:
+    return next(k for k, line in enumerate(text.splitlines(), start=1) if word in line)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--time", "1e308:"], "--time"),          # once an overflow converting seconds to a frame index
+    (["--twist", "nan"], "--twist nan"),       # once scipy's "array must not contain infs or NaNs"
+    (["--twist", "inf"], "--twist inf"),       # once "a computation left the range of double precision"
+])
+def test_retarget_options_out_of_range_are_one_line_naming_the_option(tmp_path, capsys, arm_bvh, args, words):
+    clip = tmp_path / "arm.bvh"
+    clip.write_text(arm_bvh)
+    code = main(["retarget", str(clip), "-o", str(tmp_path / "m.csv"), *args])
+    err = capsys.readouterr().err
+    one_line_refusal(code, err)
+    assert words in err, err
+
+
+@pytest.mark.parametrize("case", ["Frame Time 1e-9", "Frame Time 1e9", "OFFSET 1e308", "position 1e308"])
+@pytest.mark.parametrize("command", ["retarget", "mocap info"])
+def test_a_clip_with_numbers_no_capture_has_is_one_line_naming_the_line(tmp_path, capsys, arm_bvh, case, command):
+    """A frame time of 1e-9 s once made retarget (and view --source) sample 0.25 s at 1e9 Hz, 19 GiB;
+    an OFFSET of 1e308 overflowed in a dot product, naming no line."""
+    lines = arm_bvh.splitlines()
+    if case.startswith("Frame Time"):
+        k = line_of(arm_bvh, "Frame Time:")
+        lines[k - 1] = f"Frame Time: {case.split()[-1]}"
+    elif case == "OFFSET 1e308":
+        k = line_of(arm_bvh, "JOINT RightForeArm") + 2
+        lines[k - 1] = "OFFSET 1e308 0 0"
+    else:
+        k = line_of(arm_bvh, "Frame Time:") + 3        # the third frame's root x position
+        lines[k - 1] = "1e308 " + lines[k - 1].split(" ", 1)[1]
+    clip = tmp_path / "bad.bvh"
+    clip.write_text("\n".join(lines) + "\n")
+    args = ["retarget", str(clip), "-o", str(tmp_path / "m.csv")] if command == "retarget" else ["mocap", "info", str(clip)]
+    code = main(args)
+    err = capsys.readouterr().err
+    one_line_refusal(code, err)
+    assert f"line {k}:" in err, err
+    with pytest.raises(BvhError):
+        read_bvh(clip)
