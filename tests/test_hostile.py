@@ -154,3 +154,20 @@ def test_a_clip_with_numbers_no_capture_has_is_one_line_naming_the_line(tmp_path
     assert f"line {k}:" in err, err
     with pytest.raises(BvhError):
         read_bvh(clip)
+
+
+# ------------------------------------------------------------------ numbers no one checked: ik
+
+@pytest.mark.parametrize("targets, args, words", [
+    ("t,x,y,z\n0,0.3,-0.1,-0.2\n1,0.3,-0.1,-0.25\n", ["--dt", "1e-9"], "--dt"),     # 1e9 samples: 7.45 GiB
+    ("t,x,y,z\n0,0.3,-0.1,-0.2\n1e9,0.3,-0.1,-0.25\n", [], "spans 1e+09 s"),          # 1e11 samples at 10 ms
+    (b"\x8a\x00\xff\xfe binary", [], "not a text file"),                             # once UnicodeDecodeError
+])
+def test_ik_paths_no_one_can_sample_are_one_line(tmp_path, capsys, targets, args, words):
+    path = tmp_path / "targets.csv"
+    path.write_bytes(targets if isinstance(targets, bytes) else targets.encode())
+    out = tmp_path / "m.csv"
+    code = main(["ik", "human_arm", "--path", str(path), "-o", str(out), *args])
+    err = capsys.readouterr().err
+    one_line_refusal(code, err)
+    assert words in err and not out.exists(), err
