@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servodyn.hal.config import CONFIGS_DIR
+from servodyn.hal.config import CONFIGS_DIR, load_config
+from servodyn.loop.log import columns
 from servodyn.mocap.bvh import BvhError, format_bvh, read_bvh
 from servodyn.mocap.export import arm_clip
 from servodyn.mocap.retarget import ArmTarget
@@ -171,3 +172,27 @@ def test_ik_paths_no_one_can_sample_are_one_line(tmp_path, capsys, targets, args
     err = capsys.readouterr().err
     one_line_refusal(code, err)
     assert words in err and not out.exists(), err
+
+
+# ------------------------------------------------------------------ numbers no one checked: identify
+
+def swing_log(path: Path, step: float, rows: int = 400) -> Path:
+    """A swing_log.csv (loop.log.columns) every `step` s: each joint swinging, 0.1 A of current."""
+    dofs = load_config("replica").model.dof_names
+    header = columns(dofs)
+    k = np.arange(rows)
+    values = {"t": k * step}
+    for d in dofs:
+        values.update({f"q_{d}": 0.5 * np.sin(k / 50), f"q_d_{d}": 0.5 * np.sin(k / 50), f"current_{d}": 0.1 + 0 * k})
+    table = np.column_stack([values.get(h, np.zeros(rows)) for h in header])
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(repr(float(v)) for v in row) for row in table) + "\n")
+    return path
+
+
+def test_identify_on_a_log_whose_time_step_no_servo_has_is_one_line(tmp_path, capsys):
+    """t every 1e-300 s: once a 'Singular matrix' traceback from the filter's design at 1e300 Hz."""
+    log = swing_log(tmp_path / "swing_log.csv", 1e-300)
+    code = main(["identify", "--config", "replica", str(log), "--out", str(tmp_path / "id")])
+    err = capsys.readouterr().err
+    one_line_refusal(code, err)
+    assert "time step of 1e-300 s" in err, err
