@@ -3,11 +3,19 @@ unlucky user gives: each case ends in one line and exit status 2 (a refusal), ne
 hang, a lost file or an impossible number reported as determined."""
 
 import hashlib
+import math
+import re
 import shutil
+import signal
+import tempfile
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from servodyn.hal.config import CONFIGS_DIR, load_config
 from servodyn.loop.log import columns
@@ -15,7 +23,11 @@ from servodyn.mocap.bvh import BvhError, format_bvh, read_bvh
 from servodyn.mocap.export import arm_clip
 from servodyn.mocap.retarget import ArmTarget
 from servodyn.model import load_model
+from servodyn.errors import ServodynError
+from servodyn.tools import excite, identify
+from servodyn.tools import ik as ik_command
 from servodyn.tools.cli import main
+from servodyn.tools.mocap import run_retarget
 
 BAD_INPUT = 2        # servodyn.errors.ExitCode.BAD_INPUT
 
@@ -106,11 +118,13 @@ def test_excite_refuses_a_design_out_of_bounds_at_once(tmp_path, capsys, args, w
 # ------------------------------------------------------------------ numbers no one checked: mocap
 
 @pytest.fixture(scope="module")
-def arm_bvh(tmp_path_factory) -> str:
+def arm_bvh(tmp_path_factory) -> Path:
     """An arm waving for 40 frames at 120 Hz, as export-bvh writes it (the CMU naming)."""
     target = ArmTarget.of(load_model("human_arm"))
     q = np.zeros((40, 7)) + np.linspace(0, 0.6, 40)[:, None] * np.array([1, 0.5, 0, 1, 0, 0.2, 0])
-    return format_bvh(arm_clip(target, q, 1 / 120.0), 6)
+    path = tmp_path_factory.mktemp("clip") / "arm.bvh"
+    path.write_text(format_bvh(arm_clip(target, q, 1 / 120.0), 6))
+    return path
 
 
 def line_of(text: str, word: str) -> int:
@@ -123,9 +137,7 @@ def line_of(text: str, word: str) -> int:
     (["--twist", "inf"], "--twist inf"),       # once "a computation left the range of double precision"
 ])
 def test_retarget_options_out_of_range_are_one_line_naming_the_option(tmp_path, capsys, arm_bvh, args, words):
-    clip = tmp_path / "arm.bvh"
-    clip.write_text(arm_bvh)
-    code = main(["retarget", str(clip), "-o", str(tmp_path / "m.csv"), *args])
+    code = main(["retarget", str(arm_bvh), "-o", str(tmp_path / "m.csv"), *args])
     err = capsys.readouterr().err
     one_line_refusal(code, err)
     assert words in err, err
@@ -136,15 +148,16 @@ def test_retarget_options_out_of_range_are_one_line_naming_the_option(tmp_path, 
 def test_a_clip_with_numbers_no_capture_has_is_one_line_naming_the_line(tmp_path, capsys, arm_bvh, case, command):
     """A frame time of 1e-9 s once made retarget (and view --source) sample 0.25 s at 1e9 Hz, 19 GiB;
     an OFFSET of 1e308 overflowed in a dot product, naming no line."""
-    lines = arm_bvh.splitlines()
+    text = arm_bvh.read_text()
+    lines = text.splitlines()
     if case.startswith("Frame Time"):
-        k = line_of(arm_bvh, "Frame Time:")
+        k = line_of(text, "Frame Time:")
         lines[k - 1] = f"Frame Time: {case.split()[-1]}"
     elif case == "OFFSET 1e308":
-        k = line_of(arm_bvh, "JOINT RightForeArm") + 2
+        k = line_of(text, "JOINT RightForeArm") + 2
         lines[k - 1] = "OFFSET 1e308 0 0"
     else:
-        k = line_of(arm_bvh, "Frame Time:") + 3        # the third frame's root x position
+        k = line_of(text, "Frame Time:") + 3        # the third frame's root x position
         lines[k - 1] = "1e308 " + lines[k - 1].split(" ", 1)[1]
     clip = tmp_path / "bad.bvh"
     clip.write_text("\n".join(lines) + "\n")
@@ -181,7 +194,8 @@ def swing_log(path: Path, step: float, rows: int = 400) -> Path:
     dofs = load_config("replica").model.dof_names
     header = columns(dofs)
     k = np.arange(rows)
-    values = {"t": k * step}
+    with np.errstate(all="ignore"):                         # 0 x inf: a NaN in t, as a hostile log has
+        values = {"t": k * step}
     for d in dofs:
         values.update({f"q_{d}": 0.5 * np.sin(k / 50), f"q_d_{d}": 0.5 * np.sin(k / 50), f"current_{d}": 0.1 + 0 * k})
     table = np.column_stack([values.get(h, np.zeros(rows)) for h in header])
@@ -196,3 +210,72 @@ def test_identify_on_a_log_whose_time_step_no_servo_has_is_one_line(tmp_path, ca
     err = capsys.readouterr().err
     one_line_refusal(code, err)
     assert "time step of 1e-300 s" in err, err
+
+
+# ------------------------------------------------------------------ every entry, random hostile numbers
+
+HOSTILE = [math.nan, math.inf, -math.inf, 0.0, -1.0, 1e-300, -1e-300, 1e-9, 1e308, -1e308, 1e9]
+PER_EXAMPLE_S = 60          # a refusal takes a fraction of a second; past this it is a hang
+
+
+@contextmanager
+def no_hang(seconds: int = PER_EXAMPLE_S):
+    def stop(signum, frame):
+        raise AssertionError(f"still running after {seconds} s: a hang")
+    before = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, before)
+
+
+def refused(call) -> ServodynError:
+    """`call()` raises a ServodynError (never another exception, a result, or a hang) and writes nothing."""
+    with no_hang(), warnings.catch_warnings():
+        warnings.filterwarnings("error", category=RuntimeWarning)       # an overflow is a wrong number too
+        with pytest.raises(ServodynError) as caught:
+            call()
+    return caught.value
+
+
+ENTRIES = ["excite", "identify", "retarget", "bvh", "ik"]
+
+
+@settings(deadline=None, max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(entry=st.sampled_from(ENTRIES), x=st.sampled_from(HOSTILE), y=st.sampled_from(HOSTILE),
+       n=st.sampled_from([-5, 0, 1, 1000, 10**9]))
+def test_every_entry_refuses_hostile_numbers_with_a_servodyn_error(tmp_path, arm_bvh, entry, x, y, n):
+    """The commands' entry functions (tools.excite.run, tools.identify.run, tools.mocap.run_retarget,
+    mocap.read_bvh, tools.ik.read_targets and solve_targets) given non-finite, huge or tiny numbers
+    where a duration, a count, a margin, a payload, a cut-off, a time step, a span, a twist, a frame
+    time, an OFFSET or a sampling period goes. x is always out of range (no value of HOSTILE is a
+    duration, a log's time step or a frame time a command takes; a start inside the clip is moved past
+    its end), y and n are anything: whichever is checked first, the answer is a ServodynError."""
+    quiet = lambda *a, **k: None                                  # noqa: E731
+    out = Path(tempfile.mkdtemp(dir=tmp_path)) / f"{entry}.out"      # tmp_path is shared by the examples
+    if entry == "excite":
+        refused(lambda: excite.run("replica", x, None, out, harmonics=n, margin=y, say=quiet))
+    elif entry == "identify":
+        log = swing_log(tmp_path / "swing_log.csv", x)
+        refused(lambda: identify.run("replica", [str(log)], None, y, False, out, cutoff=y, say=quiet, warn=quiet))
+    elif entry == "retarget":
+        model = load_model("human_arm")
+        start = x if not 0 <= x <= 1 else x + 1e9                 # from 0 to 1 s is inside the 0.325 s clip
+        twist = y if not math.isfinite(y) else None
+        refused(lambda: run_retarget(str(arm_bvh), model=model, time=f"{start!r}:", twist_deg=twist, output=out,
+                                     say=quiet))
+    elif entry == "bvh":
+        text = re.sub(r"Frame Time: .*", f"Frame Time: {x!r}", arm_bvh.read_text())
+        clip = tmp_path / "hostile.bvh"
+        clip.write_text(re.sub(r"OFFSET .*", f"OFFSET {y!r} 0 0", text, count=2))
+        refused(lambda: read_bvh(clip))
+    else:
+        path = tmp_path / "targets.csv"
+        span = x if math.isfinite(x) and abs(x) > 1 else 1.0       # a span of 1 s, with dt out of range
+        path.write_text(f"t,x,y,z\n0,0.3,-0.1,-0.2\n{span!r},0.3,-0.1,-0.25\n")
+        model = load_model("human_arm")
+        dt = y if not y >= 1e-4 else 1e-9
+        refused(lambda: ik_command.solve_targets(model, ik_command.read_targets(path), dt))
+    assert not out.exists(), "nothing written"
