@@ -12,7 +12,8 @@ import tomlkit
 
 from servodyn.control.trajectory import read_trajectory_csv
 from servodyn.hal.config import load_config
-from servodyn.identification import design_excitation, fit_thermal, identify, measured_torque, prepare
+from servodyn.identification import (IdentificationError, design_excitation, fit_thermal, identify,
+                                     measured_torque, prepare)
 from servodyn.identification.synthetic import Plant, simulate_log
 from servodyn.loop.log import columns
 from servodyn.tools.cli import main
@@ -79,6 +80,30 @@ def test_recovers_the_plant_with_a_known_payload(replica):
         # a point 0.07 m from the hand's origin: each coordinate to a tenth of a millimetre's noise
         _close(f"payload com {'xyz'[k]}", p, hand.com[k])
     assert est.condition_number < 100, f"a well conditioned experiment, got {est.condition_number:.3g}"
+
+
+def test_the_log_carrying_the_known_payload_is_named_not_placed(replica):
+    """The loaded log given first and named so (loaded=0): the same numbers as in the usual order.
+    Given first and taken for the last (the mass put on the log without it), the scales fit about
+    -s (s(tau_without - tau_with) is the payload's torque): refused, not a payload of -1.5 kg."""
+    model, plant = replica["model"], replica["plant"]
+    plain, loaded = (_prepared(replica, log) for log in replica["logs"])
+    est = identify(model, replica["joints"], [loaded, plain], known_payload=KNOWN_KG, loaded=0)
+    _close("payload mass", est.payload["mass_kg"], plant.payload_kg)
+    for j, dof in enumerate(model.dof_names):
+        _close(f"{dof} torque constant scale", est.joints[dof]["torque_constant_scale"], plant.torque_scale[j])
+    with pytest.raises(IdentificationError, match="negative on 7 of 7 joints"):
+        identify(model, replica["joints"], [loaded, plain], known_payload=KNOWN_KG)
+
+
+def test_a_payload_below_zero_is_not_determined(replica):
+    """A model 0.6 kg heavier at the hand than the plant (which carries 0.3): the payload fits about
+    -0.3 kg with a small standard error, which no payload has: not determined, and said why."""
+    heavy = replica["model"].with_payload(0.6)
+    est = identify(heavy, replica["joints"], [_prepared(replica, replica["logs"][0])])
+    mass = est.payload["mass_kg"]
+    assert mass.value is None and "below zero" in mass.note, mass
+    assert all(c.value is None for c in est.payload["com_m"]), "nor is its centre of mass"
 
 
 def test_one_log_leaves_the_torque_constant_free(replica):
@@ -235,6 +260,24 @@ def test_logs_that_identify_nothing_exit_2_in_one_line(replica, tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+@pytest.mark.parametrize("case", ["reversed", "one file twice", "a copy"])
+def test_logs_whose_roles_are_unknown_exit_2_in_one_line(replica, tmp_path, capsys, case):
+    """With --known-payload the last log carried the mass: given in the other order, or the same
+    samples twice (one file, or two files holding the same rows), nothing separates the log with
+    it from the one without it: refused in one line, no numbers written."""
+    model = replica["model"]
+    plain, loaded = (write_log(tmp_path / f"{name}.csv", model, log) for name, log in zip(("plain", "loaded"),
+                                                                                           replica["logs"]))
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(plain.read_bytes())
+    logs = {"reversed": [loaded, plain], "one file twice": [plain, plain], "a copy": [plain, copy]}[case]
+    out = tmp_path / "id"
+    code = main(["identify", "--config", "replica", *map(str, logs), "--known-payload", str(KNOWN_KG), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert not (out / "identified.json").exists(), "nothing reported as determined"
 
 
 def test_excite_starts_and_ends_at_rest_inside_the_limits_and_passes_validate(tmp_path, capsys):

@@ -30,8 +30,9 @@ from ..hal.config import load_config
 from ..hal.errors import ConfigError
 from ..hal.thermal import AMBIENT
 from ..identification import design_excitation
-from ..identification.excitation import HARMONICS, MARGIN
+from ..identification.excitation import HARMONICS, MARGIN, ExcitationError, check_design
 from ..identification.heating import HEAT_SHARE, design_heating
+from ..outputs import refuse_input_as_output
 from ..validation import Limits, check, describe, judge, violations
 
 AMPLITUDE_STEP = 0.85      # the excursions' scale per failed validation
@@ -54,13 +55,12 @@ def run(config_name: str, duration: float | None, dofs: list[str] | None, out: P
         config = load_config(config_name)
     except ConfigError as err:
         raise ExciteError(str(err)) from None
+    refuse_input_as_output(out, "--out", {"--config": config.path})
     model = config.model
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         raise ExciteError(f"--duration must be a positive number of seconds, got {duration:g}")
     if not 0 <= margin < 0.5:
         raise ExciteError(f"--margin must be a fraction of each joint's range from 0 to 0.5, got {margin:g}")
-    if harmonics < 2:
-        raise ExciteError(f"--harmonics must be 2 or more (the last closes the rest at both ends), got {harmonics}")
     by_dof = {j.dof: j for j in config.joints}
     unknown = sorted(set(dofs or ()) - set(model.dof_names))
     if unknown:
@@ -76,10 +76,15 @@ def run(config_name: str, duration: float | None, dofs: list[str] | None, out: P
     if heat:
         return _heating(config, excited, duration, out, margin, seed, say)
     duration = DEFAULT_DURATION if duration is None else duration
+    try:
+        check_design(duration, harmonics)
+    except ExcitationError as err:
+        raise ExciteError(f"--duration {duration:g} with --harmonics {harmonics}: {err}") from None
     say(f"designing {duration:g} s of excitation for {len(excited)} joints of '{config.name}' "
         f"({harmonics} harmonics, condition number minimised)...")
-    series, condition = design_excitation(model, lower, upper, speed, duration, excited=excited,
-                                          harmonics=harmonics, margin=margin, iterations=iterations, seed=seed)
+    series, condition = design_excitation(
+        model, lower, upper, speed, duration, excited=excited, harmonics=harmonics, margin=margin,
+        iterations=iterations, seed=seed, progress=lambda i, n, c: say(f"  iteration {i}/{n}: condition number {c:.3g}"))
     factor = 1.0
     for _ in range(MAX_TRIES):
         trial = series.scaled(factor)

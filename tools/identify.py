@@ -243,7 +243,8 @@ def summary(result: dict) -> str:
 
 def run(config_name: str, paths: list[str], payload_body: str | None, known_payload: float, arm: bool,
         out: Path, cutoff: float = FILTER_HZ, apply_to: str | None = None, apply: bool = False,
-        confirm=None, say=print, warn=print) -> int:
+        confirm=None, say=print, warn=print, loaded: str | None = None) -> int:
+    """`loaded`: the one of `paths` whose run carried `known_payload` kg more (default: the last)."""
     try:
         config = load_config(config_name)
     except ConfigError as err:
@@ -256,10 +257,14 @@ def run(config_name: str, paths: list[str], payload_body: str | None, known_payl
     joints = [by_dof[d] for d in model.dof_names]
     if not (math.isfinite(cutoff) and cutoff > 0):
         raise IdentifyError(f"--cutoff must be a positive number of Hz, got {cutoff:g}")
+    if loaded is not None and loaded not in paths:
+        raise IdentifyError(f"{loaded}: not one of the logs given ({', '.join(map(str, paths))}), so it cannot be "
+                            "the one that carried the known payload")
     read = [_read(p, model, joints, cutoff) for p in paths]
     try:
         estimate = identify(model, joints, [r[0] for r in read], payload_body=payload_body,
-                            known_payload=known_payload, arm=arm, names=[str(p) for p in paths])
+                            known_payload=known_payload, arm=arm, names=[str(p) for p in paths],
+                            loaded=None if loaded is None else paths.index(loaded))
     except IdentificationError as err:
         raise IdentifyError(str(err)) from None
     for note in estimate.notes:

@@ -23,11 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.timing import MAX_PLAYED_DURATION, MIN_CONTROL_PERIOD
 from ..control.trajectory import Trajectory, spline_derivatives, write_trajectory_csv
 from ..errors import ServodynError
 from ..model import Model
 from ..model import ik
 from ..model.rotations import matrix_to_quat, quat_to_matrix, rpy_to_matrix
+from ..outputs import refuse_input_as_output
 
 
 class IkInputError(ServodynError, ValueError):
@@ -39,6 +41,13 @@ class Targets:
     t: np.ndarray                   # (N,) s
     position: np.ndarray            # (N, 3) m
     rotation: np.ndarray | None     # (N, 3, 3) or None
+    source: Path | None = None      # the targets file read
+
+
+@dataclass
+class PathTrajectory(Trajectory):
+    """A hand path's joint trajectory, and the targets file it was solved from (never written over)."""
+    targets: Path | None = None
 
 
 def parse_triple(text: str, what: str) -> np.ndarray:
@@ -56,8 +65,11 @@ def parse_triple(text: str, what: str) -> np.ndarray:
 def read_targets(path: str | Path) -> Targets:
     """The rows of a targets CSV (t, x, y, z[, roll, pitch, yaw]); IkInputError names the row."""
     path = Path(path)
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except (UnicodeDecodeError, csv.Error):
+        raise IkInputError(f"{path}: not a text file; expected a CSV with the header t,x,y,z[,roll,pitch,yaw]") from None
     if not rows:
         raise IkInputError(f"{path}: empty; expected the header t,x,y,z[,roll,pitch,yaw]")
     header = [h.strip() for h in rows[0]]
@@ -87,8 +99,11 @@ def read_targets(path: str | Path) -> Targets:
     if np.any(np.diff(t) <= 0):
         row = int(np.argmax(np.diff(t) <= 0)) + 3
         raise IkInputError(f"{path}: row {row}: t must increase")
+    if t[-1] - t[0] > MAX_PLAYED_DURATION:
+        raise IkInputError(f"{path}: t spans {t[-1] - t[0]:.4g} s; a motion lasts at most {MAX_PLAYED_DURATION:g} s "
+                           "(the longest a swing plays)")
     rotation = np.array([rpy_to_matrix(r) for r in data[:, 4:7]]) if angles else None
-    return Targets(t=t - t[0], position=data[:, 1:4], rotation=rotation)
+    return Targets(t=t - t[0], position=data[:, 1:4], rotation=rotation, source=path)
 
 
 def densify(targets: Targets, dt: float) -> Targets:
@@ -134,13 +149,18 @@ def pose_report(model: Model, result: ik.IkResult, end: str | None = None) -> li
 def solve_targets(model: Model, targets: Targets, dt: float, max_speed=None, swivel_deg=None,
                   end=None, progress=None) -> tuple[Trajectory, ik.PathResult]:
     """The dense joint trajectory of a targets path (and the per-sample IK result)."""
+    if not (math.isfinite(dt) and dt >= MIN_CONTROL_PERIOD):
+        raise IkInputError(f"--dt {dt:g}: a path is sampled every {MIN_CONTROL_PERIOD * 1e3:g} ms or more (the "
+                           "shortest control period: a servo plays nothing finer)")
     dense = densify(targets, dt)
     swivel = None if swivel_deg is None else math.radians(swivel_deg)
     result = ik.solve_path(model, dense.position, dense.rotation, dt=dt, max_speed=max_speed,
                            swivel=swivel, end=end, progress=progress)
     qd, qdd = spline_derivatives(dense.t, result.q)
-    return Trajectory(t=dense.t, q=result.q, qd=qd, qdd=qdd, derived=True), result
+    return PathTrajectory(t=dense.t, q=result.q, qd=qd, qdd=qdd, derived=True, targets=targets.source), result
 
 
 def write_path(model: Model, traj: Trajectory, out: str | Path) -> None:
+    """The trajectory CSV; never over the targets file it was solved from."""
+    refuse_input_as_output(out, "-o", {"--path": getattr(traj, "targets", None)})
     write_trajectory_csv(out, traj, model.dof_names)

@@ -17,8 +17,10 @@ from ..control.motion import motion_path
 from ..control.trajectory import write_trajectory_csv
 from ..errors import ServodynError
 from ..mocap import ArmTarget, Clip, find_arms, guess_axes, read_bvh, retarget, write_bvh
+from ..mocap.bvh import MAX_RATE_HZ, MIN_RATE_HZ
 from ..mocap.export import ORDERS, arm_clip
 from ..mocap.skeleton import ROLES, UNITS, ArmChain, rest_frame, skeleton_height, guess_unit
+from ..outputs import refuse_input_as_output
 from ..report.plots import _pyplot, short
 from ..report.validation import validate
 
@@ -129,8 +131,10 @@ def frame_slice(clip: Clip, frames: str | None, time: str | None) -> slice | Non
         a, b = parse_span(frames, "frames", int)
     elif time:
         a, b = parse_span(time, "time", float)
+        if a is not None and a > clip.duration:
+            raise MocapError(f"--time {time}: starts at {a:g} s, after the clip's last frame ({clip.duration:.3f} s)")
         a = None if a is None else int(round(a / clip.frame_time))
-        b = None if b is None else int(round(b / clip.frame_time)) + 1
+        b = None if b is None or b > clip.duration else int(round(b / clip.frame_time)) + 1
     else:
         return None
     a = a or 0
@@ -146,6 +150,10 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
                  output: str | Path | None = None, report_dir: str | Path | None = None, say=print) -> dict:
     """Retarget; the report (written to report_dir/report.json when given), `flags` non-empty when
     the result needs a look."""
+    if twist_deg is not None and not math.isfinite(twist_deg):
+        raise MocapError(f"--twist {twist_deg}: the elbow axis's twist about the upper arm is a finite number of degrees")
+    output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
+    refuse_input_as_output(output, "-o", {"the clip": clip_path, "--config": config and config.path, "--map": map_file})
     clip = _clip(clip_path)
     arms = _arms(clip, map_file)
     if arm not in arms:
@@ -167,9 +175,6 @@ def run_retarget(clip_path: str, *, model=None, config=None, arm: str = "right",
             print(f"  ik: {i}/{n} frames", file=sys.stderr, flush=True)
     result = retarget(clip, chain, axes, target, span, twist, method=method, progress=progress)
     traj = result.trajectory
-    output = Path(output) if output else Path("out/retarget") / f"{Path(clip_path).stem}.csv"
-    if output.resolve() == Path(clip_path).resolve():
-        raise MocapError(f"-o {output}: that is the clip itself; name another file for the motion")
     write_trajectory_csv(output, traj, robot_model.dof_names)
     report = {"clip": str(clip_path), "model": robot_model.name, "config": config.name if config else None,
               "arm": arm, "chain": chain.names(clip), "names_from": chain.source, "method": method,
@@ -286,8 +291,8 @@ def export_bvh(motion: str, model, output: str | Path, order: str = "ZXY", unit:
         raise MocapError(f"--order {order}: expected one of {', '.join(ORDERS)}")
     if unit not in UNITS:
         raise MocapError(f"--unit {unit}: expected one of {', '.join(UNITS)}")
-    if not (math.isfinite(rate) and 1 <= rate <= 10_000):
-        raise MocapError(f"--rate {rate:g}: expected frames per second from 1 to 10000")
+    if not (math.isfinite(rate) and MIN_RATE_HZ <= rate <= MAX_RATE_HZ):
+        raise MocapError(f"--rate {rate:g}: expected frames per second from {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g}")
     target = ArmTarget.of(model)
     path = motion_path(motion, model)
     traj = path.at_scale(1.0, 1.0 / rate)

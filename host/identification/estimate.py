@@ -11,9 +11,11 @@ its Coulomb friction is known; notes/identification.md):
   (π_model then drops out) — reduced to base parameters: the inertial columns that the friction and
   armature columns leave independent, by QR with column pivoting on the regressor at random states
   (Gautier 1991), the others regrouped into them;
-- s_j, the torque-constant scale, only when the last log carries a known payload π_known (a point
-  mass at body b's own centre of mass, where `validate --payload` puts it): current and inertia alone
-  leave that scale free (Gautier & Briot 2011);
+- s_j, the torque-constant scale, only when one log (`loaded`, by default the last) carries a known
+  payload π_known (a point mass at body b's own centre of mass, where `validate --payload` puts it):
+  current and inertia alone leave that scale free (Gautier & Briot 2011). The scale comes from the
+  difference between the logs with and without it, so the same samples given twice are refused, and
+  so are roles that make the scales negative (the mass put on a log that carried less);
 - ordinary least squares, then each joint's rows weighted by 1/σ_j, σ_j from its OLS residual;
   Cov = σ̂²(AᵀWA)⁻¹. A parameter whose standard error exceeds REL_SIGMA_MAX of its value is reported
   as not determined, with the figures, never as a number.
@@ -160,13 +162,19 @@ def _base_columns(model, inertial: np.ndarray, rng) -> tuple[np.ndarray, np.ndar
 
 
 def identify(model, joints, logs: list[Prepared], payload_body: str | None = None, known_payload: float = 0.0,
-             arm: bool = False, names: list[str] | None = None, seed: int = 0) -> Estimate:
+             arm: bool = False, names: list[str] | None = None, seed: int = 0, loaded: int | None = None) -> Estimate:
     """Estimate friction, armature, the payload at `payload_body` (default the last body) or with
     `arm` the arm's base parameters, and, when `known_payload` kg rode on that body's centre of mass
-    in the last log, a torque-constant scale per joint. `joints`: the configuration's JointConfigs in
-    model dof order (the torque columns' meaning); logs already `prepare`d."""
+    in log `loaded` (an index into `logs`; default the last), a torque-constant scale per joint.
+    `joints`: the configuration's JointConfigs in model dof order (the torque columns' meaning);
+    logs already `prepare`d."""
     n, nb = model.nv, model.nbody
     names = names or [f"log {k + 1}" for k in range(len(logs))]
+    for k, later in ((k, m) for m in range(len(logs)) for k in range(m)):
+        if _same_samples(logs[k], logs[later]):
+            raise IdentificationError(f"{names[k]} and {names[later]} hold the same samples: one log given twice "
+                                      "adds no information (and with a known payload nothing tells the log that "
+                                      "carried it from the one without it)")
     body_name = payload_body or model.body_names[-1]
     if body_name not in model.body_names:
         raise IdentificationError(f"no body '{body_name}' in model '{model.name}' ({', '.join(model.body_names)})")
@@ -177,6 +185,9 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
     if scaled and len(logs) < 2:
         raise IdentificationError("a known payload needs two logs or more: the last one with the known mass, "
                                   "the others without it")
+    loaded = len(logs) - 1 if loaded is None else loaded
+    if not 0 <= loaded < len(logs):
+        raise IdentificationError(f"the log carrying the known payload is number {loaded + 1}, of {len(logs)} logs")
     notes = []
     if not scaled:
         notes.append("torque constants taken as configured (no --known-payload log): where one is off, that "
@@ -209,7 +220,7 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
     for k, log in enumerate(logs):
         m = len(log.t)
         Y = model.regressor(log.q, log.qd, log.qdd)
-        known = Y[:, :, 10 * b:10 * b + 10] @ pi_known if scaled and k == len(logs) - 1 else np.zeros((m, n))
+        known = Y[:, :, 10 * b:10 * b + 10] @ pi_known if scaled and k == loaded else np.zeros((m, n))
         fixed = np.zeros((m, n)) if arm else Y @ pi_model
         A = np.zeros((m, n, len(cols)))
         for c, (what, j) in enumerate(cols):
@@ -259,6 +270,8 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
 
     # per joint numbers
     got = {col: (theta[c], std[c]) for c, col in enumerate(cols)}
+    if scaled:
+        _check_roles(got, live, forward, backward, known_payload, names[loaded])
     units = {"armature_kg_m2": "kg m²", "friction_viscous_nm_s": "N m s", "friction_coulomb_nm": "N m",
              "torque_constant_scale": ""}
     out_joints = {}
@@ -320,6 +333,24 @@ def identify(model, joints, logs: list[Prepared], payload_body: str | None = Non
     return Estimate(tuple(model.dof_names), out_joints, payload, base_out, residual, condition, len(y), notes, fits)
 
 
+def _same_samples(a: Prepared, b: Prepared) -> bool:
+    return a.q.shape == b.q.shape and np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau)
+
+
+def _check_roles(got: dict, live, forward, backward, known_payload: float, name: str) -> None:
+    """IdentificationError when the torque-constant scales come out negative on most joints that
+    moved enough for one: the measured torque then says the log given the known payload carried less
+    than the others, not more (s·(τ_with − τ_without) = the payload's torque fits with s < 0)."""
+    scales = [got[("torque_constant_scale", j)][0] for j in live
+              if not _too_little_motion("torque_constant_scale", forward[j], backward[j])]
+    negative = [s for s in scales if s < 0]
+    if scales and 2 * len(negative) > len(scales):
+        raise IdentificationError(f"with the known {known_payload:g} kg on {name} the torque-constant scales come "
+                                  f"out negative on {len(negative)} of {len(scales)} joints ({min(negative):.2f} to "
+                                  f"{max(negative):.2f}), as if that log carried less than the others, not more: "
+                                  "which log carried the payload?")
+
+
 def _too_little_motion(key: str, forward: float, backward: float) -> str:
     """Why a joint moved too little in the logs for `key`, or "" when it moved enough."""
     moved = f"the joint moves {forward:.1f} s one way and {backward:.1f} s the other faster than {STILL_SPEED:g} rad/s"
@@ -345,6 +376,10 @@ def _payload(model, b, base, dropped, K, delta, d_std, inertial, cov, cols, scal
         return {"body": name, "mass_kg": Parameter(None, None, why), "com_m": [Parameter(None, None, why)] * 3}
     m, m_std = delta[10 * b], d_std[10 * b]
     mass = _judged(m, m_std, "kg")
+    if mass.determined and m < 0:
+        mass = Parameter(None, None, f"not determined: fitted {m:.4g} ± {m_std:.2g} kg, a mass below zero, which no "
+                                     f"payload has (is the model's {name} heavier than the arm's? --arm fits every "
+                                     "body)")
     if not mass.determined:
         return {"body": name, "mass_kg": mass,
                 "com_m": [Parameter(None, None, "not determined: the payload's mass is not")] * 3}

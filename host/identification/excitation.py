@@ -8,7 +8,15 @@ t = 0 and at every period's end: the motion starts and ends at rest. The last ha
 are what those two sums leave, the others free. Inside `limits` with a margin: each joint's
 excursion from q_j0 (the middle of its range) is scaled to the range shrunk by the margin, and down
 further when its peak speed would pass `speed_fraction` of the joint's velocity limit — in the
-objective itself, so the optimiser sees only motions that fit."""
+objective itself, so the optimiser sees only motions that fit.
+
+Bounded by what it is for: at most MAX_PLAYED_DURATION (a swing samples its motion whole), and at
+most `max_harmonics(duration)` harmonics: the highest, N times the base frequency, at or below
+identify's low-pass cut-off (signals.FILTER_HZ: above it the filter takes the harmonic out of the q
+and torque the least squares see) and below half the SAMPLES of a period the condition number is
+evaluated at (above, a harmonic aliases on that grid and the design cannot see it). The optimiser's
+cost grows with the harmonics (a gradient is 2(N - 1) evaluations per joint); `progress` is told
+each iteration."""
 
 from __future__ import annotations
 
@@ -18,7 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from ..control.timing import MAX_PLAYED_DURATION
+from ..errors import ServodynError
 from .estimate import _base_columns, _gram_condition
+from .signals import FILTER_HZ
 
 HARMONICS = 5
 PERIOD_S = 10.0           # s: the period aimed at (f ≈ 0.1 Hz; notes/identification.md)
@@ -26,6 +37,40 @@ SAMPLES = 120             # per period, where the condition number is evaluated
 PEAK_SAMPLES = 4000       # per period, where the peaks are found (the highest harmonic's period in 800)
 MARGIN = 0.1              # of each joint's range kept clear at both ends
 SPEED_FRACTION = 0.6      # of each joint's velocity limit
+
+
+class ExcitationError(ServodynError, ValueError):
+    """A duration or a number of harmonics no excitation is designed for; the message is one line."""
+
+
+def base_frequency(duration: float) -> float:
+    """Hz: the duration as whole periods of about PERIOD_S."""
+    return max(1, int(round(duration / PERIOD_S))) / duration
+
+
+def max_harmonics(duration: float) -> tuple[int, str]:
+    """The most harmonics an excitation of `duration` s has use for, and why no more."""
+    base_hz = base_frequency(duration)
+    by_filter = int(math.floor(FILTER_HZ / base_hz * (1 + 1e-9)))
+    by_grid = SAMPLES // 2 - 1
+    if by_filter <= by_grid:
+        return by_filter, (f"above {by_filter} times its {base_hz:.3g} Hz base frequency a harmonic is past "
+                           f"identify's {FILTER_HZ:g} Hz low-pass, which takes it out of what the least squares fit")
+    return by_grid, (f"the design evaluates the condition number at {SAMPLES} samples a period, which tells no more "
+                     f"than {by_grid} harmonics apart")
+
+
+def check_design(duration: float, harmonics: int) -> None:
+    """ExcitationError unless an excitation of `duration` s with `harmonics` can be designed."""
+    shortest = 2 / FILTER_HZ        # s: its two harmonics inside identify's low-pass
+    if not (math.isfinite(duration) and shortest <= duration <= MAX_PLAYED_DURATION):
+        raise ExcitationError(f"an excitation lasts from {shortest:g} s (2 harmonics, the least, within identify's "
+                              f"{FILTER_HZ:g} Hz low-pass) to {MAX_PLAYED_DURATION:g} s (the longest a swing plays), "
+                              f"not {duration:g} s")
+    most, why = max_harmonics(duration)
+    if not 2 <= harmonics <= most:
+        raise ExcitationError(f"an excitation of {duration:g} s has from 2 harmonics (the last closes the rest at "
+                              f"both ends) to {most}: {why}; not {harmonics}")
 
 
 @dataclass
@@ -80,16 +125,19 @@ def _fitted(series: FourierExcitation, excited, half, speed) -> FourierExcitatio
 
 def design_excitation(model, lower, upper, velocity_limit, duration: float, excited=None,
                       harmonics: int = HARMONICS, margin: float = MARGIN, speed_fraction: float = SPEED_FRACTION,
-                      payload_body: str | None = None, iterations: int = 40, seed: int = 0) -> tuple[FourierExcitation, float]:
+                      payload_body: str | None = None, iterations: int = 40, seed: int = 0,
+                      progress=None) -> tuple[FourierExcitation, float]:
     """The excitation of `duration` s (rounded to whole periods near PERIOD_S) over the `excited`
     dofs (indices; default all), and the condition number it reaches: of the column-scaled
     observation matrix of the payload body's base parameters and each excited joint's armature,
-    viscous and Coulomb friction over one period."""
+    viscous and Coulomb friction over one period. `progress(i, iterations, condition)` after each
+    of the optimiser's iterations."""
+    check_design(duration, harmonics)
     n = model.nv
     lower, upper, velocity_limit = (np.asarray(x, dtype=float) for x in (lower, upper, velocity_limit))
     excited = np.arange(n) if excited is None else np.asarray(excited, dtype=int)
-    periods = max(1, int(round(duration / PERIOD_S)))
-    base_hz = periods / duration
+    base_hz = base_frequency(duration)
+    periods = int(round(duration * base_hz))
     middle = (lower + upper) / 2
     half = (upper - lower) / 2 * (1 - 2 * margin)
     q0 = np.where((lower + (upper - lower) * margin <= 0) & (0 <= upper - (upper - lower) * margin), 0.0, middle)
@@ -121,7 +169,12 @@ def design_excitation(model, lower, upper, velocity_limit, duration: float, exci
         return _gram_condition(W / norms)
 
     x0 = rng.normal(size=k * 2 * (N - 1))
-    best = minimize(lambda x: math.log(condition(x)), x0, method="L-BFGS-B",
+    done = [0]
+
+    def told(x):
+        done[0] += 1
+        progress(done[0], iterations, condition(x))
+    best = minimize(lambda x: math.log(condition(x)), x0, method="L-BFGS-B", callback=told if progress else None,
                     options={"maxiter": iterations, "maxfun": iterations * (len(x0) + 1)})
     x = best.x if best.fun < math.log(condition(x0)) else x0
     return build(x), condition(x)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
+from ..control.timing import MIN_CONTROL_PERIOD
 from ..errors import ServodynError
 
 FILTER_HZ = 10.0          # Hz: the low-pass's cut-off
@@ -46,6 +47,9 @@ def prepare(t, q, tau, cutoff_hz: float = FILTER_HZ, decimated_hz: float = DECIM
     if len(t) < 20:
         raise SignalError(f"{origin}: {len(t)} samples, too few to filter")
     step = float(np.median(dt))
+    if not step >= MIN_CONTROL_PERIOD:
+        raise SignalError(f"{origin}: a time step of {step:.3g} s, shorter than any control period "
+                          f"({MIN_CONTROL_PERIOD * 1e3:g} ms): its t column is not a servo log's")
     if np.max(np.abs(dt - step)) > 0.5 * step:
         raise SignalError(f"{origin}: samples not evenly spaced (steps from {dt.min() * 1e3:.3g} to "
                           f"{dt.max() * 1e3:.3g} ms)")

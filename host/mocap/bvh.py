@@ -10,7 +10,10 @@ which the file does not state. All channels zero is the rest pose the OFFSETs de
 What real files do and this reader accepts: CRLF line ends, tabs, a header that declares fewer
 frames than the file holds (all are read, with a warning) or more (those present are read, with
 a warning). Anything else — a NaN, a line with the wrong number of values, an unknown channel —
-raises BvhError, one line naming the file and line.
+raises BvhError, one line naming the file and line. So do numbers no capture has, which would
+otherwise overflow downstream or fill the memory: a rate outside MIN_RATE_HZ to MAX_RATE_HZ (a
+clip is resampled at its own rate: 0.25 s at 1e9 frames a second is 19 GiB of samples), an OFFSET
+or a position past MAX_LENGTH units (a kilometre in millimetres; its square must stay a double).
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from ..errors import ServodynError
 ROTATIONS = ("Xrotation", "Yrotation", "Zrotation")
 POSITIONS = ("Xposition", "Yposition", "Zposition")
 AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
+MIN_RATE_HZ = 1.0            # frames a second: keyframes a second apart at the slowest
+MAX_RATE_HZ = 10_000.0       # beyond any motion capture system (optical ones reach 2 kHz)
+MAX_LENGTH = 1e6             # file units: no skeleton's bone or position in any unit is longer
 
 
 class BvhError(ServodynError, ValueError):
@@ -185,7 +191,14 @@ def parse_bvh(text: str, source: str = "<bvh>") -> Clip:
     frame_time = reader.labelled("Frame Time:", float)
     if not (math.isfinite(frame_time) and frame_time > 0):
         reader.fail(f"Frame Time: {frame_time:g}: must be a positive number of seconds")
+    if not 1 / MAX_RATE_HZ <= frame_time <= 1 / MIN_RATE_HZ:
+        reader.fail(f"Frame Time: {frame_time:g} s is {1 / frame_time:.3g} frames a second; a clip has from "
+                    f"{MIN_RATE_HZ:g} to {MAX_RATE_HZ:g}")
     motion, start = reader.motion_rows(columns)
+    positions = [j.column + k for j in joints for k, c in enumerate(j.channels) if c in POSITIONS]
+    far = np.flatnonzero((np.abs(motion[:, positions]) > MAX_LENGTH).any(axis=1))
+    if len(far):
+        reader.fail(f"frame {far[0] + 1}: a position beyond {MAX_LENGTH:g} units, no capture's", line=start + far[0])
     warnings = []
     if len(motion) > frames:
         warnings.append(f"the header declares {frames} frames, the file holds {len(motion)}: all "
@@ -233,7 +246,10 @@ class _Lines:
         word, rest = self.next_words()
         if word != "OFFSET" or len(rest) != 3:
             self.fail(f"expected 'OFFSET x y z', got '{' '.join([word, *rest])}'")
-        return np.array(self.numbers(rest, "OFFSET"))
+        values = np.array(self.numbers(rest, "OFFSET"))
+        if np.abs(values).max() > MAX_LENGTH:
+            self.fail(f"OFFSET {' '.join(rest)}: beyond {MAX_LENGTH:g} units, no skeleton's bone")
+        return values
 
     def channels(self) -> tuple[str, ...]:
         word, rest = self.next_words()

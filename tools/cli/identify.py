@@ -25,8 +25,11 @@ def add_arguments(p) -> None:
     p.add_argument("--payload-body", default=None, metavar="BODY",
                    help="the body carrying the payload (default: the last)")
     p.add_argument("--known-payload", type=number(0, what="kg"), default=0.0, metavar="KG",
-                   help="the last LOG carried this mass more, at the payload body's centre of mass (as validate "
-                        "--payload puts it): makes each joint's torque-constant scale identifiable")
+                   help="the LOG named by --loaded (default: the last LOG) carried this mass more, at the payload "
+                        "body's centre of mass (as validate --payload puts it): makes each joint's torque-constant "
+                        "scale identifiable")
+    p.add_argument("--loaded", default=None, metavar="LOG",
+                   help="with --known-payload: which LOG carried the payload (default: the last)")
     p.add_argument("--arm", action="store_true", help="the whole arm's base inertial parameters instead of a payload")
     p.add_argument("--cutoff", type=positive, default=FILTER_HZ, metavar="HZ",
                    help=f"the low-pass's cut-off (default {FILTER_HZ:g} Hz)")
@@ -40,4 +43,5 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     return run_identify(args.config, args.logs, args.payload_body, args.known_payload, args.arm, Path(args.out),
                         cutoff=args.cutoff, apply_to=args.write, apply=args.apply,
-                        confirm=lambda question: ask(question, args.yes, say), say=say, warn=say)
+                        confirm=lambda question: ask(question, args.yes, say), say=say, warn=say,
+                        loaded=args.loaded)
