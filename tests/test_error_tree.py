@@ -52,9 +52,13 @@ def test_every_exception_class_is_a_servodyn_error():
 
 
 def test_the_cli_catches_no_bare_value_error():
-    """`except ValueError` in the CLI turned an internal bug into one line of "bad input"."""
+    """`except ValueError` in the CLI turned an internal bug into one line of "bad input". The
+    argument types (argtypes.py) are the exception: each wraps one int() or float() of the text
+    typed, the one place a ValueError is the user's."""
     caught = []
     for path in sorted((ROOT / "tools" / "cli").glob("*.py")):
+        if path.name == "argtypes.py":
+            continue
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.ExceptHandler) and node.type is not None:
                 names = {n.id for n in ast.walk(node.type) if isinstance(n, ast.Name)}
