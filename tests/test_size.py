@@ -13,7 +13,7 @@ from servodyn.control.motion import motion_path
 from servodyn.hal.config import config_from_dict, load_config
 from servodyn.model.modelfile import model_from_dict
 from servodyn.tools.cli import main
-from servodyn.tools.size import run_size
+from servodyn.report.sizing import run_size
 from servodyn.validation import judge, sizing
 
 ARM3 = """
@@ -197,7 +197,7 @@ def test_replica_forehand_no_heavier_than_its_own(tmp_path):
         assert j["mass_kg"] <= sizing.part_mass(j["original"]) + 1e-12, dof
     # the replica's 1.156 kg of servos against the sized bill: lighter by more than a gram
     assert report["servo_mass_kg"] < 3 * 0.165 + 4 * 0.082 - 1e-3
-    from servodyn.tools.size import text
+    from servodyn.report.sizing import text
     assert "margin to spare at r_shoulder_rotation" in text(report)
 
 
