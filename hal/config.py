@@ -10,7 +10,6 @@ the file, the entry and the key.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -19,49 +18,17 @@ from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml, string_key
 from .backend import BACKENDS, backend, servo_catalogue
+from .config_check import IDENTIFIED_KEYS, RANGES, _Checker, _is_number, _thermal
 from .errors import ConfigError
+from .plant_spec import Payload, PlantSpec, _payload, _plant
 from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
 TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control", "payload", "sim"}
 SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
-# what identification measures (`servodyn identify` writes these names in its patch): each a
-# number >= 0 in its RANGES; absent, the model's armature, the servo's thermal data, no friction
-IDENTIFIED_KEYS = ("friction_coulomb_nm", "friction_viscous_nm_s", "torque_constant_scale", "armature_kg_m2",
-                   "thermal_resistance_k_w", "thermal_time_constant_s")
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
               "torque_constant", "position_limits", "velocity_limit", "current_limit", *IDENTIFIED_KEYS}
-PAYLOAD_KEYS = {"body", "mass_kg", "com_m"}
-# the [sim] table (and a plant file): the arm the simulator runs, when it is not the configured one
-SIM_KEYS = {"plant", "mass_scale", "payload", "joint"}
-SIM_JOINT_KEYS = {*IDENTIFIED_KEYS, "friction_static_nm", "stribeck_velocity_rad_s"}
-
-# physically sane ranges (lowest, highest, why): a typo like 1e300 would otherwise reach the
-# firmware's single-precision tables as inf
-RANGES = {
-    "zero_offset": (-2 * math.pi, 2 * math.pi, "rad, the horn's angle at dof = 0: one turn either way "
-                                               "covers every mounting"),
-    "gear_ratio": (0.1, 100.0, "horn turns per joint turn, a belt or gear stage after the servo; below 1/10 "
-                               "the joint would turn ten times the servo's speed with a tenth of its torque"),
-    "torque_constant": (0.01, 100.0, "N m per A at the horn; the catalogue's servos and motors have 0.8 to 4.1, a "
-                                     "calibration 100 times off is a slip of units"),
-    "velocity_limit": (0.0, 1000.0, "rad/s at the joint, ten times the fastest servo's no-load speed"),
-    "current_unit": (0.0, 1.0, "A per register unit; Dynamixel's is a few mA"),
-    "voltage": (0.0, 100.0, "V at the servos; their supplies are 5 to 48 V"),
-    "current_limit": (0.0, 1000.0, "A"),
-    "friction_coulomb_nm": (0.0, 100.0, "N m at the joint, more than the largest catalogue servo's stall torque"),
-    "friction_static_nm": (0.0, 100.0, "N m at the joint, more than the largest catalogue servo's stall torque"),
-    "friction_viscous_nm_s": (0.0, 100.0, "N m s/rad at the joint: 100 would stop any servo at 0.1 rad/s"),
-    "stribeck_velocity_rad_s": (1e-4, 10.0, "rad/s: the speed over which static friction falls to Coulomb's"),
-    "torque_constant_scale": (0.25, 4.0, "the torque a current really gives over torque_constant's; identified "
-                                         "scales are within 10-30 %, four times off is a slip of units"),
-    "armature_kg_m2": (0.0, 10.0, "kg m^2 reflected at the joint; the replicas' rotors give 0.01 to 0.1"),
-    "thermal_resistance_k_w": (0.0, 100.0, "K/W winding to ambient; servo motors have 1 to 20"),
-    "thermal_time_constant_s": (0.0, 100_000.0, "s; a winding heats in tens to thousands of seconds"),
-    "mass_scale": (0.1, 10.0, "every body's mass and inertia times this"),
-    "mass_kg": (0.0, 100.0, "kg of payload, more than any servo arm lifts"),
-}
 
 
 @dataclass(frozen=True)
@@ -152,62 +119,6 @@ class RobotConfig:
     def argument(self) -> str:
         """How a command line names it: its built-in name, or its file."""
         return self.name if self.path is None or self.builtin else str(self.path)
-
-
-class _Checker:
-    """Typed look-ups in one TOML table; every failure names `where` and the key."""
-
-    def __init__(self, table, where: str, allowed: set[str]):
-        if not isinstance(table, dict):
-            raise ConfigError(f"{where}: must be a table")
-        unknown = sorted(set(table) - allowed)
-        if unknown:
-            raise ConfigError(f"{where}: unknown key '{unknown[0]}' (known: {', '.join(sorted(allowed))})")
-        self.table, self.where = table, where
-
-    def fail(self, key: str, message: str):
-        raise ConfigError(f"{self.where}: '{key}' {message}")
-
-    def get(self, key: str, kind: str, default=None):
-        if key not in self.table:
-            if default is None:
-                self.fail(key, "is missing")
-            return default
-        value = self.table[key]
-        if kind == "str" and isinstance(value, str) and value:
-            return value
-        if kind == "int" and isinstance(value, int) and not isinstance(value, bool):
-            return value
-        if kind == "float" and _is_number(value):
-            return float(value)
-        if kind == "pair" and isinstance(value, list) and len(value) == 2 and all(map(_is_number, value)):
-            return float(value[0]), float(value[1])
-        expected = {"str": "a non-empty string", "int": "an integer", "float": "a finite number",
-                    "pair": "a list of two finite numbers"}[kind]
-        self.fail(key, f"must be {expected}, got {value!r}")
-
-    def positive(self, key: str, default=None) -> float:
-        """A positive number inside its physical range (RANGES)."""
-        value = self.get(key, "float", default)
-        if value <= 0:
-            self.fail(key, f"must be positive, got {value:g}")
-        if key in RANGES and value > RANGES[key][1]:
-            self.fail(key, f"{value:g} is beyond {RANGES[key][1]:g} ({RANGES[key][2]})")
-        if key in RANGES and value < RANGES[key][0]:
-            self.fail(key, f"{value:g} is below {RANGES[key][0]:g} ({RANGES[key][2]})")
-        return value
-
-    def within(self, key: str, default: float) -> float:
-        """A number inside the key's physical range (RANGES)."""
-        value = self.get(key, "float", default)
-        low, high, why = RANGES[key]
-        if not low <= value <= high:
-            self.fail(key, f"{value:g} is outside [{low:g}, {high:g}] ({why})")
-        return value
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def supply_voltage_error(voltage: float, joints) -> str | None:
@@ -329,125 +240,6 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
                        friction_viscous=c.within("friction_viscous_nm_s", 0.0),
                        thermal_resistance=thermal[0], thermal_time_constant=thermal[1])
 
-
-def _thermal(c: _Checker, resistance: float, time_constant: float) -> tuple[float, float]:
-    """(R_th, τ_th) of a table, each defaulting to the given; both > 0 (modelled) or both 0."""
-    resistance = c.within("thermal_resistance_k_w", resistance)
-    time_constant = c.within("thermal_time_constant_s", time_constant)
-    if (resistance > 0) != (time_constant > 0):
-        key = "thermal_time_constant_s" if resistance > 0 else "thermal_resistance_k_w"
-        c.fail(key, f"must be positive when {'thermal_resistance_k_w' if resistance > 0 else 'thermal_time_constant_s'} "
-                    "is (a winding model needs both; 0 and 0: not modelled)")
-    return resistance, time_constant
-
-
-@dataclass(frozen=True)
-class Payload:
-    """A point mass carried rigidly by a body (`[payload]`, `[sim.payload]`)."""
-    body: str
-    mass: float                   # kg
-    com: tuple | None             # m in the body's frame; None: at the body's own centre of mass
-
-    def on(self, model):
-        return model.with_payload(self.mass, self.body, self.com)
-
-
-def _payload(table, where: str, model) -> Payload:
-    c = _Checker(table, where, PAYLOAD_KEYS)
-    body = c.get("body", "str", model.body_names[-1])
-    if body not in model.body_names:
-        c.fail("body", f"{body!r} is not a body of model '{model.name}' ({', '.join(model.body_names)})")
-    com = None
-    if "com_m" in table:
-        value = table["com_m"]
-        if not (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value))):
-            c.fail("com_m", f"must be a list of three finite numbers (m in the body's frame), got {value!r}")
-        if max(map(abs, value)) > 10.0:
-            c.fail("com_m", f"{value} is more than 10 m from the body's origin")
-        com = tuple(float(v) for v in value)
-    return Payload(body=body, mass=c.within("mass_kg", 0.0), com=com)
-
-
-@dataclass(frozen=True)
-class PlantJoint:
-    """One joint of the simulated arm as it really is (`[sim.joint.<dof>]`); None: the simulated
-    servo's own (its data sheet's torque constant and thermal data, its built-in friction)."""
-    friction_coulomb: float | None = None       # N m at the joint, sliding
-    friction_viscous: float | None = None       # N m s/rad
-    friction_static: float | None = None        # N m to break away from rest (default: Coulomb's)
-    stribeck_velocity: float = 0.02             # rad/s over which static friction falls to Coulomb's
-    torque_constant_scale: float = 1.0          # the torque a current gives / the configured torque_constant's
-    thermal_resistance: float | None = None     # K/W
-    thermal_time_constant: float | None = None  # s
-
-    @property
-    def has_friction(self) -> bool:
-        return self.friction_coulomb is not None or self.friction_viscous is not None or \
-            self.friction_static is not None
-
-
-@dataclass(frozen=True)
-class PlantSpec:
-    """The arm the simulator runs when the configuration has a `[sim]` table: the model as its file
-    describes it (not the configuration's identified armature and payload), its masses times
-    `mass_scale`, then `[sim]`'s armatures and payload; per joint what `[sim.joint.<dof>]` says."""
-    model: object                 # servodyn.Model of the plant
-    joints: dict                  # dof -> PlantJoint (every dof)
-    payload: Payload | None
-    mass_scale: float
-    source: str                   # where it was read (the configuration, or its plant file)
-
-
-def _plant(table, where: str, base: Path | None, nominal_model) -> PlantSpec:
-    """The `[sim]` table, over its plant file's keys when it names one (relative to the configuration)."""
-    c = _Checker(table, where, SIM_KEYS)
-    merged, source = {}, where
-    if "plant" in table:
-        ref = c.get("plant", "str")
-        path = (base or Path.cwd()) / ref
-        try:
-            merged = read_toml(path, ConfigError, label=path.name)
-        except FileNotFoundError:
-            c.fail("plant", f"{str(path)!r}: no such file")
-        source = path.name
-        _Checker(merged, source, SIM_KEYS - {"plant"})
-    for key, value in table.items():       # [sim]'s own keys over the file's, joint by joint
-        if key == "joint" and isinstance(value, dict) and isinstance(merged.get("joint"), dict):
-            merged["joint"] = {**merged["joint"], **{d: {**merged["joint"].get(d, {}), **t} if isinstance(t, dict)
-                                                     else t for d, t in value.items()}}
-        elif key != "plant":
-            merged[key] = value
-    c = _Checker(merged, source, SIM_KEYS - {"plant"})
-    scale = c.within("mass_scale", 1.0)
-    model = nominal_model.with_mass_scale(scale) if scale != 1.0 else nominal_model
-    tables = merged.get("joint", {})
-    if not isinstance(tables, dict):
-        c.fail("joint", "must be a table of [sim.joint.<dof>] tables")
-    joints, armature = {}, {}
-    for dof, t in tables.items():
-        if dof not in model.dof_names:
-            c.fail("joint", f"{dof!r} is not a dof of model '{model.name}' ({', '.join(model.dof_names)})")
-        j = _Checker(t, f"{source}: joint '{dof}'", SIM_JOINT_KEYS)
-        given = lambda key: j.within(key, 0.0) if key in t else None
-        thermal = _thermal(j, 0.0, 0.0) if {"thermal_resistance_k_w", "thermal_time_constant_s"} & set(t) else \
-            (None, None)
-        joints[dof] = PlantJoint(friction_coulomb=given("friction_coulomb_nm"),
-                                 friction_viscous=given("friction_viscous_nm_s"),
-                                 friction_static=given("friction_static_nm"),
-                                 stribeck_velocity=j.within("stribeck_velocity_rad_s", PlantJoint.stribeck_velocity),
-                                 torque_constant_scale=j.within("torque_constant_scale", 1.0),
-                                 thermal_resistance=thermal[0], thermal_time_constant=thermal[1])
-        if "armature_kg_m2" in t:
-            armature[dof] = j.within("armature_kg_m2", 0.0)
-        static, coulomb = joints[dof].friction_static, joints[dof].friction_coulomb or 0.0
-        if static is not None and static < coulomb:
-            j.fail("friction_static_nm", f"{static:g} N m is below friction_coulomb_nm ({coulomb:g}): an arm "
-                                         "at rest holds at least what slides it")
-    model = model.with_armature(armature) if armature else model
-    payload = _payload(merged["payload"], f"{source}: payload", model) if "payload" in merged else None
-    model = payload.on(model) if payload is not None else model
-    joints = {d: joints.get(d, PlantJoint()) for d in model.dof_names}
-    return PlantSpec(model=model, joints=joints, payload=payload, mass_scale=scale, source=source)
 
 
 def _load_model(ref: str, base: Path | None, where: str):

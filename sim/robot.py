@@ -22,7 +22,7 @@ on it too, so a host that dies is noticed in real time even when the plant falls
 `wire_clock()` times the bytes as a servo's receiver does (a frame with a gap over 1.5 ms between
 bytes is dropped). Every transport serving the robot takes `robot.lock` around it.
 
-The arm it runs is the configuration's unless its `[sim]` table says otherwise (hal/config.py's
+The arm it runs is the configuration's unless its `[sim]` table says otherwise (hal/plant_spec.py's
 PlantSpec, hal/README.md): then the plant's model is `[sim]`'s (masses scaled, armatures, a
 payload), and each joint's device gives `torque_constant_scale` × the configured torque constant
 per ampere (while it reports the current it draws), has the joint's friction instead of its own

@@ -16,75 +16,26 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .. import _core, _core32
-from ..errors import ServodynError
-from .rotations import axis_angle, frame_with_z, matrix_to_quat, quat_to_matrix, rot_z
-from .shapes import Solid
+from .bodies import BALL_COORDS, BALL_DOFS, FREE_COORDS, FREE_DOFS, Body, ModelError
+from .bodies import Dof, combine  # noqa: F401  (importable from here too: the model files and tests take them from tree)
+from .rotations import frame_with_z, matrix_to_quat, quat_to_matrix, rot_z
+from .shapes import Solid  # noqa: F401  (importable from here too)
 from .urdf_write import write_urdf
+from .variants import Variants
 
 INTEGRATORS = {"rk4": _core.RK4, "euler": _core.EULER}
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
-
-
-class ModelError(ServodynError, ValueError):
-    """A model description that cannot be built; the message names the body or key."""
-
-
-@dataclass
-class Dof:
-    name: str
-    axis: np.ndarray
-    lower: float = -math.inf
-    upper: float = math.inf
-    armature: float = 0.0     # kg m², inertia turning with this dof alone: rotor inertia x gear ratio²
-    motor: str = ""           # the part (parts.toml) that drives it and brings its armature, if named
-
-
-def combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, np.ndarray, np.ndarray]:
-    """Mass, com and inertia about the com of rigidly joined parts (mass, com, inertia about own com)."""
-    mass = sum(m for m, _, _ in parts)
-    if mass <= 0:
-        return 0.0, np.zeros(3), np.zeros((3, 3))
-    com = sum(m * c for m, c, _ in parts) / mass
-    inertia = np.zeros((3, 3))
-    for m, c, I in parts:
-        d = c - com
-        inertia += I + m * (d @ d * np.eye(3) - np.outer(d, d))
-    return mass, com, inertia
-
-
-
-@dataclass
-class Body:
-    name: str
-    parent: int                                   # -1 for the fixed base
-    pos: np.ndarray                               # joint origin in the parent's user frame (m)
-    rot: np.ndarray                               # parent_R_body at q = 0, before post
-    dofs: list[Dof] = field(default_factory=list)
-    mass: float = 0.0                             # kg
-    com: np.ndarray = field(default_factory=lambda: np.zeros(3))           # user frame (m)
-    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the com
-    post: np.ndarray = field(default_factory=lambda: np.eye(3))
-    free: bool = False                            # floats free: 6 dofs (only body 0, on the base)
-    ball: bool = False                            # a ball joint: 3 dofs, quaternion coordinates
-    solids: list[Solid] = field(default_factory=list)   # its shape, user frame (drawing only)
-
-
-FREE_DOFS = ("vx", "vy", "vz", "wx", "wy", "wz")   # velocity of the origin, then angular, body frame
-FREE_COORDS = ("x", "y", "z", "qx", "qy", "qz", "qw")  # origin in the base frame, unit quaternion
-BALL_DOFS = ("wx", "wy", "wz")                   # angular velocity in the body frame
-BALL_COORDS = ("qx", "qy", "qz", "qw")           # unit quaternion of the body in its joint frame
 
 
 def _sym6(I: np.ndarray) -> list[float]:
     return [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
 
 
-class Model:
+class Model(Variants):
     """A validated model and the C core that computes its dynamics (double and float builds)."""
 
     def __init__(self, bodies: list[Body], name: str = "model", gravity=DEFAULT_GRAVITY,
@@ -256,30 +207,6 @@ class Model:
                 k += len(body.dofs)
         return q
 
-    def with_ball_joints(self) -> "Model":
-        """The same bodies with every 3-dof joint as a ball joint (quaternion coordinates): the
-        same physics without gimbal lock, for simulation."""
-        bodies = [replace(b, ball=True) if len(b.dofs) == 3 and not b.free else b for b in self.bodies]
-        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
-
-    def q_from(self, other: "Model", q_other) -> np.ndarray:
-        """This model's q for the pose other (the same bodies, hinges or ball joints) has at q_other."""
-        q_other = np.asarray(q_other, dtype=float)
-        mine, theirs = self._coordinate_slices(), other._coordinate_slices()
-        q = np.zeros(self.nq)
-        for body, sm, so, other_body in zip(self.bodies, mine, theirs, other.bodies):
-            value = q_other[so]
-            if body.ball and not other_body.ball:
-                R = np.eye(3)
-                for dof, angle in zip(other_body.dofs, value):
-                    R = R @ axis_angle(dof.axis, angle)
-                value = matrix_to_quat(R)
-            elif other_body.ball and not body.ball:
-                raise ModelError(f"body '{body.name}': cannot turn a ball joint back into angles")
-            q[sm] = value
-        return q
-
     def _coordinate_slices(self) -> list[slice]:
         slices, k = [], 0
         for body in self.bodies:
@@ -293,94 +220,9 @@ class Model:
         R, p = self.body_poses(q)
         return np.einsum("bij,bkj->bik", R, self.frame_rot), p
 
-    def subtree(self, root: str, q=None) -> "Model":
-        """The bodies from `root` down, with `root` welded to the base where it is at q (the
-        neutral pose by default) — e.g. the upper body of human15 held at the thorax."""
-        if root not in self.body_names:
-            raise ModelError(f"no body '{root}' in model '{self.name}'")
-        q = self.neutral_q() if q is None else np.asarray(q, dtype=float)
-        R, p = self.user_poses(q)
-        start = self.body_names.index(root)
-        keep = [start]
-        for i in range(start + 1, self.nbody):
-            if self.bodies[i].parent in keep:
-                keep.append(i)
-        index = {old: new for new, old in enumerate(keep)}
-        top = self.bodies[start]
-        bodies = [replace(top, parent=-1, pos=p[start].copy(), rot=R[start].copy(), dofs=[],
-                          post=np.eye(3), free=False)]
-        bodies += [replace(self.bodies[i], parent=index[self.bodies[i].parent]) for i in keep[1:]]
-        return Model(bodies, name=f"{self.name}:{root}", gravity=self.gravity,
-                     description=f"the bodies of {self.name} from {root} down, {root} held still",
-                     source=self.source)
-
-    def with_locked(self, bodies: list[str], angles: dict[str, float] | None = None) -> "Model":
-        """The same model with the joints of the named bodies welded at the given angles (0 by
-        default): their dofs leave q."""
-        angles = angles or {}
-        out = []
-        for body in self.bodies:
-            if body.name in bodies and body.dofs:
-                R = body.rot
-                for dof in body.dofs:
-                    R = R @ axis_angle(dof.axis, angles.get(dof.name, 0.0))
-                body = replace(body, rot=R @ body.post, dofs=[], post=np.eye(3))
-            out.append(body)
-        missing = set(bodies) - set(self.body_names)
-        if missing:
-            raise ModelError(f"no body '{sorted(missing)[0]}' in model '{self.name}'")
-        return Model(out, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
-
-    def with_payload(self, mass: float, body: str | None = None, com=None) -> "Model":
-        """The same model carrying a point mass rigidly on a body (the last one, the hand, by
-        default) at `com` in that body's user frame (its centre of mass by default)."""
-        name = self.body_names[-1] if body is None else body
-        if name not in self.body_names:
-            raise ModelError(f"no body '{name}' in model '{self.name}' ({', '.join(self.body_names)})")
-        if not (math.isfinite(mass) and mass >= 0):
-            raise ModelError(f"payload mass must be a finite number >= 0 kg, got {mass}")
-        k = self.body_names.index(name)
-        host = self.bodies[k]
-        at = host.com if com is None else np.asarray(com, dtype=float)
-        if at.shape != (3,) or not np.all(np.isfinite(at)):
-            raise ModelError(f"payload position must be three finite numbers (m), got {com}")
-        total, centre, inertia = combine([(host.mass, host.com, host.inertia), (mass, at, np.zeros((3, 3)))])
-        bodies = list(self.bodies)
-        bodies[k] = replace(host, mass=total, com=centre, inertia=inertia)
-        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
-
-    def with_mass_scale(self, scale: float) -> "Model":
-        """The same model with every body's mass and inertia times `scale` (centres of mass kept)."""
-        if not (math.isfinite(scale) and scale > 0):
-            raise ModelError(f"mass scale must be a finite number > 0, got {scale}")
-        bodies = [replace(b, mass=b.mass * scale, inertia=b.inertia * scale) for b in self.bodies]
-        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
-
-    def with_free_root(self) -> "Model":
-        """The same model with body 0 floating free instead of fixed to the base."""
-        first = self.bodies[0]
-        if first.parent != -1 or first.dofs:
-            raise ModelError(f"body '{first.name}': a free root must hang from the base without dofs")
-        bodies = [replace(first, free=True)] + self.bodies[1:]
-        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
-
     @property
     def gravity(self) -> np.ndarray:
         return np.array(self.core.gravity)
-
-    def with_gravity(self, g) -> "Model":
-        """The same model under gravity g (m/s², world frame). A Model never changes once built, so
-        that threads stepping it (a simulator's real-time thread) and threads asking it for M(q)
-        share it safely."""
-        g = np.asarray(g, dtype=float)
-        if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ModelError(f"gravity must be 3 finite numbers (m/s²), got {g.tolist()}")
-        return Model(self.bodies, name=self.name, gravity=g, description=self.description,
-                     source=self.source)
 
     def _limits(self, which: str) -> np.ndarray:
         values = []
@@ -405,16 +247,6 @@ class Model:
         """Armature per velocity dof (kg m²): the inertia that turns with the dof alone (a geared
         motor's rotor inertia x gear ratio²), added to the diagonal of M(q); 0 for a free root."""
         return np.array(self._arrays["armature"], dtype=float)
-
-    def with_armature(self, armature: dict[str, float]) -> "Model":
-        """The same model with the armature (kg m²) of the named dofs set to the given values."""
-        unknown = sorted(set(armature) - {d.name for b in self.bodies for d in b.dofs})
-        if unknown:
-            raise ModelError(f"no dof '{unknown[0]}' in model '{self.name}'")
-        bodies = [replace(b, dofs=[replace(d, armature=float(armature.get(d.name, d.armature)))
-                                   for d in b.dofs]) for b in self.bodies]
-        return Model(bodies, name=self.name, gravity=self.gravity, description=self.description,
-                     source=self.source)
 
     @property
     def total_mass(self) -> float:

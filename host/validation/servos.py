@@ -1,0 +1,58 @@
+"""The servos sizing picks from: every backend's catalogue (hal: the Dynamixel SERVOS, the CAN
+MOTORS) by family, why a servo is no candidate at a supply voltage, and a servo's housing mass
+(model/parts.toml). The search is validation/sizing.py."""
+
+from __future__ import annotations
+
+from ..errors import ServodynError
+from ..hal.backend import servo_catalogue
+from ..model.modelfile import parts
+
+FAMILIES = ("dynamixel", "can", "any")
+
+
+class SizingError(ServodynError, ValueError):
+    """Input sizing cannot work with; one line."""
+
+
+
+def rated_span(servo) -> tuple[float, float]:
+    """V: the supply range the data sheet allows, or the span of its rated rows where none is given."""
+    if servo.supply_range is not None:
+        return servo.supply_range
+    volts = [servo.nominal_voltage, *(row[0] for row in servo.ratings)]
+    return min(volts), max(volts)
+
+
+def unusable(servo, voltage: float) -> str | None:
+    """Why sizing never picks `servo` at this supply voltage, or None."""
+    if not servo.current_control:
+        return "no current control mode (the backend drives every joint by its torque)"
+    low, high = rated_span(servo)
+    if not low <= voltage <= high:
+        return f"{voltage:g} V is outside its supply range, {low:g} to {high:g} V"
+    if servo.name not in parts():
+        return "no housing in parts.toml (mass and size unknown)"
+    if parts()[servo.name]["armature"] is None:
+        return "no armature in parts.toml (its rotor inertia unknown, not 0)"
+    return None
+
+
+def catalogue(family: str) -> dict:
+    """The servos of a family by name (every backend's for 'any')."""
+    if family not in FAMILIES:
+        raise SizingError(f"no servo family {family!r} (the families: {', '.join(FAMILIES)})")
+    kinds = ("dynamixel", "can") if family == "any" else (family,)
+    found = {}
+    for kind in kinds:
+        found.update(servo_catalogue(kind))
+    return found
+
+
+def supply_voltages(family: str) -> list[float]:
+    """The supply voltages worth trying when none is given: each servo's nominal voltage."""
+    return sorted({s.nominal_voltage for s in catalogue(family).values() if s.current_control})
+
+
+def part_mass(name: str) -> float:
+    return float(parts()[name]["mass"])
