@@ -47,7 +47,8 @@ def test_every_exception_class_is_a_servodyn_error():
     assert outside == [], f"exception classes outside ServodynError: {outside}"
     codes = {name: cls.exit_code for name, cls in classes.items()}
     assert all(isinstance(code, int) and 0 <= code < 256 for code in codes.values()), codes
-    assert codes["servodyn.model.ik.OutOfReach"] == 1 and codes["servodyn.model.tree.ModelError"] == ExitCode.BAD_INPUT, \
+    from servodyn.model import ModelError, ik
+    assert ik.OutOfReach.exit_code == 1 and ModelError.exit_code == ExitCode.BAD_INPUT, \
         "a refused target exits 1 (servodyn ik's contract), a model that cannot be built 2"
 
 
