@@ -57,7 +57,7 @@ VERBS = {
     "excite": Entry("servodyn.tools.cli.excite", "write an exciting trajectory for servodyn identify"),
     "identify": Entry("servodyn.tools.cli.identify", "friction, armature, torque constants, payload from logs"),
     "demo": Entry("servodyn.tools.cli.demo", "torque profile of a sample reach of the built-in arm"),
-    "soak": Entry("servodyn.tools.cli.soak", "swings with one random fault each, host, firmware and CAN (make soak)"),
+    "soak": Entry("servodyn.tools.cli.soak", "swings with a random fault each: every one a safe stop"),
 }
 
 
