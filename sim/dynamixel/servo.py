@@ -21,10 +21,11 @@ from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, D
 
 from servodyn.hal.thermal import winding_step
 
-from .drive import Mechanics, Motor, PositionPid
+from .drive import Mechanics, Motor, PositionPid, clamp
 from .instructions import WATCHDOG_TRIPPED, Instructions
 
 OVERHEATING = HARDWARE_FAULTS["overheating"]
+_POSITION, _CURRENT = int(OperatingMode.POSITION), int(OperatingMode.CURRENT)   # plain ints: an enum's cost less
 _FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "present_load",
                          "moving"})   # set_present
 # a little-endian field of each (size, signed), read and written in place in the table
@@ -186,7 +187,7 @@ class Servo(Instructions):
 
     def _set_clamped(self, name: str, value: float) -> None:
         _, pack, address, bound = self._field[name]
-        pack(self._table, address, max(-bound, min(bound - 1, round(value))))
+        pack(self._table, address, clamp(round(value), -bound, bound - 1))
 
     @property
     def id(self) -> int:
@@ -310,10 +311,10 @@ class Servo(Instructions):
         (_, pack_p, at_p, bound_p), (_, pack_v, at_v, bound_v), (_, pack_c, at_c, bound_c) = self._present
         ticks = (self.zero_ticks + sign * position * TICKS_PER_REV / (2 * math.pi)      # _position_ticks
                  - TICKS_PER_REV * self._turns + _I32.unpack_from(table, at["homing_offset"])[0])
-        pack_p(table, at_p, max(-bound_p, min(bound_p - 1, round(ticks))))
-        speed = max(-bound_v, min(bound_v - 1, round(sign * velocity / VELOCITY_UNIT)))
+        pack_p(table, at_p, clamp(round(ticks), -bound_p, bound_p - 1))
+        speed = clamp(round(sign * velocity / VELOCITY_UNIT), -bound_v, bound_v - 1)
         pack_v(table, at_v, speed)
-        pack_c(table, at_c, max(-bound_c, min(bound_c - 1, round(sign * current / self.model.current_unit))))
+        pack_c(table, at_c, clamp(round(sign * current / self.model.current_unit), -bound_c, bound_c - 1))
         table[at["moving"]] = int(abs(speed) > _U32.unpack_from(table, at["moving_threshold"])[0])
 
     def output_current(self, position: float, velocity: float, dt: float) -> float:
@@ -328,15 +329,16 @@ class Servo(Instructions):
         sign = -1 if table[at["drive_mode"]] & DRIVE_MODE_REVERSE else 1
         speed = sign * velocity                               # in the motor's own sign
         supply = u16(table, at["present_input_voltage"])[0] / 10
-        pwm_cap = min(abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0])
+        goal_pwm, pwm_limit = abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0]
+        pwm_cap = pwm_limit if pwm_limit < goal_pwm else goal_pwm         # min(goal_pwm, pwm_limit)
         mode = table[at["operating_mode"]]
-        if mode == OperatingMode.POSITION:                    # position PID → PWM
+        if mode == _POSITION:                                 # position PID → PWM
             pwm = self._pid_output(position, velocity, dt, pwm_cap)
             amps = self.motor.pwm_driven(pwm, supply, speed)
         else:
-            if mode == OperatingMode.CURRENT:
+            if mode == _CURRENT:
                 limit = u16(table, at["current_limit"])[0]
-                units = max(-limit, min(limit, i16(table, at["goal_current"])[0]))
+                units = clamp(i16(table, at["goal_current"])[0], -limit, limit)
             else:                                             # position PID → current, Goal Current caps it
                 units = self._pid_output(position, velocity, dt, abs(i16(table, at["goal_current"])[0]))
             amps, pwm = self.motor.current_driven(units, pwm_cap, supply, speed)
