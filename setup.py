@@ -1,6 +1,5 @@
 """Builds the C core into two extension modules, double (servodyn._core) and float (servodyn._core32),
-the firmware's Dynamixel codec into servodyn.hal.dynamixel._dxl (beside the backend that uses it), and the simulated servos' per-tick work into
-servodyn.sim.dynamixel._chain."""
+and the firmware's Dynamixel codec into servodyn.hal.dynamixel._dxl (beside the backend that uses it)."""
 import glob
 
 import numpy
@@ -23,6 +22,4 @@ def core_module(name, *defines):
 DXL = Extension("servodyn.hal.dynamixel._dxl", sources=["hal/dynamixel/c/_dxl.c", "hal/dynamixel/c/dxl.c"],
                 include_dirs=["hal/dynamixel/c"], extra_compile_args=FLAGS)
 
-CHAIN = Extension("servodyn.sim.dynamixel._chain", sources=["sim/dynamixel/c/_chain.c"], extra_compile_args=FLAGS)
-
-setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE"), DXL, CHAIN])
+setup(ext_modules=[core_module("_core"), core_module("_core32", "SD_SINGLE"), DXL])

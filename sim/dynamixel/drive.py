@@ -1,5 +1,7 @@
-"""The physical side of a simulated servo: its position PID (e-manual gain scaling) and the
-current → output torque relation with friction."""
+"""The physical side of a simulated servo, each law written once: its position PID (e-manual gain
+scaling), its motor and drive (`Motor`: PWM or a current demand → motor current and PWM at the
+supply and the shaft's speed) and its output torque with friction (`Mechanics`). The servo
+(servo.py) reads its registers and hands the numbers here; nothing else computes them."""
 
 from __future__ import annotations
 
@@ -7,12 +9,21 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from servodyn.hal.dynamixel.control_table import PWM_FULL
+
 if TYPE_CHECKING:
     from servodyn.hal.dynamixel.control_table import DynamixelSpec
 
 # The e-manual gives the gains' scaling (KP = P/128, KI = I/65536, KD = D/16) but not the firmware's
 # sample time; the I and D terms here count in samples of this period.
 CONTROL_PERIOD = 1e-3
+
+
+def clamp(value, low, high):
+    """max(low, min(high, value)) exactly as Python's min and max give it (the first of equals; a
+    NaN gives `high`), without their calls' cost (each a microsecond on the simulator's hottest path)."""
+    value = value if value < high else high
+    return value if value > low else low
 
 
 @dataclass
@@ -31,9 +42,41 @@ class PositionPid:
         self.integral += error * dt / CONTROL_PERIOD
         # anti-windup: the integral term alone never exceeds the output cap
         bound = cap / ki if ki else 0.0
-        self.integral = max(-bound, min(bound, self.integral))
+        self.integral = clamp(self.integral, -bound, bound)
         out = kp * error + ki * self.integral - kd * ticks_per_second * CONTROL_PERIOD
-        return max(-cap, min(cap, out))
+        return clamp(out, -cap, cap)
+
+
+@dataclass(frozen=True)
+class Motor:
+    """The motor and its drive electronics: a DC motor whose stall current and no-load speed at the
+    nominal voltage are the datasheet's, fed a PWM duty of the supply. Speeds are the shaft's in
+    the motor's own sign (rad/s at the output), currents in A, PWM in table units of ``pwm_full``."""
+    stall_current: float      # A at the nominal voltage, shaft held
+    nominal_voltage: float    # V
+    no_load_speed: float      # rad/s at the output shaft, nominal voltage
+    current_unit: float       # A per Goal Current unit
+    pwm_full: int = PWM_FULL  # the PWM that is 100 % duty
+
+    @classmethod
+    def of(cls, model: DynamixelSpec) -> Motor:
+        return cls(model.stall_current, model.nominal_voltage, model.no_load_speed, model.current_unit)
+
+    def pwm_driven(self, pwm: float, supply: float, velocity: float) -> float:
+        """The current (A) a PWM drives at `supply` volts and shaft speed `velocity`: the duty's share
+        of the stall current less the back-EMF's (Position Control Mode)."""
+        back_emf = velocity / self.no_load_speed         # fraction of the nominal supply it cancels
+        return self.stall_current * (pwm / self.pwm_full * (supply / self.nominal_voltage) - back_emf)
+
+    def current_driven(self, units: float, pwm_cap: float, supply: float, velocity: float) -> tuple[float, float]:
+        """The current loop: the current (A) and PWM for a demand of `units` Goal Current units, as far
+        as the PWM cap, the supply (V) and the back-EMF at `velocity` let it reach; (amps, pwm)."""
+        stall = self.stall_current
+        back_emf = velocity / self.no_load_speed
+        supply = supply / self.nominal_voltage
+        reach = stall * pwm_cap / self.pwm_full * supply
+        amps = clamp(units * self.current_unit, -reach - stall * back_emf, reach - stall * back_emf)
+        return amps, (amps / stall + back_emf) / supply * self.pwm_full
 
 
 @dataclass(frozen=True)

@@ -1,10 +1,11 @@
-"""A virtual X-series servo: its control table with the e-manual's access rules, the instructions
-that act on one servo, the bus watchdog and hardware errors, and a drive model a plant can step.
+"""A virtual X-series servo: its control table (memory and access), a device of the bench, the
+bus watchdog and Realtime Tick, heat and hardware errors, and the side a plant steps. The
+instructions that act on it are instructions.py's (`Instructions`, a part of this class); the
+motor, PID and friction laws are drive.py's.
 
 The plant works in SI at the servo's output shaft: it reports the shaft state with
 ``set_present(position, velocity, current)`` and asks ``output_current(position, velocity, dt)``
 for the current to hold over its next step, then ``output_torque(current, velocity)``.
-Refusals raise ``StatusError`` with the e-manual's error number; the bus adds the alert bit.
 """
 
 from __future__ import annotations
@@ -13,35 +14,26 @@ import math
 import struct
 from collections.abc import Callable
 
-from servodyn.hal.dynamixel import MAX_ID, ErrorNumber, ResetOption, StatusError, pack_field
-from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, DRIVE_MODE_REVERSE, EEPROM_END, GOAL_POSITION_SPAN,
-                                                  PWM_FULL, RETURN_DELAY_UNIT, TABLE_SIZE, TICKS_PER_REV,
-                                                  VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350, Item, DynamixelSpec,
-                                                  OperatingMode)
+from servodyn.hal.dynamixel import MAX_ID, pack_field
+from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, DRIVE_MODE_REVERSE, RETURN_DELAY_UNIT,
+                                                  TABLE_SIZE, TICKS_PER_REV, VELOCITY_UNIT, WATCHDOG_UNIT, XM430_W350,
+                                                  Item, DynamixelSpec, OperatingMode)
 
 from servodyn.hal.thermal import winding_step
 
-from .drive import Mechanics, PositionPid
+from .drive import Mechanics, Motor, PositionPid, clamp
+from .instructions import WATCHDOG_TRIPPED, Instructions
 
-WATCHDOG_TRIPPED = -1
 OVERHEATING = HARDWARE_FAULTS["overheating"]
+_POSITION, _CURRENT = int(OperatingMode.POSITION), int(OperatingMode.CURRENT)   # plain ints: an enum's cost less
 _FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "present_load",
                          "moving"})   # set_present
-GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
-_CHANGES = frozenset({"operating_mode", "torque_enable"})    # items whose change, not the write, acts
-GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
-              "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain")
 # a little-endian field of each (size, signed), read and written in place in the table
 _FIELD = {(size, signed): struct.Struct("<" + (code.lower() if signed else code))
           for size, code in ((1, "B"), (2, "H"), (4, "I")) for signed in (False, True)}
 _I8, _U16, _I16, _U32, _I32 = (_FIELD[k] for k in ((1, True), (2, False), (2, True), (4, False), (4, True)))
 
-
-def _fail(number: ErrorNumber) -> StatusError:
-    return StatusError(number)
-
-
-class Servo:
+class Servo(Instructions):
     """One simulated servo. ``zero_ticks`` is the encoder reading at the plant's zero angle (2048,
     half a turn, so that a joint at zero can move both ways inside Position Control Mode's 0..4095).
 
@@ -65,6 +57,7 @@ class Servo:
             raise ValueError(f"supply voltage {supply_voltage} V: must be positive")
         self.model = model
         self.mechanics = mechanics or Mechanics.of(model)
+        self.motor = Motor.of(model)
         self.zero_ticks = zero_ticks
         self.items = {item.name: item for item in model.items()}
         # name -> (unpack_from, pack_into, address, clamp bound): get() and _set() are the
@@ -82,7 +75,6 @@ class Servo:
         self._present = tuple(self._field[name] for name in ("present_position", "present_velocity",
                                                               "present_current" if model.current_control
                                                               else "present_load"))
-        self._no_load_speed = model.no_load_speed
         self._owner: list[Item | None] = [None] * TABLE_SIZE      # the item holding each byte
         self._layouts: dict[tuple[int, int], tuple] = {}           # (address, length) -> items written
         for item in self.items.values():
@@ -195,7 +187,7 @@ class Servo:
 
     def _set_clamped(self, name: str, value: float) -> None:
         _, pack, address, bound = self._field[name]
-        pack(self._table, address, max(-bound, min(bound - 1, round(value))))
+        pack(self._table, address, clamp(round(value), -bound, bound - 1))
 
     @property
     def id(self) -> int:
@@ -217,164 +209,6 @@ class Servo:
     def return_delay(self) -> float:
         """Return Delay Time in seconds (metadata: the bus does not wait)."""
         return self._table[self._at["return_delay_time"]] * RETURN_DELAY_UNIT
-
-    # --- instructions on one servo ---------------------------------------------------------------
-
-    def ping_reply(self) -> bytes:
-        return pack_field(self.get("model_number"), 2) + bytes([self.get("firmware_version")])
-
-    def read(self, address: int, length: int) -> bytes:
-        """Undefined bytes inside the table read as 0; beyond it is an access error."""
-        if address + length > TABLE_SIZE:
-            raise _fail(ErrorNumber.ACCESS)
-        if self._stale:
-            self._refresh_present()
-        return bytes(self._table[address:address + length])
-
-    def read_into(self, out: bytearray, offset: int, address: int, length: int) -> None:
-        """read(), its bytes copied into `out` at `offset` (a reply being assembled in place)."""
-        if address + length > TABLE_SIZE:
-            raise _fail(ErrorNumber.ACCESS)
-        if self._stale:
-            self._refresh_present()
-        out[offset:offset + length] = memoryview(self._table)[address:address + length]
-
-    def write(self, address: int, data: bytes) -> None:
-        """Write whole items, all or nothing."""
-        self._apply(self._check_write(address, data))
-        if address < EEPROM_END:
-            self._nonvolatile_written()
-
-    def reg_write(self, address: int, data: bytes) -> None:
-        """Check now, apply on ACTION."""
-        self._check_write(address, data)
-        self._registered = (address, bytes(data))
-        self._set("registered_instruction", 1)
-
-    def action(self) -> None:
-        if self._registered is None:
-            raise _fail(ErrorNumber.INSTRUCTION)
-        address, data = self._registered
-        self._registered = None
-        self._set("registered_instruction", 0)
-        self.write(address, data)
-
-    def reboot(self) -> None:
-        """RAM back to its defaults: torque off, hardware errors and watchdog cleared."""
-        self._power_up()
-
-    def factory_reset(self, option: int) -> None:
-        if option not in set(ResetOption):
-            raise _fail(ErrorNumber.DATA_RANGE)
-        kept = {"id": self.get("id"), "baud_rate": self.get("baud_rate")}
-        self._load_defaults(eeprom=True, writable_only=True)     # Model Number, Firmware Version stay
-        if option != ResetOption.ALL:
-            self._set("id", kept["id"])
-        if option == ResetOption.EXCEPT_ID_AND_BAUD:
-            self._set("baud_rate", kept["baud_rate"])
-        self.reboot()
-        self._nonvolatile_written()
-
-    def clear_multi_turn(self) -> None:
-        """Present Position back within one turn; refused while moving."""
-        if self.get("moving"):
-            raise _fail(ErrorNumber.RESULT_FAIL)
-        self._reset_turns()
-        self._refresh_present()
-
-    # --- write checks and effects --------------------------------------------------------------
-
-    def _layout(self, address: int, length: int) -> tuple | ErrorNumber:
-        """The items a write of `length` bytes at `address` covers, each with its unpacker and
-        offset in the data, and whether one is in the EEPROM; or the error that refuses it. The
-        table's layout decides, so a good one is kept for the next write of the same span."""
-        layout = self._layouts.get((address, length))
-        if layout is not None:
-            return layout
-        end = address + length
-        if not length:
-            return ErrorNumber.DATA_LENGTH
-        if end > TABLE_SIZE:
-            return ErrorNumber.ACCESS
-        items, k = [], address
-        while k < end:
-            item = self._owner[k]
-            if item is None or not item.writable:
-                return ErrorNumber.ACCESS
-            if item.address != k or k + item.size > end:      # part of an item
-                return ErrorNumber.DATA_LENGTH
-            items.append((item, self._field[item.name][0], k - address))
-            k += item.size
-        layout = self._layouts[address, length] = (tuple(items), any(item.eeprom for item, _, _ in items))
-        return layout
-
-    def _check_write(self, address: int, data: bytes) -> list[tuple[Item, int]]:
-        layout = self._layout(address, len(data))
-        if isinstance(layout, ErrorNumber):
-            raise _fail(layout)
-        items, eeprom = layout
-        writes = [(item, unpack(data, offset)[0]) for item, unpack, offset in items]
-        if eeprom and self.torque_enabled:
-            raise _fail(ErrorNumber.ACCESS)
-        for item, value in writes:
-            self._check_value(item, value)
-        return writes
-
-    def _check_value(self, item: Item, value: int) -> None:
-        if ((item.name in GOAL_ITEMS or (item.name == "bus_watchdog" and value != 0))
-                and self.get("bus_watchdog") == WATCHDOG_TRIPPED):
-            raise _fail(ErrorNumber.DATA_RANGE)          # goals are read-only until written 0
-        if (item.name == "torque_enable" and value == 1
-                and self.get("hardware_error_status") & self.get("shutdown")):
-            raise _fail(ErrorNumber.RESULT_FAIL)         # after a shutdown only REBOOT restores torque
-        if item.name == "goal_position":
-            self._check_goal_position(value)
-        out_of_range = ((item.low is not None and not item.low <= value <= item.high)
-                        or (item.choices is not None and value not in item.choices)
-                        or (item.mask is not None and value & ~item.mask))
-        if out_of_range:
-            raise _fail(ErrorNumber.DATA_RANGE)
-        if item.limit is not None and abs(value) > self.get(item.limit):
-            raise _fail(ErrorNumber.DATA_LIMIT)
-
-    def _check_goal_position(self, value: int) -> None:
-        if self.get("operating_mode") == OperatingMode.POSITION:
-            if not self.get("min_position_limit") <= value <= self.get("max_position_limit"):
-                raise _fail(ErrorNumber.DATA_LIMIT)
-        elif abs(value) > GOAL_POSITION_SPAN:
-            raise _fail(ErrorNumber.DATA_RANGE)
-
-    def _apply(self, writes: list[tuple[Item, int]]) -> None:
-        for item, value in writes:
-            changes = item.name in _CHANGES
-            before = self.get(item.name) if changes else None
-            self._set(item.name, value)
-            if not changes:
-                if item.name == "goal_position":
-                    self._set("position_trajectory", value)
-            elif item.name == "operating_mode" and value != before:
-                self._enter_mode(value)
-            elif item.name == "torque_enable" and value != before:
-                self._pid.reset()
-                if value and self.get("operating_mode") == OperatingMode.POSITION:
-                    self._reset_turns()
-        self._stale = True         # Present registers as the items now stand, written when next read
-
-    def _enter_mode(self, mode: int) -> None:
-        """Switching mode resets the profile, the gains and the goal PWM/current to their limits."""
-        for name in ("profile_acceleration", "profile_velocity", *GAIN_ITEMS):
-            self._set(name, self.items[name].default)
-        self._set("goal_pwm", self.get("pwm_limit"))
-        self._goal_current_to_limit()
-        self._pid.reset()
-        if mode == OperatingMode.POSITION:
-            self._reset_turns()
-
-    def _goal_current_to_limit(self) -> None:
-        """Goal Current = Current Limit, as a mode switch or power-up leaves it (a model without
-        current control has neither)."""
-        if self.model.current_control:
-            self._set("goal_current", self.get("current_limit"))
 
     def _load_defaults(self, eeprom: bool, writable_only: bool = False) -> None:
         for item in self.items.values():
@@ -477,39 +311,37 @@ class Servo:
         (_, pack_p, at_p, bound_p), (_, pack_v, at_v, bound_v), (_, pack_c, at_c, bound_c) = self._present
         ticks = (self.zero_ticks + sign * position * TICKS_PER_REV / (2 * math.pi)      # _position_ticks
                  - TICKS_PER_REV * self._turns + _I32.unpack_from(table, at["homing_offset"])[0])
-        pack_p(table, at_p, max(-bound_p, min(bound_p - 1, round(ticks))))
-        speed = max(-bound_v, min(bound_v - 1, round(sign * velocity / VELOCITY_UNIT)))
+        pack_p(table, at_p, clamp(round(ticks), -bound_p, bound_p - 1))
+        speed = clamp(round(sign * velocity / VELOCITY_UNIT), -bound_v, bound_v - 1)
         pack_v(table, at_v, speed)
-        pack_c(table, at_c, max(-bound_c, min(bound_c - 1, round(sign * current / self.model.current_unit))))
+        pack_c(table, at_c, clamp(round(sign * current / self.model.current_unit), -bound_c, bound_c - 1))
         table[at["moving"]] = int(abs(speed) > _U32.unpack_from(table, at["moving_threshold"])[0])
 
     def output_current(self, position: float, velocity: float, dt: float) -> float:
-        """Motor current (A, shaft sign) the drive applies for the next ``dt`` seconds."""
+        """Motor current (A, shaft sign) the drive applies for the next ``dt`` seconds: the operating
+        mode's demand from the registers, turned into current and PWM by the motor (drive.py)."""
         table, at = self._table, self._at
         if table[at["torque_enable"]] != 1:
             self._pid.reset()
             self._set("present_pwm", 0)
             return 0.0
-        model, sign = self.model, self._sign
         u16, i16 = _U16.unpack_from, _I16.unpack_from
-        back_emf = sign * velocity / self._no_load_speed      # fraction of the supply it cancels
-        supply = u16(table, at["present_input_voltage"])[0] / 10 / model.nominal_voltage
-        pwm_cap = min(abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0])
+        sign = -1 if table[at["drive_mode"]] & DRIVE_MODE_REVERSE else 1
+        speed = sign * velocity                               # in the motor's own sign
+        supply = u16(table, at["present_input_voltage"])[0] / 10
+        goal_pwm, pwm_limit = abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0]
+        pwm_cap = pwm_limit if pwm_limit < goal_pwm else goal_pwm         # min(goal_pwm, pwm_limit)
         mode = table[at["operating_mode"]]
-        if mode == OperatingMode.POSITION:                    # position PID → PWM
+        if mode == _POSITION:                                 # position PID → PWM
             pwm = self._pid_output(position, velocity, dt, pwm_cap)
-            amps = model.stall_current * (pwm / PWM_FULL * supply - back_emf)
+            amps = self.motor.pwm_driven(pwm, supply, speed)
         else:
-            if mode == OperatingMode.CURRENT:
+            if mode == _CURRENT:
                 limit = u16(table, at["current_limit"])[0]
-                units = max(-limit, min(limit, i16(table, at["goal_current"])[0]))
+                units = clamp(i16(table, at["goal_current"])[0], -limit, limit)
             else:                                             # position PID → current, Goal Current caps it
                 units = self._pid_output(position, velocity, dt, abs(i16(table, at["goal_current"])[0]))
-            # the current loop can only reach what the PWM cap and the back-EMF leave
-            reach = model.stall_current * pwm_cap / PWM_FULL * supply
-            amps = max(-reach - model.stall_current * back_emf,
-                       min(reach - model.stall_current * back_emf, units * model.current_unit))
-            pwm = (amps / model.stall_current + back_emf) / supply * PWM_FULL
+            amps, pwm = self.motor.current_driven(units, pwm_cap, supply, speed)
         self._set_clamped("present_pwm", pwm)
         return sign * amps
 

@@ -26,90 +26,25 @@ from __future__ import annotations
 import time as _time
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 
-from servodyn.hal.dynamixel import (ALERT_BIT, BROADCAST_ID, BadFrame, BadParameters, ErrorNumber, crc16,
+from servodyn.hal.dynamixel import (BROADCAST_ID, BadFrame, BadParameters, ErrorNumber, crc16,
                                     Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.control_table import FAST_READ_FIRMWARE
-from servodyn.hal.dynamixel.instructions import fast_reply_frame, seal_fast_reply
+from servodyn.hal.dynamixel.instructions import fast_reply_frame
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.errors import ProtocolError
 
 from .chain import ServoChain
+from .replies import Exchange, Policy, Reply, collide, collided, fast_replies  # collide: the module's model
 from .servo import Servo
 
-READS = frozenset({Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
-                   Instruction.BULK_READ, Instruction.FAST_BULK_READ})
 COMMANDS = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})   # end a host's control tick
 FAST_READS = frozenset({Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ})
 FAST_FRAMES_KEPT = 8     # fast read replies laid out in advance, one per request seen lately
 COMMAND_SHAPE = 12       # header, ID, LEN, instruction, address and data length of a SYNC WRITE
 STUFFED = b"\xFF\xFF\xFD"  # what byte stuffing follows with FD
-
-
-@dataclass(frozen=True)
-class Reply:
-    servo_id: int              # 0xFE for a fast read reply
-    data: bytes                # the encoded status packet
-    delay: float               # the servo's Return Delay Time, s (metadata)
-
-
-@dataclass(frozen=True)
-class Exchange:
-    """One instruction packet and what the bus answered; passed to ``on_instruction``."""
-    request: InstructionPacket
-    replies: tuple[Reply, ...]
-    time: float
-
-
-class _Policy:
-    """A servo's reply settings as the instruction arrived (a reboot or reset answers first)."""
-
-    def __init__(self, servo: Servo):
-        self.level = servo.status_return_level
-        self.alert = ALERT_BIT if servo.alert else 0
-        self.delay = servo.return_delay
-        self.silent = servo.silent
-
-    def answers(self, instruction: int) -> bool:
-        return _answers(self.silent, self.level, instruction)
-
-
-def _answers(silent: bool, level: int, instruction: int) -> bool:
-    """Whether a servo answers an instruction, by its Status Return Level."""
-    if silent:
-        return False
-    if instruction == Instruction.PING:
-        return True
-    return level == 2 or (level == 1 and instruction in READS)
-
-
-def collide(packets: list[bytes]) -> bytes:
-    """What the host receives when servos send `packets` at once (the module's docstring): their
-    bytes ANDed, and the packet the result announces never checks."""
-    size = max(len(p) for p in packets)
-    wire = -1
-    for packet in packets:
-        wire &= int.from_bytes(bytes(packet).ljust(size, b"\xFF"), "big")
-    out = bytearray(wire.to_bytes(size, "big"))
-    if size >= 7:
-        end = 7 + (out[5] | out[6] << 8)
-        if 9 <= end <= size and crc16(bytes(out[:end - 2])) == out[end - 2] | out[end - 1] << 8:
-            out[end - 1] ^= 0xFF
-    return bytes(out)
-
-
-def _collided(replies: list[Reply]) -> list[Reply]:
-    """The replies of one instruction with those of one ID (several servos holding it) collided."""
-    by_id: dict[int, list[Reply]] = {}
-    for reply in replies:
-        by_id.setdefault(reply.servo_id, []).append(reply)
-    if len(by_id) == len(replies):
-        return replies
-    return [group[0] if len(group) == 1 else Reply(servo_id, collide([r.data for r in group]), group[0].delay)
-            for servo_id, group in by_id.items()]
 
 
 def _parsed(parser: Callable, params: bytes):
@@ -126,8 +61,8 @@ class DynamixelWire:
     answered. A frame whose bytes arrive more than ``byte_timeout`` apart is dropped, as a servo
     does (None: never), timed by ``wire_clock`` when the bytes come over a real-time wire while
     the servos' clock is a simulated one (None: the servos' clock). ``chain``: the servos as one
-    (ServoChain, built from them unless given), which clocks them and writes their Present
-    registers at once while ``servos`` still holds just its servos."""
+    (ServoChain, built from them unless given: the plant's too when one bus holds them all), which
+    clocks them."""
 
     def __init__(self, servos: Iterable[Servo] = (), *, clock: Callable[[], float] = _time.monotonic,
                  on_instruction: Callable[[Exchange], None] | None = None,
@@ -172,15 +107,9 @@ class DynamixelWire:
 
     def tick(self, time: float | None = None) -> None:
         """Advance every servo's clock (bus watchdog, Realtime Tick) without traffic."""
-        now = self.clock() if time is None else time
-        if self.chain.covers(self.servos):
-            self.chain.clock(now)
-            return
-        for servo in self.servos:
-            # a servo clocked at `now` already has since heard a packet (silent 0) or nothing:
-            # clocking it again at the same time would change nothing
-            if servo.clocked_at != now:
-                servo.clock(now)
+        if not self.chain.covers(self.servos):       # the bus's servos changed since
+            self.chain = ServoChain(self.servos)
+        self.chain.clock(self.clock() if time is None else time)
 
     def _rewire(self) -> None:
         """Who listens at which speed, whether an ID is shared, whether every firmware takes fast
@@ -241,7 +170,7 @@ class DynamixelWire:
                 self.faults[event.fault] += 1
                 if event.fault is Fault.CRC:
                     replies = self._crc_error(event)
-                    out += _collided(replies) if len(replies) > 1 else replies
+                    out += collided(replies) if len(replies) > 1 else replies
             elif isinstance(event, InstructionPacket):
                 try:
                     replies = self._execute(event, now)
@@ -251,7 +180,7 @@ class DynamixelWire:
                     self.unanswerable += 1
                     replies = []
                 if self._shared and len(replies) > 1:
-                    replies = _collided(replies)
+                    replies = collided(replies)
                 out += replies
                 if Servo.wiring != self._wiring[0]:
                     self._rewired_in_chunk(everyone)
@@ -300,17 +229,14 @@ class DynamixelWire:
         broadcast = packet.id == BROADCAST_ID
         targets = self.servos if broadcast else [s for s in self.servos
                                                  if packet.id in (s.id, s.get("secondary_id"))]
-        if broadcast and self.chain.covers(targets):
-            self.chain.heard(now)
-        else:
-            for servo in targets:
-                servo.heard(now)
+        for servo in targets:
+            servo.heard(now)
         handler = self._handlers.get(packet.instruction)
         if handler is None:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
         return handler(packet, targets)
 
-    def _status(self, policy: _Policy, servo_id: int, instruction: int,
+    def _status(self, policy: Policy, servo_id: int, instruction: int,
                 error: int = 0, params: bytes = b"") -> list[Reply]:
         if not policy.answers(instruction):
             return []
@@ -323,7 +249,7 @@ class DynamixelWire:
         replies = []
         for servo in targets:
             answers = packet.id != BROADCAST_ID and servo.id == packet.id
-            policy = _Policy(servo)
+            policy = Policy(servo)
             try:
                 params, error = act(servo) or b"", 0
             except StatusError as refused:
@@ -337,7 +263,7 @@ class DynamixelWire:
             return []
         replies = []
         for servo in self._holders(frame.id):
-            replies += self._status(_Policy(servo), servo.id, frame.instruction, ErrorNumber.CRC)
+            replies += self._status(Policy(servo), servo.id, frame.instruction, ErrorNumber.CRC)
         return replies
 
     def _holders(self, servo_id: int) -> list[Servo]:
@@ -354,7 +280,7 @@ class DynamixelWire:
             return self._each(packet, targets, lambda s: s.ping_reply())
         replies = []
         for servo in sorted(self.servos, key=lambda s: s.id):     # every servo, in ID order
-            replies += self._status(_Policy(servo), servo.id, Instruction.PING, 0, servo.ping_reply())
+            replies += self._status(Policy(servo), servo.id, Instruction.PING, 0, servo.ping_reply())
         return replies
 
     def _read(self, packet, targets):
@@ -424,7 +350,7 @@ class DynamixelWire:
         replies = []
         for servo_id, address, length in requests:
             for servo in self._holders(servo_id):
-                policy = _Policy(servo)
+                policy = Policy(servo)
                 if not policy.answers(instruction):
                     continue
                 try:
@@ -435,73 +361,13 @@ class DynamixelWire:
         return replies
 
     def _fast_reads(self, instruction: int, requests: list[tuple[int, int, int]]) -> list[Reply]:
-        """One packet, and none when a listed servo is missing or does not answer reads. A silent
-        servo (a fault) cuts the reply where its block would begin, as on a chain: the servos
-        before it answered, the ones after wait for it and never do, and the header's LEN still
-        counts every block, so the host sees a short packet (nothing at all if the first is
-        silent). The reply is filled in place in a frame laid out once per request, by the chain
-        when it is one span of every servo's."""
-        frame, starts, ids, span, lengths = self._fast_frame(requests)
-        if not self._plain:
-            return self._fast_reads_apart(instruction, requests, frame, starts)
-        if span is not None and self.chain.covers(self.servos):
-            filled = self.chain.fast_read(ids, *span, frame, starts)
-            if filled != -2:
-                if filled <= 0:
-                    return []
-                seal_fast_reply(frame, lengths if filled == len(lengths) else lengths[:filled])
-                first = self._primary(ids[0])
-                return [Reply(BROADCAST_ID, bytes(memoryview(frame)[:starts[filled]]), first.return_delay)]
-        answering = []
-        present = [servo.id for servo in self.servos]
-        for servo_id, _, _ in requests:
-            servo = self.servos[present.index(servo_id)] if servo_id in present else None   # _primary
-            if servo is not None and servo.silent:
-                break
-            if servo is None or not _answers(False, servo.status_return_level, instruction):
-                return []
-            answering.append(servo)
-        if not answering:
-            return []
-        return [Reply(BROADCAST_ID, _fill_fast_reply(frame, starts, answering, requests), answering[0].return_delay)]
+        """One packet (replies.fast_replies), filled in place in a frame laid out once per request."""
+        frame, starts = self._fast_frame(requests)
+        return fast_replies(self.servos, self._plain, instruction, requests, frame, starts)
 
-    def _fast_reads_apart(self, instruction: int, requests: list[tuple[int, int, int]], frame: bytearray,
-                          starts: list[int]) -> list[Reply]:
-        """_fast_reads on a bus where an ID is shared or a firmware predates fast reads. A servo of
-        Firmware Version below FAST_READ_FIRMWARE does not know the instruction: it answers an
-        Instruction Error status of its own (Status Return Level permitting), and for the chain it
-        is a silent servo (the fast reply is cut where its block would begin). The holders of a
-        shared ID each fill its block (one version of the reply per holder). Whatever goes out at
-        once collides (`collide`)."""
-        holders = [[s for s in self.servos if s.id == servo_id] for servo_id, _, _ in requests]
-        refusals = [servo for group in holders for servo in group
-                    if servo.get("firmware_version") < FAST_READ_FIRMWARE and not servo.silent
-                    and _answers(False, servo.status_return_level, instruction)]
-        sent = [StatusPacket(servo.id, ErrorNumber.INSTRUCTION | (ALERT_BIT if servo.alert else 0)).encode()
-                for servo in refusals]
-        answering: list[list[Servo]] = []
-        for group in holders:
-            if any(s.silent or s.get("firmware_version") < FAST_READ_FIRMWARE for s in group):
-                break
-            if not group or not all(_answers(False, s.status_return_level, instruction) for s in group):
-                answering = []
-                break
-            answering.append(group)
-        if answering:
-            versions = max(len(group) for group in answering)
-            sent += [_fill_fast_reply(frame, starts, [group[min(v, len(group) - 1)] for group in answering], requests)
-                     for v in range(versions)]
-        if not sent:
-            return []
-        first = answering[0][0] if answering else refusals[0]
-        servo_id = BROADCAST_ID if answering else refusals[0].id
-        return [Reply(servo_id, sent[0] if len(sent) == 1 else collide(sent), first.return_delay)]
-
-    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int], bytes, tuple | None,
-                                                                      list[int]]:
+    def _fast_frame(self, requests: list[tuple[int, int, int]]) -> tuple[bytearray, list[int]]:
         """The reply to a fast read laid out (instructions.fast_reply_frame) and where each block
-        begins, the frame's end last, the IDs, (address, length) when every block reads the same
-        span, and each block's length; kept for the next time the same request comes."""
+        begins, the frame's end last; kept for the next time the same request comes."""
         if requests is self._fast_request[0]:        # the same request's list (_sync_read keeps it)
             return self._fast_request[1]
         key = tuple(requests)
@@ -511,24 +377,17 @@ class DynamixelWire:
             starts = [inst.FAST_BLOCKS_START]
             for _, _, length in requests:
                 starts.append(starts[-1] + length + 4)
-            spans = {(address, length) for _, address, length in requests}
             if len(self._fast_frames) >= FAST_FRAMES_KEPT:
                 self._fast_frames.clear()
-            laid_out = self._fast_frames[key] = (frame, starts, bytes(i for i, _, _ in requests),
-                                                 spans.pop() if len(spans) == 1 else None,
-                                                 [length for _, _, length in requests])
+            laid_out = self._fast_frames[key] = (frame, starts)
         self._fast_request = (requests, laid_out)
         return laid_out
 
     def _sync_write(self, packet, targets):
         if packet.id != BROADCAST_ID:
             return self._each(packet, targets, lambda s: _raise(ErrorNumber.INSTRUCTION))
-        params = packet.params
-        if len(params) >= 4 and not self._shared and self.chain.covers(self.servos) and self.chain.write(
-                params[0] | params[1] << 8, params[2] | params[3] << 8, params):
-            return []
         try:
-            address, writes = inst.parse_sync_write(params)
+            address, writes = inst.parse_sync_write(packet.params)
         except BadParameters:
             return []
         self._writes([(servo_id, address, data) for servo_id, data in writes])
@@ -557,23 +416,6 @@ class DynamixelWire:
                     servo.write(address, data)
                 except StatusError:
                     pass
-
-
-def _fill_fast_reply(frame: bytearray, starts: list[int], answering: list[Servo],
-                     requests: list[tuple[int, int, int]]) -> bytes:
-    """The fast read reply laid out in `frame` filled by `answering`, the servos of the first
-    requests in order: the whole frame, or up to where the next one's block would begin."""
-    for servo, (_, address, length), start in zip(answering, requests, starts):
-        alert = ALERT_BIT if servo.alert else 0
-        try:
-            servo.read_into(frame, start + 2, address, length)
-            error = 0
-        except StatusError as refused:
-            frame[start + 2:start + 2 + length] = bytes(length)
-            error = refused.error
-        frame[start] = error | alert
-    seal_fast_reply(frame, [length for _, _, length in requests[:len(answering)]])
-    return bytes(memoryview(frame)[:starts[len(answering)]])
 
 
 def _raise(number: ErrorNumber):
