@@ -20,7 +20,7 @@ STAMP := $(VENV)/.stamp
 
 CORE_C := $(wildcard firmware/core/*.c)
 CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
-HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h sim/dynamixel/c/*.c)
+HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
 
 .DEFAULT_GOAL := test
 .PHONY: test demo docs bench soak venv toolchain browser mocap-clips test-c test-mcu test-python clean distclean

@@ -166,8 +166,8 @@ def validate(config, motion: str, *, time_scale: float | None = None, payload: f
     say(f"validate '{path.name}' on '{config.name}': {report['duration_s']:.3f} s at time scale {time_scale:g}, "
         f"{report['samples']} samples every {report['sample_period_s'] * 1e3:g} ms, supply {voltage:g} V, "
         f"margin {margin:g}{f', {repeat} plays' if repeat > 1 else ''}"
-        + ("" if told else f" (time scale {time_scale:g}: {config.name}'s for {motion}, as a swing plays it; "
-                           "--time-scale S to change it)"))
+        + ("" if told or time_scale == 1 else f" ({config.name}'s time scale for {path.name}, as a swing plays "
+                                              "it; --time-scale S to change it)"))
     say(summary_table(report))
     if report["violations"]:
         say(f"\nFAIL: {report['violations'][0]['message']}")
