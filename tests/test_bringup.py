@@ -384,7 +384,7 @@ def test_setup_on_a_lost_port_says_which_steps_were_written(capsys):
         dies_at(served, Instruction.WRITE, 3)       # torque off, the first EEPROM step, then lost
         code, out, err = run(capsys, "setup", "--config", "replica", "--joint", dof, "--port", port, "--yes")
         line = one_line(err)
-        plan = [step.split(":")[0].strip() for step in out.split("to make it joint")[1].splitlines()[1:]
+        plan = [step.split(":")[0].strip() for step in (out + err).split("to make it joint")[1].splitlines()[1:]
                 if "->" in step]
         assert code == 12 and f"{port}: the port was lost" in line, (out, err)
         assert plan[0] == "return delay time" and "id" in plan, plan

@@ -170,7 +170,7 @@ def test_written_files_pass_and_lighter_fails(arm3, tmp_path):
     lighter usable catalogue servo, put in the chosen one's place, fails some check."""
     model, motion = arm3
     out = tmp_path / "sized"
-    code = main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--out", str(out), "--json"])
+    code = main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--margin", "1", "--out", str(out), "--json"])
     assert code == 0
     report = json.loads((out / "size.json").read_text())
     assert main(["validate", str(out / "config.toml"), motion, "--out", str(tmp_path / "v")]) == 0
@@ -360,7 +360,7 @@ def test_a_part_without_armature_is_never_a_candidate(arm3, monkeypatch, capsys)
     data = sizing.load_model_data(str(model))[0]
     with pytest.raises(sizing.SizingError, match="XC330-T288: no armature"):
         sizing.mounted(data, sizing.housings(data), {"wrist": "XC330-T288"})
-    assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--out",
+    assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--margin", "1", "--out",
                  str(model.parent / "no_armature"), "--yes"]) == 0
     out = capsys.readouterr().out
     assert "XC330-T288 (no armature in parts.toml" in out
