@@ -23,7 +23,7 @@ from servodyn.hal.dynamixel.control_table import ITEMS
 from servodyn.sim.console import Console, ConsoleError, run_console
 from servodyn.sim.lab import Lab
 from servodyn.sim.robot import SimulatedRobot
-from servodyn.tools.simulator import serve
+from servodyn.sim.serve import serve
 
 CONFIG = load_config("replica")
 DOFS = list(CONFIG.model.dof_names)
@@ -77,7 +77,7 @@ def answer_prompts(proc: subprocess.Popen, act, deadline: float = 120.0) -> str:
 def test_calibrate_by_hand_through_the_console_finds_the_mounting(tmp_path, reversed_horn):
     store, target = tmp_path / "bench.json", tmp_path / "replica.toml"
     bench = Lab(factory=True, connected=(JOINT,), store=store, seed=seed_turning(JOINT, reversed_horn))
-    served = serve(CONFIG, "realtime", process=False, bench=bench)
+    served = serve(CONFIG, "realtime", process=False, lab=bench)
     try:
         port = served.buses["arm"]["port"]
         truth = served.robot.bench.mounting[JOINT]
