@@ -1,7 +1,9 @@
-"""Shared test helpers: the same model in servodyn and in Pinocchio, the independent oracle."""
+"""Shared fixtures and helpers: the same model in servodyn and in Pinocchio (the independent
+oracle), and the command line run in this process (`cli`). helpers.py has the rest."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -123,3 +125,21 @@ def pinocchio_direct(model):
         joint_of[i] = jid
     pm.armature = model.armature
     return pm
+
+
+@pytest.fixture
+def cli(capsys):
+    """`servodyn ARGS...` run in this process (no interpreter to start: for the many short
+    commands whose test needs no process of their own), as a CompletedProcess like run_cli's."""
+    from servodyn.tools.cli import main
+
+    def run(*args) -> subprocess.CompletedProcess:
+        capsys.readouterr()
+        argv = [str(a) for a in args]
+        try:
+            code = main(argv)
+        except SystemExit as stop:         # argparse's refusals exit from inside main
+            code = stop.code
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(argv, code, out, err)
+    return run

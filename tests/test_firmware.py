@@ -20,6 +20,8 @@ from servodyn.tools.hil import default_elf, run_qemu, summarize
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.tools.swing import run_swing
 
+from helpers import quiet, run_cli
+
 ROOT = Path(__file__).resolve().parent.parent
 WHOLE_SWING_TIMEOUT = 900.0   # s of wall clock for the 7,201-tick swing under QEMU
 FAULT_TICK = 100          # injections act after this tick's command: the next read sees them
@@ -50,7 +52,7 @@ def swing_run(images):
 
 @pytest.fixture(scope="module")
 def host_swing(tmp_path_factory):
-    return run_swing("replica", out=tmp_path_factory.mktemp("host_swing"), say=lambda *a: None)
+    return run_swing("replica", out=tmp_path_factory.mktemp("host_swing"), say=quiet)
 
 
 def test_codegen_model_is_the_hosts(tmp_path):
@@ -73,8 +75,7 @@ def test_codegen_model_is_the_hosts(tmp_path):
 def test_codegen_cli_refuses_bad_config(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\nmodel = "replica"\n[bus.arm]\nkind = "dynamixel"\nbaud = 12\n')
-    run = subprocess.run([str(ROOT / ".venv/bin/servodyn"), "codegen", "--config", str(bad), "-o",
-                          str(tmp_path / "gen")], capture_output=True, text=True)
+    run = run_cli("codegen", "--config", bad, "-o", tmp_path / "gen")
     assert run.returncode == 2, f"a bad configuration exits 2 (a ConfigError): {run.stderr}"
     assert run.stderr.startswith("servodyn: error:") and "baud" in run.stderr, f"baud 12 is named: {run.stderr}"
     assert "Traceback" not in run.stderr, run.stderr
@@ -283,8 +284,7 @@ def test_firmware_refuses_an_image_that_is_not_an_arm_elf(tmp_path, content, wor
     import sys
     elf = tmp_path / "fw.elf"
     elf.write_bytes(content if content is not None else Path(sys.executable).resolve().read_bytes()[:64])
-    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "firmware", "--elf", elf,
-                          "--out", tmp_path / "out"], capture_output=True, text=True, timeout=60)
+    res = run_cli("firmware", "--elf", elf, "--out", tmp_path / "out")
     lines = res.stderr.splitlines()
     assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("servodyn: error: "), res.stderr
     assert str(elf) in lines[0] and all(word in lines[0] for word in words), lines[0]

@@ -12,7 +12,6 @@ import pytest
 import servodyn
 from servodyn.hal.dynamixel.control_table import SERVOS
 from servodyn.hal.config import CONFIGS_DIR, ConfigError, config_from_dict, load_config
-from servodyn.control.motion import load_motion
 
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)

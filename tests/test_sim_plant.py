@@ -18,6 +18,8 @@ from servodyn.sim.dynamixel import Servo
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.tools.swing import run_swing
 
+from helpers import quiet
+
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
 DOFS = [j["dof"] for j in REPLICA["joint"]]
@@ -117,7 +119,7 @@ def holds(tmp_path_factory):
     runs = {}
     for label, config in (("nominal", nominal), ("payload", with_sim(sim))):
         summary = run_swing(config, out=folder / label, motion=str(motion), home_duration=0.5, figure=False,
-                            say=lambda *a, **k: None)
+                            say=quiet)
         assert summary["completed"], summary["error"]
         runs[label] = (config, read_run_log(folder / label, config.model), folder / label / "swing_log.csv")
     return runs
@@ -226,7 +228,7 @@ def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
         config = config_from_dict(data, origin="test.toml")
         motion = _sway(tmp_path / "sway.csv", config.model)
         results[known] = run_swing(config, out=tmp_path / str(known), motion=str(motion), home_duration=0.5,
-                                   figure=False, say=lambda *a, **k: None)
+                                   figure=False, say=quiet)
         assert results[known]["completed"], results[known]["error"]
     blind, compensated = results[False], results[True]
     assert compensated["tracking_max_rad"] * 2.0 <= blind["tracking_max_rad"], (compensated, blind)

@@ -16,6 +16,8 @@ from servodyn.tools.cli import main
 from servodyn.tools.size import run_size
 from servodyn.validation import judge, sizing
 
+from helpers import quiet
+
 ARM3 = """
 name = "arm3"
 [[body]]
@@ -191,7 +193,7 @@ def test_replica_forehand_no_heavier_than_its_own(tmp_path):
     than the replica's own, and the report says where the replica has margin to spare."""
     scale = load_config("replica").swing_time_scale
     report = run_size("replica", ["tennis_forehand"], time_scale=scale, supply_voltage=12.0, out=tmp_path,
-                      say=lambda *a, **k: None)
+                      say=quiet)
     assert report["passed"] and all(v["passed"] for v in report["validated"].values())
     for dof, j in report["joints"].items():
         assert j["mass_kg"] <= sizing.part_mass(j["original"]) + 1e-12, dof
