@@ -22,6 +22,8 @@ CONFIG = load_config("replica")
 TIME_SCALE = 3           # a long swing, so the pause surely lands in it; the stall ends the run anyway
 
 
+@pytest.mark.slow
+@pytest.mark.serial
 @pytest.mark.parametrize("pause", [2.5, 5.0])
 def test_a_stall_longer_than_the_watchdog_stops_the_swing(tmp_path, pause):
     out = tmp_path / "out"

@@ -259,6 +259,7 @@ def test_a_lost_request_within_the_watchdog_is_retried(sim):
     assert state.q.shape == (7,) and bus.stats.reads_retried == 1, "one try lost, the retry answered"
 
 
+@pytest.mark.serial
 def test_a_silence_longer_than_the_watchdog_is_a_stall(sim):
     """With torque on and the servos' 100 ms Bus Watchdog armed, every fast sync read lost: after
     the first try and its drain (0.25 s each) the bus has been silent longer than the watchdog, so

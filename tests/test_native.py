@@ -116,6 +116,7 @@ def test_native_overrun_stops_safely(native):
     assert report["missed"] >= 1 and record.torque_off, "the missed deadline is counted, torque off sent"
 
 
+@pytest.mark.serial
 def test_native_caught_up_ticks_are_timed_each(native):
     """Real time with a 20 us period, which no round trip through the pseudo-terminal keeps: every
     tick after the first runs at once, catching up on the plan (a wide tolerance lets it). Each is

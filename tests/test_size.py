@@ -258,8 +258,9 @@ def test_validate_jobs_same_verdicts_dir_and_glob(tmp_path, capsys):
     code, verdicts = runs[1]
     assert [v[1] for v in verdicts] == [True, True, False]   # the elbow 0.3 rad past its lower limit
     assert code == 1
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("PASS", "FAIL"))]
-    assert len(lines) == 6
+    printed = capsys.readouterr()
+    lines = [line for line in (printed.out + printed.err).splitlines() if line.startswith(("PASS", "FAIL"))]
+    assert len(lines) == 6, "a verdict for each motion, of each run"
 
 
 def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
@@ -267,8 +268,8 @@ def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
     (tmp_path / "bad.csv").write_text("t,q_nothing\n0,0\n")
     code = main(["validate", "replica", good, str(tmp_path / "bad.csv"), "--out", str(tmp_path / "o")])
     assert code == 2
-    out = capsys.readouterr().out
-    assert "PASS" in out and "ERROR" in out
+    printed = capsys.readouterr()
+    assert "PASS" in printed.out + printed.err and "ERROR" in printed.out + printed.err
     assert main(["validate", "replica", str(tmp_path / "none*.csv"), "--out", str(tmp_path / "o")]) == 2
 
 
@@ -364,7 +365,7 @@ def test_a_part_without_armature_is_never_a_candidate(arm3, monkeypatch, capsys)
         sizing.mounted(data, sizing.housings(data), {"wrist": "XC330-T288"})
     assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--out",
                  str(model.parent / "no_armature"), "--yes"]) == 0
-    out = capsys.readouterr().out
-    assert "XC330-T288 (no armature in parts.toml" in out
+    printed = capsys.readouterr()
+    assert "XC330-T288 (no armature in parts.toml" in printed.out + printed.err
     report = json.loads((model.parent / "no_armature" / "size.json").read_text())
     assert "XC330-T288" not in {j["servo"] for j in report["joints"].values()}

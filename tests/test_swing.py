@@ -107,6 +107,8 @@ def test_hardware_error_stops_the_swing_safely(tmp_path):
     assert len((tmp_path / "swing_log.csv").read_text().splitlines()) == 1 + 1000, "the header and the 1000 clean ticks"
 
 
+@pytest.mark.slow
+@pytest.mark.serial
 def test_realtime_swing_follows_the_wall_clock(tmp_path):
     """Real time: the plant advances with the wall clock and the loop sleeps to each next period.
     Only bounds a slow or busy machine cannot break are asserted: the loop is never faster than

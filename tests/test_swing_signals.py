@@ -82,6 +82,8 @@ def test_a_signal_during_the_swing_is_a_safe_stop(tmp_path, sig, status):
     assert all(len(row) == len(rows[0]) for row in rows), "every line complete"
 
 
+@pytest.mark.slow
+@pytest.mark.serial
 def test_a_killed_swing_leaves_the_servos_to_their_watchdog(tmp_path):
     """`servodyn sim` in real time in one process, `servodyn swing --port` on it in another;
     SIGKILL of the swing mid-run: the log on disk is whole lines, and every servo has tripped
