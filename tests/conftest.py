@@ -143,3 +143,14 @@ def cli(capsys):
         out, err = capsys.readouterr()
         return subprocess.CompletedProcess(argv, code, out, err)
     return run
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test marked serial is judged against the wall clock: never beside a parallel neighbour.
+    Under pytest-xdist it is skipped, with where it runs (make test runs `-m serial` alone)."""
+    if not hasattr(config, "workerinput"):          # not an xdist worker
+        return
+    alone = pytest.mark.skip(reason="serial: judged against the wall clock, run alone (pytest -m serial)")
+    for item in items:
+        if item.get_closest_marker("serial"):
+            item.add_marker(alone)
