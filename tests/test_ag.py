@@ -23,6 +23,7 @@ def test_builtin_matches_pinocchio(name, twin):
         assert err <= FORWARD_TOL, f"{name}: forward dynamics differ from Pinocchio by {err:.2e}"
 
 
+@pytest.mark.slow
 def test_random_trees_and_chains_match_pinocchio(twin):
     """200 random models up to 88 dofs. Forward dynamics solve M qdd = tau - h, so two correct
     implementations differ by about eps * cond(M): where cond(M) <= 1e6 the accelerations must

@@ -189,6 +189,7 @@ def test_refusals_are_one_line_with_their_fix(cli, tmp_path):
         assert len(lines) == 1 and needle in lines[0], (argv, err)
 
 
+@pytest.mark.serial
 def test_can_bus_scan_doctor_and_torque_off_through_the_cli(cli):
     """The same commands on the replica's CAN bus, behind the simulated SLCAN adapter: every
     motor found at its CAN ID with its Master ID, doctor clean, torque off confirmed by each."""

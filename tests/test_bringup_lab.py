@@ -25,6 +25,8 @@ from servodyn.tools.simulator import serve
 
 from helpers import PTY, answer_prompts, run_cli, sim_process, start_cli
 
+pytestmark = [pytest.mark.slow, pytest.mark.serial]      # whole bring-ups; the simulated servos answer within wall-clock timeouts
+
 CONFIG = load_config("replica")
 DOFS = CONFIG.model.dof_names
 

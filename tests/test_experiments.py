@@ -3,10 +3,13 @@
 import json
 
 import numpy as np
+import pytest
 
 from servodyn.tools.experiments import experiment_pendulum, experiment_still, experiment_swing
 
 from helpers import run_cli
+
+pytestmark = pytest.mark.slow      # the paper's experiments, end to end
 
 
 def test_pendulum_goals(tmp_path):

@@ -17,6 +17,8 @@ from servodyn.identification.synthetic import Plant, simulate_log
 from servodyn.loop.log import columns
 from servodyn.tools.cli import main
 
+pytestmark = pytest.mark.slow      # its plant's logs are whole runs
+
 KNOWN_KG = 0.5
 DURATION = 12.0          # s: one period of the excitation, 12 000 ticks at 1 kHz
 

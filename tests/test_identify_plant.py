@@ -16,6 +16,8 @@ from servodyn.tools.validate import validate
 
 from helpers import quiet
 
+pytestmark = pytest.mark.slow      # excitation runs, identification, swings
+
 KNOWN_KG = 0.5
 EXCITATION_S = 10.0
 SCALES = (1.15, 0.85, 1.1, 0.9, 1.2, 0.85, 1.1)

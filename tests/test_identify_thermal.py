@@ -23,6 +23,8 @@ from servodyn.validation import Limits, check
 
 from helpers import quiet
 
+pytestmark = pytest.mark.slow      # heating runs
+
 HEAT_S = 24.0
 # the plant's windings per dof: (R_th K/W, τ_th s); the others keep the configuration's
 PLANT = {"r_shoulder_flexion": (10.0, 5.0), "r_elbow_flexion": (15.0, 4.0)}

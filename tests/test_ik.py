@@ -82,6 +82,7 @@ def test_the_replicas_share_one_chain():
 
 @pytest.mark.parametrize("name,poses", [("human_arm", 2000), ("replica", 2000), ("replica_dm", 200),
                                         ("replica_mixed", 200)])
+@pytest.mark.slow
 def test_exact_in_limits_and_cold_solves_succeed_on_random_poses(name, poses):
     model = load_model(name)
     arm = ik.Arm.of(model)
@@ -174,6 +175,7 @@ def test_a_bad_target_is_one_clear_error(bad):
 
 # ---------------------------------------------------------------------------- least squares
 
+@pytest.mark.slow
 def test_damped_least_squares_alone_succeeds_cold_and_stays_in_limits():
     model = load_model("human_arm")
     arm = ik.Arm.of(model)
@@ -243,6 +245,7 @@ def test_agrees_with_pink_on_reachable_targets(name, orientation, tmp_path):
 
 # ---------------------------------------------------------------------------- paths
 
+@pytest.mark.slow
 def test_path_keeps_the_swivel_continuous_and_the_speed_bound():
     model = load_model("replica")
     t = np.linspace(0, 1, 101)

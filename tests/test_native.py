@@ -132,6 +132,7 @@ def test_native_caught_up_ticks_are_timed_each(native):
     assert (wall < 0.5).all(), "each wall time is one tick's, not the run's since the first late tick"
 
 
+@pytest.mark.slow
 def test_swing_native_has_the_python_loops_summary(native, tmp_path):
     """`servodyn swing --native`: the simulator in its process, the native loop on its
     pseudo-terminal, the summary with the Python loop's keys (and the same tracking bound)."""

@@ -207,6 +207,7 @@ def test_the_lead_in_starts_at_rest_and_joins_the_motion_c2(human):
 
 
 @needs_clips
+@pytest.mark.slow
 def test_the_cmu_clip_retargets_inside_the_limits_and_passes_validate_fit(tmp_path):
     """CMU 01_01 (ten seconds of it) on the replica: the elbow axis 30° off, fitted (residual under
     1°), no frame outside the limits, and validate --fit finds a time scale (at most 10) at which

@@ -279,6 +279,7 @@ def _act(arm, chunk):
     return arm.advance(chunk[1])
 
 
+@pytest.mark.slow
 def test_a_seeded_trace_of_every_instruction_is_answered_as_without_the_chain():
     rng = np.random.default_rng(2024)
     arms = _arms()

@@ -125,6 +125,7 @@ def holds(tmp_path_factory):
     return runs
 
 
+@pytest.mark.slow
 def test_holding_current_is_the_plants_gravity_over_its_torque_constant(holds):
     """At rest the current each servo draws is the plant's gravity torque (its payload in) over
     the plant's torque constant, 1.15 x the configured: within 15 mA + 3 % (5.6 current units;
@@ -144,6 +145,7 @@ def test_holding_current_is_the_plants_gravity_over_its_torque_constant(holds):
     assert np.abs(expected - without).max() > 5 * tolerance.max(), "the payload's share is visible"
 
 
+@pytest.mark.slow
 def test_temperature_column_rises_as_the_winding_model_says(holds):
     """The log's temperature columns are finite on every tick. The servos start at 25 °C; the
     homing move (0.5 s, not logged) heats the loaded shoulder by at least 10 °C before the hold
@@ -172,6 +174,7 @@ def test_temperature_column_rises_as_the_winding_model_says(holds):
     assert np.isfinite(nominal.temperature).all(), "the nominal servos report theirs too"
 
 
+@pytest.mark.slow
 def test_a_log_without_temperature_still_reads(holds, tmp_path):
     """A log written before the temperature columns existed reads, its temperatures nan and the
     rest the same numbers."""
@@ -209,6 +212,7 @@ def _sway(path: Path, model, seconds=2.0) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
     """On a plant with friction on every joint (0.4 N m Coulomb at the shoulder down to 0.1 at the
     wrist, a quarter of that in N m s/rad viscous), a sway that reverses every joint twice a

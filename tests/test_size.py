@@ -167,6 +167,7 @@ def test_joint_ratios_equal_the_validators(arm3):
         assert row.worst_ratio == pytest.approx(peak, rel=1e-9), dof
 
 
+@pytest.mark.slow
 def test_written_files_pass_and_lighter_fails(arm3, tmp_path):
     """`servodyn size` writes a configuration `servodyn validate` passes; at every joint each
     lighter usable catalogue servo, put in the chosen one's place, fails some check."""
@@ -239,6 +240,7 @@ def hold_csv(path, pose, seconds=0.3):
     return str(path)
 
 
+@pytest.mark.slow
 def test_validate_jobs_same_verdicts_dir_and_glob(tmp_path, capsys):
     """Three motions (two holds that pass, one with the elbow past its stop), as a folder and as a
     glob: --jobs 2 gives the verdicts and ratios --jobs 1 gives, the exit status the worst."""
@@ -263,6 +265,7 @@ def test_validate_jobs_same_verdicts_dir_and_glob(tmp_path, capsys):
     assert len(lines) == 6, "a verdict for each motion, of each run"
 
 
+@pytest.mark.slow
 def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
     good = hold_csv(tmp_path / "good.csv", [0.0] * 7)
     (tmp_path / "bad.csv").write_text("t,q_nothing\n0,0\n")
@@ -273,6 +276,7 @@ def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
     assert main(["validate", "replica", str(tmp_path / "none*.csv"), "--out", str(tmp_path / "o")]) == 2
 
 
+@pytest.mark.slow
 def test_margin_objective_equals_brute_force(brute_loaded):
     """--objective margin: the smallest worst ratio any set of the few servos reaches (the brute
     force's least, over the 125 sets, of the largest ratio a servo changes over every joint and

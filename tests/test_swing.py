@@ -21,6 +21,8 @@ from servodyn.tools.swing import run_swing
 
 from helpers import quiet
 
+pytestmark = pytest.mark.slow      # whole swings
+
 SWING_TICKS = 7201            # the 1.8 s forehand at the replica's time scale 4, every 1 ms
 
 

@@ -19,6 +19,8 @@ from servodyn.tools.swing import run_swing
 
 from helpers import quiet
 
+pytestmark = pytest.mark.slow      # whole swings
+
 CAN_PERIOD = load_config("replica_can").control_period
 MIXED_PERIOD = load_config("replica_mixed").control_period
 CAN_SCALE = load_config("replica_can").swing_time_scale

@@ -46,6 +46,7 @@ def test_the_log_streams_to_disk_at_least_every_100_ms(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.slow
 def test_a_signal_during_the_swing_is_a_safe_stop(tmp_path, sig, status):
     """SIGINT or SIGTERM mid-swing: torque off on every servo, the log complete to the stop, a
     summary naming the signal, one line on stderr, exit 128 + the signal's number. A previous

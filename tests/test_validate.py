@@ -163,6 +163,7 @@ def test_current(tmp_path):
     assert report["violations"][0]["dof"] == "r_shoulder_abduction"
 
 
+@pytest.mark.slow
 def test_temperature(tmp_path):
     """The arm held out with a 1 kg payload at the hand, 40 plays of 10 s in a row: the shoulder
     abduction stays within its current limit but its winding passes 80 °C."""
@@ -260,6 +261,7 @@ def test_command_range_and_its_quantization():
     assert np.all(result.ratios["command_range"] <= result.ratios["current"]), "current trips first"
 
 
+@pytest.mark.slow
 def test_every_check_is_in_the_report(tmp_path):
     report = validate(load_config("replica"), "tennis_forehand", time_scale=4.0, out=tmp_path, say=quiet)
     saved = json.loads((tmp_path / "report.json").read_text())
@@ -275,6 +277,7 @@ def test_every_check_is_in_the_report(tmp_path):
 
 # --- the command line -----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_cli_exit_status(tmp_path):
     """0 pass, 1 fail with the first violation in one line, 2 bad input with one line."""
     ok = run_cli("validate", "replica", "tennis_forehand", "--time-scale", 4, "--out", tmp_path / "a")
@@ -319,6 +322,7 @@ def test_cli_bad_csv(tmp_path):
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
 
 
+@pytest.mark.slow
 def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
     """TOPP-RA plans the forehand to the linearised envelope: the result passes the dense check
     (re-read from the CSV it writes, the way `servodyn swing --motion` would play it) and is
@@ -335,6 +339,7 @@ def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
     assert again["duration_s"] == pytest.approx(retimed["duration_s"], abs=1e-3)
 
 
+@pytest.mark.slow
 def test_prediction_confirmed_by_simulation(tmp_path):
     """The forehand at human speed on the simulated servos: the first servo to saturate is the one
     the validator names first, within a few ticks of its time. At 3x, where it passes, no servo
@@ -377,6 +382,7 @@ def test_cli_csv_whose_spline_overflows(tmp_path):
     assert "huge.csv: the motion between the samples overflows" in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_identified_friction_scale_thermal_and_payload_change_the_checks(tmp_path):
     """The configuration's identified numbers are what the checks use. The elbow spun at a constant
     1 rad/s: with 0.3 N m of Coulomb and 0.1 N m s/rad of viscous friction the torque it needs is

@@ -173,6 +173,7 @@ def test_shaping_a_keyframe_recomputes_torques_and_verdict(viewer, tmp_path):
     assert np.array_equal(again.q, edited.q) and np.array_equal(again.t, edited.t), "saved keyframes read back"
 
 
+@pytest.mark.slow
 def test_a_logged_run_plays_planned_against_measured(tmp_path):
     """A short motion on the loopback configuration (the model alone behind the HAL) with the live
     feed as the loop's observer: the feed saw every tick, drew frames, and the run's log replays with

@@ -20,6 +20,8 @@ from servodyn.tools.view import open_view
 
 from helpers import quiet
 
+pytestmark = pytest.mark.slow      # a headless browser
+
 CANVAS_RIGHT = 780       # px: the GUI panel covers the page right of about here
 
 
