@@ -19,6 +19,8 @@ from servodyn.tools.swing import run_swing
 
 from helpers import quiet
 
+pytestmark = pytest.mark.serial      # real-time loops, a simulated bus answering within its timeouts
+
 
 
 def _hold(ticks):
@@ -35,7 +37,6 @@ def _hold(ticks):
     return bus, controller, Segment("hold", traj, gains), model
 
 
-@pytest.mark.serial
 def test_late_ticks_are_counted_as_missed_deadlines():
     """A 3 ms sleep before tick 3: ticks 3, 4 and 5 (deadlines 4, 5 and 6 ms after the start) all
     end after the sleep's end (6 ms at the earliest), so at least three deadlines are missed; the
@@ -53,7 +54,6 @@ def test_late_ticks_are_counted_as_missed_deadlines():
         "lock-step has no deadline: none is reported, not 0"
 
 
-@pytest.mark.serial
 def test_a_loop_behind_its_tolerance_stops_before_the_tick():
     """A 50 ms stall before tick 5 against a 20 ms tolerance: tick 5 begins at least 50 ms behind
     its schedule, so Overrun is raised before it reads, in one line naming the tick."""
