@@ -1,7 +1,10 @@
 # servodyn: set-up, tests, demo and benchmark.
 #
 #   make test    every test: the C core (double and float), the Cortex-M4F build under QEMU,
-#                then the Python tests
+#                the fuzz targets' builds, then the Python tests (side by side under pytest-xdist,
+#                those judged against the wall clock alone after them)
+#   make check   the quick loop while editing: the import layers, the C core's tests and the
+#                Python tests not marked slow (no firmware under QEMU, no browser, no whole swings)
 #   make demo    the main job on the simulated servo bus
 #   make soak    swings with one random fault each, host and firmware (a few minutes; not in make test)
 #   make fuzz    the wire codecs under libFuzzer with ASan and UBSan (FUZZ_SECONDS each, default 60)
@@ -23,10 +26,18 @@ CORE_H := $(wildcard firmware/core/*.h firmware/core/include/*.h)
 HOST_C := $(wildcard host/binding/*.c host/binding/*.h hal/dynamixel/c/*.c hal/dynamixel/c/*.h)
 
 .DEFAULT_GOAL := test
-.PHONY: test demo docs bench soak venv toolchain browser mocap-clips test-c test-mcu test-python clean distclean
+.PHONY: test check demo docs bench soak venv toolchain browser mocap-clips test-c test-mcu test-python \
+        lint-imports clean distclean
 
 test: venv toolchain browser mocap-clips
 	@$(MAKE) --no-print-directory test-c test-mcu test-fuzz test-python
+
+check: venv mocap-clips
+	@$(MAKE) --no-print-directory lint-imports test-c $(FW_NATIVE)
+	@echo "== Python tests not marked slow, $(TEST_JOBS) at a time"
+	@$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not slow and not serial" tests
+	@echo "== Python tests judged against the wall clock, alone"
+	@$(PYTEST) -m "serial and not slow" tests
 
 demo: venv
 	@echo "== servodyn demo"
@@ -100,11 +111,22 @@ include firmware/posix/rules.mk
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain
 
-test-python: venv fw
+# pytest-xdist workers for the tests that may run side by side: more than the two cores of the
+# machine make test is sized for, since most tests wait (on a simulated bus, a subprocess,
+# QEMU) more than they compute. --dist loadfile keeps a file's tests on one worker, so a
+# module's fixture (a swing, a build) runs once.
+TEST_JOBS ?= 4
+PYTEST := $(VENV)/bin/python -m pytest -q -p no:cacheprovider
+
+lint-imports: venv
 	@echo "== import layers (import-linter contracts in pyproject.toml)"
 	@set -o pipefail; scripts/lint-imports.sh $(VENV) | sed -n '/^Contracts/,$$p'
-	@echo "== Python tests"
-	@$(VENV)/bin/python -m pytest -q tests
+
+test-python: venv fw lint-imports
+	@echo "== Python tests, $(TEST_JOBS) at a time"
+	@$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not serial" tests
+	@echo "== Python tests judged against the wall clock, alone"
+	@$(PYTEST) -m serial tests
 
 #---------------------------------- clean --------------------------------------------------------
 

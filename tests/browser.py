@@ -30,6 +30,8 @@ import numpy as np
 
 from servodyn.tools.view import open_view
 
+from helpers import quiet, wait_until
+
 ROOT = Path(__file__).resolve().parents[1]
 SCREEN = (1200, 800)
 DEADLINE = 60.0          # s for any one condition to hold on a busy machine
@@ -49,16 +51,12 @@ def find_chromium(install: bool = True) -> str:
 
 
 def wait_for(condition, what: str, deadline: float = DEADLINE, every: float = 0.25):
-    """condition()'s first value that is not None, False or empty text; AssertionError naming
-    `what` after `deadline` seconds."""
-    end = time.monotonic() + deadline
-    while True:
-        value = condition()
-        if value is not None and value is not False and not (isinstance(value, str) and not value):
-            return value
-        if time.monotonic() > end:
-            raise AssertionError(f"waited {deadline:g} s for {what}")
-        time.sleep(every)
+    """condition()'s first true value (wait_until's); AssertionError naming `what` after
+    `deadline` seconds."""
+    value = wait_until(condition, deadline, every)
+    if not value:
+        raise AssertionError(f"waited {deadline:g} s for {what}")
+    return value
 
 
 class Browser:
@@ -178,13 +176,12 @@ def screenshots(out: Path, log: Path | None) -> list[Path]:
     from PIL import Image
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    quiet = dict(say=lambda *a, **k: None)
     cases = [("view_shape.png", dict(), 0.0)]
     if log is not None:
         cases.append(("view_replay.png", dict(log=str(log)), 5.0))
     with Browser() as browser:
         for name, options, t in cases:
-            viewer = open_view("replica", port=0, **options, **quiet)
+            viewer = open_view("replica", port=0, **options, say=quiet)
             try:
                 if viewer.editor is not None:
                     viewer.editor.key.value = 7          # the end of the backswing

@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import subprocess
-import sys
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -25,13 +23,12 @@ from servodyn.hal.config import load_config
 from servodyn.sim.lab import Lab
 from servodyn.sim.serve import serve
 
+from helpers import PTY, answer_prompts, run_cli, sim_process, start_cli
+
+pytestmark = [pytest.mark.slow, pytest.mark.serial]      # whole bring-ups; the simulated servos answer within wall-clock timeouts
+
 CONFIG = load_config("replica")
 DOFS = CONFIG.model.dof_names
-
-
-def cli(*argv, stdin=None, timeout=120):
-    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *argv], input=stdin, capture_output=True,
-                          text=True, timeout=timeout)
 
 
 @contextmanager
@@ -49,24 +46,26 @@ def bench_store(tmp_path_factory):
 
 def test_1_fresh_servos_collide_at_id_1(bench_store):
     with sim(bench_store, "--factory") as port:
-        result = cli("scan", "--port", port, "--config", "replica")
+        result = run_cli("scan", "--port", port, "--config", "replica")
     # seven servos at ID 1 answer a ping at once: their replies collide, and scan says what to do
-    assert result.returncode == 1, result.stdout + result.stderr
-    assert "several servos answer at ID 1 at 57600 baud" in result.stdout, result.stdout
-    assert "connect one servo at a time" in result.stdout
+    said = result.stdout + result.stderr
+    assert result.returncode == 1, said
+    assert "several servos answer at ID 1 at 57600 baud" in said, said
+    assert "connect one servo at a time" in said
 
 
 def test_2_setup_one_by_one(bench_store):
     for k, dof in enumerate(DOFS):
         with sim(bench_store, "--factory", "--connect", dof) as port:
-            result = cli("setup", "--config", "replica", "--joint", dof, "--port", port, "--yes")
-        assert result.returncode == 0, (dof, result.stdout + result.stderr)
-        assert "found XM" in result.stderr and "at ID 1, 57600 baud" in result.stderr, result.stderr   # its steps
-        assert f"answers at ID {k + 1}, 4000000 baud" in result.stderr, result.stderr
+            result = run_cli("setup", "--config", "replica", "--joint", dof, "--port", port, "--yes")
+        said = result.stdout + result.stderr
+        assert result.returncode == 0, (dof, said)
+        assert "found XM" in said and "at ID 1, 57600 baud" in said, said
+        assert f"answers at ID {k + 1}, 4000000 baud" in said, said
     # every servo now at its ID and the bus's rate, as the configuration says
     with sim(bench_store) as port:
-        scan = cli("scan", "--port", port, "--config", "replica", "--json")
-        doctor = cli("doctor", "--config", "replica", "--port", port, "--json")
+        scan = run_cli("scan", "--port", port, "--config", "replica", "--json")
+        doctor = run_cli("doctor", "--config", "replica", "--port", port, "--json")
     found = json.loads(scan.stdout)
     assert scan.returncode == 0, scan.stderr
     assert sorted((f["id"], f["baud"]) for f in found) == [(k, 4_000_000) for k in range(1, 8)]
@@ -94,27 +93,15 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
             lower, upper = CONFIG.model.lower[k], CONFIG.model.upper[k]
             steps += [(dof, 0.25), (dof, -0.003), (dof, 0.003), (dof, lower - 0.05), (dof, upper + 0.05)]
         moves = iter(steps)
-        proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "calibrate", "--config", "replica",
-                                 "--port", port, "--write", str(target), "--margin", "1"],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        buffer, text = "", ""
+        # the prompts read from stdout and stderr together: whichever stream carries them
+        proc = start_cli("calibrate", "--config", "replica", "--port", port, "--write", target, "--margin", "1",
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
-            while (ch := proc.stderr.read(1)):             # its steps and questions
-                buffer += ch
-                if buffer.endswith("[Enter] "):
-                    dof, angle = next(moves)
-                    by_hand(dof, angle)
-                    proc.stdin.write("\n")
-                    proc.stdin.flush()
-                    text, buffer = text + buffer, ""
-                elif buffer.endswith("[y/N] "):
-                    proc.stdin.write("y\n")
-                    proc.stdin.flush()
-                    text, buffer = text + buffer, ""
+            text = answer_prompts(proc, lambda: by_hand(*next(moves)))
             code = proc.wait(timeout=120)
         finally:
             proc.kill()
-        assert code == 0, text + buffer + proc.stdout.read()
+        assert code == 0, text
     finally:
         served.stop()
     joints = {j["dof"]: j for j in tomlkit.parse(target.read_text())["joint"]}
@@ -126,8 +113,7 @@ def test_3_calibrate_finds_the_mounting_then_the_swing_plays(bench_store, tmp_pa
     # the swing, on the calibrated copy (stops past the model's: its limits stay the model's),
     # against the same bench: completes and tracks
     with sim(bench_store, "--lockstep") as port:
-        result = cli("swing", "--config", str(target), "--port", port, "--out", str(tmp_path / "swing"), "--yes",
-                     timeout=300)
+        result = run_cli("swing", "--config", str(target), "--port", port, "--out", str(tmp_path / "swing"), "--yes")
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
     summary = json.loads((tmp_path / "swing" / "summary.json").read_text())
     # the replica's swing tracks within 0.2 degrees on a plant its configuration describes (README);
@@ -145,22 +131,8 @@ def sim_can(store: Path, *extra):
 @contextmanager
 def sim_of(config: str, store: Path, *extra):
     """`servodyn sim` of `config` on the bench in `store`, in its own process; its pseudo-terminal."""
-    proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", config,
-                             "--bench", str(store), *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    try:
-        path, lines = None, []
-        while path is None:
-            line = proc.stdout.readline()
-            if not line:
-                raise AssertionError("servodyn sim ended before serving:\n" + "".join(lines))
-            lines.append(line)
-            found = re.search(r"/dev/pts/\d+", line)
-            path = found.group(0) if found else None
-        yield path
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+    with sim_process("--config", config, "--bench", store, *extra) as (_, banner):
+        yield PTY.search("".join(banner)).group(0)
 
 
 def test_fresh_damiao_motors_found_on_master_id_0_then_set_up(tmp_path):
@@ -170,13 +142,14 @@ def test_fresh_damiao_motors_found_on_master_id_0_then_set_up(tmp_path):
     where the configuration says."""
     store = tmp_path / "bench.json"
     with sim_can(store, "--factory") as port:
-        scan = cli("scan", "--config", "replica_can", "--port", port)
+        scan = run_cli("scan", "--config", "replica_can", "--port", port)
     assert scan.returncode == 1, scan.stdout + scan.stderr
-    assert "Master ID 0" in scan.stdout and "servodyn setup" in scan.stdout, scan.stdout
+    said = scan.stdout + scan.stderr
+    assert "Master ID 0" in said and "servodyn setup" in said, said
     with sim_can(store, "--factory", "--connect", "r_elbow_flexion") as port:
-        setup = cli("setup", "--config", "replica_can", "--joint", "r_elbow_flexion", "--port", port, "--yes")
+        setup = run_cli("setup", "--config", "replica_can", "--joint", "r_elbow_flexion", "--port", port, "--yes")
     assert setup.returncode == 0, setup.stdout + setup.stderr
     with sim_can(store, "--connect", "r_elbow_flexion") as port:        # a power-up: flash only
-        scan = cli("scan", "--config", "replica_can", "--port", port, "--json")
+        scan = run_cli("scan", "--config", "replica_can", "--port", port, "--json")
     found = json.loads(scan.stdout)
     assert [(f["id"], f["master_id"], f["model"]) for f in found] == [(4, 0x14, "DM-J4340")], found

@@ -32,6 +32,8 @@ from servodyn.sim.transport.can import SlcanServer
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.sim.serve import SIM_REPLY_TIMEOUT
 
+pytestmark = pytest.mark.serial      # real-time buses: a stop judged against the servos' watchdog
+
 CONFIG = load_config("replica_mixed")
 KIND = {name: bus.kind for name, bus in CONFIG.buses.items()}      # shoulder: can, wrist: dynamixel
 TICKS = 100             # ticks of both buses before the kill: the run is well under way

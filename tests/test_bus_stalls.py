@@ -5,11 +5,9 @@ by then: the run must stop as a stall of the bus (exit 10), with one line that s
 bus was silent, summary.json written and the log kept. It used to complete with exit 0, the retry
 taking the reply to the request sent before the stall (reads_retried 1, one tick of 2.5 s)."""
 
-import csv
 import json
 import re
 import subprocess
-import sys
 import time
 
 import pytest
@@ -18,35 +16,22 @@ from servodyn.control.timing import BUS_WATCHDOG
 from servodyn.hal.config import load_config
 from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
 
+from helpers import csv_rows, start_cli, wait_for_rows
+
 CONFIG = load_config("replica")
-SWING = [sys.executable, "-m", "servodyn.tools.cli", "swing"]
 TIME_SCALE = 3           # a long swing, so the pause surely lands in it; the stall ends the run anyway
 
 
-def _rows(path) -> int:
-    with open(path, newline="") as f:
-        return sum(1 for _ in csv.reader(f)) - 1
-
-
-def _wait_for_rows(path, count: int, proc, timeout: float = 120.0) -> int:
-    """Until the streamed log holds `count` ticks of the swing (homing is not logged), or the
-    swing ended; the ticks there."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and proc.poll() is None:
-        if path.exists() and _rows(path) >= count:
-            break
-        time.sleep(0.02)
-    return _rows(path) if path.exists() else 0
-
-
+@pytest.mark.slow
+@pytest.mark.serial
 @pytest.mark.parametrize("pause", [2.5, 5.0])
 def test_a_stall_longer_than_the_watchdog_stops_the_swing(tmp_path, pause):
     out = tmp_path / "out"
     with SimProcess(CONFIG.path, "lockstep") as sim:
-        swing = subprocess.Popen([*SWING, "--port", sim.path, "--time-scale", str(TIME_SCALE), "--out", str(out)],
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        swing = start_cli("swing", "--port", sim.path, "--time-scale", TIME_SCALE, "--out", out,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
-            ran = _wait_for_rows(out / "swing_log.csv", 200, swing)
+            ran = wait_for_rows(out / "swing_log.csv", 200, proc=swing)   # homing is not logged
             assert swing.poll() is None and ran >= 200, f"the swing is under way before the stall: {swing.stderr.read()}"
             paused = time.monotonic()
             sim.pause(pause)
@@ -72,5 +57,5 @@ def test_a_stall_longer_than_the_watchdog_stops_the_swing(tmp_path, pause):
     assert not summary["completed"], "the stall ended the swing"
     assert summary["bus"]["reads_retried"] <= 1, \
         f"stopped at the first failed try after the silence, no late reply taken: {summary['bus']}"
-    assert _rows(out / "swing_log.csv") == summary["ticks"] >= ran, \
+    assert len(csv_rows(out / "swing_log.csv")) - 1 == summary["ticks"] >= ran, \
         "the log holds every tick to the stop, those before the pause included"

@@ -24,6 +24,8 @@ from servodyn.hal.errors import ServoInitializationError
 from servodyn.sim.can import CanMotor, CanNetwork
 from servodyn.sim.transport.can import SlcanServer, VirtualCanServer
 
+pytestmark = pytest.mark.serial      # scans listen for the motors' answers for a wall-clock window
+
 # s for one answer: a loaded machine can hold the motors' server thread back far beyond a real
 # bus's millisecond (the simulated buses' patience elsewhere, hal/ports.py)
 PATIENT = 0.5

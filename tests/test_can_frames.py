@@ -20,6 +20,8 @@ import pytest
 from servodyn.hal.can import dialects, frames
 from servodyn.hal.can.motors import DM_J4310, DM_J4340, MOTORS
 
+from helpers import run_cli
+
 ROOT = Path(__file__).resolve().parent.parent
 CODEC = ROOT / "hal" / "can" / "c"
 # the ranges of a motor of each kind and a wide one (the codec is range-generic; every catalogue
@@ -492,8 +494,7 @@ def test_a_configuration_with_a_range_outside_the_codec_bounds_is_one_line(tmp_p
     bad = tmp_path / "huge_range.toml"
     bad.write_text("\n".join(lines) + "\n")
     assert data["joint"], "the configuration has joints"
-    run = subprocess.run([str(ROOT / ".venv" / "bin" / "servodyn"), "validate", str(bad), "forehand"],
-                         capture_output=True, text=True, timeout=120)
+    run = run_cli("validate", bad, "forehand", "--out", tmp_path / "out")
     assert run.returncode == 2, f"exit {run.returncode}: {run.stderr}"
     assert "Traceback" not in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert "'p_max' 1e+300 is outside the MIT frame codec's ranges" in run.stderr, run.stderr

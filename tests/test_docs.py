@@ -21,6 +21,8 @@ sys.path.insert(0, str(ROOT / "scripts" / "docs"))
 
 import figures  # noqa: E402
 
+pytestmark = pytest.mark.slow      # every figure the documents quote, from its command
+
 
 @pytest.mark.timeout(900)          # about a minute and a half on a quiet machine; more under load
 def test_documents_quote_what_the_commands_print():

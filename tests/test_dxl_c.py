@@ -623,6 +623,7 @@ def test_feed_bytes_equals_feeding_byte_by_byte_on_random_streams(dxl):
         f"{fast_packets} whole 7 x 10 fast replies, {fast_with_header} with FF FF FD 00 in the data"
 
 
+@pytest.mark.slow
 def test_feed_bytes_in_chunks_of_every_size(dxl):
     rng = random.Random(41)
     max_param = dxl.so.shim_max_param()

@@ -22,6 +22,8 @@ from servodyn.hil import default_elf, run_qemu, summarize
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from runs import run_swing
 
+from helpers import quiet, run_cli
+
 ROOT = Path(__file__).resolve().parent.parent
 WHOLE_SWING_TIMEOUT = 900.0   # s of wall clock for the 7,201-tick swing under QEMU
 FAULT_TICK = 100          # injections act after this tick's command: the next read sees them
@@ -52,7 +54,7 @@ def swing_run(images):
 
 @pytest.fixture(scope="module")
 def host_swing(tmp_path_factory):
-    return run_swing("replica", out=tmp_path_factory.mktemp("host_swing"), say=lambda *a: None)
+    return run_swing("replica", out=tmp_path_factory.mktemp("host_swing"), say=quiet)
 
 
 def test_codegen_model_is_the_hosts(tmp_path):
@@ -88,14 +90,14 @@ def test_register_addresses_come_from_the_control_table():
 def test_codegen_cli_refuses_bad_config(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\nmodel = "replica"\n[bus.arm]\nkind = "dynamixel"\nbaud = 12\n')
-    run = subprocess.run([str(ROOT / ".venv/bin/servodyn"), "codegen", "--config", str(bad), "-o",
-                          str(tmp_path / "gen")], capture_output=True, text=True)
+    run = run_cli("codegen", "--config", bad, "-o", tmp_path / "gen")
     assert run.returncode == 2, f"a bad configuration exits 2 (a ConfigError): {run.stderr}"
     assert run.stderr.startswith("servodyn: error:") and "baud" in run.stderr, f"baud 12 is named: {run.stderr}"
     assert "Traceback" not in run.stderr, run.stderr
 
 
 @pytest.mark.timeout(WHOLE_SWING_TIMEOUT + 300)
+@pytest.mark.slow
 def test_firmware_swings_the_replica(swing_run, host_swing):
     """The whole swing under QEMU: every goal within one servo unit of the host's double controller
     fed the same measurements, tracking within 10 % of the host loop's on the same bus."""
@@ -117,6 +119,7 @@ def test_firmware_swings_the_replica(swing_run, host_swing):
 
 
 
+@pytest.mark.slow
 def test_readme_quotes_this_swing(swing_run, host_swing):
     """README.md's firmware section quotes this run's tracking and the host loop's on the same bus,
     to the 0.001° it prints: the documents' check (tests/test_docs.py) leaves this figure to this
@@ -129,6 +132,7 @@ def test_readme_quotes_this_swing(swing_run, host_swing):
     actual = (f"{math.degrees(summary['tracking_max_rad']):.3f}", f"{math.degrees(host_swing['tracking_max_rad']):.3f}")
     assert quoted.groups() == actual, f"README.md quotes {quoted.groups()}, the runs give {actual}: update README.md"
 
+@pytest.mark.slow
 def test_budget_flash_ram_stack(images):
     """The M4F image's footprint against its goals: flash <= 64 KB, RAM (data + bss with a 4 KB
     stack) <= 16 KB; the stack used is checked by the swing test (<= 2 KB)."""
@@ -155,6 +159,7 @@ def _assert_safe_stop(report, record, arm, fault, code):
     assert not any(s.torque_enabled for s in arm.servos), "a servo left with torque on"
 
 
+@pytest.mark.slow
 def test_silent_servo_stops_with_torque_off(images):
     def silence(k, arm):
         if k == FAULT_TICK:
@@ -180,6 +185,7 @@ def _starve():
     return late
 
 
+@pytest.mark.slow
 def test_a_starved_bus_changes_nothing(images):
     """The simulated bus slow to answer (as on a machine whose cores are busy): the firmware sleeps
     until the bus has answered, its emulated clock standing still (board_io.c's sync line), so the
@@ -201,6 +207,7 @@ def test_a_starved_bus_changes_nothing(images):
         "a servo left with torque on"
 
 
+@pytest.mark.slow
 def test_a_silent_servo_on_a_starved_bus_still_times_out(images):
     """Slow is not silent, and silent is still silent: with the bus starved as above, servo 3 stops
     answering after tick 100 and the firmware's own reply timeout trips at the next read."""
@@ -213,6 +220,7 @@ def test_a_silent_servo_on_a_starved_bus_still_times_out(images):
         f"servo 3, at the read after the injection (tolerance 0 ticks: a late reply moves no tick): {report}"
 
 
+@pytest.mark.slow
 def test_hardware_error_stops_with_torque_off(images):
     def overload(k, arm):
         if k == FAULT_TICK:
@@ -223,6 +231,7 @@ def test_hardware_error_stops_with_torque_off(images):
         "servo 5 (servos[4]), at the read after the injection"
 
 
+@pytest.mark.slow
 def test_corrupt_reply_stops_with_torque_off(images):
     replies = []
 
@@ -235,12 +244,14 @@ def test_corrupt_reply_stops_with_torque_off(images):
     _assert_safe_stop(report, record, arm, "corrupt", 12)
 
 
+@pytest.mark.slow
 def test_nan_stops_with_torque_off(images):
     report, record, arm = _fault_run(images, args="ticks=300 nan_at=120")
     _assert_safe_stop(report, record, arm, "nonfinite", 13)
     assert report["fault_tick"] == 120 and len(record.goals) == 120, "the NaN at tick 120: no command from it"
 
 
+@pytest.mark.slow
 def test_overflow_stops_with_torque_off(images):
     """Finite measurements whose torque overflows (q = qd = -3e38 in float): the core's step
     flags SD_STATUS_OVERFLOW instead of clamping an inf to the current limit; the firmware stops."""
@@ -249,6 +260,7 @@ def test_overflow_stops_with_torque_off(images):
     assert report["fault_tick"] == 120 and len(record.goals) == 120, "the overflow at tick 120: no command from it"
 
 
+@pytest.mark.slow
 def test_overrun_stops_with_torque_off(images):
     """A period shorter than a tick's work (an inverse-dynamics tick takes ~100 us at 125 MIPS)."""
     report, record, arm = _fault_run(images, args="ticks=300 period_us=40")
@@ -256,6 +268,7 @@ def test_overrun_stops_with_torque_off(images):
     assert report["fault_tick"] == 0, "a 40 us period is overrun by the first tick"
 
 
+@pytest.mark.slow
 def test_joint_out_of_range_stops_with_torque_off(images):
     def fling(k, arm):
         if k == FAULT_TICK:
@@ -266,6 +279,7 @@ def test_joint_out_of_range_stops_with_torque_off(images):
     assert report["servo"] == 2, "servo 2 (servos[1]) was flung 3 rad off"
 
 
+@pytest.mark.slow
 def test_current_limit_is_limiting_not_a_fault(images):
     """Shoulder abduction reading 0.5 rad off for ten ticks: the PD (34 N m/rad there) asks for
     17 N m, more than the 10.6 N m of the current limit; the command is clamped and counted, the
@@ -282,6 +296,7 @@ def test_current_limit_is_limiting_not_a_fault(images):
         "servo 2's goal clamped at the XM540's 4.4 A current limit, 1636 units of 2.69 mA"
 
 
+@pytest.mark.slow
 def test_cortex_m7_image_runs_the_same_loop(images):
     report, record, arm = _fault_run(images, board="an500")
     assert report["result"] == "done" and report["ticks"] == 300, report
@@ -298,8 +313,7 @@ def test_firmware_refuses_an_image_that_is_not_an_arm_elf(tmp_path, content, wor
     import sys
     elf = tmp_path / "fw.elf"
     elf.write_bytes(content if content is not None else Path(sys.executable).resolve().read_bytes()[:64])
-    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "firmware", "--elf", elf,
-                          "--out", tmp_path / "out"], capture_output=True, text=True, timeout=60)
+    res = run_cli("firmware", "--elf", elf, "--out", tmp_path / "out")
     lines = res.stderr.splitlines()
     assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("servodyn: error: "), res.stderr
     assert str(elf) in lines[0] and all(word in lines[0] for word in words), lines[0]

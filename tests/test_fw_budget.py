@@ -37,7 +37,9 @@ def test_a_loaded_machine_measures_the_ticks_that_fit(monkeypatch):
     assert fw_budget.plan_ticks("an386", 9202, 300.0, say=said.append) == fw_budget.CALIBRATION[1]
 
 
-def test_a_board_that_fails_is_one_line_and_exit_1(monkeypatch, capsys):
+def test_a_board_that_fails_is_one_line_and_exit_1(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(fw_budget, "ROOT", tmp_path)       # its out/bench here, not in the checkout
+
     def broken(*args, **kwargs):
         raise FirmwareError("QEMU did not open its serial port: no such machine\nsecond line")
     monkeypatch.setattr(fw_budget, "timed_run", broken)

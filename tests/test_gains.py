@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from servodyn.control.motion import motion_path
-from servodyn.control.schedule import (Sensors, bandwidth_of, error_lowpass, plan_gains, planned_torque_scale,
+from servodyn.control.schedule import (Sensors, error_lowpass, plan_gains, planned_torque_scale,
                                        resolution_bandwidth, scheduled_gains)
-from servodyn.control.timing import (ERROR_FILTER_RATIO, HOME_DURATION, MAX_BANDWIDTH, MIN_STIFFNESS,
+from servodyn.control.timing import (HOME_DURATION, MAX_BANDWIDTH, MIN_STIFFNESS,
                                      QUANTUM_SHARE, SMALL_TIME_STEP)
 from servodyn.control.schedule import homing
 from servodyn.hal.backend import joint_sensors

@@ -8,7 +8,6 @@ from servodyn.hal import (ConfigError, HalError, JointCommand, ProtocolError, Se
                           ServoInitializationError, ServoLimitError, ServoOperationError, ServoTimeoutError,
                           load_config, make_bus)
 from servodyn.hal import backend as hal_backend
-from servodyn.hal import bus as hal_bus
 from servodyn.hal.dynamixel import FieldRangeError, PacketError, StatusError
 from servodyn.hal.dynamixel.control_table import hardware_faults
 from servodyn.hal.loopback import LoopbackBus

@@ -19,6 +19,8 @@ from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.sim.dynamixel import HardwareError
 
+from helpers import wait_until
+
 sdk = pytest.importorskip("dynamixel_sdk")
 
 CONFIG = load_config("replica")
@@ -61,10 +63,8 @@ class Sim:
     def until(self, count: int, timeout: float = 2.0) -> list[InstructionPacket]:
         """The instructions recorded once there are `count` of them: a sync write gets no answer,
         so the host goes on before the bus has taken it."""
-        deadline = time.monotonic() + timeout
-        while len(found := self.instructions()) < count and time.monotonic() < deadline:
-            time.sleep(1e-3)
-        return found
+        wait_until(lambda: len(self.instructions()) >= count, timeout, every=1e-3)
+        return self.instructions()
 
     def servo(self, servo_id: int):
         return self.arm.bus.servo(servo_id)
@@ -259,6 +259,7 @@ def test_a_lost_request_within_the_watchdog_is_retried(sim):
     assert state.q.shape == (7,) and bus.stats.reads_retried == 1, "one try lost, the retry answered"
 
 
+@pytest.mark.serial
 def test_a_silence_longer_than_the_watchdog_is_a_stall(sim):
     """With torque on and the servos' 100 ms Bus Watchdog armed, every fast sync read lost: after
     the first try and its drain (0.25 s each) the bus has been silent longer than the watchdog, so
@@ -378,7 +379,7 @@ def test_the_pty_server_survives_an_exception_in_the_arm():
         fd = os.open(server.path, os.O_RDWR | os.O_NOCTTY)
         try:
             os.write(fd, inst.ping(1).encode())
-            time.sleep(0.3)
+            assert wait_until(lambda: seen, timeout=5), "the first ping raised, and the server said so"
             os.write(fd, inst.ping(1).encode())
             reply = b""
             deadline = time.monotonic() + 5

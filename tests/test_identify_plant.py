@@ -14,6 +14,10 @@ from servodyn.tools import excite, identify
 from runs import run_swing
 from servodyn.report.validation import validate
 
+from helpers import quiet
+
+pytestmark = pytest.mark.slow      # excitation runs, identification, swings
+
 KNOWN_KG = 0.5
 EXCITATION_S = 10.0
 SCALES = (1.15, 0.85, 1.1, 0.9, 1.2, 0.85, 1.1)
@@ -21,9 +25,6 @@ COULOMB = (0.08, 0.08, 0.06, 0.05, 0.04, 0.04, 0.04)
 VISCOUS = (0.05, 0.05, 0.04, 0.03, 0.02, 0.02, 0.02)
 PAYLOAD_KG = 0.3
 
-
-def quiet(*args, **kwargs):
-    pass
 
 
 def plant_config(folder: Path, name: str, payload: float) -> Path:

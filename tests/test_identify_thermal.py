@@ -21,6 +21,10 @@ from servodyn.tools import excite, identify
 from runs import run_swing
 from servodyn.validation import Limits, check
 
+from helpers import quiet
+
+pytestmark = pytest.mark.slow      # heating runs
+
 HEAT_S = 24.0
 # the plant's windings per dof: (R_th K/W, τ_th s); the others keep the configuration's
 PLANT = {"r_shoulder_flexion": (10.0, 5.0), "r_elbow_flexion": (15.0, 4.0)}
@@ -29,9 +33,6 @@ PLANT = {"r_shoulder_flexion": (10.0, 5.0), "r_elbow_flexion": (15.0, 4.0)}
 # and read a tick late
 MODEL_FLOOR = 0.02
 
-
-def quiet(*args, **kwargs):
-    pass
 
 
 def with_tables(folder: Path, name: str, sim: dict | None = None, joint: dict | None = None) -> Path:

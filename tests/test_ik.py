@@ -5,14 +5,14 @@ with Pinocchio's forward kinematics, the refusals, paths with a speed bound, and
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from servodyn.model import ik, load_model
 from servodyn.model.rotations import rpy_to_matrix
+
+from helpers import run_cli
 
 SRS_ARMS = ("human_arm", "replica", "replica_dm", "replica_mixed")
 EXACT = 1e-9          # m and rad: the closed form is exact up to rounding (the bound)
@@ -23,11 +23,6 @@ def random_poses(arm, n, seed):
     rng = np.random.default_rng(seed)
     qs = rng.uniform(arm.lower, arm.upper, size=(n, arm.n))
     return qs, [arm.hand(q) for q in qs]
-
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=300)
 
 
 # ---------------------------------------------------------------------------- structure and FK
@@ -87,6 +82,7 @@ def test_the_replicas_share_one_chain():
 
 @pytest.mark.parametrize("name,poses", [("human_arm", 2000), ("replica", 2000), ("replica_dm", 200),
                                         ("replica_mixed", 200)])
+@pytest.mark.slow
 def test_exact_in_limits_and_cold_solves_succeed_on_random_poses(name, poses):
     model = load_model(name)
     arm = ik.Arm.of(model)
@@ -179,6 +175,7 @@ def test_a_bad_target_is_one_clear_error(bad):
 
 # ---------------------------------------------------------------------------- least squares
 
+@pytest.mark.slow
 def test_damped_least_squares_alone_succeeds_cold_and_stays_in_limits():
     model = load_model("human_arm")
     arm = ik.Arm.of(model)
@@ -248,6 +245,7 @@ def test_agrees_with_pink_on_reachable_targets(name, orientation, tmp_path):
 
 # ---------------------------------------------------------------------------- paths
 
+@pytest.mark.slow
 def test_path_keeps_the_swivel_continuous_and_the_speed_bound():
     model = load_model("replica")
     t = np.linspace(0, 1, 101)
@@ -271,7 +269,7 @@ def test_path_refusal_names_the_sample():
 # ---------------------------------------------------------------------------- the command
 
 def test_cli_one_pose_prints_every_dof_reach_and_error():
-    res = run("ik", "replica", "--to", "0.3,-0.1,-0.2", "--rpy", "0,-90,0", "--swivel", "30")
+    res = run_cli("ik", "replica", "--to", "0.3,-0.1,-0.2", "--rpy", "0,-90,0", "--swivel", "30")
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     model = load_model("replica")
@@ -283,12 +281,12 @@ def test_cli_one_pose_prints_every_dof_reach_and_error():
 
 
 def test_cli_refusals_are_one_line():
-    res = run("ik", "replica", "--to", "0.9,0,0")
+    res = run_cli("ik", "replica", "--to", "0.9,0,0")
     assert res.returncode == 1 and res.stderr.strip().count("\n") == 0, "a refusal: exit 1, one line"
     assert "out of reach" in res.stderr
-    res = run("ik", "replica", "--to", "0.9,x,0")
+    res = run_cli("ik", "replica", "--to", "0.9,x,0")
     assert res.returncode == 2 and "--to must be three numbers" in res.stderr, res.stderr
-    res = run("ik", "replica")
+    res = run_cli("ik", "replica")
     assert res.returncode == 2 and "either --to" in res.stderr, res.stderr
 
 
@@ -297,7 +295,7 @@ def test_cli_path_writes_a_trajectory_that_reaches_the_targets(tmp_path):
     targets = tmp_path / "targets.csv"
     targets.write_text("t,x,y,z\n0,0.25,-0.15,-0.30\n0.5,0.35,-0.05,-0.10\n1.0,0.30,0.05,0.05\n")
     out = tmp_path / "motion.csv"
-    res = run("ik", "replica", "--path", targets, "-o", out, "--dt", "0.01")
+    res = run_cli("ik", "replica", "--path", targets, "-o", out, "--dt", "0.01")
     assert res.returncode == 0, res.stderr
     model = load_model("replica")
     traj = read_trajectory_csv(out, model.dof_names)
@@ -307,7 +305,7 @@ def test_cli_path_writes_a_trajectory_that_reaches_the_targets(tmp_path):
         assert np.abs(arm.hand(traj.q[k])[1] - want).max() < 1e-12, f"sample {k} on its target row"
     bad = tmp_path / "bad.csv"
     bad.write_text("t,x,y,z\n0,0.2,-0.1,-0.2\n0.5,nan,0,0\n")
-    res = run("ik", "replica", "--path", bad, "-o", out)
+    res = run_cli("ik", "replica", "--path", bad, "-o", out)
     assert res.returncode == 2 and "row 3: a NaN" in res.stderr, res.stderr
 
 
@@ -318,7 +316,7 @@ def test_cli_path_with_orientations_turns_the_hand_through_each_row(tmp_path):
     targets = tmp_path / "targets.csv"
     targets.write_text("t,x,y,z,roll,pitch,yaw\n" + "".join(",".join(map(str, r)) + "\n" for r in rows))
     out = tmp_path / "motion.csv"
-    res = run("ik", "human_arm", "--path", targets, "-o", out, "--dt", "0.05")
+    res = run_cli("ik", "human_arm", "--path", targets, "-o", out, "--dt", "0.05")
     assert res.returncode == 0, res.stderr
     model = load_model("human_arm")
     traj = read_trajectory_csv(out, model.dof_names)

@@ -6,7 +6,6 @@ missed deadlines, never a rate or a period."""
 
 import time
 
-import numpy as np
 import pytest
 
 import servodyn.loop as loop
@@ -18,7 +17,10 @@ from servodyn.hal.config import load_config
 from servodyn.loop import Overrun, RunLog, follow, summarize
 from runs import run_swing
 
-QUIET = dict(say=lambda *a, **k: None)
+from helpers import quiet
+
+pytestmark = pytest.mark.serial      # real-time loops, a simulated bus answering within its timeouts
+
 
 
 def _hold(ticks):
@@ -70,7 +72,7 @@ def test_swing_stops_safely_on_an_overrun(tmp_path, monkeypatch):
     """With a tolerance no loop can hold (negative), the real-time swing stops at its first tick:
     torque off on every simulated servo, the error is the overrun line, the summary written."""
     monkeypatch.setattr(loop, "OVERRUN_TOLERANCE", -1.0)
-    summary = run_swing(out=tmp_path, realtime=True, **QUIET)
+    summary = run_swing(out=tmp_path, realtime=True, say=quiet)
     assert not summary["completed"] and summary["error"].startswith("overrun: tick 0 began"), summary["error"]
     assert all(summary["torque_off"]), "torque off on every servo after the overrun"
     assert (tmp_path / "summary.json").exists(), "the summary is written on a safe stop"
@@ -88,6 +90,6 @@ def test_homings_missed_deadlines_are_the_runs(tmp_path, monkeypatch):
         log.missed += 2
         return 2
     monkeypatch.setattr(swing, "follow", follow)
-    summary = run_swing(out=tmp_path, realtime=True, **QUIET)
+    summary = run_swing(out=tmp_path, realtime=True, say=quiet)
     assert summary["missed_deadlines"] == 9, summary["missed_deadlines"]
     assert summary["home_ticks"] == round(HOME_DURATION / SMALL_TIME_STEP) + 1, summary["home_ticks"]

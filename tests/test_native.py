@@ -21,8 +21,9 @@ from servodyn.hil import FirmwareLink, replay
 from servodyn.loop.native import NATIVE, run_native
 from runs import run_swing
 
+from helpers import quiet
+
 ROOT = Path(__file__).resolve().parent.parent
-QUIET = dict(say=lambda *a, **k: None)
 HOME_TICKS = round(HOME_DURATION / SMALL_TIME_STEP) + 1
 SWING_TICKS = 7201
 FAULT_TICK = 100
@@ -46,7 +47,7 @@ def _run(args="", on_tick=None, realtime=False, reply_timeout=1.0):
     server.start()
     try:
         report, log = run_native(server.path, config.model.dof_names, realtime, args, reply_timeout=reply_timeout,
-                                 **QUIET)
+                                 say=quiet)
         server._drain()                  # the last torque-off write, still in flight
     finally:
         server.stop()
@@ -115,6 +116,7 @@ def test_native_overrun_stops_safely(native):
     assert report["missed"] >= 1 and record.torque_off, "the missed deadline is counted, torque off sent"
 
 
+@pytest.mark.serial
 def test_native_caught_up_ticks_are_timed_each(native):
     """Real time with a 20 us period, which no round trip through the pseudo-terminal keeps: every
     tick after the first runs at once, catching up on the plan (a wide tolerance lets it). Each is
@@ -130,11 +132,12 @@ def test_native_caught_up_ticks_are_timed_each(native):
     assert (wall < 0.5).all(), "each wall time is one tick's, not the run's since the first late tick"
 
 
+@pytest.mark.slow
 def test_swing_native_has_the_python_loops_summary(native, tmp_path):
     """`servodyn swing --native`: the simulator in its process, the native loop on its
     pseudo-terminal, the summary with the Python loop's keys (and the same tracking bound)."""
     from servodyn.loop import RunLog, summarize
-    summary = run_swing(out=tmp_path, native=True, **QUIET)
+    summary = run_swing(out=tmp_path, native=True, say=quiet)
     assert summary["completed"] and summary["loop"] == "native", summary.get("error")
     assert summary["ticks"] == SWING_TICKS and summary["tracking_max_rad"] <= np.radians(5)
     one = RunLog(("a",))

@@ -11,7 +11,6 @@ import pytest
 from servodyn.hal.config import load_config
 from servodyn.sim.robot import PUSHED, SimulatedRobot
 from servodyn.sim.plant import STOP_TIME_CONSTANT
-from servodyn.sim.robot import SimulatedRobot
 
 HOST_MARGIN = 0.05      # rad past a limit the host's range check lets by (hal)
 

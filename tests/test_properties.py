@@ -215,6 +215,7 @@ def test_the_toml_writer_gives_the_files_back():
 
 @settings(PROPERTY, max_examples=150)
 @given(st.data())
+@pytest.mark.slow
 def test_configuration_is_valid_or_one_config_error(data):
     tree = mutate(data, REPLICA)
     try:
@@ -359,5 +360,6 @@ def check_core(model: Model, data) -> None:
 
 @settings(PROPERTY, max_examples=150)
 @given(st.sampled_from(sorted(builtin_models())), st.data())
+@pytest.mark.slow
 def test_core_is_finite_or_raises_on_any_state(name, data):
     check_core(servodyn.load_model(name), data)

@@ -11,6 +11,8 @@ import pytest
 
 from servodyn.hal import realtime
 
+from helpers import quiet
+
 ALLOWED = sorted(os.sched_getaffinity(0))
 ONLINE = sum(1 << c for c in range(os.cpu_count() or 1))
 needs_two = pytest.mark.skipif(len(ALLOWED) < 2, reason="one CPU: nothing to place")
@@ -56,7 +58,7 @@ def test_unwritable_work_queues_leave_the_path_unplaced(tmp_path):
 @needs_two
 def test_a_mask_someone_changed_meanwhile_is_not_overwritten(tmp_path):
     path = _mask_file(tmp_path, ONLINE)
-    with realtime.one_cpu(say=lambda line: None, mask_file=path):
+    with realtime.one_cpu(say=quiet, mask_file=path):
         path.write_text("1\n")                 # another hand steered it during the run
     assert path.read_text() == "1\n", "theirs stays"
 
@@ -64,7 +66,7 @@ def test_a_mask_someone_changed_meanwhile_is_not_overwritten(tmp_path):
 @needs_two
 def test_a_cpu_the_process_may_not_use_is_refused(tmp_path):
     with pytest.raises(ValueError, match="not one this process may use"):
-        with realtime.one_cpu(cpu=max(ALLOWED) + 1, say=lambda line: None, mask_file=_mask_file(tmp_path, ONLINE)):
+        with realtime.one_cpu(cpu=max(ALLOWED) + 1, say=quiet, mask_file=_mask_file(tmp_path, ONLINE)):
             pass
 
 

@@ -22,6 +22,7 @@ def test_builtin_matches_pinocchio(name, twin):
         assert err <= RNEA_TOL, f"{name}: rnea differs from Pinocchio by {err:.2e} relative"
 
 
+@pytest.mark.slow
 def test_random_trees_and_chains_match_pinocchio(twin):
     """200 random models up to 88 dofs, 1-3-dof joints, arbitrary axes, placements, full inertias."""
     rng = np.random.default_rng(2026)

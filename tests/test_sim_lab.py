@@ -9,9 +9,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import select
-import subprocess
-import sys
 import time
 
 import pytest
@@ -23,13 +20,14 @@ from servodyn.hal.dynamixel import instructions as inst
 from servodyn.hal.dynamixel.backend import _patient
 from servodyn.hal.dynamixel.control_table import (BAUD_RATES, FAST_READ_FIRMWARE, ITEMS, TICKS_PER_REV, XM430_W350,
                                                   XM540_W270)
-from servodyn.sim.lab import BENCH_METHODS, Lab, Mounting
-from servodyn.sim.can import CanMotor
-from servodyn.sim.dynamixel import Servo, DynamixelWire
+from servodyn.sim.lab import Lab, Mounting
+from servodyn.sim.dynamixel import Servo
 from servodyn.sim.dynamixel.wire import collide
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
+
+from helpers import sim_process
 
 sdk = pytest.importorskip("dynamixel_sdk")
 
@@ -319,12 +317,8 @@ def test_servodyn_sim_factory_connect_bench(tmp_path):
     """`servodyn sim --factory --connect DOF --bench FILE`: the path printed, the store written
     at start, the connected servo answering at 57600."""
     store = tmp_path / "bench.json"
-    proc = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--lockstep", "--factory",
-                             "--connect", ELBOW, "--bench", str(store)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        assert select.select([proc.stdout], [], [], 60)[0], "the path is printed at start-up"
-        first = proc.stdout.readline().strip()
+    with sim_process("--lockstep", "--factory", "--connect", ELBOW, "--bench", store) as (_, banner):
+        first = banner[0].strip()
         path = re.search(r" on (/dev/\S+)$", first)
         assert path and f"wired: {ELBOW}" in first and "factory-fresh" in first, first
         assert set(json.loads(store.read_text())["devices"]) == set(CONFIG.model.dof_names), "every slot stored"
@@ -334,6 +328,3 @@ def test_servodyn_sim_factory_connect_bench(tmp_path):
             assert sdk.PacketHandler(2.0).ping(port, 1) == (XM430_W350.model_number, sdk.COMM_SUCCESS, 0)
         finally:
             port.closePort()
-    finally:
-        proc.terminate()
-        proc.communicate(timeout=10)

@@ -18,6 +18,8 @@ from servodyn.sim.dynamixel import Servo
 from servodyn.sim.robot import SimulatedRobot
 from runs import run_swing
 
+from helpers import quiet
+
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
 DOFS = [j["dof"] for j in REPLICA["joint"]]
@@ -117,12 +119,13 @@ def holds(tmp_path_factory):
     runs = {}
     for label, config in (("nominal", nominal), ("payload", with_sim(sim))):
         summary = run_swing(config, out=folder / label, motion=str(motion), home_duration=0.5, figure=False,
-                            say=lambda *a, **k: None)
+                            say=quiet)
         assert summary["completed"], summary["error"]
         runs[label] = (config, read_run_log(folder / label, config.model), folder / label / "swing_log.csv")
     return runs
 
 
+@pytest.mark.slow
 def test_holding_current_is_the_plants_gravity_over_its_torque_constant(holds):
     """At rest the current each servo draws is the plant's gravity torque (its payload in) over
     the plant's torque constant, 1.15 x the configured: within 15 mA + 3 % (5.6 current units;
@@ -142,6 +145,7 @@ def test_holding_current_is_the_plants_gravity_over_its_torque_constant(holds):
     assert np.abs(expected - without).max() > 5 * tolerance.max(), "the payload's share is visible"
 
 
+@pytest.mark.slow
 def test_temperature_column_rises_as_the_winding_model_says(holds):
     """The log's temperature columns are finite on every tick. The servos start at 25 °C; the
     homing move (0.5 s, not logged) heats the loaded shoulder by at least 10 °C before the hold
@@ -170,6 +174,7 @@ def test_temperature_column_rises_as_the_winding_model_says(holds):
     assert np.isfinite(nominal.temperature).all(), "the nominal servos report theirs too"
 
 
+@pytest.mark.slow
 def test_a_log_without_temperature_still_reads(holds, tmp_path):
     """A log written before the temperature columns existed reads, its temperatures nan and the
     rest the same numbers."""
@@ -207,6 +212,7 @@ def _sway(path: Path, model, seconds=2.0) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
     """On a plant with friction on every joint (0.4 N m Coulomb at the shoulder down to 0.1 at the
     wrist, a quarter of that in N m s/rad viscous), a sway that reverses every joint twice a
@@ -226,7 +232,7 @@ def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
         config = config_from_dict(data, origin="test.toml")
         motion = _sway(tmp_path / "sway.csv", config.model)
         results[known] = run_swing(config, out=tmp_path / str(known), motion=str(motion), home_duration=0.5,
-                                   figure=False, say=lambda *a, **k: None)
+                                   figure=False, say=quiet)
         assert results[known]["completed"], results[known]["error"]
     blind, compensated = results[False], results[True]
     assert compensated["tracking_max_rad"] * 2.0 <= blind["tracking_max_rad"], (compensated, blind)

@@ -23,6 +23,8 @@ from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
 from servodyn.sim.serve import SIM_REPLY_TIMEOUT
 
+from helpers import sim_process
+
 CLIENT = textwrap.dedent(r'''
     import json, struct, sys, time
     import can, serial
@@ -159,10 +161,8 @@ def test_the_can_backend_through_the_slcan_adapter():
 
 
 def test_servodyn_sim_serves_replica_can_to_another_process():
-    sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica_can", "--lockstep"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = sim.stdout.readline()
+    with sim_process("--config", "replica_can", "--lockstep") as (_, banner):
+        line = banner[0]
         assert "SLCAN adapter" in line and "7->0x17 DM-J4310" in line, f"the served bus described: {line!r}"
         path = line.rsplit(" on ", 1)[-1].strip()
         client = textwrap.dedent('''
@@ -177,9 +177,6 @@ def test_servodyn_sim_serves_replica_can_to_another_process():
         assert done.returncode == 0, done.stderr[-1500:]
         arbitration_id, data = done.stdout.split()
         assert arbitration_id == "0x17" and data[:2] == "17", f"motor 7 enabled answers on 0x17: {done.stdout}"
-    finally:
-        sim.terminate()
-        sim.wait(timeout=10)
 
 
 def test_servodyn_sim_serves_a_mixed_robot_to_another_process():
@@ -187,12 +184,10 @@ def test_servodyn_sim_serves_a_mixed_robot_to_another_process():
     Dynamixel wrist on a second pseudo-terminal, one plant; the swing's own Robot drives both from
     this process, and in lock-step the plant moves one control period (2 ms) per tick of both."""
     # SIGINT as at a terminal: a job started in the background inherits it ignored
-    sim = subprocess.Popen([sys.executable, "-m", "servodyn.tools.cli", "sim", "--config", "replica_mixed",
-                            "--lockstep"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     ticks = 50
-    try:
-        lines = [sim.stdout.readline() for _ in range(3)]
+    with sim_process("--config", "replica_mixed", "--lockstep", ports=2,
+                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)) as (sim, lines):
+        lines.append(sim.stdout.readline())         # how to connect: one --port for each bus
         assert "SLCAN adapter" in lines[0] and "4->0x14 DM-J4340" in lines[0], lines
         assert "Dynamixel bus 'wrist'" in lines[1] and "servos 5, 6, 7" in lines[1], lines
         assert "--port shoulder=/dev/" in lines[2] and "--port wrist=/dev/" in lines[2], lines
@@ -211,9 +206,8 @@ def test_servodyn_sim_serves_a_mixed_robot_to_another_process():
         finally:
             assert robot.stop() is True, "both buses confirmed the safe stop"
             robot.close()
-    finally:
         sim.send_signal(signal.SIGINT)
-        out, err = sim.communicate(timeout=30)
+        out, _ = sim.communicate(timeout=30)
     said = out.strip().splitlines()[-1]
     assert said == f"stopped after {ticks * config.control_period:.2f} s of simulated time", \
-        f"one 2 ms period per tick of both buses: {said!r} {err[-500:]}"
+        f"one 2 ms period per tick of both buses: {said!r} {out[-500:]}"

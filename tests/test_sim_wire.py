@@ -17,6 +17,8 @@ from servodyn.control.timing import BUS_WATCHDOG
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 
+from helpers import wait_until
+
 pytest.importorskip("dynamixel_sdk")
 
 CONFIG = load_config("replica")
@@ -124,11 +126,13 @@ def test_a_host_gone_quiet_finds_its_servos_limp():
             assert units * WATCHDOG_UNIT == pytest.approx(BUS_WATCHDOG), "the HAL armed the watchdog"
             bus.write(JointCommand.torque(0.2 + 0 * state.q))
             sent = time.monotonic()      # the servos may have heard it up to a GIL switch (5 ms) earlier
-            while not all(s.get("bus_watchdog") == -1 for s in arm.servos) and time.monotonic() - sent < 5.0:
+
+            def all_tripped():           # the servos' clocks move on their bus's ticks
                 arm.bus.tick()
-                time.sleep(0.002)
+                return all(s.get("bus_watchdog") == -1 for s in arm.servos)
+            tripped = wait_until(all_tripped, timeout=5.0, every=0.002)
             took = time.monotonic() - sent
-            assert all(s.get("bus_watchdog") == -1 for s in arm.servos), "every servo's watchdog tripped"
+            assert tripped, "every servo's watchdog tripped"
             assert all(s.get("goal_current") == 0 for s in arm.servos), "and dropped its Goal Current"
             assert took >= BUS_WATCHDOG - 0.01, f"not before the watchdog's {BUS_WATCHDOG} s ({took:.3f} s)"
             # the host that comes back finds out: its goals would be refused until the watchdog is cleared

@@ -16,6 +16,8 @@ from servodyn.tools.cli import main
 from servodyn.report.sizing import run_size
 from servodyn.validation import judge, sizing
 
+from helpers import quiet
+
 ARM3 = """
 name = "arm3"
 [[body]]
@@ -165,6 +167,7 @@ def test_joint_ratios_equal_the_validators(arm3):
         assert row.worst_ratio == pytest.approx(peak, rel=1e-9), dof
 
 
+@pytest.mark.slow
 def test_written_files_pass_and_lighter_fails(arm3, tmp_path):
     """`servodyn size` writes a configuration `servodyn validate` passes; at every joint each
     lighter usable catalogue servo, put in the chosen one's place, fails some check."""
@@ -191,7 +194,7 @@ def test_replica_forehand_no_heavier_than_its_own(tmp_path):
     than the replica's own, and the report says where the replica has margin to spare."""
     scale = load_config("replica").swing_time_scale
     report = run_size("replica", ["tennis_forehand"], time_scale=scale, supply_voltage=12.0, out=tmp_path,
-                      say=lambda *a, **k: None)
+                      say=quiet)
     assert report["passed"] and all(v["passed"] for v in report["validated"].values())
     for dof, j in report["joints"].items():
         assert j["mass_kg"] <= sizing.part_mass(j["original"]) + 1e-12, dof
@@ -237,6 +240,7 @@ def hold_csv(path, pose, seconds=0.3):
     return str(path)
 
 
+@pytest.mark.slow
 def test_validate_jobs_same_verdicts_dir_and_glob(tmp_path, capsys):
     """Three motions (two holds that pass, one with the elbow past its stop), as a folder and as a
     glob: --jobs 2 gives the verdicts and ratios --jobs 1 gives, the exit status the worst."""
@@ -256,20 +260,23 @@ def test_validate_jobs_same_verdicts_dir_and_glob(tmp_path, capsys):
     code, verdicts = runs[1]
     assert [v[1] for v in verdicts] == [True, True, False]   # the elbow 0.3 rad past its lower limit
     assert code == 1
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("PASS", "FAIL"))]
-    assert len(lines) == 6
+    printed = capsys.readouterr()
+    lines = [line for line in (printed.out + printed.err).splitlines() if line.startswith(("PASS", "FAIL"))]
+    assert len(lines) == 6, "a verdict for each motion, of each run"
 
 
+@pytest.mark.slow
 def test_validate_bad_motion_among_many_is_exit_2(tmp_path, capsys):
     good = hold_csv(tmp_path / "good.csv", [0.0] * 7)
     (tmp_path / "bad.csv").write_text("t,q_nothing\n0,0\n")
     code = main(["validate", "replica", good, str(tmp_path / "bad.csv"), "--out", str(tmp_path / "o")])
     assert code == 2
-    out = capsys.readouterr().out
-    assert "PASS" in out and "ERROR" in out
+    printed = capsys.readouterr()
+    assert "PASS" in printed.out + printed.err and "ERROR" in printed.out + printed.err
     assert main(["validate", "replica", str(tmp_path / "none*.csv"), "--out", str(tmp_path / "o")]) == 2
 
 
+@pytest.mark.slow
 def test_margin_objective_equals_brute_force(brute_loaded):
     """--objective margin: the smallest worst ratio any set of the few servos reaches (the brute
     force's least, over the 125 sets, of the largest ratio a servo changes over every joint and
@@ -362,7 +369,7 @@ def test_a_part_without_armature_is_never_a_candidate(arm3, monkeypatch, capsys)
         sizing.mounted(data, sizing.housings(data), {"wrist": "XC330-T288"})
     assert main(["size", str(model), "--motion", motion, "--supply-voltage", "12", "--margin", "1", "--out",
                  str(model.parent / "no_armature"), "--yes"]) == 0
-    out = capsys.readouterr().out
-    assert "XC330-T288 (no armature in parts.toml" in out
+    printed = capsys.readouterr()
+    assert "XC330-T288 (no armature in parts.toml" in printed.out + printed.err
     report = json.loads((model.parent / "no_armature" / "size.json").read_text())
     assert "XC330-T288" not in {j["servo"] for j in report["joints"].values()}

@@ -98,6 +98,7 @@ def test_garbage_replaces_the_reply_and_delay_and_stall_keep_it():
 
 
 @pytest.mark.parametrize("name", ["nan in motion", "beyond limit", "hardware error", "flipped byte"])
+@pytest.mark.slow
 def test_a_soak_run_of_each_kind_ends_in_a_safe_stop(name):
     spec = next(s for s in soak.plan(len(soak.CLASSES), 7, 0) if s["class"] == name)
     result = soak._one(spec)
@@ -136,6 +137,7 @@ def test_can_wire_faults_act_on_a_motors_frames():
     ("bus-off", "bus_off", 1, "replica_can"),
     ("beyond limit", "pushed", 4, "replica_can"),
 ])
+@pytest.mark.slow
 def test_a_soak_run_on_can_motors_ends_in_a_safe_stop(name, fault, servo, config):
     """A CAN fault mid-swing: every motor (and servo) off within two plant ticks, the class's exit
     status, the log complete. A bus-off also makes the stop's exit frames fail until the controller

@@ -229,6 +229,7 @@ def test_importable(program):
     assert worst.total == sum(b for _, b, _ in worst.frames), "the total is the sum of the frames"
 
 
+@pytest.mark.slow
 def test_the_core_has_no_recursion(tmp_path):
     """The firmware core, built with the Cortex-M4F flags of firmware/mcu/rules.mk."""
     compiler()

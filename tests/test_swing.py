@@ -19,14 +19,17 @@ from servodyn.hal.errors import ServoInitializationError
 from servodyn.loop import CHATTER_GOAL, TRACKING_GOAL_RAD
 from runs import run_swing
 
-QUIET = dict(say=lambda *a, **k: None)
+from helpers import quiet
+
+pytestmark = pytest.mark.slow      # whole swings
+
 SWING_TICKS = 7201            # the 1.8 s forehand at the replica's time scale 4, every 1 ms
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    ff = run_swing(out=tmp_path_factory.mktemp("ff"), **QUIET)
-    pd = run_swing(out=tmp_path_factory.mktemp("pd"), feedforward=False, **QUIET)
+    ff = run_swing(out=tmp_path_factory.mktemp("ff"), say=quiet)
+    pd = run_swing(out=tmp_path_factory.mktemp("pd"), feedforward=False, say=quiet)
     return ff, pd
 
 
@@ -79,7 +82,7 @@ def test_summary_reports_the_loop_figures(runs):
 def test_servo_that_stops_answering_stops_the_swing_safely(tmp_path):
     """Servo 5 goes silent 1 s into the swing: the HAL raises naming it, the torque goes off on
     every servo before the plant runs two more ticks, and the log holds every tick until then."""
-    summary = run_swing(out=tmp_path, fault_at=(1.0, 5), **QUIET)
+    summary = run_swing(out=tmp_path, fault_at=(1.0, 5), say=quiet)
     assert not summary["completed"], "the silent servo stopped the swing"
     assert "servo 5" in summary["error"] or "r_forearm_pronation" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 answered and were logged; tick 1000 failed"
@@ -96,7 +99,7 @@ def test_hardware_error_stops_the_swing_safely(tmp_path):
     """Servo 3 reports an overload 1 s into the swing: its fast-read block carries the alert bit,
     the HAL reads Hardware Error Status and raises naming servo and bit, torque goes off on every
     servo within two ticks of plant time, and the log holds the 1000 ticks before it."""
-    summary = run_swing(out=tmp_path, fault_at=(1.0, 3, "overload"), **QUIET)
+    summary = run_swing(out=tmp_path, fault_at=(1.0, 3, "overload"), say=quiet)
     assert not summary["completed"], "the overload stopped the swing"
     assert "(id 3) hardware error 0x20: overload" in summary["error"], summary["error"]
     assert summary["ticks"] == 1000, "ticks 0..999 were clean; tick 1000's read saw the alert"
@@ -106,6 +109,8 @@ def test_hardware_error_stops_the_swing_safely(tmp_path):
     assert len((tmp_path / "swing_log.csv").read_text().splitlines()) == 1 + 1000, "the header and the 1000 clean ticks"
 
 
+@pytest.mark.slow
+@pytest.mark.serial
 def test_realtime_swing_follows_the_wall_clock(tmp_path):
     """Real time: the plant advances with the wall clock and the loop sleeps to each next period.
     Only bounds a slow or busy machine cannot break are asserted: the loop is never faster than
@@ -114,7 +119,7 @@ def test_realtime_swing_follows_the_wall_clock(tmp_path):
     with 1 kHz is the machine's (`make bench` measures it): a loop that falls further behind its
     schedule than the overrun tolerance stops (overrun), which is a safe stop, not a failure here."""
     began = time.monotonic()
-    summary = run_swing(out=tmp_path, realtime=True, time_scale=3.0, **QUIET)
+    summary = run_swing(out=tmp_path, realtime=True, time_scale=3.0, say=quiet)
     took = time.monotonic() - began
     assert summary["completed"] or summary["error"], "either the whole swing or a safe stop with its reason"
     ran = summary["ticks"]
@@ -139,7 +144,7 @@ def test_swing_on_a_loopback_configuration(tmp_path):
     from servodyn.hal.config import CONFIGS_DIR
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace('kind = "dynamixel"', 'kind = "loopback"')
                       .replace("baud = 4000000", "baud = 1000000"))
-    summary = run_swing(str(config), out=tmp_path / "out", **QUIET)
+    summary = run_swing(str(config), out=tmp_path / "out", say=quiet)
     assert summary["completed"], summary.get("error")
     assert summary["ticks"] == SWING_TICKS, "one logged tick per 1 ms sample of the swing"
     assert summary["tracking_max_rad"] <= np.radians(5), "the same controller on the bare model"
@@ -155,10 +160,10 @@ def test_a_motion_the_validator_refuses_never_moves(tmp_path):
     config.write_text((CONFIGS_DIR / "replica.toml").read_text().replace(
         "velocity_limit = 3.1416          # 30 rpm", "velocity_limit = 1e-9", 1))
     with pytest.raises(MotionRefused, match="r_shoulder_flexion needs .* rad/s") as refused:
-        run_swing(str(config), out=tmp_path / "refused", **QUIET)
+        run_swing(str(config), out=tmp_path / "refused", say=quiet)
     assert "\n" not in str(refused.value), "one line"
     assert not (tmp_path / "refused").exists(), "nothing ran, nothing was written"
-    forced = run_swing(str(config), out=tmp_path / "forced", force=True, time_scale=1.0, **QUIET)
+    forced = run_swing(str(config), out=tmp_path / "forced", force=True, time_scale=1.0, say=quiet)
     assert forced["ticks"] == 1801 and forced["validated"] is False, "played, and the summary says unvalidated"
 
 
@@ -171,7 +176,7 @@ def test_any_motion_plays(tmp_path):
     model = load_config("replica").model
     path = tmp_path / "forehand.csv"
     write_trajectory_csv(path, motion_path("tennis_forehand", model).at_scale(1.0), model.dof_names)
-    summary = run_swing(motion=str(path), time_scale=4.0, out=tmp_path / "out", **QUIET)
+    summary = run_swing(motion=str(path), time_scale=4.0, out=tmp_path / "out", say=quiet)
     assert summary["completed"] and summary["motion"] == "forehand", summary.get("error")
     assert summary["ticks"] == SWING_TICKS, "the same 7.2 s at 1 ms"
     assert summary["tracking_max_rad"] <= np.radians(5), "tracked like the built-in forehand"
@@ -187,7 +192,7 @@ def test_a_bad_time_scale_is_refused_not_replaced(tmp_path, scale, words):
     sample 1.8e12 periods (terabytes), 1e-6 would play the forehand in two samples, its interior
     never checked. Each is refused before anything moves."""
     with pytest.raises(ValueError, match=words):
-        run_swing("replica", out=tmp_path / "out", time_scale=scale, **QUIET)
+        run_swing("replica", out=tmp_path / "out", time_scale=scale, say=quiet)
     assert not (tmp_path / "out").exists(), "nothing ran, nothing was written"
 
 
@@ -248,14 +253,14 @@ def test_an_impossible_hold_is_refused_before_anything_is_made(tmp_path, seconds
     first, bad input (exit 2), and nothing ran or was written."""
     from servodyn.loop.run import RunError
     with pytest.raises(RunError) as refused:
-        run_swing("replica", out=tmp_path / "out", hold=seconds, **QUIET)
+        run_swing("replica", out=tmp_path / "out", hold=seconds, say=quiet)
     assert refused.value.exit_code == 2, "bad input"
     assert not (tmp_path / "out").exists(), "nothing ran, nothing was written"
 
 
 def test_a_hold_keeps_the_pose_it_found(tmp_path):
     """--hold 0.3: the pose the arm is in held under the controller, no motion played."""
-    summary = run_swing("replica", out=tmp_path, hold=0.3, **QUIET)
+    summary = run_swing("replica", out=tmp_path, hold=0.3, say=quiet)
     assert summary["completed"] and summary["hold_s"] == 0.3, summary.get("error")
     assert summary["ticks"] == 301, "0.3 s at 1 kHz, both ends"
     assert summary["tracking_max_rad"] < math.radians(0.5), "a held pose tracks within the swing's goal"

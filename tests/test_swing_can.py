@@ -17,7 +17,10 @@ from servodyn.hal.config import load_config
 from servodyn.loop import CHATTER_GOAL
 from runs import run_swing
 
-QUIET = dict(say=lambda *a, **k: None)
+from helpers import quiet
+
+pytestmark = pytest.mark.slow      # whole swings
+
 CAN_PERIOD = load_config("replica_can").control_period
 MIXED_PERIOD = load_config("replica_mixed").control_period
 CAN_SCALE = load_config("replica_can").swing_time_scale
@@ -28,12 +31,12 @@ FAULT_TIME = 0.2              # s into the swing
 # one swing per fixture, so no single test pays for two under the per-test timeout
 @pytest.fixture(scope="module")
 def ff(tmp_path_factory):
-    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_ff"), **QUIET)
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_ff"), say=quiet)
 
 
 @pytest.fixture(scope="module")
 def pd(tmp_path_factory):
-    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_pd"), feedforward=False, **QUIET)
+    return run_swing("replica_can", out=tmp_path_factory.mktemp("can_pd"), feedforward=False, say=quiet)
 
 
 def test_the_forehand_completes_on_can_motors(ff):
@@ -77,7 +80,7 @@ def _stopped_at_the_fault(summary, out, period=CAN_PERIOD):
 
 
 def test_a_silent_motor_stops_the_swing_safely(tmp_path):
-    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, 4), **QUIET)
+    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, 4), say=quiet)
     _stopped_at_the_fault(summary, tmp_path)
     assert "r_elbow_flexion" in summary["error"] and "did not answer" in summary["error"], summary["error"]
     off = summary["torque_off"]
@@ -87,7 +90,7 @@ def test_a_silent_motor_stops_the_swing_safely(tmp_path):
 @pytest.mark.parametrize("motor, fault, words", [(2, 0xE, "r_shoulder_abduction' (id 2) hardware error 0x0e: overload"),
                                                   (6, "overheat", "(id 6) hardware error 0x0c: coil over-temperature")])
 def test_a_motor_fault_stops_the_swing_safely(tmp_path, motor, fault, words):
-    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, motor, fault), **QUIET)
+    summary = run_swing("replica_can", out=tmp_path, fault_at=(FAULT_TIME, motor, fault), say=quiet)
     _stopped_at_the_fault(summary, tmp_path)
     assert words in summary["error"], summary["error"]
     assert all(summary["torque_off"]), "every motor out of motor mode, the faulted one included"
@@ -96,7 +99,7 @@ def test_a_motor_fault_stops_the_swing_safely(tmp_path, motor, fault, words):
 def test_a_fault_on_one_bus_of_a_mixed_robot_stops_both(tmp_path):
     """An overload on Dynamixel servo 6 (the wrist bus) ends the run; the safe stop switches off the
     Damiao motors on the CAN bus as well."""
-    summary = run_swing("replica_mixed", out=tmp_path, fault_at=(FAULT_TIME, 6, "overload"), **QUIET)
+    summary = run_swing("replica_mixed", out=tmp_path, fault_at=(FAULT_TIME, 6, "overload"), say=quiet)
     _stopped_at_the_fault(summary, tmp_path, MIXED_PERIOD)
     assert "r_wrist_flexion" in summary["error"] and "overload" in summary["error"], summary["error"]
     assert summary["torque_off"] == [True] * 7, "CAN motors and Dynamixel servos all off"

@@ -5,8 +5,6 @@ import copy
 import csv
 import dataclasses
 import json
-import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -18,9 +16,10 @@ from servodyn.control.motion import motion_path
 from servodyn.report.validation import validate
 from servodyn.validation import CHECKS, Limits, check
 
+from helpers import quiet, run_cli
+
 with open(CONFIGS_DIR / "replica.toml", "rb") as f:
     REPLICA = tomllib.load(f)
-QUIET = dict(say=lambda *a, **k: None)
 ABDUCTED = [0.0, 1.4, 0.0, 0.0, 0.0, 0.0, 0.0]     # the arm held out sideways: the shoulder carries it
 
 
@@ -68,7 +67,7 @@ def test_peak_torques_are_pinocchios(twin, tmp_path):
     traj = motion_path("tennis_forehand", cfg.model).at_scale(1.0)
     pin = twin(cfg.model)
     expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
-    report = validate(cfg, "tennis_forehand", **QUIET)
+    report = validate(cfg, "tennis_forehand", say=quiet)
     peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
     assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), f"{peaks} vs Pinocchio {expected}"
 
@@ -77,7 +76,7 @@ def test_peak_torques_are_pinocchios(twin, tmp_path):
     pin.model.inertias[hand] = inertia + pin.pin.Inertia(0.5, inertia.lever, np.zeros((3, 3)))
     pin.data = pin.model.createData()
     expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
-    report = validate(cfg, "tennis_forehand", payload=0.5, **QUIET)
+    report = validate(cfg, "tennis_forehand", payload=0.5, say=quiet)
     peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
     assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), "the payload as Pinocchio carries it"
     assert report["payload"]["body"] == "r_hand"
@@ -88,24 +87,24 @@ def test_the_replica_swing_at_human_speed_and_slower():
     XM540-W270 turns 3.1); at 3x everything is within the limits; with 20 % in reserve 3x fails on
     the shoulder rotation's speed and 4x (the configuration's time scale) passes."""
     cfg = load_config("replica")
-    human = validate(cfg, "tennis_forehand", **QUIET)
+    human = validate(cfg, "tennis_forehand", say=quiet)
     assert not human["passed"] and {"speed", "torque_speed"} <= failing(human), failing(human)
     rotation = human["joints"]["r_shoulder_rotation"]
     assert rotation["peak_speed_rad_s"] > 2.5 * XM540_W270.no_load_speed, "the swing's 8 rad/s"
-    assert validate(cfg, "tennis_forehand", time_scale=3.0, **QUIET)["passed"]
-    reserve = validate(cfg, "tennis_forehand", time_scale=3.0, margin=0.8, **QUIET)
+    assert validate(cfg, "tennis_forehand", time_scale=3.0, say=quiet)["passed"]
+    reserve = validate(cfg, "tennis_forehand", time_scale=3.0, margin=0.8, say=quiet)
     assert not reserve["passed"] and reserve["joints"]["r_shoulder_rotation"]["worst_check"] in ("speed", "torque_speed")
-    assert validate(cfg, "tennis_forehand", time_scale=4.0, margin=0.8, **QUIET)["passed"]
+    assert validate(cfg, "tennis_forehand", time_scale=4.0, margin=0.8, say=quiet)["passed"]
 
 
 def test_fit_finds_the_smallest_passing_time_scale():
     """The fitted scale passes and 0.2 % faster fails (the bisection stops at 0.1 %)."""
     cfg = load_config("replica")
-    report = validate(cfg, "tennis_forehand", margin=0.8, fit=True, **QUIET)
+    report = validate(cfg, "tennis_forehand", margin=0.8, fit=True, say=quiet)
     scale = report["fit_time_scale"]
     assert 3.0 < scale < 4.0, f"between the 3x that fails and the 4x that passes with 20 % reserve: {scale}"
-    assert validate(cfg, "tennis_forehand", time_scale=scale, margin=0.8, **QUIET)["passed"]
-    assert not validate(cfg, "tennis_forehand", time_scale=scale * 0.998, margin=0.8, **QUIET)["passed"]
+    assert validate(cfg, "tennis_forehand", time_scale=scale, margin=0.8, say=quiet)["passed"]
+    assert not validate(cfg, "tennis_forehand", time_scale=scale * 0.998, margin=0.8, say=quiet)["passed"]
 
 
 # --- one motion per check, each breaking that check alone --------------------------------------
@@ -117,7 +116,7 @@ def test_position(tmp_path):
     cfg = config(narrow)
     pose = np.zeros(7)
     pose[5] = 0.6
-    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, pose), **QUIET)
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, pose), say=quiet)
     assert failing(report) == {"position"}, report["violations"]
     v = report["violations"][0]
     assert (v["dof"], v["value"], v["limit"]) == ("r_wrist_flexion", pytest.approx(0.6), 0.5)
@@ -129,10 +128,10 @@ def test_speed_and_within_one_percent(tmp_path):
         data["joint"][5]["velocity_limit"] = 1.0
     cfg = config(slow)
     names = cfg.model.dof_names
-    over = validate(cfg, ramp(tmp_path / "over.csv", names, 5, 1.01), **QUIET)
+    over = validate(cfg, ramp(tmp_path / "over.csv", names, 5, 1.01), say=quiet)
     assert failing(over) == {"speed"}, over["violations"]
     assert over["violations"][0]["t_s"] == 0.0, "from the first sample"
-    assert validate(cfg, ramp(tmp_path / "under.csv", names, 5, 0.99), **QUIET)["passed"], "1 % under the limit"
+    assert validate(cfg, ramp(tmp_path / "under.csv", names, 5, 0.99), say=quiet)["passed"], "1 % under the limit"
 
 
 def test_torque_speed(tmp_path):
@@ -143,7 +142,7 @@ def test_torque_speed(tmp_path):
     cfg = config()
     names = cfg.model.dof_names
     report = validate(cfg, ramp(tmp_path / "m.csv", names, 3, 3.8, accel=20.0, seconds=0.004,
-                                start=np.array([0, 0, 0, 1.0, 0, 0, 0])), **QUIET)
+                                start=np.array([0, 0, 0, 1.0, 0, 0, 0])), say=quiet)
     assert failing(report) == {"torque_speed"}, report["violations"]
     row = report["joints"]["r_elbow_flexion"]
     assert row["checks"]["speed"] < 1 and row["checks"]["current"] < 1, row["checks"]
@@ -159,19 +158,20 @@ def test_current(tmp_path):
     def tight(data):
         data["joint"][1]["current_limit"] = motor + XM540_W270.no_load_current / 2
     cfg = config(tight)
-    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED), **QUIET)
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED), say=quiet)
     assert failing(report) == {"current"}, report["violations"]
     assert report["violations"][0]["dof"] == "r_shoulder_abduction"
 
 
+@pytest.mark.slow
 def test_temperature(tmp_path):
     """The arm held out with a 1 kg payload at the hand, 40 plays of 10 s in a row: the shoulder
     abduction stays within its current limit but its winding passes 80 °C."""
     cfg = config()
     motion = hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED, seconds=10.0)
-    once = validate(cfg, motion, payload=1.0, **QUIET)
+    once = validate(cfg, motion, payload=1.0, say=quiet)
     assert once["passed"], once["violations"]
-    report = validate(cfg, motion, payload=1.0, repeat=40, **QUIET)
+    report = validate(cfg, motion, payload=1.0, repeat=40, say=quiet)
     assert failing(report) == {"temperature"}, report["violations"]
     v = report["violations"][0]
     assert v["dof"] == "r_shoulder_abduction" and v["value"] > 80.0 and v["limit"] == 80.0
@@ -181,11 +181,11 @@ def test_supply(tmp_path):
     """A supply rated below what holding the arm out draws."""
     cfg = config()
     motion = hold(tmp_path / "m.csv", cfg.model.dof_names, ABDUCTED)
-    drawn = validate(cfg, motion, **QUIET)["supply"]["peak_current_a"]
+    drawn = validate(cfg, motion, say=quiet)["supply"]["peak_current_a"]
 
     def weak(data):
         data["supply"] = {"voltage": 12.0, "current_limit": 0.5 * drawn}
-    report = validate(config(weak), motion, **QUIET)
+    report = validate(config(weak), motion, say=quiet)
     assert failing(report) == {"supply"}, report["violations"]
     assert report["violations"][0]["dof"] is None, "the supply is the robot's, not a joint's"
 
@@ -197,7 +197,7 @@ def test_bus(tmp_path):
     def slow(data):
         data["bus"]["arm"]["baud"] = 57600
     cfg = config(slow)
-    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7)), **QUIET)
+    report = validate(cfg, hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7)), say=quiet)
     assert failing(report) == {"bus"}, report["violations"]
     assert report["violations"][0]["value"] == pytest.approx((162 + 7 * 11) * 10 / 57600)
 
@@ -208,10 +208,10 @@ def test_the_bus_is_checked_against_the_configurations_period(tmp_path):
     sampled too."""
     cfg = load_config("replica_can")
     pose = hold(tmp_path / "m.csv", cfg.model.dof_names, np.zeros(7))
-    report = validate(cfg, pose, **QUIET)
+    report = validate(cfg, pose, say=quiet)
     assert report["passed"] and report["sample_period_s"] == pytest.approx(2.5e-3), \
         f"passes, sampled every 2.5 ms: {report['sample_period_s']}"
-    at_1khz = validate(dataclasses.replace(cfg, control_period=1e-3), pose, **QUIET)
+    at_1khz = validate(dataclasses.replace(cfg, control_period=1e-3), pose, say=quiet)
     assert failing(at_1khz) == {"bus"}, at_1khz["violations"]
     assert at_1khz["violations"][0]["value"] == pytest.approx(14 * 135 / 1e6), "the wire's worst case a tick"
 
@@ -261,8 +261,9 @@ def test_command_range_and_its_quantization():
     assert np.all(result.ratios["command_range"] <= result.ratios["current"]), "current trips first"
 
 
+@pytest.mark.slow
 def test_every_check_is_in_the_report(tmp_path):
-    report = validate(load_config("replica"), "tennis_forehand", time_scale=4.0, out=tmp_path, **QUIET)
+    report = validate(load_config("replica"), "tennis_forehand", time_scale=4.0, out=tmp_path, say=quiet)
     saved = json.loads((tmp_path / "report.json").read_text())
     assert saved["passed"] and saved["time_scale"] == 4.0 and saved["duration_s"] == pytest.approx(7.2)
     for row in saved["joints"].values():
@@ -276,18 +277,17 @@ def test_every_check_is_in_the_report(tmp_path):
 
 # --- the command line -----------------------------------------------------------------------------
 
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "validate", *map(str, args)],
-                          capture_output=True, text=True, timeout=120)
-
-
+@pytest.mark.slow
 def test_cli_exit_status(tmp_path):
     """0 pass, 1 fail with the first violation in one line, 2 bad input with one line."""
-    ok = run("replica", "tennis_forehand", "--time-scale", 4, "--out", tmp_path / "a")
-    assert ok.returncode == 0 and "PASS" in ok.stdout, ok.stdout + ok.stderr
-    bad = run("replica", "tennis_forehand", "--out", tmp_path / "b")
+    ok = run_cli("validate", "replica", "tennis_forehand", "--time-scale", 4, "--out", tmp_path / "a")
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert json.loads((tmp_path / "a" / "report.json").read_text())["passed"], "the report says so too"
+    bad = run_cli("validate", "replica", "tennis_forehand", "--time-scale", 1, "--out", tmp_path / "b")
     assert bad.returncode == 1, bad.stdout + bad.stderr
-    assert "FAIL: r_shoulder_rotation" in bad.stdout, bad.stdout
+    first = json.loads((tmp_path / "b" / "report.json").read_text())["violations"][0]
+    assert first["dof"] == "r_shoulder_rotation", "at time scale 1 the upper arm's rotation is the first too fast"
+    assert first["message"] in bad.stdout + bad.stderr, "the first violation printed, in one line"
 
 
 @pytest.mark.parametrize("args, words", [
@@ -307,7 +307,7 @@ def test_cli_exit_status(tmp_path):
     (["replica", "tennis_forehand", "--payload", "1", "--payload-body", "tail"], ["tail"]),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
-    res = run(*args, "--out", tmp_path)
+    res = run_cli("validate", *args, "--out", tmp_path)
     assert res.returncode == 2, res.stdout + res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("servodyn: error:"), res.stderr
@@ -318,36 +318,38 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
 def test_cli_bad_csv(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,q_nothing\n0,0\n0.1,0.1\n")
-    res = run("replica", bad, "--out", tmp_path)
+    res = run_cli("validate", "replica", bad, "--out", tmp_path)
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
 
 
+@pytest.mark.slow
 def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
     """TOPP-RA plans the forehand to the linearised envelope: the result passes the dense check
     (re-read from the CSV it writes, the way `servodyn swing --motion` would play it) and is
     shorter than the uniform fit, which slows every part of the swing alike."""
     cfg = load_config("replica")
-    report = validate(cfg, "tennis_forehand", fit=True, retime_motion=True, out=tmp_path, **QUIET)
+    report = validate(cfg, "tennis_forehand", fit=True, retime_motion=True, out=tmp_path, say=quiet)
     retimed = report["retime"]
     assert retimed["passed"], retimed
     fitted = report["fit_time_scale"] * 1.8
     assert retimed["duration_s"] < fitted, f"TOPP-RA {retimed['duration_s']:.2f} s vs uniform {fitted:.2f} s"
     assert retimed["trimmed_rad"] < 1e-5, "cutting the rest at the ends moves the joints by nothing visible"
-    again = validate(cfg, retimed["file"], **QUIET)
+    again = validate(cfg, retimed["file"], say=quiet)
     assert again["passed"], again["violations"][:1]
     assert again["duration_s"] == pytest.approx(retimed["duration_s"], abs=1e-3)
 
 
+@pytest.mark.slow
 def test_prediction_confirmed_by_simulation(tmp_path):
     """The forehand at human speed on the simulated servos: the first servo to saturate is the one
     the validator names first, within a few ticks of its time. At 3x, where it passes, no servo
     saturates and the swing tracks within 5 degrees."""
     cfg = load_config("replica")
-    fails = validate(cfg, "tennis_forehand", simulate_motion=True, out=tmp_path / "fast", **QUIET)["simulation"]
+    fails = validate(cfg, "tennis_forehand", simulate_motion=True, out=tmp_path / "fast", say=quiet)["simulation"]
     first = fails["first"]
     assert first["saturated"]["dof"] == first["predicted"]["dof"] == "r_shoulder_rotation", first
     assert abs(first["ticks_apart"]) <= 10, f"first saturation {first['ticks_apart']} ticks from the prediction"
-    passes = validate(cfg, "tennis_forehand", time_scale=3.0, simulate_motion=True, out=tmp_path / "slow", **QUIET)
+    passes = validate(cfg, "tennis_forehand", time_scale=3.0, simulate_motion=True, out=tmp_path / "slow", say=quiet)
     assert passes["passed"] and passes["simulation"]["first"]["saturated"] is None, passes["simulation"]["first"]
     assert passes["simulation"]["tracks"], f"tracking max {np.degrees(passes['simulation']['tracking_max_rad']):.2f} deg"
 
@@ -361,7 +363,7 @@ def test_the_envelope_follows_the_supply_voltage():
     high, low = Limits.of(cfg, 14.8), Limits.of(cfg, 11.1)
     assert high.no_load_speed[0] == pytest.approx(37 * rpm) and high.stall_torque[0] == pytest.approx(12.9)
     assert low.no_load_speed[0] == pytest.approx(28 * rpm) and low.stall_torque[0] == pytest.approx(10.0)
-    worst = [validate(cfg, "tennis_forehand", time_scale=3.0, supply_voltage=v, **QUIET)["joints"]
+    worst = [validate(cfg, "tennis_forehand", time_scale=3.0, supply_voltage=v, say=quiet)["joints"]
              ["r_shoulder_rotation"]["checks"]["torque_speed"] for v in (11.1, 12.0, 14.8)]
     assert worst[0] > worst[1] > worst[2], f"torque-speed ratios at 11.1, 12, 14.8 V: {worst}"
 
@@ -374,12 +376,13 @@ def test_cli_csv_whose_spline_overflows(tmp_path):
     t = np.array([0.0, 1.0, 2.0, 3.0])
     q = np.tile(np.array([0.0, 1e308, -1e308, 0.0])[:, None], (1, len(names)))
     path = write_csv(tmp_path / "huge.csv", names, t, q, 0 * q, 0 * q)
-    res = run("replica", path, "--out", tmp_path / "out")
+    res = run_cli("validate", "replica", path, "--out", tmp_path / "out")
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "huge.csv: the motion between the samples overflows" in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_identified_friction_scale_thermal_and_payload_change_the_checks(tmp_path):
     """The configuration's identified numbers are what the checks use. The elbow spun at a constant
     1 rad/s: with 0.3 N m of Coulomb and 0.1 N m s/rad of viscous friction the torque it needs is
@@ -409,8 +412,8 @@ def test_identified_friction_scale_thermal_and_payload_change_the_checks(tmp_pat
 
     loaded = config(lambda d: d.update(payload={"mass_kg": 0.5}))
     held = hold(tmp_path / "hold.csv", names, ABDUCTED, seconds=5.0)
-    with_table = validate(loaded, held, **QUIET)
-    with_flag = validate(nominal, held, payload=0.5, **QUIET)
+    with_table = validate(loaded, held, say=quiet)
+    with_flag = validate(nominal, held, payload=0.5, say=quiet)
     for dof in names:
         assert with_table["joints"][dof]["peak_torque_nm"] == pytest.approx(
             with_flag["joints"][dof]["peak_torque_nm"], abs=1e-9), f"{dof}: [payload] is --payload"
@@ -418,5 +421,5 @@ def test_identified_friction_scale_thermal_and_payload_change_the_checks(tmp_pat
     def hot(data):
         data["joint"][1].update(thermal_resistance_k_w=24.0, thermal_time_constant_s=60.0)
     datasheet = with_flag["joints"]["r_shoulder_abduction"]["peak_temperature_c"]
-    assert validate(config(hot), held, payload=0.5, **QUIET)["joints"]["r_shoulder_abduction"][
+    assert validate(config(hot), held, payload=0.5, say=quiet)["joints"]["r_shoulder_abduction"][
         "peak_temperature_c"] > datasheet + 5.0, "the configured thermal constants, not the data sheet's"

@@ -19,7 +19,8 @@ from servodyn.control.motion import load_motion
 from servodyn.model.shapes import box_sides, local_mesh, solid_mesh
 from servodyn.view import ViewError, Viewer, load_subject, log_timeline, open_view, share_rgb
 
-QUIET = dict(say=lambda *a, **k: None)
+from helpers import quiet, run_cli, wait_until
+
 
 
 def _volume(solid) -> float:
@@ -105,7 +106,7 @@ def test_subject_is_a_configuration_or_a_model():
 
 @pytest.fixture(scope="module")
 def viewer():
-    v = open_view("replica", http_port=0, **QUIET)
+    v = open_view("replica", http_port=0, say=quiet)
     yield v
     v.close()
 
@@ -129,9 +130,7 @@ def test_play_advances_the_cursor_and_the_plots_follow(viewer):
     viewer.seek(0.0)
     viewer.player["playing"].value = True
     try:
-        deadline = time.monotonic() + 30
-        while viewer.cursor_t == 0.0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: viewer.cursor_t != 0.0, timeout=30)
     finally:
         viewer.player["playing"].value = False
     with viewer.lock:            # the player's thread moves cursor, slider and plots under this lock
@@ -175,6 +174,7 @@ def test_shaping_a_keyframe_recomputes_torques_and_verdict(viewer, tmp_path):
     assert np.array_equal(again.q, edited.q) and np.array_equal(again.t, edited.t), "saved keyframes read back"
 
 
+@pytest.mark.slow
 def test_a_logged_run_plays_planned_against_measured(tmp_path):
     """A short motion on the loopback configuration (the model alone behind the HAL) with the live
     feed as the loop's observer: the feed saw every tick, drew frames, and the run's log replays with
@@ -189,20 +189,18 @@ def test_a_logged_run_plays_planned_against_measured(tmp_path):
     motion.write_text('name = "reach"\n' + "".join(
         f"[[keyframe]]\nt = {t}\nq = {{ " + ", ".join(f"{n} = {a}" for n, a in zip(model.dof_names, q)) + " }\n"
         for t, q in ((0.0, [0.3, 0.2, 0, 0.5, 0, 0, 0]), (0.3, [0.5, 0.3, 0.1, 0.9, 0.1, 0, 0]))))
-    v = Viewer(cfg, model, http_port=0, **QUIET)
+    v = Viewer(cfg, model, http_port=0, say=quiet)
     try:
         feed = v.live()
-        summary = run_swing(str(config), out=tmp_path / "run", motion=str(motion), observer=feed.observe, **QUIET)
+        summary = run_swing(str(config), out=tmp_path / "run", motion=str(motion), observer=feed.observe, say=quiet)
         assert summary["completed"], summary.get("error")
-        deadline = time.monotonic() + 30
-        while feed.frames == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: feed.frames > 0, timeout=30)
         feed.stop()
         homing = 2001
         assert feed.ticks == homing + summary["ticks"], "the observer saw every tick, homing and motion"
         assert feed.frames >= 1, "the live view drew the arm"
         v.close()
-        v = open_view(str(config), log=str(tmp_path / "run"), http_port=0, **QUIET)
+        v = open_view(str(config), log=str(tmp_path / "run"), http_port=0, say=quiet)
         tl = v.timeline
         assert len(tl.t) == summary["ticks"] and tl.measured is not None
         error = np.abs(tl.planned - tl.measured).max()
@@ -235,13 +233,10 @@ def test_bad_log_and_share_colours(tmp_path):
 def test_view_command_bad_input_is_one_line(tmp_path, args, message):
     """Bad input is one line and exit 2, before anything is served (viser itself would fail inside
     its own thread on an address it cannot bind)."""
-    import subprocess
-    import sys
     log = tmp_path / "swing_log.csv"
     log.write_text("t,q_x\n0,1\n")
     args = [str(log) if a == "LOG" else a for a in args]
-    res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "view", *args],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli("view", *args)
     assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"
     assert res.stderr.count("\n") == 1 and message in res.stderr, res.stderr
 
@@ -255,7 +250,7 @@ def test_a_trajectory_csv_plays_with_its_torques(tmp_path):
     csv = tmp_path / "reach.csv"
     rows = [f"{t},{0.5 * t},{0.2 * t},0,{0.3 + 0.4 * t},0,0,0" for t in (0.0, 0.5, 1.0)]
     csv.write_text("t," + ",".join(f"q_{n}" for n in model.dof_names) + "\n" + "\n".join(rows) + "\n")
-    v = open_view("replica", motion=str(csv), http_port=0, **QUIET)
+    v = open_view("replica", motion=str(csv), http_port=0, say=quiet)
     try:
         assert v.editor is None, "a CSV has no keyframes to shape"
         result = check(model, Limits.of(config, config.supply.voltage), motion_path(str(csv), model).at_scale(1.0))
@@ -312,7 +307,6 @@ def test_a_drag_delivered_in_a_burst_is_handled_in_order_and_the_gizmo_follows_t
     viser's thread pool could do, left the gizmo deaf to the keyframes); and selecting another
     keyframe then moves the gizmo to its hand."""
     import asyncio
-    import time
     from types import SimpleNamespace
     ed = viewer.editor
     hand = ed.hand
@@ -326,18 +320,14 @@ def test_a_drag_delivered_in_a_burst_is_handled_in_order_and_the_gizmo_follows_t
         asyncio.run(hand._receive(SimpleNamespace(phase="update")))
     last = np.asarray(hand.gizmo.position, dtype=float)
     asyncio.run(hand._receive(SimpleNamespace(phase="end")))
-    deadline = time.monotonic() + 30.0
-    while (hand._events or hand.dragging or hand.solves == solves) and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(lambda: not (hand._events or hand.dragging or hand.solves == solves), timeout=30, every=0.01)
     assert not hand._events and not hand.dragging, "the worker handled the drag through its end"
     assert 1 <= hand.solves - solves <= 40, hand.solves - solves
     _, p = hand.arm.hand(ed.motion.q[ed.k])
     assert np.abs(p - last).max() < 1e-9, "the keyframe's hand is on the last target"
     ed.key.value = 4
-    deadline = time.monotonic() + 10.0
     _, p4 = hand.arm.hand(ed.motion.q[3])
-    while np.abs(np.asarray(hand.gizmo.position) - p4).max() > 1e-9 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(lambda: np.abs(np.asarray(hand.gizmo.position) - p4).max() <= 1e-9, timeout=10, every=0.01)
     assert np.abs(np.asarray(hand.gizmo.position) - p4).max() < 1e-9, "the gizmo moved to keyframe 4's hand"
 
 
@@ -395,7 +385,7 @@ def test_a_source_clip_whose_frame_time_would_fill_the_memory_is_one_line(tmp_pa
                     "Xrotation Yrotation\n  End Site\n  {\n    OFFSET 0 1 0\n  }\n}\nMOTION\nFrames: 2\n"
                     "Frame Time: 1e-9\n0 0 0 0 0 0\n0 0 0 0 0 0\n")
     with pytest.raises(ViewError, match="Frame Time 1e-09 s"):
-        open_view("replica", motion=str(csv), source=str(clip), http_port=0, **QUIET)
+        open_view("replica", motion=str(csv), source=str(clip), http_port=0, say=quiet)
     res = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "view", "--motion", str(csv), "--source",
                           str(clip), "--port", "0"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"

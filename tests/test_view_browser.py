@@ -18,12 +18,16 @@ import pytest
 from browser import SCREEN, Browser, settle, wait_for
 from servodyn.view import open_view
 
+from helpers import quiet
+
+pytestmark = pytest.mark.slow      # a headless browser
+
 CANVAS_RIGHT = 780       # px: the GUI panel covers the page right of about here
 
 
 @pytest.fixture(scope="module")
 def page():
-    viewer = open_view("replica", http_port=0, say=lambda *a, **k: None)
+    viewer = open_view("replica", http_port=0, say=quiet)
     try:
         with Browser() as browser:
             browser.open(viewer.url)
@@ -57,7 +61,7 @@ def test_a_can_arm_is_drawn_from_its_own_solids():
     verdict at the configuration's own 2.5 ms period (a 1 ms sample fails its bus check), and the
     arm drawn in the middle of the canvas. First in the file, so that its browser is closed before
     the shared page's opens."""
-    viewer = open_view("replica_can", http_port=0, say=lambda *a, **k: None)
+    viewer = open_view("replica_can", http_port=0, say=quiet)
     try:
         with Browser() as browser:
             browser.open(viewer.url)
