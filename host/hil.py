@@ -188,16 +188,23 @@ def check_arm_elf(elf: Path) -> None:
                             "(build the firmware with `make fw`)")
 
 
-def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
-             icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
-             q0=None) -> tuple[dict, Record, object]:
-    """Run the image against a fresh simulated arm; (report, record, arm)."""
+def image(board: str, elf=None) -> Path:
+    """The firmware image to run on `board`, checked: FirmwareError for an unknown board, no
+    image, or a file that is no 32-bit ARM executable."""
     if board not in BOARDS:
         raise FirmwareError(f"unknown board '{board}' (one of {', '.join(BOARDS)})")
     elf = Path(elf) if elf else default_elf(board)
     if not elf.is_file():
         raise FirmwareError(f"no firmware image at {elf} (build it with `make fw`)")
     check_arm_elf(elf)
+    return elf
+
+
+def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
+             icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
+             q0=None) -> tuple[dict, Record, object]:
+    """Run the image against a fresh simulated arm; (report, record, arm)."""
+    elf = image(board, elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
@@ -307,6 +314,7 @@ def _with_progress(on_tick, config: str, say):
 
 def run_firmware(board: str = "an386", elf=None, config: str = "replica", out: Path = Path("out/firmware"),
                  icount_shift: int = 3, args: str = "", on_tick=None, say=print) -> dict:
+    elf = image(board, elf)        # checked before anything is said or started
     say(f"QEMU {BOARDS[board][0]} ({BOARDS[board][1]}), -icount shift={icount_shift}: the firmware drives "
         f"the simulated '{config}' bus in lock-step ...")
     began = time.perf_counter()

@@ -67,7 +67,7 @@ def test_peak_torques_are_pinocchios(twin, tmp_path):
     traj = motion_path("tennis_forehand", cfg.model).at_scale(1.0)
     pin = twin(cfg.model)
     expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
-    report = validate(cfg, "tennis_forehand", say=quiet)
+    report = validate(cfg, "tennis_forehand", time_scale=1.0, say=quiet)
     peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
     assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), f"{peaks} vs Pinocchio {expected}"
 
@@ -76,7 +76,7 @@ def test_peak_torques_are_pinocchios(twin, tmp_path):
     pin.model.inertias[hand] = inertia + pin.pin.Inertia(0.5, inertia.lever, np.zeros((3, 3)))
     pin.data = pin.model.createData()
     expected = np.abs([pin.rnea(q, qd, qdd) for q, qd, qdd in zip(traj.q, traj.qd, traj.qdd)]).max(axis=0)
-    report = validate(cfg, "tennis_forehand", payload=0.5, say=quiet)
+    report = validate(cfg, "tennis_forehand", time_scale=1.0, payload=0.5, say=quiet)
     peaks = np.array([report["joints"][d]["peak_torque_nm"] for d in cfg.model.dof_names])
     assert np.abs(peaks - expected).max() <= 1e-9 * np.abs(expected).max(), "the payload as Pinocchio carries it"
     assert report["payload"]["body"] == "r_hand"
@@ -87,7 +87,7 @@ def test_the_replica_swing_at_human_speed_and_slower():
     XM540-W270 turns 3.1); at 3x everything is within the limits; with 20 % in reserve 3x fails on
     the shoulder rotation's speed and 4x (the configuration's time scale) passes."""
     cfg = load_config("replica")
-    human = validate(cfg, "tennis_forehand", say=quiet)
+    human = validate(cfg, "tennis_forehand", time_scale=1.0, say=quiet)
     assert not human["passed"] and {"speed", "torque_speed"} <= failing(human), failing(human)
     rotation = human["joints"]["r_shoulder_rotation"]
     assert rotation["peak_speed_rad_s"] > 2.5 * XM540_W270.no_load_speed, "the swing's 8 rad/s"
@@ -100,7 +100,7 @@ def test_the_replica_swing_at_human_speed_and_slower():
 def test_fit_finds_the_smallest_passing_time_scale():
     """The fitted scale passes and 0.2 % faster fails (the bisection stops at 0.1 %)."""
     cfg = load_config("replica")
-    report = validate(cfg, "tennis_forehand", margin=0.8, fit=True, say=quiet)
+    report = validate(cfg, "tennis_forehand", time_scale=1.0, margin=0.8, fit=True, say=quiet)
     scale = report["fit_time_scale"]
     assert 3.0 < scale < 4.0, f"between the 3x that fails and the 4x that passes with 20 % reserve: {scale}"
     assert validate(cfg, "tennis_forehand", time_scale=scale, margin=0.8, say=quiet)["passed"]
@@ -328,7 +328,7 @@ def test_retime_is_faster_than_the_uniform_fit_and_passes(tmp_path):
     (re-read from the CSV it writes, the way `servodyn swing --motion` would play it) and is
     shorter than the uniform fit, which slows every part of the swing alike."""
     cfg = load_config("replica")
-    report = validate(cfg, "tennis_forehand", fit=True, retime_motion=True, out=tmp_path, say=quiet)
+    report = validate(cfg, "tennis_forehand", time_scale=1.0, fit=True, retime_motion=True, out=tmp_path, say=quiet)
     retimed = report["retime"]
     assert retimed["passed"], retimed
     fitted = report["fit_time_scale"] * 1.8
@@ -345,7 +345,7 @@ def test_prediction_confirmed_by_simulation(tmp_path):
     the validator names first, within a few ticks of its time. At 3x, where it passes, no servo
     saturates and the swing tracks within 5 degrees."""
     cfg = load_config("replica")
-    fails = validate(cfg, "tennis_forehand", simulate_motion=True, out=tmp_path / "fast", say=quiet)["simulation"]
+    fails = validate(cfg, "tennis_forehand", time_scale=1.0, simulate_motion=True, out=tmp_path / "fast", say=quiet)["simulation"]
     first = fails["first"]
     assert first["saturated"]["dof"] == first["predicted"]["dof"] == "r_shoulder_rotation", first
     assert abs(first["ticks_apart"]) <= 10, f"first saturation {first['ticks_apart']} ticks from the prediction"

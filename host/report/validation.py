@@ -207,7 +207,7 @@ def validate(config, motion: str, *, time_scale: float | None = None, payload: f
             write_trajectory_csv(out / "retimed.csv", traj, model.dof_names)
             report["retime"]["file"] = str(out / "retimed.csv")
         text = report_json(report)         # strict JSON, or one error before any file is drawn
-        say(f"drawing {out / 'envelopes.png'} and {out / 'current_temperature.png'} ...")
+        say("drawing the figures ...")
         title = f"{path.name} on {config.name}, time scale {time_scale:g}, {voltage:g} V"
         envelope_figure(out / "envelopes.png", result, limits, model.dof_names, title)
         limits_in_time_figure(out / "current_temperature.png", result, limits, model.dof_names, title)
