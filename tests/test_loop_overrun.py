@@ -82,7 +82,7 @@ def test_homings_missed_deadlines_are_the_runs(tmp_path, monkeypatch):
     """missed_deadlines counts homing's late ticks with the swing's (the native loop's count has
     both): a homing that missed 7 and a swing that missed 2 make 9, over homing's 2,001 ticks and
     the swing's. The loop itself is stood in for, so the counts are exact."""
-    from servodyn.tools import swing
+    from servodyn.loop import run as swing
 
     def follow(bus, controller, segment, log=None, realtime=False, **kw):
         if log is None:
