@@ -40,8 +40,6 @@ from .transport.pty import PtyServer
 
 MODES = ("lockstep", "realtime")
 
-SIM_REPLY_TIMEOUT = PTY_REPLY_TIMEOUT      # the patience a simulated bus gets (hal.ports says why)
-
 
 class SimProcessError(ServodynError):
     """The simulator's child process could not start or stopped answering its control socket."""
@@ -162,7 +160,7 @@ def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None =
             servers[name] = PtyServer(port, own)
             buses[name] = {"port": servers[name].path}
             where[name] = servers[name].path
-        buses[name]["reply_timeout"] = SIM_REPLY_TIMEOUT[bus.kind]
+        buses[name]["reply_timeout"] = PTY_REPLY_TIMEOUT[bus.kind]
     if mode == "realtime" and len(servers) > 1:
         robot.free_running()         # the first server's clock alone moves the plant
     served = Served(robot, servers, buses, where)
@@ -244,7 +242,7 @@ class SimProcess(SimulatedBuses):
     @property
     def buses(self) -> dict:
         """The options that point the bus's backend at the simulated bus."""
-        return {self.bus: {"port": self.path, "reply_timeout": SIM_REPLY_TIMEOUT["dynamixel"]}}
+        return {self.bus: {"port": self.path, "reply_timeout": PTY_REPLY_TIMEOUT["dynamixel"]}}
 
     def stop(self) -> None:
         """Ask the child to end, and make sure it has."""

@@ -30,7 +30,7 @@ from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
 from servodyn.sim.transport.pty import PtyServer
-from servodyn.sim.serve import SIM_REPLY_TIMEOUT
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
 
 pytestmark = pytest.mark.serial      # real-time buses: a stop judged against the servos' watchdog
 
@@ -101,7 +101,7 @@ def test_the_stop_reaches_the_surviving_bus_within_the_watchdog(dying):
     try:
         paths = {dying: child.stdout.readline().strip(), surviving: server.path}
         assert paths[dying].startswith("/dev/"), f"the child serves {dying}: {paths}"
-        robot = Robot(CONFIG, options={name: {"port": path, "reply_timeout": SIM_REPLY_TIMEOUT[KIND[name]]}
+        robot = Robot(CONFIG, options={name: {"port": path, "reply_timeout": PTY_REPLY_TIMEOUT[KIND[name]]}
                                        for name, path in paths.items()})
         running, result = threading.Event(), {}
 

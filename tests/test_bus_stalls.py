@@ -14,7 +14,8 @@ import pytest
 
 from servodyn.control.timing import BUS_WATCHDOG
 from servodyn.hal.config import load_config
-from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
+from servodyn.sim.serve import SimProcess
 
 from helpers import csv_rows, start_cli, wait_for_rows
 
@@ -50,7 +51,7 @@ def test_a_stall_longer_than_the_watchdog_stops_the_swing(tmp_path, pause):
     # the host waits out its whole reply timeout before it calls anything a failure, and it cannot
     # have heard silence for longer than it waited (plus the tick in flight when the pause began)
     silent_ms = int(silent.group(1))
-    assert SIM_REPLY_TIMEOUT["dynamixel"] * 1e3 <= silent_ms <= (took + 0.1) * 1e3, (silent_ms, took)
+    assert PTY_REPLY_TIMEOUT["dynamixel"] * 1e3 <= silent_ms <= (took + 0.1) * 1e3, (silent_ms, took)
     assert silent_ms > BUS_WATCHDOG * 1e3, "longer than the servos' Bus Watchdog: the reason for the stop"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["error_class"] == "BusStallError" and summary["exit_code"] == 10, summary

@@ -16,7 +16,7 @@ from servodyn.sim.dynamixel import (XM430_W350, XM540_W270, HardwareError, Opera
                                     DynamixelWire)
 from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from servodyn.hal.dynamixel.backend import _patient
-from servodyn.sim.serve import SIM_REPLY_TIMEOUT
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
 
 TICK = 2 * math.pi / 4096                  # rad per position unit
 NO_LOAD_SPEED = 46 * 2 * math.pi / 60      # XM430-W350 at 12 V, rad/s
@@ -408,7 +408,7 @@ class PtyBus:
         self._thread.start()
         # a pseudo-terminal on a busy machine holds a reply back past the SDK's 34 ms (a
         # serving thread that waits for a core): the backend's patience for a simulated bus
-        self.port = _patient(sdk.PortHandler(os.ttyname(self.slave)), SIM_REPLY_TIMEOUT["dynamixel"])
+        self.port = _patient(sdk.PortHandler(os.ttyname(self.slave)), PTY_REPLY_TIMEOUT["dynamixel"])
         assert self.port.openPort() and self.port.setBaudRate(1_000_000), "the pty opens like a serial port"
         self.ph = sdk.PacketHandler(2.0)
 

@@ -25,7 +25,8 @@ from servodyn.sim.dynamixel import Servo
 from servodyn.sim.dynamixel.wire import collide
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
-from servodyn.sim.serve import SIM_REPLY_TIMEOUT, SimProcess
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
+from servodyn.sim.serve import SimProcess
 
 from helpers import sim_process
 
@@ -48,7 +49,7 @@ class Wire:
         self.server = PtyServer(self.arm, "lockstep")
         self.server.start()
         # patient as the backend is with a simulated bus: a loaded machine holds a reply back
-        self.port = _patient(sdk.PortHandler(self.server.path), SIM_REPLY_TIMEOUT["dynamixel"])
+        self.port = _patient(sdk.PortHandler(self.server.path), PTY_REPLY_TIMEOUT["dynamixel"])
         self.handler = sdk.PacketHandler(2.0)
         assert self.port.openPort()
 
@@ -301,7 +302,7 @@ def test_a_bench_served_by_its_own_process():
     """serve()'s SimProcess passes the bench to its child: a fresh servo at 57600, power-cycled over
     the control socket."""
     with SimProcess(CONFIG.path, "lockstep", lab=Lab(factory=True, connected=[ELBOW])) as sim:
-        port = _patient(sdk.PortHandler(sim.path), SIM_REPLY_TIMEOUT["dynamixel"])
+        port = _patient(sdk.PortHandler(sim.path), PTY_REPLY_TIMEOUT["dynamixel"])
         handler = sdk.PacketHandler(2.0)
         try:
             assert port.openPort() and port.setBaudRate(57600)
@@ -322,7 +323,7 @@ def test_servodyn_sim_factory_connect_bench(tmp_path):
         path = re.search(r" on (/dev/\S+)$", first)
         assert path and f"wired: {ELBOW}" in first and "factory-fresh" in first, first
         assert set(json.loads(store.read_text())["devices"]) == set(CONFIG.model.dof_names), "every slot stored"
-        port = _patient(sdk.PortHandler(path.group(1)), SIM_REPLY_TIMEOUT["dynamixel"])
+        port = _patient(sdk.PortHandler(path.group(1)), PTY_REPLY_TIMEOUT["dynamixel"])
         try:
             assert port.openPort() and port.setBaudRate(57600)
             assert sdk.PacketHandler(2.0).ping(port, 1) == (XM430_W350.model_number, sdk.COMM_SUCCESS, 0)

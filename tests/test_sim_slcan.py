@@ -21,7 +21,7 @@ from servodyn.hal.config import load_config
 from servodyn.hal.robot import Robot
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.can import SlcanServer
-from servodyn.sim.serve import SIM_REPLY_TIMEOUT
+from servodyn.hal.ports import PTY_REPLY_TIMEOUT
 
 from helpers import sim_process
 
@@ -143,7 +143,7 @@ def test_the_can_backend_through_the_slcan_adapter():
     arm = SimulatedRobot(load_config("replica_can"))
     with SlcanServer(arm.port(), mode="lockstep") as server:
         # as patient as the swing with a simulated bus: 0.5 s was once too short on a loaded machine
-        bus = make_bus(arm.config, port=server.path, reply_timeout=SIM_REPLY_TIMEOUT["can"])
+        bus = make_bus(arm.config, port=server.path, reply_timeout=PTY_REPLY_TIMEOUT["can"])
         try:
             bus.open()
             bus.enable_torque(True)

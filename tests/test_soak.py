@@ -167,6 +167,6 @@ def test_a_delayed_reply_and_a_stall_last_past_the_simulated_bus_patience():
     """Otherwise the swing rides through them and the soak's two classes cannot stop (a 0.3 s delay
     did, once the simulated bus's patience grew from 0.25 s to 1 s)."""
     from servodyn.sim import faults
-    from servodyn.sim.serve import SIM_REPLY_TIMEOUT
-    assert faults.DELAY > SIM_REPLY_TIMEOUT["dynamixel"] and faults.STALL > SIM_REPLY_TIMEOUT["dynamixel"], \
-        (faults.DELAY, faults.STALL, SIM_REPLY_TIMEOUT)
+    from servodyn.hal.ports import PTY_REPLY_TIMEOUT
+    assert faults.DELAY > PTY_REPLY_TIMEOUT["dynamixel"] and faults.STALL > PTY_REPLY_TIMEOUT["dynamixel"], \
+        (faults.DELAY, faults.STALL, PTY_REPLY_TIMEOUT)
