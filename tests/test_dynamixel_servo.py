@@ -3,6 +3,7 @@ drive model, the bus's replies, and dynamixel-sdk 4.1 talking to the bus through
 
 import math
 import os
+import random
 import select
 import threading
 import tty
@@ -17,6 +18,9 @@ from servodyn.sim.dynamixel import (XM430_W350, XM540_W270, HardwareError, Opera
 from servodyn.hal.dynamixel.control_table import VELOCITY_UNIT
 from servodyn.hal.dynamixel.backend import _patient
 from servodyn.hal.ports import PTY_REPLY_TIMEOUT
+from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
+
+from helpers import wait_until
 
 TICK = 2 * math.pi / 4096                  # rad per position unit
 NO_LOAD_SPEED = 46 * 2 * math.pi / 60      # XM430-W350 at 12 V, rad/s
@@ -530,8 +534,16 @@ def test_sdk_watchdog_and_alert(pty_bus):
 
 def test_sdk_survives_garbage_on_the_line(pty_bus):
     port, ph = pty_bus.port, pty_bus.ph
-    port.writePort(bytes([0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x40]) + os.urandom(64).replace(b"\xFF", b"\x00"))
-    assert ph.ping(port, 2) == (1120, sdk.COMM_SUCCESS, 0), "the bus resynchronises on the next header"
+    noise = random.Random(7).randbytes(64).replace(b"\xFF", b"\x00")   # no header can start inside it
+    port.writePort(noise)
+    assert ph.ping(port, 2) == (1120, sdk.COMM_SUCCESS, 0), "the bus skips bytes that begin no frame"
+    # a frame begun (LEN 0x140: it waits for 320 bytes) and never finished: a servo abandons it
+    # after a gap of the byte timeout, and the next header is heard
+    port.writePort(bytes([0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x40, 0x01]) + noise)
+    assert wait_until(lambda: pty_bus.bus.reader.pending >= 71, timeout=5.0), "the bus holds the frame begun"
+    pty_bus.now += 2 * BYTE_TIMEOUT
+    assert ph.ping(port, 2) == (1120, sdk.COMM_SUCCESS, 0), "the bus resynchronises after the byte timeout"
+    assert pty_bus.bus.faults[Fault.TRUNCATED] == 1, "the abandoned frame is counted as truncated"
 
 
 # dynamixel-sdk 4.1.0 computes LEN and CRC over the bytes it sends but never stuffs them (txPacket
