@@ -21,10 +21,11 @@ from .backend import BACKENDS, backend, servo_catalogue
 from .config_check import IDENTIFIED_KEYS, RANGES, _Checker, _is_number, _thermal
 from .errors import ConfigError
 from .plant_spec import Payload, PlantSpec, _payload, _plant
+from .safety import SafetyConfig, safety_from_table
 from .servos import ServoSpec
 
 CONFIGS_DIR = Path(__file__).parent / "configs"
-TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control", "payload", "sim"}
+TOP_KEYS = {"name", "description", "model", "bus", "joint", "swing", "supply", "control", "payload", "sim", "safety"}
 SUPPLY_KEYS = {"voltage", "current_limit"}
 BUS_KEYS = {"kind", "port", "baud", "protocol"}
 JOINT_KEYS = {"dof", "bus", "id", "servo", "direction", "zero_offset", "gear_ratio",
@@ -94,6 +95,12 @@ class RobotConfig:
     control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
     payload: "Payload | None" = None      # `[payload]`, already in `model`
     plant: "PlantSpec | None" = None      # `[sim]`: the arm the simulator runs (None: this one)
+    safety: SafetyConfig | None = None    # `[safety]` (hal.safety); None: its defaults (`guards`)
+
+    @property
+    def guards(self) -> SafetyConfig:
+        """The `[safety]` table, or its defaults when the file has none."""
+        return self.safety if self.safety is not None else SafetyConfig.default(self.model.dof_names)
 
     def time_scale_for(self, motion: str) -> float:
         """The time scale a motion plays at by default: the configuration's (`swing_time_scale`) for
@@ -325,7 +332,9 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
             c.fail("period", why)
     return RobotConfig(name=name, path=None, model_ref=model_ref, model=model, buses=buses,
                        joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale,
-                       supply=supply, control_period=period, payload=payload, plant=plant)
+                       supply=supply, control_period=period, payload=payload, plant=plant,
+                       safety=safety_from_table(data["safety"], f"{origin}: safety", model.dof_names)
+                       if "safety" in data else None)
 
 
 def builtin_configs() -> dict[str, Path]:

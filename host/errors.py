@@ -43,6 +43,9 @@ class ExitCode(IntEnum):
     RANGE = 15, "a joint measured beyond its limits"
     SETUP = 16, "a servo refused the set-up (wrong model, a write error)"
     OVERFLOW = 17, "finite measurements, a non-finite torque (the firmware's overflow)"
+    CONTACT = 18, "the arm met something: a contact was detected, and the reaction ran"
+    FOLLOWING_ERROR = 19, "a joint fell further behind its command than its following-error limit"
+    STALL = 20, "a joint held at its torque limit without moving (pressed on a stop)"
 
 
 def exit_codes_help(*codes: ExitCode) -> str:

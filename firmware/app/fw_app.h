@@ -67,6 +67,9 @@ enum fw_fault_ {
   FW_FAULT_RANGE = 15,        // a joint measured outside its range (sensor or mechanics)
   FW_FAULT_SETUP = 16,        // a servo refused the set-up (wrong model, a write error)
   FW_FAULT_OVERFLOW = 17,     // finite measurements, a non-finite torque (overflow in the step)
+  FW_FAULT_CONTACT = 18,      // the momentum observer's residual crossed a joint's contact threshold
+  FW_FAULT_FOLLOWING_ERROR = 19,  // |q_d - q| of a joint above its following-error limit
+  FW_FAULT_STALL = 20,        // a joint at its torque limit without moving, longer than the stall time
 };
 
 const char* fw_fault_name(int code);

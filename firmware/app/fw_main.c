@@ -84,6 +84,9 @@ const char* fw_fault_name(int code) {
     case FW_FAULT_RANGE: return "range";
     case FW_FAULT_SETUP: return "setup";
     case FW_FAULT_OVERFLOW: return "overflow";
+    case FW_FAULT_CONTACT: return "contact";
+    case FW_FAULT_FOLLOWING_ERROR: return "following_error";
+    case FW_FAULT_STALL: return "stall";
     default: return "unknown";
   }
 }

@@ -53,12 +53,14 @@ class Interrupted(ServodynError):
 
 
 def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtime: bool = False,
-           on_tick=None, progress=None, tolerance: float | None = None, observer=None) -> int:
+           on_tick=None, progress=None, tolerance: float | None = None, observer=None, guard=None) -> int:
     """Play a segment on the bus, one tick per sample: read, tick, write (and log). In real time
     the loop sleeps to the next period; otherwise it runs as fast as the bus answers.
     on_tick(k) runs before tick k (fault injection); progress(t, fraction, largest error) about
     once a second of the segment's time; observer(t, q_d, state, tau) after every tick (a viewer's
-    feed: it must only keep the sample, never block).
+    feed: it must only keep the sample, never block). guard(t, q_d, state, tau) after the tick's
+    torque and before its write (servodyn.loop.safety.Guards): what it raises stops the segment
+    with that tick logged and its torque not sent.
 
     In real time tick k's deadline is the end of its period, start + (k + 1) period: a tick whose
     write ends later missed it (counted in log.missed, and returned). A late tick is followed at
@@ -67,10 +69,10 @@ def follow(bus, controller, segment: Segment, log: RunLog | None = None, realtim
     the caller stops the bus. The garbage collector waits for the end of the segment; in real
     time the loop runs under SCHED_FIFO where it may (hal.realtime)."""
     with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
-        return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer)
+        return _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer, guard)
 
 
-def _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer) -> int:
+def _follow(bus, controller, segment, log, realtime, on_tick, progress, tolerance, observer, guard) -> int:
     tolerance = OVERRUN_TOLERANCE if tolerance is None else tolerance
     controller.reset()
     traj = segment.traj
@@ -90,6 +92,13 @@ def _follow(bus, controller, segment, log, realtime, on_tick, progress, toleranc
         cpu, process_cpu = time.thread_time(), time.process_time()
         state = bus.read_state()
         tau = tick(controller, segment, k, state.q, state.qd)
+        if guard is not None:
+            try:
+                guard(traj.t[k], traj.q[k], state, tau)
+            except BaseException:
+                if log is not None:
+                    log.add(traj.t[k], traj.q[k], state, tau, time.perf_counter() - began, began, 0.0, 0.0)
+                raise
         bus.write(JointCommand.torque(tau))
         cpu, process_cpu = time.thread_time() - cpu, time.process_time() - process_cpu
         if log is not None:

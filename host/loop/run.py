@@ -38,9 +38,12 @@ from ..hal.errors import ServoError
 from ..hal.ports import PTY_REPLY_TIMEOUT, bus_ports, is_pseudo_terminal
 from ..hal.realtime import one_cpu
 from ..hal.robot import Robot
+from ..hal.safety import REACTIONS
 from ..validation import MotionRefused, judge
 from . import Interrupted, Overrun, RunLog, follow, summarize, write_summary
 from .native import check_native, native_swing
+from .reaction import plan_reaction
+from .safety import Guards, SafetyStop, stop_reason
 
 MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
 STALE = ("summary.json", "swing_tracking.png")     # a previous run's results, removed before this one
@@ -236,7 +239,10 @@ class Run:
                 server.stop()
             raise
         friction = config.friction if o.feedforward else {}      # compensated with the feed-forward
-        controller = Controller(config.model, ControlConfig(mode=o.mode, small_time_step=self.period, **friction),
+        # a dry run logs the planned torques, the feed-forward's: a PD on an arm that torque off leaves
+        # where it is would integrate an error it cannot close
+        mode = "feedforward" if o.dry_run and o.feedforward else o.mode
+        controller = Controller(config.model, ControlConfig(mode=mode, small_time_step=self.period, **friction),
                                 q_start=swing.q[0])
         log = RunLog(config.model.dof_names) if self.log is None else self.log
         log.stream(out / "swing_log.csv")
@@ -244,20 +250,25 @@ class Run:
         stopping = {"now": False}
         restore_signals = _signals_stop_the_run(stopping)
         realtime, tolerance, observer = self.realtime, o.overrun_tolerance, self.observer
+        guards, segment, reaction = None, None, None
         try:
             home, played = plan_run(config.model, swing, bus.read_state().q if start_pose is None else start_pose,
                                     home_duration, joint_sensors(config))
             if o.dry_run:
-                say(f"dry run: torque off; the homing's {home.traj.t[-1]:g} s read and logged with the torques "
-                    "the controller would send (none is sent)")
+                say(f"dry run: torque off; the homing's {home.traj.t[-1]:g} s read and logged with its planned "
+                    "torques (none is sent)")
                 follow(DryRun(bus), controller, home, log, realtime, observer=observer, tolerance=tolerance)
                 planned_ticks = len(home.traj.t)
                 raise _DryRunDone
+            guards = Guards(config, self.period, self.contact_observer())
             bus.enable_torque(True)     # arms the Bus Watchdog: from here the bus must not go quiet
             say(f"homing to the swing's start pose over {home.traj.t[-1]:g} s ...")
             home_ticks = len(home.traj.t)
-            # homing's deadlines are the run's too (the native loop's count has them)
-            log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=tolerance)
+            # homing's deadlines are the run's too (the native loop's count has them); its ticks are
+            # on the motion's clock before 0
+            segment = home
+            log.missed += follow(bus, controller, home, realtime=realtime, observer=observer, tolerance=tolerance,
+                                 guard=guards.at_offset(-home_ticks * self.period))
             say(f"{path.name}: {swing.t[-1]:.1f} s (time scale {self.scale:g}, validated against the "
                 f"servos' limits), {o.mode.replace('_', ' + ')}, inverse dynamics every "
                 f"{TIME_STEP * 1e3:g} ms, {1 / self.period:g} Hz target")
@@ -266,11 +277,16 @@ class Run:
             # write gets no reply); in real time, the plant clock now
             swing_start = (server.status()["time"] if realtime else len(home.traj.t) * self.period) \
                 if server is not None else 0.0
+            segment = played
             follow(bus, controller, played, log, realtime, on_tick=self._fault_injector(server, played),
-                   observer=observer, tolerance=tolerance,
+                   observer=observer, tolerance=tolerance, guard=guards.at_offset(0.0),
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
                                                   f"largest error {np.degrees(err):6.3f} deg"))
         except _DryRunDone:
+            stopping["now"] = True
+        except SafetyStop as stop:
+            error = stop
+            reaction = self._react(stop, guards, segment, bus, log)
             stopping["now"] = True
         except (ServoError, FloatingPointError, ControlFault, Interrupted) as err:
             stopping["now"] = True
@@ -291,7 +307,11 @@ class Run:
                 server.stop()
             log.close()
         summary = summarize(log, planned_ticks, self.period, realtime, error)
-        summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error))
+        summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error),
+                       stop_reason=stop_reason(error, summary["completed"]))
+        if isinstance(error, SafetyStop):
+            summary[error.stop_reason] = error.detail
+            summary["reaction"] = {"kind": reaction.kind, "gave_way": reaction.gave_way} if reaction else None
         summary.update(motion=path.name, mode=o.mode, time_scale=self.scale, validated=verdict.passed,
                        loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=self.cpu,
                        dry_run=o.dry_run, hold_s=o.hold)
@@ -307,6 +327,29 @@ class Run:
         finally:
             restore_signals()          # until the summary is written a signal is ignored, not fatal
         return summary
+
+    def contact_observer(self):
+        """The run's contact observer (servodyn.control.contact), or None when `[safety] contact` is
+        off or the bus measures no torque."""
+        return None
+
+    def _react(self, stop: SafetyStop, guards: Guards, segment, bus, log):
+        """The configured reaction to a guard's stop (servodyn.loop.reaction), said, then played;
+        a servo's fault during it ends it (the stop's torque off follows either way)."""
+        t_seg, q_now = guards.last
+        k = int(round((t_seg - segment.traj.t[0]) / self.period))
+        kind = self.config.guards.reaction
+        self.say(f"stopped: {stop} — {kind.replace('_', ' ')}: {REACTIONS[kind]}"
+                 + (f", for {self.config.guards.reaction_time:g} s, then torque off" if kind != "torque_off" else ""))
+        t_stop = stop.detail.get("t_s", stop.detail.get("detected_t_s"))
+        reaction = plan_reaction(self.config, stop, segment, k, q_now, t_stop + self.period, self.options.feedforward)
+        try:
+            reaction.play(follow, bus, log, self.realtime, self.config, observer=self.observer)
+        except (ServoError, FloatingPointError, ControlFault, Overrun, Interrupted) as err:
+            reaction.gave_way = f"{type(err).__name__}: {err}"
+        if reaction.gave_way:
+            self.say(f"the {kind.replace('_', ' ')} gave way ({reaction.gave_way}) — torque off on every servo")
+        return reaction
 
     def _homing_distances(self, q_now, q_start, ask: bool) -> None:
         """Say how far each joint will move to the start pose; ask `confirm` at a real arm."""
