@@ -15,6 +15,9 @@ BITRATES = (125_000, 250_000, 500_000, 1_000_000)
 MAX_ID = 0x7FE                  # 11-bit ids; 0x7FF carries Damiao's register frames
 FRAME_BITS = (111, 135)         # an 8-byte standard data frame, without and with the worst stuffing
 DEFAULT_INTERFACE = "slcan"     # python-can's interface when the configuration names none
+# the serial number (SLCAN `N`) of the simulated adapter says the clock its simulator serves on: a real
+# adapter has its own, so a swing on a pseudo-terminal learns its plant's clock this way (served_clock)
+SIMULATOR_SERIALS = {"lockstep": "SDLS", "realtime": "SDRT"}
 
 
 SOCKETCAN_NAME = re.compile(r"^v?can\d+$")     # a Linux network interface: can0, vcan0

@@ -16,6 +16,11 @@ from ..servos import RPM, ServoSpec
 
 EEPROM_END = 64                # addresses below are EEPROM, writable only with torque off
 TABLE_SIZE = 147               # up to Present Temperature(146)
+# A simulated servo answers a READ of one byte here with the clock its simulator serves on
+# (SIMULATOR_CLOCKS); no X-series control table reaches this address, so a real servo answers a
+# Data Range or Access error, or nothing: how a swing on a pseudo-terminal learns its plant's clock
+SIMULATOR_CLOCK_ADDRESS = 0xFFF0
+SIMULATOR_CLOCKS = {1: "lockstep", 2: "realtime"}
 TICKS_PER_REV = 4096           # position unit: 0.088°
 VELOCITY_UNIT = 0.229 * RPM    # rad/s per unit (0.229 rpm)
 PWM_FULL = 885                 # Goal/Present PWM unit is 0.113 %: 885 = 100 %

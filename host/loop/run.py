@@ -39,6 +39,7 @@ from ..hal.ports import PTY_REPLY_TIMEOUT, bus_ports, is_pseudo_terminal
 from ..hal.realtime import one_cpu
 from ..hal.robot import Robot
 from ..hal.safety import REACTIONS
+from ..hal.served_clock import served_clock
 from ..validation import MotionRefused, judge
 from . import Interrupted, Overrun, RunLog, follow, summarize, write_summary
 from .native import check_native, native_swing
@@ -168,6 +169,26 @@ class Run:
 
     # ------------------------------------------------------------------------------------ the buses
 
+    def _match_clock(self) -> None:
+        """A bus on a pseudo-terminal is a simulator in another process (`servodyn sim`): the loop
+        keeps its plant's clock (hal.served_clock), lock-step only when every such bus says it
+        serves lock-step; real time otherwise, which is right against either clock."""
+        ptys = {name: path for name, path in self.ports.items() if is_pseudo_terminal(path)}
+        if self.simulated or self.realtime or not ptys:
+            return
+        clocks = {name: served_clock(self.config, name, path) for name, path in ptys.items()}
+        if all(clock == "lockstep" for clock in clocks.values()):
+            return
+        name = next(n for n, clock in clocks.items() if clock != "lockstep")
+        said = "serves in real time" if clocks[name] == "realtime" else "does not say which clock it serves on"
+        if self.config.buses[name].kind == "can":
+            raise RunError(f"bus '{name}' on {ptys[name]} {said}, and a swing paced by the wall clock cannot keep its "
+                           f"{self.period * 1e3:g} ms period through an SLCAN pseudo-terminal: serve it with "
+                           f"`servodyn sim --config {self.config.argument} --lockstep`")
+        self.realtime = True
+        self.paced = (f"bus '{name}' on {ptys[name]}: the simulator there {said}: the loop keeps its "
+                      f"{self.period * 1e3:g} ms period on the wall clock (real time) to match it")
+
     def _buses(self):
         """(the simulated buses or None, each bus's backend options)."""
         if self.simulated and self.kind != "loopback":
@@ -202,6 +223,7 @@ class Run:
         # real time on the simulated Dynamixel bus: the loop, the simulator's process and the kernel's
         # tty work that carries their bytes share one CPU for the run (hal.realtime.one_cpu); the
         # CAN buses are simulated in this process, with no tty between them and the loop
+        self._match_clock()
         with ExitStack() as placed:
             on_pty = self.simulated and all(b.kind == "dynamixel" for b in self.config.buses.values())
             self.cpu = placed.enter_context(one_cpu(say=self.say)) if self.realtime and on_pty else None

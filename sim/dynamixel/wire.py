@@ -31,7 +31,7 @@ from servodyn.hal.dynamixel import (BROADCAST_ID, BadFrame, BadParameters, Error
                                     Fault, Instruction, InstructionPacket, PacketReader,
                                     ResetOption, StatusError, StatusPacket)
 from servodyn.hal.dynamixel import instructions as inst
-from servodyn.hal.dynamixel.control_table import FAST_READ_FIRMWARE
+from servodyn.hal.dynamixel.control_table import FAST_READ_FIRMWARE, SIMULATOR_CLOCK_ADDRESS, SIMULATOR_CLOCKS
 from servodyn.hal.dynamixel.instructions import fast_reply_frame
 from servodyn.hal.dynamixel.reader import BYTE_TIMEOUT
 from servodyn.hal.errors import ProtocolError
@@ -77,6 +77,8 @@ class DynamixelWire:
         self.reader = PacketReader(byte_timeout)
         self.faults: Counter[Fault] = Counter()
         self.unanswerable = 0          # instructions whose answer cannot be encoded
+        # the clock the bus is served on ("lockstep", "realtime"), answered at SIMULATOR_CLOCK_ADDRESS
+        self.served_clock: str | None = None
         self.line_speed: int | None = None   # bit/s of the host's bytes; None: every servo hears them
         self.unheard: Counter[int] = Counter()   # bytes no servo listened at, by their speed
         self._heard_speed: int | None = None  # the line speed of the last bytes fed to the reader
@@ -286,7 +288,13 @@ class DynamixelWire:
     def _read(self, packet, targets):
         if packet.id == BROADCAST_ID:                                 # READ is not executed by broadcast
             return []
-        return self._each(packet, targets, lambda s: s.read(*_parsed(inst.parse_read, packet.params)))
+
+        def read(servo):
+            address, length = _parsed(inst.parse_read, packet.params)
+            if address == SIMULATOR_CLOCK_ADDRESS and length == 1 and self.served_clock is not None:
+                return bytes([next(c for c, clock in SIMULATOR_CLOCKS.items() if clock == self.served_clock)])
+            return servo.read(address, length)
+        return self._each(packet, targets, read)
 
     def _write(self, packet, targets):
         return self._each(packet, targets, lambda s: s.write(*_parsed(inst.parse_write, packet.params)))

@@ -27,6 +27,8 @@ import threading
 import time
 import tty
 
+from servodyn.hal.can.spec import SIMULATOR_SERIALS
+
 BITRATE_CODES = {"0": 10_000, "1": 20_000, "2": 50_000, "3": 100_000, "4": 125_000, "5": 250_000,
                  "6": 500_000, "7": 800_000, "8": 1_000_000}
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
@@ -256,7 +258,7 @@ class SlcanServer(_Server):
         if head == "v" and not rest:
             return b"v1013\r"
         if head == "N" and not rest:
-            return b"NSDYN\r"
+            return f"N{SIMULATOR_SERIALS[self.mode]}\r".encode()
         if head == "F" and not rest:
             flags, self._overrun = DATA_OVERRUN if self._overrun else 0, False
             return b"F%02X\r" % flags

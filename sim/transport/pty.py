@@ -117,6 +117,8 @@ class PtyServer:
         else:
             arm.wall_clock()
         arm.wire_clock()
+        if hasattr(arm, "bus"):
+            arm.bus.served_clock = mode       # what a swing on this pseudo-terminal asks (served_clock)
 
     def __enter__(self) -> "PtyServer":
         self.start()

@@ -91,9 +91,11 @@ def _announce(args, config, robot, paths: dict, kinds: set) -> None:
     def swing(path_of):
         return f"servodyn swing --config {args.config} " + " ".join(
             f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
-    paced = "" if args.lockstep else " --realtime"     # a plant on the wall clock wants a loop paced by it
+    # the swing asks the bus which clock this is (hal.served_clock) and keeps it
+    clock = "lock-step" if args.lockstep else "real time"
     if kinds == {"dynamixel"}:
-        print(f"connect with: {swing(paths.get)}{paced}   (Ctrl-C stops)", flush=True)
+        print(f"connect with: {swing(paths.get)}   (the swing learns the plant's clock, {clock}, from the bus; "
+              "Ctrl-C stops)", flush=True)
     elif len(paths) == 1:
         path, bus = next(iter(paths.values())), next(iter(config.buses.values()))
         print(f"connect with: can.Bus(interface=\"slcan\", channel=\"{path}\", bitrate={bus.baud})"
@@ -119,4 +121,10 @@ def _announce_bench(args, config, robot, paths: dict) -> None:
               f"{', '.join(sorted(wired, key=dofs.index)) or 'nothing'}) on {paths[name]}", flush=True)
     if args.bench:
         print(f"the bench's store: {args.bench} (each device's memory and each horn's mounting)", flush=True)
-    print("(Ctrl-C stops)", flush=True)
+    swing = f"servodyn swing --config {args.config} " + " ".join(
+        f"--port {name}={path}" if len(paths) > 1 else f"--port {path}" for name, path in paths.items())
+    can = any(bus.kind == "can" for bus in config.buses.values())
+    print(f"once set up and calibrated: {swing}"
+          + ("   (this bench serves in real time: a CAN swing needs --lockstep here)" if can and not args.lockstep
+             else f"   (the swing learns the plant's clock, {'lock-step' if args.lockstep else 'real time'}, "
+                  "from the bus)") + "   (Ctrl-C stops)", flush=True)
