@@ -164,7 +164,11 @@ def test_a_motion_the_validator_refuses_never_moves(tmp_path):
     assert "\n" not in str(refused.value), "one line"
     assert not (tmp_path / "refused").exists(), "nothing ran, nothing was written"
     forced = run_swing(str(config), out=tmp_path / "forced", force=True, time_scale=1.0, say=quiet)
-    assert forced["ticks"] == 1801 and forced["validated"] is False, "played, and the summary says unvalidated"
+    assert forced["validated"] is False, "played, and the summary says unvalidated"
+    # at time scale 1 the forehand asks more than the servos give: it plays until a guard stops it (a
+    # joint cannot follow), then holds; before the guards it "completed" all 1,801 ticks
+    assert forced["stop_reason"] in ("following_error", "stall"), forced["error"]
+    assert 0 < forced[forced["stop_reason"]]["t_s"] < 1.8, "stopped during the motion, not before it"
 
 
 def test_any_motion_plays(tmp_path):
