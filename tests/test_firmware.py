@@ -280,14 +280,29 @@ def test_joint_out_of_range_stops_with_torque_off(images):
 
 
 @pytest.mark.slow
+def test_following_error_stops_with_torque_off(images):
+    """Shoulder abduction reading 0.5 rad off its command: past its 0.15 rad following-error limit
+    ([safety]'s default, compiled in by codegen) at the tick it is read, which is the last."""
+    def offset(k, arm):
+        if k == FAULT_TICK:
+            position, velocity = arm.plant.horn(arm.q, arm.qd)
+            arm.servos[1].set_present(position[1] - 0.5, velocity[1], 0.0)
+    report, record, arm = _fault_run(images, on_tick=offset)
+    _assert_safe_stop(report, record, arm, "following_error", 19)
+    assert report["servo"] == 2 and report["fault_tick"] == FAULT_TICK + 1, "servo 2, at the read after the offset"
+    # the error is the offset plus the tracking error of the moment (well under a degree), in float
+    assert abs(report["value_micro"] * 1e-6 - 0.5) < 0.02, report["value_micro"]
+
+
+@pytest.mark.slow
 def test_current_limit_is_limiting_not_a_fault(images):
-    """Shoulder abduction reading 0.5 rad off for ten ticks: the PD (34 N m/rad there) asks for
-    17 N m, more than the 10.6 N m of the current limit; the command is clamped and counted, the
-    run goes on."""
+    """Shoulder abduction reading 20 rad/s too fast for ten ticks: the PD's damping asks for more
+    than the 10.6 N m of the current limit; the command is clamped and counted, the run goes on.
+    (A position 0.5 rad off, as this test once used, is now a following error: a fault.)"""
     def offset(k, arm):
         if FAULT_TICK <= k < FAULT_TICK + 10:
             position, velocity = arm.plant.horn(arm.q, arm.qd)
-            arm.servos[1].set_present(position[1] - 0.5, velocity[1], 0.0)
+            arm.servos[1].set_present(position[1], velocity[1] + 20.0, 0.0)
     report, record, arm = _fault_run(images, on_tick=offset)
     assert report["result"] == "done" and report["exit_code"] == 0, report
     assert report["limited"] >= 1, "the clamp is counted as limiting"

@@ -29,6 +29,7 @@ from ..control.timing import BUS_WATCHDOG, HOME_DURATION, OVERRUN_TOLERANCE
 from ..errors import InputError
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
+from ..hal.safety import STALL_SPEED_RAD_S, STALL_TORQUE_SHARE
 from ..hal.dynamixel.control_table import (ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ADDR_OPERATING_MODE, ADDR_PRESENT,
                                            ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE, PRESENT_LENGTH, OperatingMode,
                                            watchdog_units)
@@ -122,7 +123,7 @@ def generate(config: RobotConfig, motion_name: str = DEFAULT_MOTION) -> dict[str
     joints = config.joints
     units = ServoMap.from_joints(joints)
     servo_rows = []
-    for j, amp_per_unit in zip(joints, units.current_unit):
+    for j, amp_per_unit, following in zip(joints, units.current_unit, config.guards.following_error):
         servo_rows.append(
             f"  {{.id = {j.id}, .model_number = {j.servo.model_number}, "
             f".direction = SD_R({_num(j.direction)}), .zero_offset = SD_R({_num(j.zero_offset)}), "
@@ -135,7 +136,8 @@ def generate(config: RobotConfig, motion_name: str = DEFAULT_MOTION) -> dict[str
             f".q_min = SD_R({_num(j.position_limits[0])}), .q_max = SD_R({_num(j.position_limits[1])}), "
             f".qd_max = SD_R({_num(j.velocity_limit)}),\n"
             f"   .friction_coulomb = SD_R({_num(j.friction_coulomb)}), "
-            f".friction_viscous = SD_R({_num(j.friction_viscous)})}},  // {j.dof}")
+            f".friction_viscous = SD_R({_num(j.friction_viscous)}), "
+            f".following_error = SD_R({_num(following)})}},  // {j.dof}")
     update_ticks = ControlConfig(small_time_step=period).update_ticks
 
     header = _HEADER.format(config=config.name) + f"""// Robot '{config.name}': model '{config.model_ref}', {nb} bodies, {nd} dofs, {len(joints)} servos on one
@@ -206,6 +208,9 @@ const fw_plan fw_plan_ = {{
   .goal_address = {ADDR_GOAL_CURRENT},
   .overrun_tolerance = SD_R({_num(OVERRUN_TOLERANCE)}),
   .friction_speed = SD_R({_num(FRICTION_SPEED)}),
+  .stall_ticks = {max(1, math.ceil(config.guards.stall_time / period - 1e-9))},
+  .stall_speed = SD_R({_num(STALL_SPEED_RAD_S)}),
+  .stall_share = SD_R({_num(STALL_TORQUE_SHARE)}),
 }};
 """
     return {"servodyn_gen.h": header, "servodyn_gen.c": source}

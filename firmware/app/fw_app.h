@@ -26,6 +26,7 @@ typedef struct fw_servo_ {
   sd_real qd_max;             // rad/s
   sd_real friction_coulomb;   // N m at the joint, compensated on the desired velocity (smoothed)
   sd_real friction_viscous;   // N m s/rad at the joint
+  sd_real following_error;    // rad: |q_d - q| above it is a fault ([safety] following_error_rad)
 } fw_servo;
 
 // A gain schedule: knots at times t (s from the start of its phase), linear in between.
@@ -48,6 +49,9 @@ typedef struct fw_plan_ {
   uint16_t goal_address;      // Goal Current
   sd_real overrun_tolerance;  // s the plan may fall behind the clock on a host OS (native loop)
   sd_real friction_speed;     // rad/s: the compensated Coulomb friction's smoothing
+  long stall_ticks;           // periods at the torque limit without moving that are a stall
+  sd_real stall_speed;        // rad/s: slower than this a joint "does not move"
+  sd_real stall_share;        // of the joint's torque limit: "at its limit"
 } fw_plan;
 
 extern const sd_model fw_model;

@@ -66,6 +66,8 @@ typedef struct fw_state_ {
   long scheduled;              // the clock period the current tick belongs to (-1: none yet)
   int fault, fault_servo;
   long fault_tick;
+  sd_real fault_value;         // a guard's: the following error (rad) or the stalled torque (N m)
+  long pressed[FW_NJOINT];     // ticks each joint has been at its torque limit without moving
   uint32_t period;             // clock counts per tick
   long nan_at, huge_at, stop_after;
   fw_stats stats;
@@ -299,6 +301,30 @@ static int check_range(void) {
   return FW_OK;
 }
 
+// the guards (host/loop/safety.py's, on the same table): a joint further from its command than its
+// following-error limit; a joint commanded at its torque limit that does not move, stall_ticks long
+static int check_guards(void) {
+  for (int i = 0; i < FW_NJOINT; i++) {
+    const fw_servo* s = &fw_servos[i];
+    sd_real error = g.q_d[i] - g.q[i];
+    if (error > s->following_error || error < -s->following_error) {
+      g.fault_servo = s->id;
+      g.fault_value = error < 0 ? -error : error;
+      return FW_FAULT_FOLLOWING_ERROR;
+    }
+    sd_real limit = fw_plan_.stall_share * s->current_limit * s->nm_per_amp;
+    int pressed = (g.tau[i] >= limit || g.tau[i] <= -limit) &&
+                  g.qd[i] < fw_plan_.stall_speed && g.qd[i] > -fw_plan_.stall_speed;
+    g.pressed[i] = pressed ? g.pressed[i] + 1 : 0;
+    if (g.pressed[i] >= fw_plan_.stall_ticks) {
+      g.fault_servo = s->id;
+      g.fault_value = g.tau[i] < 0 ? -g.tau[i] : g.tau[i];
+      return FW_FAULT_STALL;
+    }
+  }
+  return FW_OK;
+}
+
 // joint torque -> Goal Current units, clamped at each servo's current limit (limiting)
 static int output(void) {
   int limited = 0;
@@ -355,6 +381,7 @@ static void tick(int swing, long phase_tick) {
     return;
   }
   err = check_range();
+  if (err == FW_OK) err = check_guards();
   if (err) {
     fault(err, g.fault_servo);
     return;
@@ -429,6 +456,7 @@ static void report(void) {
   say_kv("code", g.fault);
   say_kv("servo", g.fault_servo);
   say_kv("fault_tick", g.fault ? g.fault_tick : -1);
+  say_kv("value_micro", (long)(g.fault_value * SD_R(1e6)));   // a guard's value: rad or N m
   say_kv("ticks", g.tick);
   say_kv("limited", g.nlimited);
   say_kv("missed", g.missed);

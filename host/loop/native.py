@@ -92,6 +92,9 @@ def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe
     return report, log
 
 
+GUARD_FAULTS = ("following_error", "stall")      # the firmware's guards, with a joint and a value
+
+
 def fault_message(report: dict) -> str | None:
     """The native loop's stop in one line, or None when it played its plan."""
     if report.get("fault", "none") == "none":
@@ -138,6 +141,16 @@ def native_swing(server, port: str, run, out: Path) -> dict:
                                                       "missed", "lost", "exit_code", "notes")},
                    cpu=run.cpu, home_ticks=report.get("home_ticks"),
                    exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
+    fault = report.get("fault", "none")
+    summary["stop_reason"] = "completed" if fault == "none" and summary["completed"] else (
+        fault if fault != "none" else "incomplete")
+    if fault in GUARD_FAULTS:
+        # the guard's joint, time on the motion's clock, value and limit, as the Python loop says them
+        joint = next(j for j in config.joints if j.id == report.get("servo"))
+        limit = (config.guards.following_error[config.model.dof_names.index(joint.dof)] if fault == "following_error"
+                 else joint.torque_limit)
+        summary[fault] = {"joint": joint.dof, "value": report.get("value_micro", 0) * 1e-6, "limit": limit,
+                          "t_s": (report["fault_tick"] - report["home_ticks"]) * config.control_period}
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's
