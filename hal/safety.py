@@ -11,10 +11,10 @@
 Every key has a default (SafetyConfig), so a file without the table is guarded as well. The
 defaults and their reasons:
 
-- following error 0.15 rad (8.6°) per joint: about 14 times the largest tracking error of the
-  built-in forehands on their simulated buses (0.61°, replica) and well under the 22° of a loop
-  whose clock does not match the arm's or the 30° of an uncalibrated zero. An error this size
-  means the arm is not doing the motion that was validated.
+- following error 0.15 rad (8.6°) per joint: many times the tracking error of the built-in
+  forehands on their simulated buses (under 1°) and well under what a fault looks like (an
+  uncalibrated zero or a joint wired backwards runs tens of degrees off). An error this size means
+  the arm is not doing the motion that was validated.
 - stall: the commanded torque at STALL_TORQUE_SHARE of the joint's torque limit while the joint
   moves slower than STALL_SPEED_RAD_S, for stall_time_s (0.1 s: a swing's turnaround at full
   torque passes zero speed in a few ms; a joint pressed on a stop stays there).
