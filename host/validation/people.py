@@ -60,7 +60,6 @@ REGIONS = (
 )
 NO_CONTACT = ("skull and forehead", "face")
 MOVING = 1e-9               # m/s: below it a point is at rest (no direction, no effective mass)
-EFFECTIVE_MASS_SHARE = 0.1  # the effective mass's range is over the samples at >= 10 % of the peak speed
 
 
 @dataclass(frozen=True)
@@ -94,14 +93,14 @@ def contact_points(model) -> list[Point]:
     return points
 
 
-def _unit_forces(model, point: Point, n: int) -> np.ndarray:
-    """(3, n, nbody, 6): a unit force along each axis of the point's body frame at the point, as
-    the core's external wrench (torque about the body origin, force), for n samples."""
-    f = np.zeros((3, n, model.nbody, 6))
+def _unit_forces(model, point: Point) -> np.ndarray:
+    """(3, nbody, 6): a unit force along each axis of the point's body frame at the point, as the
+    core's external wrench (torque about the body origin, force); the same for every sample."""
+    f = np.zeros((3, model.nbody, 6))
     for k in range(3):
         e = np.eye(3)[k]
-        f[k, :, point.body, :3] = np.cross(point.local, e)
-        f[k, :, point.body, 3:] = e
+        f[k, point.body, :3] = np.cross(point.local, e)
+        f[k, point.body, 3:] = e
     return f
 
 
@@ -111,7 +110,7 @@ def point_jacobian(weightless, point: Point, q: np.ndarray) -> np.ndarray:
     e_k at the point (virtual work)."""
     q = np.atleast_2d(q)
     zero = np.zeros((len(q), weightless.nv))
-    forces = _unit_forces(weightless, point, len(q))
+    forces = _unit_forces(weightless, point)
     return np.stack([-weightless.inverse_dynamics(q, zero, zero, f_ext=f) for f in forces], axis=1)
 
 
@@ -198,8 +197,7 @@ def near_people(model, traj: Trajectory, margin: float = 1.0, weightless=None) -
 
 def _point_figures(check: PointCheck, t: np.ndarray, allowed: float) -> dict:
     peak = int(np.argmax(check.speed))
-    fast = check.speed >= EFFECTIVE_MASS_SHARE * check.speed[peak]
-    masses = check.mass[fast & ~np.isnan(check.mass)]
+    masses = check.mass[~np.isnan(check.mass)]
     regions = {}
     for r, region in enumerate(REGIONS):
         k = int(np.argmax(check.ratios[:, r]))
