@@ -263,9 +263,9 @@ def near_people_report(report: dict, model, result: Result, path, period: float,
     report["near_people_time_scale_how"] = how
     report["passed"] = report["passed"] and checked["passed"]
     say(near_people_table(checked))
-    verdict = "PASS" if checked["passed"] else "FAIL"
+    verdict = "PASS near people" if checked["passed"] else f"FAIL: {near_people_failure(checked)}"
     fastest = (f"time scale {scale:.4f} ({path.duration * scale:.3f} s)" if scale else "none") + f" — {how}"
-    say(f"{verdict} near people (ISO/TS 15066 transient contact): the fastest time scale that passes is {fastest}")
+    say(f"{verdict}\nnear people: the fastest passing {fastest}")
 
 
 def near_people_failure(checked: dict | None) -> str | None:
@@ -274,28 +274,28 @@ def near_people_failure(checked: dict | None) -> str | None:
     if not failing:
         return None
     name, link = failing[0]
-    return (f"near people, {name} ({link['point']}) reaches {fixed(link['worst_ratio'])} x the speed ISO/TS 15066 "
-            f"permits against the {link['limiting_region']} ({fixed(link['permitted_speed_m_s'])} m/s for its "
-            f"effective mass there); {len(failing) - 1} more link(s) too fast in report.json")
+    more = f"; {len(failing) - 1} more link(s) too fast, in report.json" if len(failing) > 1 else ""
+    return (f"near people, {name}'s {link['point']} reaches {fixed(link['worst_ratio'])} x the speed ISO/TS 15066 "
+            f"permits against a {link['limiting_region']} ({fixed(link['permitted_speed_m_s'])} m/s at its effective "
+            f"mass there){more}")
 
 
 def near_people_table(checked: dict) -> str:
-    """Per link: the point checked, its peak speed, effective mass at that peak, the limiting
-    region with its permitted speed at the worst sample, and the verdict per region."""
+    """Per link and point: its peak speed, its effective mass at that peak, and per body region the
+    worst ratio of its speed to the speed permitted there; the verdict names the limiting region."""
     regions = list(checked["regions"])
-    lines = ["near people, ISO/TS 15066 transient contact (speed / permitted speed, worst sample, per body region):",
-             f"  {'link':<24}{'point':>6}{'peak m/s':>10}{'m_eff kg':>10}" + "".join(f"{r:>11}" for r in regions)
+    lines = ["near people (ISO/TS 15066 transient contact): speed / permitted speed, worst sample, per region",
+             f"  {'link':<22}{'point':>7}{'peak m/s':>9}{'m_eff kg':>9}" + "".join(f"{r:>10}" for r in regions)
              + "   verdict"]
     for name, link in checked["links"].items():
         for key, point in link["points"].items():
-            cells = "".join(f"{fixed(point['regions'][r]['worst_ratio']):>11}" for r in regions)
+            cells = "".join(f"{fixed(point['regions'][r]['worst_ratio']):>10}" for r in regions)
             mass = "rest" if point["effective_mass_kg"] is None else fixed(point["effective_mass_kg"])
-            verdict = "PASS" if point["passed"] else (f"FAIL ({point['limiting_region']}: permitted "
-                                                      f"{fixed(point['permitted_speed_m_s'])} m/s)")
-            lines.append(f"  {name:<24}{key:>6}{fixed(point['peak_speed_m_s']):>10}{mass:>10}{cells}   {verdict}")
-    lines.append(f"  (com: the link's centre of mass, tip: the farthest point of the hand's solids; m_eff along the "
-                 f"velocity at the peak, armature included; up to {checked['allowed_ratio']:g} passes; "
-                 f"{' and '.join(people.NO_CONTACT)}: no contact permitted at any speed, not checked here)")
+            verdict = "PASS" if point["passed"] else f"FAIL ({point['limiting_region']})"
+            lines.append(f"  {name:<22}{key:>7}{fixed(point['peak_speed_m_s']):>9}{mass:>9}{cells}   {verdict}")
+    lines.append("  (com: the link's centre of mass; tip: the hand's solids' farthest point; m_eff: along the velocity")
+    lines.append(f"  at the peak, armature included; up to {checked['allowed_ratio']:g} passes; "
+                 f"{' and '.join(people.NO_CONTACT)}: no contact at any speed)")
     return "\n".join(lines)
 
 
