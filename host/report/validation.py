@@ -295,7 +295,7 @@ def near_people_table(checked: dict) -> str:
             lines.append(f"  {name:<22}{key:>7}{fixed(point['peak_speed_m_s']):>9}{mass:>9}{cells}   {verdict}")
     lines.append("  (com: the link's centre of mass; tip: the hand's solids' farthest point; m_eff: along the velocity")
     lines.append(f"  at the peak, armature included; up to {checked['allowed_ratio']:g} passes; "
-                 f"{' and '.join(people.NO_CONTACT)}: no contact at any speed)")
+                 f"{', '.join(people.NO_CONTACT)}: no contact at any speed)")
     return "\n".join(lines)
 
 

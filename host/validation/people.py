@@ -189,7 +189,7 @@ def near_people(model, traj: Trajectory, margin: float = 1.0, weightless=None) -
             "regions": {r.name: {"transient_force_n": r.force_n, "stiffness_n_per_mm": r.stiffness_n_m / 1e3,
                                  "effective_mass_kg": r.mass_kg} for r in REGIONS},
             "no_contact": {"regions": list(NO_CONTACT),
-                           "why": "ISO/TS 15066 Table A.2: transient contact not permissible at any speed"},
+                           "why": "transient contact not permissible at any speed (ISO/TS 15066 Table A.2)"},
             "effective_mass": "1 / (uᵀ J_v M⁻¹ J_vᵀ u), u the point's velocity direction; M includes the "
                               "armature (the servos' reflected rotor inertia)",
             "source": "ISO/TS 15066:2016 Annex A, Tables A.2 (transient = 2 x quasi-static force) and A.3"}

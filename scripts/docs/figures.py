@@ -604,6 +604,38 @@ def near_people_table() -> None:
               f"| {fastest:.4f} ({fastest * human:.3f} s) |")
 
 
+def near_people_regions() -> None:
+    """The body regions `--near-people` checks, as its report.json gives them."""
+    near = validate("replica", "tennis_forehand", "--time-scale", "4", "--near-people")["near_people"]
+    print("| body region | transient force F_T (A.2) | spring constant k (A.3) | effective mass m_H (A.3) |")
+    print("|---|---|---|---|")
+    for name, r in near["regions"].items():
+        print(f"| {name} | {r['transient_force_n']:g} N | {r['stiffness_n_per_mm']:g} N/mm | {r['effective_mass_kg']:g} kg |")
+    regions = near["no_contact"]["regions"]
+    print(f"| {', '.join(regions)} | not permissible | | |")
+    print("\n" + textwrap.fill(f"{', '.join(regions).capitalize()}: {near['no_contact']['why']}. No speed makes a "
+                               "contact there acceptable: keeping the arm away from the head is the cell's layout "
+                               "or a separation monitor, not this check.", 100))
+
+
+def near_people_figures() -> dict:
+    """The hand's effective masses and speeds on the replica and replica_can at their time scales,
+    and the hand's permitted speed at each one's largest effective mass (validation.people)."""
+    from servodyn.validation.people import REGIONS, permitted_speed
+    hand_region = next(r for r in REGIONS if r.name == "hand")
+
+    def hand(config, *args):
+        points = list(validate(config, "tennis_forehand", *args, "--near-people")["near_people"]["links"].values())
+        return points[-1]["points"]["com"]
+    replica, can = hand("replica", "--time-scale", "4"), hand("replica_can", "--time-scale", "2.5")
+    low, high = replica["effective_mass_range_kg"]
+    return {"arm_kg": config("replica").model.total_mass, "low": low, "high": high,
+            "high_can": can["effective_mass_range_kg"][1],
+            "cap": float(permitted_speed(high, hand_region)),
+            "cap_can": float(permitted_speed(can["effective_mass_range_kg"][1], hand_region)),
+            "peak_can": can["peak_speed_m_s"], "at_peak_can": can["effective_mass_kg"]}
+
+
 SHORTEST_FRAME_BITS = 111               # an 8-byte standard CAN frame with no stuff bit (CAN 2.0A)
 
 
