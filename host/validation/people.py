@@ -154,6 +154,7 @@ def weightless_model(model):
 
 
 def check_points(weightless, points: list[Point], traj: Trajectory) -> list[PointCheck]:
+    """Each point's speed, effective mass and ratio to each region's permitted speed, per sample."""
     out = []
     for point in points:
         speed, mass, _ = point_motion(weightless, point, traj.q, traj.qd)
@@ -171,7 +172,8 @@ def allowed_ratio(margin: float) -> float:
 
 def near_people(model, traj: Trajectory, margin: float = 1.0, weightless=None) -> dict:
     """Each link's peak speed, effective mass and ISO/TS 15066 transient-contact verdict per
-    region over a sampled motion (report.json's `near_people`)."""
+    region over a sampled motion (report.json's `near_people`). `traj`: anything with the samples'
+    t, q and qd (a Trajectory, or the checks' Result of the same samples)."""
     weightless = weightless or weightless_model(model)
     allowed = allowed_ratio(margin)
     links = {}
