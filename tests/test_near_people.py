@@ -162,5 +162,5 @@ def test_cli_exit_status_and_the_printed_table(tmp_path):
     assert not report["violations"], "every servo check passes at 2.4: the failure is near people alone"
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert not report["passed"] and not report["near_people"]["passed"]
-    assert "FAIL near people" in bad.stdout
+    assert "FAIL: near people, " in bad.stdout, "the first link too fast, in one line"
     assert report["near_people_time_scale"] == pytest.approx(2.4555, abs=2e-3)
