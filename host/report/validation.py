@@ -26,6 +26,7 @@ from ..sim.serve import serve
 from ..model import ModelError
 from ..readable import fixed
 from ..validation import AMBIENT, CHECKS, Judgement, Limits, Result, fit_time_scale, judge, retime
+from ..validation import people
 from .plots import envelope_figure, limits_in_time_figure
 from .swing import report_run
 
@@ -133,10 +134,11 @@ def make_report(config, judged: Judgement, *, margin: float, repeat: int, ambien
 def validate(config, motion: str, *, time_scale: float | None = None, payload: float = 0.0, payload_body=None,
              payload_com=None, supply_voltage: float | None = None, margin: float = 1.0, repeat: int = 1,
              ambient: float = AMBIENT, fit: bool = False, retime_motion: bool = False, simulate_motion: bool = False,
-             out: Path | None = None, say=print) -> dict:
+             near_people: bool = False, out: Path | None = None, say=print) -> dict:
     """Validate `motion` on the configuration's servos; the report (and its files in `out`). The
     time scale is the configuration's for the motion (RobotConfig.time_scale_for: what a swing plays
-    it at) unless given."""
+    it at) unless given. `near_people`: also ISO/TS 15066's transient-contact speeds near people
+    (validation.people), which the verdict then includes, and the fastest time scale they pass."""
     told = time_scale is not None
     if not told:
         time_scale = config.time_scale_for(motion)
@@ -176,6 +178,8 @@ def validate(config, motion: str, *, time_scale: float | None = None, payload: f
             say(f"  ({more} more: every check and joint over its limit is in report.json)")
     else:
         say("\nPASS: every joint within every limit")
+    if near_people:
+        near_people_report(report, model, result, path, limits.period, margin, say)
     if fit:
         scale, how = fit_time_scale(model, limits, path, margin, repeat, ambient)
         report["fit_time_scale"] = scale
@@ -245,6 +249,53 @@ def summary_table(report: dict) -> str:
         cells = "".join(f"{fixed(row['checks'][c]):>8}" for c in CHECKS)
         lines.append(f"  {dof:<24}{cells}   {'PASS' if row['passed'] else 'FAIL (' + row['worst_check'] + ')'}")
     lines.append(f"  (peak ratio to each limit: up to {report['margin']:g} passes, up to 1 for position)")
+    return "\n".join(lines)
+
+
+def near_people_report(report: dict, model, result: Result, path, period: float, margin: float, say=print) -> None:
+    """`near_people` and `near_people_time_scale` into the report (its verdict into `passed`), and
+    their table said."""
+    weightless = people.weightless_model(model)
+    checked = people.near_people(model, result, margin, weightless)
+    scale, how = people.fit_near_people(model, path, period, margin, weightless)
+    report["near_people"] = checked
+    report["near_people_time_scale"] = scale
+    report["near_people_time_scale_how"] = how
+    report["passed"] = report["passed"] and checked["passed"]
+    say(near_people_table(checked))
+    verdict = "PASS near people" if checked["passed"] else f"FAIL: {near_people_failure(checked)}"
+    fastest = (f"time scale {scale:.4f} ({path.duration * scale:.3f} s)" if scale else "none") + f" — {how}"
+    say(f"{verdict}\nnear people: the fastest passing {fastest}")
+
+
+def near_people_failure(checked: dict | None) -> str | None:
+    """One line for the first link too fast near people (None when every link passes)."""
+    failing = [(name, link) for name, link in (checked or {}).get("links", {}).items() if not link["passed"]]
+    if not failing:
+        return None
+    name, link = failing[0]
+    more = f"; {len(failing) - 1} more link(s) too fast, in report.json" if len(failing) > 1 else ""
+    return (f"near people, {name}'s {link['point']} reaches {fixed(link['worst_ratio'])} x the speed ISO/TS 15066 "
+            f"permits against a {link['limiting_region']} ({fixed(link['permitted_speed_m_s'])} m/s at its effective "
+            f"mass there){more}")
+
+
+def near_people_table(checked: dict) -> str:
+    """Per link and point: its peak speed, its effective mass at that peak, and per body region the
+    worst ratio of its speed to the speed permitted there; the verdict names the limiting region."""
+    regions = list(checked["regions"])
+    lines = ["near people (ISO/TS 15066 transient contact): speed / permitted speed, worst sample, per region",
+             f"  {'link':<22}{'point':>7}{'peak m/s':>9}{'m_eff kg':>9}" + "".join(f"{r:>10}" for r in regions)
+             + "   verdict"]
+    for name, link in checked["links"].items():
+        for key, point in link["points"].items():
+            cells = "".join(f"{fixed(point['regions'][r]['worst_ratio']):>10}" for r in regions)
+            mass = "rest" if point["effective_mass_kg"] is None else fixed(point["effective_mass_kg"])
+            verdict = "PASS" if point["passed"] else f"FAIL ({point['limiting_region']})"
+            lines.append(f"  {name:<22}{key:>7}{fixed(point['peak_speed_m_s']):>9}{mass:>9}{cells}   {verdict}")
+    lines.append("  (com: the link's centre of mass; tip: the hand's solids' farthest point; m_eff: along the velocity")
+    lines.append(f"  at the peak, armature included; up to {checked['allowed_ratio']:g} passes; "
+                 f"{', '.join(people.NO_CONTACT)}: no contact at any speed)")
     return "\n".join(lines)
 
 
@@ -321,8 +372,10 @@ def _validate_one(index: int) -> dict:
     return {"motion": motions[index], "name": report["motion"], "passed": report["passed"],
             "code": 0 if report["passed"] else 1, "duration_s": report["duration_s"],
             "worst": {"dof": worst[0], "check": worst[1]["worst_check"], "ratio": worst[1]["worst_ratio"]},
-            "first_violation": report["violations"][0]["message"] if report["violations"] else None,
+            "first_violation": report["violations"][0]["message"] if report["violations"] else
+            near_people_failure(report.get("near_people")),
             "fit_time_scale": report.get("fit_time_scale"),
+            **({"near_people_time_scale": report["near_people_time_scale"]} if "near_people" in report else {}),
             "report": str(target / "report.json") if target is not None else None}
 
 

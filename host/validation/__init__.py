@@ -27,7 +27,8 @@ scale, heat with each joint's thermal constants (the servo's data sheet's unless
 `Limits.of(config, V)` gathers every limit of a configuration at a supply voltage; `check` runs
 every check over a trajectory sampled at the control period (`control.MotionPath.at_scale`);
 `violations` and `describe` say where and why it fails (`judge` does all three for a motion); `fit_time_scale` finds the slowest
-uniform timing needed, `retime` a TOPP-RA timing (toppra) that passes. `servodyn validate`
+uniform timing needed, `retime` a TOPP-RA timing (toppra) that passes. `people` checks each link's
+speed against ISO/TS 15066's transient-contact limits near people (`validate --near-people`). `servodyn validate`
 (host/report/validation.py) is its report, `servodyn validate` the command; the swing and the view ask the same checks.
 """
 

@@ -567,6 +567,75 @@ def configurations_table() -> None:
               "the commands run.")
 
 
+def near_people_output() -> None:
+    """`servodyn validate replica tennis_forehand --time-scale 2 --near-people`: its near-people
+    table and verdicts (the servo checks' table above them left out)."""
+    lines = validate_output("replica", "tennis_forehand", "--time-scale", "2", "--near-people").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("near people ("))
+    code("\n".join(wrap(line) if len(line) > 100 and not line.startswith("  ") else line
+                   for line in lines[start:] if line.strip() and not line.startswith(("drawing ", "wrote "))))
+
+
+def near_people_table() -> None:
+    """`servodyn validate CONFIG tennis_forehand --time-scale S --near-people` on each built-in
+    configuration at its swing's time scale S: the hand's peak speeds and effective masses, the
+    verdict and the fastest passing time scale."""
+    print("| configuration | S | hand at S: peak speed, centre of mass / tip | hand's effective mass over the "
+          "motion (at the peak) | verdict at S | fastest passing time scale (duration) |")
+    print("|---|---|---|---|---|---|")
+    for name in CONFIGS:
+        scale = config(name).swing_time_scale or 1.0
+        try:
+            report = validate(name, "tennis_forehand", "--time-scale", f"{scale:g}", "--near-people")
+        except CommandFailed as failed:
+            print(f"| `{name}` | {scale:g} | *pending: `{failed.command}` fails today ({failed.why})* | | | |")
+            continue
+        near = report["near_people"]
+        links = near["links"]
+        hand = list(links.values())[-1]["points"]
+        low, high = hand["com"]["effective_mass_range_kg"]
+        fastest = report["near_people_time_scale"]
+        human = report["duration_s"] / report["time_scale"]
+        verdict = "PASS" if near["passed"] else "FAIL: " + ", ".join(
+            f"{link} against a {row['limiting_region']} ({row['worst_ratio']:.2f}x)"
+            for link, row in links.items() if not row["passed"])
+        print(f"| `{name}` | {scale:g} | {hand['com']['peak_speed_m_s']:.2f} / {hand['tip']['peak_speed_m_s']:.2f} m/s "
+              f"| {low:.2f}–{high:.2f} kg ({hand['com']['effective_mass_kg']:.2f}) | {verdict} "
+              f"| {fastest:.4f} ({fastest * human:.3f} s) |")
+
+
+def near_people_regions() -> None:
+    """The body regions `--near-people` checks, as its report.json gives them."""
+    near = validate("replica", "tennis_forehand", "--time-scale", "4", "--near-people")["near_people"]
+    print("| body region | transient force F_T (A.2) | spring constant k (A.3) | effective mass m_H (A.3) |")
+    print("|---|---|---|---|")
+    for name, r in near["regions"].items():
+        print(f"| {name} | {r['transient_force_n']:g} N | {r['stiffness_n_per_mm']:g} N/mm | {r['effective_mass_kg']:g} kg |")
+    regions = near["no_contact"]["regions"]
+    print(f"| {', '.join(regions)} | not permissible | | |")
+    print("\n" + textwrap.fill(f"{', '.join(regions).capitalize()}: {near['no_contact']['why']}. No speed makes a "
+                               "contact there acceptable: keeping the arm away from the head is the cell's layout "
+                               "or a separation monitor, not this check.", 100))
+
+
+def near_people_figures() -> dict:
+    """The hand's effective masses and speeds on the replica and replica_can at their time scales,
+    and the hand's permitted speed at each one's largest effective mass (validation.people)."""
+    from servodyn.validation.people import REGIONS, permitted_speed
+    hand_region = next(r for r in REGIONS if r.name == "hand")
+
+    def hand(config, *args):
+        points = list(validate(config, "tennis_forehand", *args, "--near-people")["near_people"]["links"].values())
+        return points[-1]["points"]["com"]
+    replica, can = hand("replica", "--time-scale", "4"), hand("replica_can", "--time-scale", "2.5")
+    low, high = replica["effective_mass_range_kg"]
+    return {"arm_kg": config("replica").model.total_mass, "low": low, "high": high,
+            "high_can": can["effective_mass_range_kg"][1],
+            "cap": float(permitted_speed(high, hand_region)),
+            "cap_can": float(permitted_speed(can["effective_mass_range_kg"][1], hand_region)),
+            "peak_can": can["peak_speed_m_s"], "at_peak_can": can["effective_mass_kg"]}
+
+
 SHORTEST_FRAME_BITS = 111               # an 8-byte standard CAN frame with no stuff bit (CAN 2.0A)
 
 

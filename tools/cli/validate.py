@@ -19,7 +19,8 @@ def add_arguments(p) -> None:
              "envelope at the supply voltage, its current limit and winding temperature, the supply's rating, the "
              "bus's time per tick and the range the wire can command.",
              "servodyn validate replica tennis_forehand --time-scale 4 --fit",
-             "servodyn validate --config replica_can 'logs/*.csv' --jobs 2", exits="0 pass, 1 fail")
+             "servodyn validate --config replica_can 'logs/*.csv' --jobs 2",
+             "servodyn validate replica tennis_forehand --near-people", exits="0 pass, 1 fail")
     p.add_argument("subjects", nargs="+", metavar="[CONFIG] MOTION",
                    help="robot configuration (built-in name or .toml file; or give it as --config), then the "
                         "motions: built-in motion, keyframe file (.toml) or trajectory CSV (.csv); several, a folder "
@@ -45,6 +46,11 @@ def add_arguments(p) -> None:
     p.add_argument("--ambient", type=float, default=AMBIENT, metavar="C",
                    help=f"ambient temperature (default {AMBIENT:g} °C)")
     p.add_argument("--fit", action="store_true", help="also find the smallest time scale at which every check passes")
+    p.add_argument("--near-people", action="store_true",
+                   help="also check each link's peak speed against ISO/TS 15066's transient-contact limits per body "
+                        "region (hand, lower arm, upper arm, chest; Tables A.2/A.3, with the link's effective mass "
+                        "along its velocity, armature included; head and face: no contact at any speed), fail when "
+                        "one is exceeded and name the fastest time scale that passes")
     p.add_argument("--retime", action="store_true",
                    help="also re-time the path with TOPP-RA to the limits, check it densely and write it as "
                         "OUT/retimed.csv (servodyn swing --motion plays it)")
@@ -61,7 +67,7 @@ def run(args) -> int:
     options = dict(time_scale=args.time_scale, payload=args.payload, payload_body=args.payload_body,
                    payload_com=args.payload_com, supply_voltage=args.supply_voltage, margin=args.margin,
                    repeat=args.repeat, ambient=args.ambient, fit=args.fit, retime_motion=args.retime,
-                   simulate_motion=args.simulate)
+                   simulate_motion=args.simulate, near_people=args.near_people)
     config = load_config(config_ref)
     expanded = expand_motions(motions)
     if len(motions) == 1 and expanded == motions:       # one motion: its report, as always
