@@ -34,6 +34,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import InputError, ServodynError, exit_code
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
+from ..hal.contact_spec import check_contacts
 from ..hal.errors import ServoError
 from ..hal.ports import PTY_REPLY_TIMEOUT, bus_ports, is_pseudo_terminal
 from ..hal.realtime import one_cpu
@@ -69,7 +70,9 @@ class RunOptions:
     it instead of the Python loop. home_duration: s of the homing move. overrun_tolerance: s the
     real-time loop may fall behind before it stops (None: OVERRUN_TOLERANCE). hold: s to hold the
     pose the arm is in under the controller instead of the motion. dry_run: read the arm with
-    torque off and log the planned homing with the torques the controller would send, sending none."""
+    torque off and log the planned homing with the torques the controller would send, sending none.
+    contacts, obstacles: hal.contact_spec's Push (its start from the motion's start) and Plane or
+    Sphere, applied by the simulated plant (a simulated bus started by the run only)."""
     motion: str = DEFAULT_MOTION
     time_scale: float | None = None
     feedforward: bool = True
@@ -82,6 +85,8 @@ class RunOptions:
     overrun_tolerance: float | None = None
     hold: float | None = None
     dry_run: bool = False
+    contacts: tuple = ()
+    obstacles: tuple = ()
 
     @property
     def mode(self) -> str:
@@ -136,6 +141,8 @@ class Run:
         self.kind = next(iter(self.config.buses.values())).kind
         self.simulated = not self.ports or self.kind == "loopback"
         self._check_verdict()
+        check_contacts(self.config.model, o.contacts, o.obstacles, self.simulated and self.kind != "loopback",
+                       native=o.native)
         self.period = self.config.control_period
         self.swing = self.path.at_scale(self.scale, self.period)
         if o.native:
@@ -172,7 +179,8 @@ class Run:
                 raise RunError(f"'{self.config.name}' has no port: its buses are simulated, and this run was "
                                "given no simulator")
             clock = "real time" if self.realtime else "lock-step"
-            server = self.serve(self.config, "realtime" if self.realtime else "lockstep")
+            server = self.serve(self.config, "realtime" if self.realtime else "lockstep",
+                                obstacles=self.options.obstacles)
             for line in server.describe(self.config, clock):
                 self.say(line)
             return server, server.buses
@@ -266,6 +274,8 @@ class Run:
             # write gets no reply); in real time, the plant clock now
             swing_start = (server.status()["time"] if realtime else len(home.traj.t) * self.period) \
                 if server is not None else 0.0
+            for push in o.contacts:      # a push's start counts from the swing's
+                server.schedule_push(push, swing_start)
             follow(bus, controller, played, log, realtime, on_tick=self._fault_injector(server, played),
                    observer=observer, tolerance=tolerance,
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
@@ -301,6 +311,9 @@ class Run:
             # what the simulated servos saw: plant time at the stop and every torque switched off
             summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
             summary["torque_off"] = sim["torque_off"]
+            if sim.get("contact"):       # what the simulator applied, its times on the swing's clock
+                summary["sim_contact"] = {**sim["contact"], "onset_t_s": None if sim["contact"]["onset_time"] is None
+                                          else sim["contact"]["onset_time"] - swing_start}
         self.log = log
         try:
             write_summary(out, summary)

@@ -1,0 +1,323 @@
+"""Contact on the simulated arm: pushes on its bodies and obstacles its solids hit, as the external
+wrenches the plant hands the C core every small step (sim/plant.py's `wrenches`), with the ground
+truth kept for scoring a detector (`Contacts.status`, `Contacts.log`).
+
+    contacts = Contacts(model, obstacles=[Plane((0, 0, 1), -0.45)])
+    contacts.schedule(Push("r_hand", (0, 0, -10), start=1.2), origin=plant_time_at_swing_start)
+    f_ext = contacts(t, q, qd)         # (nbody, 6) or None: nothing touches the arm at t
+
+The data (Push, Plane, Sphere) are hal/contact_spec.py's. A wrench is what model.step takes: per
+body, (torque about the body's origin, force), both in the body's user frame.
+
+* A push is its force, world frame, at the body's centre of mass (model.bodies[i].com), from its
+  start for its duration; it does not follow the body's motion.
+* An obstacle is a frictionless spring–damper along its normal, F = K·δ + C·δ̇ (never pulling:
+  clamped at 0), δ the depth of a body's deepest sample point inside it, δ̇ its rate; one contact per
+  body and obstacle, so a body sunk flat into a plane feels K, not K times its points. The damping
+  C = K·DAMPING_TIME: a damping ratio of 0.1 on 1 kg at 40 N/mm, restitution about 0.7.
+* The sample points are on the surface of each body's solids (host/model/shapes.py, the replica's
+  servo housings, tubes and brackets): a box's corners, edge middles and face centres; rings of
+  RING_POINTS points at most SPACING apart along a cylinder or frustum, with its end centres; a
+  sphere's or ellipsoid's poles and equator. A body without solids is sampled at its origin and its
+  centre of mass.
+
+The points are checked every step only near an obstacle: after a check that finds every point at
+least d from every obstacle, none can touch one before the arm has moved d, bounded each step by
+Σ|q̇_k|·reach_k (reach_k: the farthest any point beyond dof k can be from its axis, from the link
+lengths), so the next check waits for that (`Reach`); the kinematics are the model's user frames in
+plain floats (`Kinematics`: a small chain costs more in numpy calls than in arithmetic).
+
+The wrench is held over a step (as the drives' currents are). A held spring–damper is stable
+while its damping outlasts half a step and C·dt stays under twice the effective mass at the point;
+`substeps(dt)` cuts the plant's step so that holds down to LIGHTEST kg (the replica's hand without
+its servos' armature is about 0.09 kg, contact/plan.md §3): one piece up to K ≈ 100 N/mm at 1 ms.
+
+Ground truth, per evaluation in contact (`log`: time, body, source, force xyz (N, world), point xyz
+(m, world), depth (m)), and its summary (`status`): the onset (first time a force over
+ONSET_FORCE or a depth over 0), its body, the peak force and when, the force now.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from servodyn.errors import InputError
+from servodyn.hal.contact_spec import Plane, Push, Sphere, check_contacts
+from servodyn.model.shapes import box_sides
+
+DAMPING_TIME = 1e-3     # s: an obstacle's damping C = K·DAMPING_TIME (N s/m)
+LIGHTEST = 0.05         # kg: the lightest effective mass a contact point is integrated stably for
+ONSET_FORCE = 0.5       # N: a contact starts when its force exceeds this, or a point is inside
+SPACING = 0.03          # m between rings of sample points along a tube
+RING_POINTS = 6         # sample points round a ring
+MAX_LOG = 200_000       # rows of ground truth kept (200 s of contact at 1 kHz)
+MARGIN = 2e-3           # m: a check comes before the arm can have moved within this of an obstacle
+LOG_COLUMNS = ("t", "body", "source", "fx", "fy", "fz", "px", "py", "pz", "depth")
+
+
+def _ring(radius: float, z: float) -> np.ndarray:
+    angles = np.arange(RING_POINTS) * (2 * math.pi / RING_POINTS)
+    return np.column_stack([radius * np.cos(angles), radius * np.sin(angles), np.full(RING_POINTS, z)])
+
+
+def solid_points(solid) -> np.ndarray:
+    """Sample points on a solid's surface, in its body's user frame (module docstring)."""
+    kind, dims = solid.kind, solid.dims
+    if kind == "ellipsoid" and solid.draw == "box":
+        half = box_sides(solid) / 2
+        grid = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if x or y or z])
+        local = grid * half
+    elif kind in ("cylinder", "frustum"):
+        r0, r1, length = (dims[0], dims[0], dims[1]) if kind == "cylinder" else dims
+        rings = max(2, math.ceil(length / SPACING) + 1)
+        local = np.vstack([_ring(r0 + (r1 - r0) * s, length * s) for s in np.linspace(0.0, 1.0, rings)]
+                          + [[[0.0, 0.0, 0.0], [0.0, 0.0, length]]])
+    elif kind in ("sphere", "ellipsoid"):
+        axes = np.array([dims[0]] * 3 if kind == "sphere" else dims, dtype=float)
+        local = np.vstack([_ring(1.0, 0.0), [[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]]) * axes
+    else:
+        raise ValueError(f"unknown solid '{kind}'")
+    return np.asarray(solid.pos, dtype=float) + local @ np.asarray(solid.rot, dtype=float).T
+
+
+def body_points(body) -> np.ndarray:
+    """A body's sample points in its user frame."""
+    if not body.solids:
+        return np.array([np.zeros(3), np.asarray(body.com, dtype=float)])
+    return np.vstack([solid_points(s) for s in body.solids])
+
+
+def _mat(a, b):
+    return [[a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j] for j in range(3)] for i in range(3)]
+
+
+def _vec(a, x):
+    return [a[i][0] * x[0] + a[i][1] * x[1] + a[i][2] * x[2] for i in range(3)]
+
+
+def _turn(axis, angle):
+    """Rotation by `angle` about the unit `axis` (Rodrigues)."""
+    x, y, z = axis
+    s, c = math.sin(angle), math.cos(angle)
+    t = 1.0 - c
+    return [[c + t * x * x, t * x * y - s * z, t * x * z + s * y],
+            [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
+            [t * x * z - s * y, t * y * z + s * x, c + t * z * z]]
+
+
+class Kinematics:
+    """The bodies' user frames in the world and their velocities at (q, q̇), for a model of hinge
+    joints: parent_R_body(q) = rot · Rot(axis_1, q_1) · ... · post (host/model/tree.py)."""
+
+    def __init__(self, model):
+        bodies = model.bodies
+        self.parent = [b.parent for b in bodies]
+        self.rot = [np.asarray(b.rot, dtype=float).tolist() for b in bodies]
+        self.post = [None if np.array_equal(b.post, np.eye(3)) else np.asarray(b.post, dtype=float).tolist()
+                     for b in bodies]
+        self.pos = [np.asarray(b.pos, dtype=float).tolist() for b in bodies]
+        self.dofs, self.axes = [], []
+        for body in bodies:
+            self.dofs.append(list(range(len(self.axes), len(self.axes) + len(body.dofs))))
+            self.axes += [(np.asarray(d.axis, dtype=float) / np.linalg.norm(d.axis)).tolist() for d in body.dofs]
+
+    def __call__(self, q, qd):
+        """(R (nbody, 3, 3) world ← user frame, origins (nbody, 3), angular velocities (nbody, 3),
+        origins' velocities (nbody, 3)), all in the world frame."""
+        q, qd = np.asarray(q, dtype=float).tolist(), np.asarray(qd, dtype=float).tolist()
+        R, p, w, v = [], [], [], []
+        for i, parent in enumerate(self.parent):
+            if parent >= 0:
+                Rp, pp, wp, vp = R[parent], p[parent], w[parent], v[parent]
+                off = _vec(Rp, self.pos[i])
+                p.append([pp[0] + off[0], pp[1] + off[1], pp[2] + off[2]])
+                v.append([vp[0] + wp[1] * off[2] - wp[2] * off[1], vp[1] + wp[2] * off[0] - wp[0] * off[2],
+                          vp[2] + wp[0] * off[1] - wp[1] * off[0]])
+                Ri, wi = _mat(Rp, self.rot[i]), list(wp)
+            else:
+                p.append(list(self.pos[i]))
+                v.append([0.0, 0.0, 0.0])
+                Ri, wi = self.rot[i], [0.0, 0.0, 0.0]
+            for k in self.dofs[i]:
+                a, rate = _vec(Ri, self.axes[k]), qd[k]
+                wi = [wi[0] + a[0] * rate, wi[1] + a[1] * rate, wi[2] + a[2] * rate]
+                Ri = _mat(Ri, _turn(self.axes[k], q[k]))
+            R.append(Ri if self.post[i] is None else _mat(Ri, self.post[i]))
+            w.append(wi)
+        return np.array(R), np.array(p), np.array(w), np.array(v)
+
+
+def reach(model, points: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Per dof, the farthest any sample point of a body beyond it can be from its joint's origin
+    (on its axis), in any pose: the link lengths on the way and the point's own distance added up."""
+    bodies = model.bodies
+    own = np.array([np.linalg.norm(points[owner == i], axis=1).max(initial=0.0) for i in range(len(bodies))])
+    out = []
+    for i, body in enumerate(bodies):
+        farthest = 0.0
+        for j in range(len(bodies)):        # j beyond i: walk up from j to i adding the offsets
+            length, b = own[j], j
+            while b > i:
+                length += float(np.linalg.norm(bodies[b].pos))
+                b = bodies[b].parent
+            if b == i:
+                farthest = max(farthest, length)
+        out += [farthest] * len(body.dofs)
+    return np.array(out)
+
+
+class Contacts:
+    """The pushes and obstacles on one model's bodies; called as the plant's `wrenches`."""
+
+    def __init__(self, model, obstacles=(), pushes=()):
+        if model.nq != model.nv:
+            raise InputError(f"'{model.name}': contact is simulated on hinge joints only (no free root or ball joint)")
+        self.model = model
+        self.names = model.body_names
+        self.obstacles = list(obstacles)
+        for obstacle in self.obstacles:
+            if not isinstance(obstacle, (Plane, Sphere)):
+                raise InputError(f"an obstacle is a Plane or a Sphere, not {obstacle!r}")
+        self.pushes: list[tuple[Push, float, float]] = []       # (push, start, end) on the plant's clock
+        self.com = np.array([np.asarray(b.com, dtype=float) for b in model.bodies])
+        points = [body_points(b) for b in model.bodies]
+        self.points = np.vstack(points)                         # every body's, in its user frame
+        self.owner = np.concatenate([np.full(len(p), i) for i, p in enumerate(points)])
+        self.starts = np.cumsum([0] + [len(p) for p in points])          # body i's points: starts[i]:starts[i+1]
+        self.kinematics = Kinematics(model)
+        self.reach = reach(model, self.points, self.owner)
+        self._clear = 0.0            # m the arm may still move before the obstacles need a check
+        self._last = None            # (time, speed bound) at the last call
+        self.log: list[tuple] = []
+        self.onset: dict | None = None
+        self.peak = {"force_n": 0.0, "time": None, "body": None}
+        self.now: dict[str, float] = {}                         # body -> force (N) at the last evaluation
+        for push in pushes:
+            self.schedule(push)
+
+    # --- set up ---------------------------------------------------------------------------------
+
+    def schedule(self, push: Push, origin: float = 0.0) -> None:
+        """`push` from `origin` + push.start on the plant's clock (s)."""
+        check_contacts(self.model, [push], [], simulated=True)
+        start = float(origin) + push.start
+        self.pushes.append((push, start, start + push.duration))
+
+    def substeps(self, dt: float) -> int:
+        """Pieces to cut a plant step of `dt` into while in contact (module docstring)."""
+        stiffest = max((o.stiffness for o in self.obstacles), default=0.0)
+        return max(1, math.ceil(stiffest * DAMPING_TIME * dt / (2 * LIGHTEST) - 1e-9))
+
+    # --- every step -----------------------------------------------------------------------------
+
+    def __call__(self, t: float, q, qd) -> np.ndarray | None:
+        """The wrenches on the bodies at time t and state (q, qd), or None when nothing touches the
+        arm; what is applied goes into the ground truth."""
+        active = [(k, p) for k, (p, start, end) in enumerate(self.pushes) if start - 1e-9 <= t < end - 1e-9]
+        check = bool(self.obstacles) and self._moved(t, qd)
+        if not active and not check:
+            if self.now:
+                self.now = {}
+            return None
+        R, origin, w, v = self.kinematics(q, qd)
+        rows = []          # (body, source, force (3,), point (3,), depth)
+        for k, push in active:
+            body = self.names.index(push.body)
+            rows.append((body, f"push {k}", np.asarray(push.force), origin[body] + R[body] @ self.com[body], 0.0))
+        if check:
+            rows += self._obstacles(R, origin, w, v)
+        if not rows:
+            if self.now:
+                self.now = {}
+            return None
+        f_ext = np.zeros((len(self.names), 6))
+        for body, _, force, point, _ in rows:
+            (fx, fy, fz), (x, y, z) = (R[body].T @ force).tolist(), (R[body].T @ (point - origin[body])).tolist()
+            f_ext[body] += (y * fz - z * fy, z * fx - x * fz, x * fy - y * fx, fx, fy, fz)
+        self._record(t, rows)
+        return f_ext
+
+    def _moved(self, t: float, qd) -> bool:
+        """Whether the obstacles want a check now: the arm may have moved within MARGIN of one since
+        the last check (its points' speed bounded by Σ|q̇_k|·reach_k, the larger of now and then)."""
+        speed = float(np.abs(qd) @ self.reach)
+        if self._last is not None:
+            self._clear -= max(speed, self._last[1]) * max(t - self._last[0], 0.0)
+        self._last = (t, speed)
+        return self._clear <= MARGIN
+
+    def _obstacles(self, R, origin, w, v) -> list:
+        """Each body's deepest point inside each obstacle, as (body, source, force, point, depth)
+        rows; and how far the arm may move before the next check."""
+        offset = np.einsum("pij,pj->pi", R[self.owner], self.points)
+        world = origin[self.owner] + offset
+        rows, nearest = [], math.inf
+        for index, obstacle in enumerate(self.obstacles):
+            depth, normal = self._depth(obstacle, world)
+            deepest = float(depth.max())
+            nearest = min(nearest, -deepest)
+            if deepest <= 0:
+                continue
+            for body in np.flatnonzero(np.maximum.reduceat(depth, self.starts[:-1]) > 0).tolist():
+                first = int(self.starts[body])
+                p = first + int(np.argmax(depth[first:self.starts[body + 1]]))
+                spin, r = w[body].tolist(), offset[p].tolist()
+                moving = v[body] + [spin[1] * r[2] - spin[2] * r[1], spin[2] * r[0] - spin[0] * r[2],
+                                    spin[0] * r[1] - spin[1] * r[0]]
+                rate = -float(normal[p] @ moving)
+                magnitude = max(0.0, obstacle.stiffness * (depth[p] + DAMPING_TIME * rate))
+                rows.append((body, f"obstacle {index}", magnitude * normal[p], world[p], float(depth[p])))
+        self._clear = nearest
+        return rows
+
+    @staticmethod
+    def _depth(obstacle, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each point's depth inside the obstacle (negative: outside) and the outward normal there."""
+        if isinstance(obstacle, Plane):
+            normal = np.asarray(obstacle.normal)
+            return obstacle.offset - world @ normal, np.broadcast_to(normal, world.shape)
+        away = world - np.asarray(obstacle.centre)
+        distance = np.linalg.norm(away, axis=1)
+        normal = away / np.maximum(distance, 1e-12)[:, None]
+        return obstacle.radius - distance, normal
+
+    def _record(self, t: float, rows: list) -> None:
+        per_body: dict[str, float] = {}
+        vectors: dict[str, np.ndarray] = {}
+        touching = None
+        for body, source, force, point, depth in rows:
+            name = self.names[body]
+            vectors[name] = vectors.get(name, np.zeros(3)) + force
+            if len(self.log) < MAX_LOG:
+                self.log.append((t, name, source, *map(float, force), *map(float, point), depth))
+            if depth > 0 and touching is None:
+                touching = name
+        for name, vector in vectors.items():
+            per_body[name] = float(np.linalg.norm(vector))
+        self.now = per_body
+        strongest = max(per_body, key=per_body.get)
+        if self.onset is None and (per_body[strongest] > ONSET_FORCE or touching is not None):
+            body = strongest if per_body[strongest] > ONSET_FORCE else touching
+            self.onset = {"time": t, "body": body}
+        if per_body[strongest] > self.peak["force_n"]:
+            self.peak = {"force_n": per_body[strongest], "time": t, "body": strongest}
+
+    # --- what happened --------------------------------------------------------------------------
+
+    def status(self) -> dict:
+        """The ground truth so far, JSON-able: onset_time (plant s, None before any contact),
+        body (at the onset), peak_force_n, peak_time, peak_body, force_n (the largest on a body at
+        the last step: at a stop, the force at the stop), forces_n (each body's then), pushes
+        (body, start, end on the plant's clock), obstacles (how many)."""
+        onset = self.onset or {}
+        return {"onset_time": onset.get("time"), "body": onset.get("body"),
+                "peak_force_n": self.peak["force_n"], "peak_time": self.peak["time"], "peak_body": self.peak["body"],
+                "force_n": max(self.now.values(), default=0.0), "forces_n": dict(self.now),
+                "pushes": [{"body": p.body, "force": list(p.force), "start": s, "end": e} for p, s, e in self.pushes],
+                "obstacles": len(self.obstacles), "log_rows": len(self.log)}
+
+    def table(self) -> dict:
+        """The ground truth row by row: {"columns": LOG_COLUMNS, "rows": [...]}."""
+        return {"columns": list(LOG_COLUMNS), "rows": [list(row) for row in self.log]}
