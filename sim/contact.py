@@ -129,25 +129,50 @@ class Kinematics:
         for body in bodies:
             self.dofs.append(list(range(len(self.axes), len(self.axes) + len(body.dofs))))
             self.axes += [tuple((np.asarray(d.axis, dtype=float) / np.linalg.norm(d.axis)).tolist()) for d in body.dofs]
+        # a body's first turn folded into its fixed rotation: rot·Rot(a, q) = rot + sin q·rot[a]× + (1 − cos q)·rot[a]×²
+        self.first = []
+        for i, dofs in enumerate(self.dofs):
+            if not dofs:
+                self.first.append(None)
+                continue
+            x, y, z = self.axes[dofs[0]]
+            cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+            rot = np.asarray(bodies[i].rot, dtype=float)
+            self.first.append((rows(rot @ cross), rows(rot @ cross @ cross), tuple((rot @ self.axes[dofs[0]]).tolist())))
 
-    def __call__(self, q, qd):
+    def __call__(self, q, qd=None, last: int | None = None):
         """(R (nbody, 3, 3) world ← user frame, origins (nbody, 3), angular velocities (nbody, 3),
-        origins' velocities (nbody, 3)), all in the world frame."""
-        q, qd = np.asarray(q, dtype=float).tolist(), np.asarray(qd, dtype=float).tolist()
+        origins' velocities (nbody, 3)), all in the world frame; up to body `last` only when given,
+        and without the velocities (zeros) when qd is None."""
+        q = np.asarray(q, dtype=float).tolist()
+        qd = [0.0] * len(q) if qd is None else np.asarray(qd, dtype=float).tolist()
         R, p, w, v = [], [], [], []
-        for i, parent in enumerate(self.parent):
+        for i, parent in enumerate(self.parent[:None if last is None else last + 1]):
             if parent >= 0:
                 Rp, pp, wp, vp = R[parent], p[parent], w[parent], v[parent]
                 off = _vec(Rp, self.pos[i])
                 p.append((pp[0] + off[0], pp[1] + off[1], pp[2] + off[2]))
                 v.append((vp[0] + wp[1] * off[2] - wp[2] * off[1], vp[1] + wp[2] * off[0] - wp[0] * off[2],
                           vp[2] + wp[0] * off[1] - wp[1] * off[0]))
-                Ri, wi = _mat(Rp, self.rot[i]), wp
+                wi = wp
             else:
+                Rp = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
                 p.append(self.pos[i])
                 v.append((0.0, 0.0, 0.0))
-                Ri, wi = self.rot[i], (0.0, 0.0, 0.0)
-            for k in self.dofs[i]:
+                wi = (0.0, 0.0, 0.0)
+            dofs = self.dofs[i]
+            if dofs:
+                A, B, axis = self.first[i]
+                k, rate = dofs[0], qd[dofs[0]]
+                sine, versine = math.sin(q[k]), 1.0 - math.cos(q[k])
+                if rate:
+                    a = _vec(Rp, axis)
+                    wi = (wi[0] + a[0] * rate, wi[1] + a[1] * rate, wi[2] + a[2] * rate)
+                Ri = _mat(Rp, tuple(tuple(r + sine * x + versine * y for r, x, y in zip(*rows))
+                                    for rows in zip(self.rot[i], A, B)))
+            else:
+                Ri = _mat(Rp, self.rot[i])
+            for k in dofs[1:]:
                 a, rate = _vec(Ri, self.axes[k]), qd[k]
                 wi = (wi[0] + a[0] * rate, wi[1] + a[1] * rate, wi[2] + a[2] * rate)
                 Ri = _mat(Ri, _turn(self.axes[k], q[k]))
@@ -228,10 +253,10 @@ class Contacts:
             if self.now:
                 self.now = {}
             return None
-        R, origin, w, v = self.kinematics(q, qd)
+        pushed = [self.names.index(push.body) for _, push in active]
+        R, origin, w, v = self.kinematics(q, qd, None) if check else self.kinematics(q, None, max(pushed))
         rows = []          # (body, source, force (3,), point (3,), depth)
-        for k, push in active:
-            body = self.names.index(push.body)
+        for (k, push), body in zip(active, pushed):
             rows.append((body, f"push {k}", np.asarray(push.force), origin[body] + R[body] @ self.com[body], 0.0))
         if check:
             rows += self._obstacles(R, origin, w, v)
@@ -291,18 +316,17 @@ class Contacts:
         return obstacle.radius - distance, normal
 
     def _record(self, t: float, rows: list) -> None:
-        per_body: dict[str, float] = {}
-        vectors: dict[str, np.ndarray] = {}
+        vectors: dict[str, list] = {}
         touching = None
         for body, source, force, point, depth in rows:
-            name = self.names[body]
-            vectors[name] = vectors.get(name, np.zeros(3)) + force
+            name, force = self.names[body], force.tolist()
+            total = vectors.setdefault(name, [0.0, 0.0, 0.0])
+            total[0], total[1], total[2] = total[0] + force[0], total[1] + force[1], total[2] + force[2]
             if len(self.log) < MAX_LOG:
-                self.log.append((t, name, source, *map(float, force), *map(float, point), depth))
+                self.log.append((t, name, source, *force, *point.tolist(), depth))
             if depth > 0 and touching is None:
                 touching = name
-        for name, vector in vectors.items():
-            per_body[name] = float(np.linalg.norm(vector))
+        per_body = {name: math.sqrt(x * x + y * y + z * z) for name, (x, y, z) in vectors.items()}
         self.now = per_body
         strongest = max(per_body, key=per_body.get)
         if self.onset is None and (per_body[strongest] > ONSET_FORCE or touching is not None):

@@ -172,7 +172,7 @@ def test_a_stiff_contact_adds_no_energy():
     R, p, _, _ = probe.kinematics(q0, np.zeros(MODEL.nv))
     lowest = float((p[probe.owner] + np.einsum("pij,pj->pi", R[probe.owner], probe.points))[:, 2].min())
     plant.wrenches = contacts = Contacts(MODEL, [Plane((0.0, 0.0, 1.0), lowest - 0.01, stiffness=1e6)])
-    assert contacts.substeps(1e-3) == 10
+    assert contacts.substeps(1e-3) == 10, "the step cut in 10: whole, it gains energy (this test fails with 1)"
     start = sum(MODEL.energy(q0, np.zeros(MODEL.nv)))
     most, deepest = -np.inf, 0.0
     for _ in range(500):
@@ -216,12 +216,15 @@ def test_a_swing_through_a_plane_reports_the_contact(tmp_path):
     assert summary["exit_code"] == 0, "no detection yet: the swing goes on against the wall"
 
 
-def first_moving_tick(path, period: float, threshold: float) -> float:
-    """The swing log's first time any joint's measured speed exceeds `threshold` rad/s."""
+def first_jolt(path, ticks: int = 2, threshold: float = 0.1) -> float:
+    """The swing log's first time any joint's measured speed changed by more than `threshold` rad/s
+    over the last `ticks` ticks (a held arm sags by a few hundredths of that; 40 N at the hand
+    accelerates a joint by about 100 rad/s²)."""
     with open(path) as f:
         rows = list(csv.DictReader(f))
-    speeds = [k for k in rows[0] if k.startswith("qd_")]
-    return next(float(r["t"]) for r in rows if max(abs(float(r[k])) for k in speeds) > threshold)
+    speeds = np.array([[float(r[k]) for k in rows[0] if k.startswith("qd_")] for r in rows])
+    change = np.abs(speeds[ticks:] - speeds[:-ticks]).max(axis=1)
+    return float(rows[ticks + int(np.argmax(change > threshold))]["t"])
 
 
 def push_swing(out, realtime: bool):
@@ -232,15 +235,14 @@ def push_swing(out, realtime: bool):
 
 def test_a_push_lands_at_its_swing_time_in_lockstep(tmp_path):
     """A held pose with 40 N at the hand from 0.3 s: the simulator's onset on the swing's clock within
-    a tick of 0.3 s, and the first tick whose measured speed moves (the held arm is still before it)
-    within three ticks after."""
+    a tick of 0.3 s, and the arm's measured speeds jolt within three ticks after."""
     summary, push = push_swing(tmp_path, realtime=False)
     period = CONFIG.control_period
     contact = summary["sim_contact"]
     assert contact["onset_t_s"] == pytest.approx(push.start, abs=period), contact
     assert contact["peak_force_n"] == pytest.approx(40.0) and contact["log_rows"] == round(push.duration / period)
-    moving = first_moving_tick(tmp_path / "swing_log.csv", period, 0.05)
-    assert push.start <= moving <= push.start + 3 * period, f"the arm moves at {moving:.4f} s"
+    jolt = first_jolt(tmp_path / "swing_log.csv")
+    assert push.start <= jolt <= push.start + 3 * period, f"the arm jolts at {jolt:.4f} s"
 
 
 @pytest.mark.serial
@@ -250,8 +252,8 @@ def test_a_push_lands_at_its_swing_time_in_real_time(tmp_path):
     period = CONFIG.control_period
     assert summary["exit_code"] == 0, summary.get("error")
     assert summary["sim_contact"]["onset_t_s"] == pytest.approx(push.start, abs=period)
-    moving = first_moving_tick(tmp_path / "swing_log.csv", period, 0.05)
-    assert push.start <= moving <= push.start + 5 * period, f"the arm moves at {moving:.4f} s (5 ms: a read's lag)"
+    jolt = first_jolt(tmp_path / "swing_log.csv")
+    assert push.start <= jolt <= push.start + 5 * period, f"the arm jolts at {jolt:.4f} s (5 ms: a read's lag)"
 
 
 @pytest.mark.parametrize("args, says", [
