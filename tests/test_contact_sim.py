@@ -285,3 +285,17 @@ def test_the_child_process_takes_obstacles_and_pushes(tmp_path):
     assert status["contact"]["onset_time"] is None, "the plant has not moved: nothing applied yet"
     assert log == {"columns": list(LOG_COLUMNS), "rows": []}
     json.dumps(status)
+
+
+def test_sim_takes_obstacles_for_a_swing_on_its_port(tmp_path):
+    """`servodyn sim --obstacle`: a simulator in its own process with a ball under the hanging hand
+    (its lowest points 4.5 cm into it); a swing holding the pose on its port; at Ctrl-C the sim says
+    when the contact began (the plant's first step) and on which body."""
+    import signal
+    from helpers import PTY, sim_process
+    with sim_process("--lockstep", "--obstacle", "sphere:0,0,-0.7,0.06") as (proc, banner):
+        result = run_cli("swing", "--port", PTY.findall("".join(banner))[0], "--hold", "0.3", "--out", tmp_path)
+        proc.send_signal(signal.SIGINT)
+        said = proc.communicate(timeout=30)[0]
+    assert result.returncode == 0, result.stderr
+    assert "contact: first at 0.000 s on r_hand" in said, said
