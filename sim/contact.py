@@ -24,7 +24,7 @@ body, (torque about the body's origin, force), both in the body's user frame.
 The points are checked every step only near an obstacle: after a check that finds every point at
 least d from every obstacle, none can touch one before the arm has moved d, bounded each step by
 Σ|q̇_k|·reach_k (reach_k: the farthest any point beyond dof k can be from its axis, from the link
-lengths), so the next check waits for that (`Reach`); the kinematics are the model's user frames in
+lengths), so the next check waits for that (`reach`); the kinematics are the model's user frames in
 plain floats (`Kinematics`: a small chain costs more in numpy calls than in arithmetic).
 
 The wrench is held over a step (as the drives' currents are). A held spring–damper is stable

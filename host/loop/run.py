@@ -297,6 +297,9 @@ class Run:
             stopping["now"] = True
             bus.stop()
             sim = server.status() if server is not None else None
+            # the contact the simulator applied, row by row, its times on the plant's clock (sim/contact.py)
+            self.contact_log = {"swing_start": swing_start, **server.contact_log()} \
+                if sim and sim.get("contact") else None
             if server is not None:
                 server.stop()
             log.close()
