@@ -104,6 +104,23 @@ def _vec(a, x):
     return (a0 * x0 + a1 * x1 + a2 * x2, a3 * x0 + a4 * x1 + a5 * x2, a6 * x0 + a7 * x1 + a8 * x2)
 
 
+def _tvec(a, x):
+    """aᵀ·x."""
+    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = a
+    x0, x1, x2 = x
+    return (a0 * x0 + a3 * x1 + a6 * x2, a1 * x0 + a4 * x1 + a7 * x2, a2 * x0 + a5 * x1 + a8 * x2)
+
+
+def _fold(r, a, b, s, v):
+    """r + s·a + v·b of 3×3 nested tuples."""
+    (r0, r1, r2), (r3, r4, r5), (r6, r7, r8) = r
+    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = a
+    (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = b
+    return ((r0 + s * a0 + v * b0, r1 + s * a1 + v * b1, r2 + s * a2 + v * b2),
+            (r3 + s * a3 + v * b3, r4 + s * a4 + v * b4, r5 + s * a5 + v * b5),
+            (r6 + s * a6 + v * b6, r7 + s * a7 + v * b7, r8 + s * a8 + v * b8))
+
+
 def _turn(axis, angle):
     """Rotation by `angle` about the unit `axis` (Rodrigues)."""
     x, y, z = axis
@@ -144,6 +161,10 @@ class Kinematics:
         """(R (nbody, 3, 3) world ← user frame, origins (nbody, 3), angular velocities (nbody, 3),
         origins' velocities (nbody, 3)), all in the world frame; up to body `last` only when given,
         and without the velocities (zeros) when qd is None."""
+        return tuple(np.array(x) for x in self.chain(q, qd, last))
+
+    def chain(self, q, qd=None, last: int | None = None) -> tuple[list, list, list, list]:
+        """What __call__ gives, as lists of tuples (rows of R)."""
         q = np.asarray(q, dtype=float).tolist()
         qd = [0.0] * len(q) if qd is None else np.asarray(qd, dtype=float).tolist()
         R, p, w, v = [], [], [], []
@@ -168,8 +189,7 @@ class Kinematics:
                 if rate:
                     a = _vec(Rp, axis)
                     wi = (wi[0] + a[0] * rate, wi[1] + a[1] * rate, wi[2] + a[2] * rate)
-                Ri = _mat(Rp, tuple(tuple(r + sine * x + versine * y for r, x, y in zip(*rows))
-                                    for rows in zip(self.rot[i], A, B)))
+                Ri = _mat(Rp, _fold(self.rot[i], A, B, sine, versine))
             else:
                 Ri = _mat(Rp, self.rot[i])
             for k in dofs[1:]:
@@ -178,7 +198,7 @@ class Kinematics:
                 Ri = _mat(Ri, _turn(self.axes[k], q[k]))
             R.append(Ri if self.post[i] is None else _mat(Ri, self.post[i]))
             w.append(wi)
-        return np.array(R), np.array(p), np.array(w), np.array(v)
+        return R, p, w, v
 
 
 def reach(model, points: np.ndarray, owner: np.ndarray) -> np.ndarray:
@@ -213,7 +233,7 @@ class Contacts:
             if not isinstance(obstacle, (Plane, Sphere)):
                 raise InputError(f"an obstacle is a Plane or a Sphere, not {obstacle!r}")
         self.pushes: list[tuple[Push, float, float]] = []       # (push, start, end) on the plant's clock
-        self.com = np.array([np.asarray(b.com, dtype=float) for b in model.bodies])
+        self.com = [tuple(np.asarray(b.com, dtype=float).tolist()) for b in model.bodies]
         points = [body_points(b) for b in model.bodies]
         self.points = np.vstack(points)                         # every body's, in its user frame
         self.owner = np.concatenate([np.full(len(p), i) for i, p in enumerate(points)])
@@ -254,19 +274,24 @@ class Contacts:
                 self.now = {}
             return None
         pushed = [self.names.index(push.body) for _, push in active]
-        R, origin, w, v = self.kinematics(q, qd, None) if check else self.kinematics(q, None, max(pushed))
-        rows = []          # (body, source, force (3,), point (3,), depth)
+        R, origin, w, v = self.kinematics.chain(q, qd, None) if check else \
+            self.kinematics.chain(q, None, max(pushed))
+        rows = []          # (body, source, force, point, depth): the force and point in the world frame
         for (k, push), body in zip(active, pushed):
-            rows.append((body, f"push {k}", np.asarray(push.force), origin[body] + R[body] @ self.com[body], 0.0))
+            centre, at = _vec(R[body], self.com[body]), origin[body]
+            rows.append((body, f"push {k}", push.force, (at[0] + centre[0], at[1] + centre[1], at[2] + centre[2]),
+                         0.0))
         if check:
-            rows += self._obstacles(R, origin, w, v)
+            rows += self._obstacles(*(np.array(x) for x in (R, origin, w, v)))
         if not rows:
             if self.now:
                 self.now = {}
             return None
         f_ext = np.zeros((len(self.names), 6))
         for body, _, force, point, _ in rows:
-            (fx, fy, fz), (x, y, z) = (R[body].T @ force).tolist(), (R[body].T @ (point - origin[body])).tolist()
+            at = origin[body]
+            fx, fy, fz = _tvec(R[body], force)
+            x, y, z = _tvec(R[body], (point[0] - at[0], point[1] - at[1], point[2] - at[2]))
             f_ext[body] += (y * fz - z * fy, z * fx - x * fz, x * fy - y * fx, fx, fy, fz)
         self._record(t, rows)
         return f_ext
@@ -300,7 +325,8 @@ class Contacts:
                                     spin[0] * r[1] - spin[1] * r[0]]
                 rate = -float(normal[p] @ moving)
                 magnitude = max(0.0, obstacle.stiffness * (depth[p] + DAMPING_TIME * rate))
-                rows.append((body, f"obstacle {index}", magnitude * normal[p], world[p], float(depth[p])))
+                rows.append((body, f"obstacle {index}", tuple((magnitude * normal[p]).tolist()),
+                             tuple(world[p].tolist()), float(depth[p])))
         self._clear = nearest
         return rows
 
@@ -319,11 +345,11 @@ class Contacts:
         vectors: dict[str, list] = {}
         touching = None
         for body, source, force, point, depth in rows:
-            name, force = self.names[body], force.tolist()
+            name = self.names[body]
             total = vectors.setdefault(name, [0.0, 0.0, 0.0])
             total[0], total[1], total[2] = total[0] + force[0], total[1] + force[1], total[2] + force[2]
             if len(self.log) < MAX_LOG:
-                self.log.append((t, name, source, *force, *point.tolist(), depth))
+                self.log.append((t, name, source, *force, *point, depth))
             if depth > 0 and touching is None:
                 touching = name
         per_body = {name: math.sqrt(x * x + y * y + z * z) for name, (x, y, z) in vectors.items()}

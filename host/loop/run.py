@@ -217,6 +217,7 @@ class Run:
 
     def _play(self, server, per_bus: dict, out: Path) -> dict:
         o, config, say = self.options, self.config, self.say
+        self.plant_swing_start = 0.0             # the swing's start on the simulated plant's clock, once known
         bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
         try:
             bus.open()        # a port that does not open ends here: nothing ran, so no log and no summary
@@ -274,8 +275,7 @@ class Run:
             # write gets no reply); in real time, the plant clock now
             swing_start = (server.status()["time"] if realtime else len(home.traj.t) * self.period) \
                 if server is not None else 0.0
-            for push in o.contacts:      # a push's start counts from the swing's
-                server.schedule_push(push, swing_start)
+            self.plant_swing_start = swing_start     # in real time, read again at the first tick (_fault_injector)
             follow(bus, controller, played, log, realtime, on_tick=self._fault_injector(server, played),
                    observer=observer, tolerance=tolerance,
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
@@ -298,7 +298,7 @@ class Run:
             bus.stop()
             sim = server.status() if server is not None else None
             # the contact the simulator applied, row by row, its times on the plant's clock (sim/contact.py)
-            self.contact_log = {"swing_start": swing_start, **server.contact_log()} \
+            self.contact_log = {"swing_start": self.plant_swing_start, **server.contact_log()} \
                 if sim and sim.get("contact") else None
             if server is not None:
                 server.stop()
@@ -316,7 +316,7 @@ class Run:
             summary["torque_off"] = sim["torque_off"]
             if sim.get("contact"):       # what the simulator applied, its times on the swing's clock
                 summary["sim_contact"] = {**sim["contact"], "onset_t_s": None if sim["contact"]["onset_time"] is None
-                                          else sim["contact"]["onset_time"] - swing_start}
+                                          else sim["contact"]["onset_time"] - self.plant_swing_start}
         self.log = log
         try:
             write_summary(out, summary)
@@ -338,15 +338,22 @@ class Run:
             raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
 
     def _fault_injector(self, server, played):
-        """on_tick for follow(): fault_at's fault before its tick, on the simulated bus or, for a
-        motion fault, in the played motion."""
-        fault_at = self.options.fault_at
-        if fault_at is None or server is None:
+        """on_tick for follow(): before the first tick, the swing's start on the simulated plant's
+        clock (in real time the simulator's clock then: the loop's set-up takes milliseconds after
+        swing_start was read) and --contact's pushes from it; fault_at's fault before its tick, on the
+        simulated bus or, for a motion fault, in the played motion."""
+        fault_at, o = self.options.fault_at, self.options
+        if (fault_at is None and not (o.contacts or o.obstacles)) or server is None:
             return None
-        fault_tick = int(round(fault_at[0] / self.period))
-        fault = fault_at[2] if len(fault_at) > 2 else "silent"
+        fault_tick = int(round(fault_at[0] / self.period)) if fault_at is not None else None
+        fault = fault_at[2] if fault_at is not None and len(fault_at) > 2 else "silent"
 
         def inject(k):
+            if k == 0 and (o.contacts or o.obstacles):
+                if self.realtime:
+                    self.plant_swing_start = server.status()["time"]
+                for push in o.contacts:      # a push's start counts from the swing's
+                    server.schedule_push(push, self.plant_swing_start)
             if k != fault_tick:
                 return
             if fault == "nan_motion":
