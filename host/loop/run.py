@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import signal
 import threading
+import time
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -275,7 +276,7 @@ class Run:
             # write gets no reply); in real time, the plant clock now
             swing_start = (server.status()["time"] if realtime else len(home.traj.t) * self.period) \
                 if server is not None else 0.0
-            self.plant_swing_start = swing_start     # in real time, read again at the first tick (_fault_injector)
+            self.plant_swing_start = swing_start     # in real time, moved on to the first tick (_fault_injector)
             follow(bus, controller, played, log, realtime, on_tick=self._fault_injector(server, played),
                    observer=observer, tolerance=tolerance,
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
@@ -339,19 +340,20 @@ class Run:
 
     def _fault_injector(self, server, played):
         """on_tick for follow(): before the first tick, the swing's start on the simulated plant's
-        clock (in real time the simulator's clock then: the loop's set-up takes milliseconds after
-        swing_start was read) and --contact's pushes from it; fault_at's fault before its tick, on the
+        clock (in real time swing_start plus the wall-clock time since it was read: the loop's set-up
+        takes milliseconds) and --contact's pushes from it; fault_at's fault before its tick, on the
         simulated bus or, for a motion fault, in the played motion."""
         fault_at, o = self.options.fault_at, self.options
         if (fault_at is None and not (o.contacts or o.obstacles)) or server is None:
             return None
         fault_tick = int(round(fault_at[0] / self.period)) if fault_at is not None else None
         fault = fault_at[2] if fault_at is not None and len(fault_at) > 2 else "silent"
+        made = time.perf_counter()        # just after swing_start was read
 
         def inject(k):
             if k == 0 and (o.contacts or o.obstacles):
                 if self.realtime:
-                    self.plant_swing_start = server.status()["time"]
+                    self.plant_swing_start += time.perf_counter() - made
                 for push in o.contacts:      # a push's start counts from the swing's
                     server.schedule_push(push, self.plant_swing_start)
             if k != fault_tick:
