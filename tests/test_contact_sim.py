@@ -247,13 +247,15 @@ def test_a_push_lands_at_its_swing_time_in_lockstep(tmp_path):
 
 @pytest.mark.serial
 def test_a_push_lands_at_its_swing_time_in_real_time(tmp_path):
-    """The same in real time: the swing's start on the plant's clock is read when the swing begins."""
+    """The same in real time, where the swing's start on the plant's clock is read after the homing
+    and carried to the first tick by the wall clock: the jolt within 3 ms before (a tick that runs
+    late reads the plant later than its logged time) and 5 ms after (a read's lag) the push."""
     summary, push = push_swing(tmp_path, realtime=True)
     period = CONFIG.control_period
     assert summary["exit_code"] == 0, summary.get("error")
     assert summary["sim_contact"]["onset_t_s"] == pytest.approx(push.start, abs=period)
     jolt = first_jolt(tmp_path / "swing_log.csv")
-    assert push.start <= jolt <= push.start + 5 * period, f"the arm jolts at {jolt:.4f} s (5 ms: a read's lag)"
+    assert push.start - 3 * period <= jolt <= push.start + 5 * period, f"the arm jolts at {jolt:.4f} s"
 
 
 @pytest.mark.parametrize("args, says", [
