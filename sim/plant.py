@@ -28,6 +28,12 @@ static friction, and no step can make friction push a joint forwards.
 
 `external`, when set, is a torque from outside the arm at its joints, asked every step as
 external(time, q, qd) -> (nv,): a hand turning limp joints on the bench (sim/console.py).
+`wrenches`, when set, are forces from outside on the arm's bodies, asked every step as
+wrenches(time, q, qd) -> f_ext (nbody × 6: torque about the body's origin, force; the body's user
+frame; or None: none) and handed to model.step with the step's torques (sim/contact.py: pushes and
+obstacles, which log what they apply). While a wrench acts, the step is cut into
+`wrenches.substeps(dt)` pieces, each with the wrench asked again (a stiff contact held over a whole
+step would gain energy); the drives' currents and friction stay held over the whole step.
 """
 
 from __future__ import annotations
@@ -58,16 +64,17 @@ class JointFriction:
         return self.coulomb + (self.static - self.coulomb) * np.exp(-(qd / self.stribeck) ** 2) + \
             self.viscous * np.abs(qd)
 
-    def torque(self, model, q, qd, tau, dt: float) -> np.ndarray:
-        """The friction torque held over the next step of `dt` under the joint torques `tau` (see
-        the module's docstring)."""
+    def torque(self, model, q, qd, tau, dt: float, f_ext=None) -> np.ndarray:
+        """The friction torque held over the next step of `dt` under the joint torques `tau` and
+        the external wrenches `f_ext` (see the module's docstring)."""
         if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau).all()):
             return np.zeros_like(qd)
         # one batched call: the free acceleration, and M⁻¹ column by column (a unit torque's)
         n = len(qd)
         if self._units is None or len(self._units) != n + 1:
             self._units = np.vstack([np.eye(n), np.zeros(n)])
-        rows = model.forward_dynamics(np.tile(q, (n + 1, 1)), np.tile(qd, (n + 1, 1)), tau + self._units)
+        rows = model.forward_dynamics(np.tile(q, (n + 1, 1)), np.tile(qd, (n + 1, 1)), tau + self._units,
+                                      None if f_ext is None else np.broadcast_to(f_ext, (n + 1, *np.shape(f_ext))))
         free, inverse = rows[n], (rows[:n] - rows[n]).T
         bound = self.bound(qd)
         friction = -np.sign(qd) * bound                  # sliding, against the motion
@@ -158,6 +165,7 @@ class Plant:
         self._stop_inertia = np.diag(model.mass_matrix(self.q)).copy()
         self.stops = np.ones(model.nv, dtype=bool)
         self.external = None                       # external(time, q, qd) -> joint torques, or None
+        self.wrenches = None                       # wrenches(time, q, qd) -> f_ext or None (sim/contact.py)
         self.publish()
 
     def horn(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
@@ -183,11 +191,24 @@ class Plant:
             tau = scale * horn_torque + self.stop_torque()
             if self.external is not None:
                 tau = tau + self.external(self.time, self.q, self.qd)
+            f_ext = self.wrenches(self.time, self.q, self.qd) if self.wrenches is not None else None
             if self.friction is not None:
-                tau = tau + self.friction.torque(self.model, self.q, self.qd, tau, self.small_time_step)
-            self.q, self.qd = self.model.step(self.q, self.qd, tau, self.small_time_step, self.integrator)
+                tau = tau + self.friction.torque(self.model, self.q, self.qd, tau, self.small_time_step, f_ext)
+            if f_ext is None:
+                self.q, self.qd = self.model.step(self.q, self.qd, tau, self.small_time_step, self.integrator)
+            else:
+                self._step_in_contact(tau, f_ext)
             self.time += self.small_time_step
             self.publish()
+
+    def _step_in_contact(self, tau, f_ext) -> None:
+        """One small step under external wrenches, in wrenches.substeps pieces (module docstring)."""
+        pieces = self.wrenches.substeps(self.small_time_step) if hasattr(self.wrenches, "substeps") else 1
+        dt = self.small_time_step / pieces
+        for piece in range(pieces):
+            if piece:
+                f_ext = self.wrenches(self.time + piece * dt, self.q, self.qd)
+            self.q, self.qd = self.model.step(self.q, self.qd, tau, dt, self.integrator, f_ext=f_ext)
 
 
     def take_heat(self) -> np.ndarray:

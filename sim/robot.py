@@ -29,6 +29,10 @@ per ampere (while it reports the current it draws), has the joint's friction ins
 small built-in one (sim/plant.py's JointFriction), and its winding the thermal constants given.
 Dynamixel servos heat by the validator's winding model (hal/thermal.py) once a control period on
 their mean I², and report it in Present Temperature; CAN motors heat themselves every step.
+
+Contact (sim/contact.py): obstacles there from the start (`SimulatedRobot(config, obstacles=[...])`)
+and pushes scheduled on the plant's clock (`schedule_push(push, origin)`); `status()["contact"]`
+summarizes what was applied (None when the robot has neither), `contact_log()` gives it row by row.
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from servodyn.hal.thermal import AMBIENT
 
 from .lab import Lab, require
 from .can import CanMotor, CanNetwork
+from .contact import LOG_COLUMNS, Contacts
 from .dynamixel import Servo, ServoChain, DynamixelWire
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import JointFriction, Plant, PlantView
@@ -63,7 +68,7 @@ class SimulatedRobot(PlantView):
     """Every device and the plant of a robot configuration; q in the model's dof order."""
 
     def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
-                 integrator: str = "rk4", bench: Lab | None = None):
+                 integrator: str = "rk4", bench: Lab | None = None, obstacles=()):
         kinds = {bus.kind for bus in config.buses.values()}
         if not kinds <= {"can", "dynamixel"}:
             raise InputError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
@@ -106,6 +111,23 @@ class SimulatedRobot(PlantView):
         if self.bench is not None:
             self.bench.attach({j.dof: d for j, d in zip(self.joints, self.drives)},
                               {j.dof: config.buses[j.bus].kind for j in self.joints})
+        self.contacts: Contacts | None = None
+        if obstacles:
+            self.contacts = self.plant.wrenches = Contacts(self.model, obstacles)
+
+    def _contacts(self) -> Contacts:
+        """The plant's contact models, made and hooked to the plant on first use."""
+        if self.contacts is None:
+            self.contacts = self.plant.wrenches = Contacts(self.model)
+        return self.contacts
+
+    def schedule_push(self, push, origin: float = 0.0) -> None:
+        """A push (hal/contact_spec.Push) from `origin` + push.start on the plant's clock (s)."""
+        self._contacts().schedule(push, origin)
+
+    def contact_log(self) -> dict:
+        """Every contact applied so far, row by row (Contacts.table); no rows without contact."""
+        return self.contacts.table() if self.contacts is not None else {"columns": list(LOG_COLUMNS), "rows": []}
 
     @staticmethod
     def _device(joint, bus, voltage, bench=None):
@@ -218,8 +240,10 @@ class SimulatedRobot(PlantView):
             chain.on_command = None
 
     def status(self) -> dict:
-        """The plant's time (s) and whether each device's torque is off, in the model's dof order."""
-        return {"time": self.time, "torque_off": [not d.torque_enabled for d in self.drives]}
+        """The plant's time (s), whether each device's torque is off (in the model's dof order), and
+        the contact applied so far (Contacts.status; None without pushes or obstacles)."""
+        return {"time": self.time, "torque_off": [not d.torque_enabled for d in self.drives],
+                "contact": self.contacts.status() if self.contacts is not None else None}
 
     def power_cycle(self) -> None:
         """Every device switched off and on (the bench's Device.power_cycle: volatile state to its

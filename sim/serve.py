@@ -12,6 +12,12 @@ injects faults and reads the plant's clock and the servos' torque through that s
 answered before the next packet is sent (deterministic). Any other configuration is served by
 threads of this process, one plant behind all of its buses (`Served`). Both are `SimulatedBuses`:
 the one interface a run, `servodyn sim`, the soak and the benchmarks use.
+
+Contact (sim/contact.py; the data are hal/contact_spec.py's): `serve(..., obstacles=[...])` puts
+obstacles in the plant from its start; `schedule_push(push, origin)` starts a push at origin +
+push.start on the plant's clock (a run calls it when the swing begins, with the plant's time then);
+`status()["contact"]` is the ground truth so far (Contacts.status: onset_time, body, peak_force_n,
+force_n, ...; None with neither), `contact_log()` the same row by row.
 """
 
 from __future__ import annotations
@@ -28,7 +34,8 @@ from abc import ABC, abstractmethod
 from contextlib import nullcontext
 
 from servodyn.control.timing import plant_step
-from servodyn.errors import ServodynError
+from servodyn.errors import InputError, ServodynError
+from servodyn.hal.contact_spec import Push, from_dict, to_dict
 from servodyn.hal.config import RobotConfig, load_config
 from servodyn.hal.ports import PTY_REPLY_TIMEOUT
 from servodyn.hal.realtime import SIMULATOR_PRIORITY, realtime_priority
@@ -56,7 +63,16 @@ class SimulatedBuses(ABC):
 
     @abstractmethod
     def status(self) -> dict:
-        """The plant's time (s) and each device's torque_off, as the simulator sees them now."""
+        """The plant's time (s), each device's torque_off and the contact applied so far
+        (SimulatedRobot.status), as the simulator sees them now."""
+
+    @abstractmethod
+    def schedule_push(self, push: Push, origin: float = 0.0) -> None:
+        """`push` from `origin` + push.start on the plant's clock (s)."""
+
+    @abstractmethod
+    def contact_log(self) -> dict:
+        """The contact applied so far, row by row (Contacts.table)."""
 
     @abstractmethod
     def inject_fault(self, device_id, fault="silent") -> None:
@@ -100,9 +116,17 @@ class Served(SimulatedBuses):
             self.robot.clear_faults()
 
     def status(self) -> dict:
-        """The plant's time and whether each device's torque is off (SimulatedRobot.status)."""
+        """The plant's time, whether each device's torque is off, the contact (SimulatedRobot.status)."""
         with self.robot.lock:
             return self.robot.status()
+
+    def schedule_push(self, push: Push, origin: float = 0.0) -> None:
+        with self.robot.lock:
+            self.robot.schedule_push(push, origin)
+
+    def contact_log(self) -> dict:
+        with self.robot.lock:
+            return self.robot.contact_log()
 
     def power_cycle(self) -> None:
         """Every device off and on (SimulatedRobot.power_cycle), between two packets or frames."""
@@ -126,20 +150,21 @@ class Served(SimulatedBuses):
 
 
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
-          q0=None, start: bool = True, lab: Lab | None = None) -> SimulatedBuses:
+          q0=None, start: bool = True, lab: Lab | None = None, obstacles=()) -> SimulatedBuses:
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
     SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
     else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
     can="slcan" on an SLCAN adapter's pseudo-terminal). `lab`: the robot on a simulated lab bench
-    (sim/lab.py), in the child process too."""
+    (sim/lab.py), in the child process too. `obstacles`: hal/contact_spec's Plane and Sphere, in the
+    plant from its start."""
     if mode not in MODES:
         raise SimProcessError(f"a simulated bus runs {' or '.join(MODES)}, not {mode!r}")
     kinds = [bus.kind for bus in config.buses.values()]
     if process is None:
         process = kinds == ["dynamixel"] and config.path is not None and q0 is None
     if process:
-        return SimProcess(config.path, mode, lab=lab)
-    robot = SimulatedRobot(config, q0=q0, bench=lab)
+        return SimProcess(config.path, mode, lab=lab, obstacles=obstacles)
+    robot = SimulatedRobot(config, q0=q0, bench=lab, obstacles=obstacles)
     servers, buses, where = {}, {}, {}
     for name, bus in config.buses.items():
         # the first bus's server keeps the real-time clock; the others follow it
@@ -173,14 +198,16 @@ def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None =
 class SimProcess(SimulatedBuses):
     """The simulated bus of a configuration file in a child process, on a pseudo-terminal."""
 
-    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, lab: Lab | None = None):
+    def __init__(self, config_path, mode: str = "lockstep", start_timeout: float = 60.0, lab: Lab | None = None,
+                 obstacles=()):
         if mode not in MODES:
             raise SimProcessError(f"a simulated bus runs {' or '.join(MODES)}, not {mode!r}")
         self._control, child = socket.socketpair()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "servodyn.sim.serve", "--config", str(config_path), "--mode", mode,
              "--control-fd", str(child.fileno()), "--parent", str(os.getpid()),
-             *(["--lab", lab.to_json()] if lab is not None else [])],
+             *(["--lab", lab.to_json()] if lab is not None else []),
+             *(["--obstacles", json.dumps([to_dict(o) for o in obstacles])] if obstacles else [])],
             pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL)
         child.close()
         self._control.settimeout(start_timeout)
@@ -232,6 +259,13 @@ class SimProcess(SimulatedBuses):
     def status(self) -> dict:
         return self.request("status")
 
+    def schedule_push(self, push: Push, origin: float = 0.0) -> None:
+        self.request("push", push=to_dict(push), origin=float(origin))
+
+    def contact_log(self) -> dict:
+        answer = self.request("contact_log")
+        return {"columns": answer["columns"], "rows": answer["rows"]}
+
     def power_cycle(self) -> None:
         self.request("power_cycle")
 
@@ -272,6 +306,24 @@ def _die_with_parent(parent: int) -> None:
         sys.exit(0)
 
 
+class ContactPtyServer(PtyServer):
+    """The child's server: PtyServer's control requests, and the contact's (`push`: a push from an
+    origin on the plant's clock; `contact_log`: the ground truth row by row)."""
+
+    def _request(self, request: dict) -> dict:
+        op = request.get("op")
+        if op not in ("push", "contact_log"):
+            return super()._request(request)
+        try:
+            with self._lock:
+                if op == "push":
+                    self.arm.schedule_push(from_dict(request["push"]), float(request.get("origin", 0.0)))
+                    return {"ok": True}
+                return {"ok": True, **self.arm.contact_log()}
+        except (InputError, ValueError, KeyError, TypeError) as err:
+            return {"ok": False, "error": str(err)}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m servodyn.sim.serve",
                                      description="the simulated bus in a child process (SimProcess)")
@@ -280,17 +332,19 @@ def main(argv=None) -> int:
     parser.add_argument("--control-fd", type=int, required=True)
     parser.add_argument("--parent", type=int, required=True)
     parser.add_argument("--lab", default=None, help="the lab bench, as Lab.to_json gives it")
+    parser.add_argument("--obstacles", default=None, help="obstacles, a JSON list of hal.contact_spec.to_dict's")
     args = parser.parse_args(argv)
     _die_with_parent(args.parent)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     control = socket.socket(fileno=args.control_fd)
     try:
         lab = Lab.from_json(args.lab) if args.lab is not None else None
-        arm = SimulatedRobot(load_config(args.config), bench=lab).port()
+        obstacles = [from_dict(o) for o in json.loads(args.obstacles)] if args.obstacles else ()
+        arm = SimulatedRobot(load_config(args.config), bench=lab, obstacles=obstacles).port()
     except Exception as err:     # reported to the parent as one line, never a traceback
         control.sendall((json.dumps({"ok": False, "error": str(err)}) + "\n").encode())
         return 2
-    server = PtyServer(arm, args.mode)
+    server = ContactPtyServer(arm, args.mode)
     gc.freeze()      # the set-up's objects (model, tables, numpy) out of every later collection
     control.sendall((json.dumps({"ok": True, "path": server.path, "servos": len(arm.servos), "bus": arm.name}) + "\n").encode())
     try:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import signal
 import threading
+import time
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import InputError, ServodynError, exit_code
 from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig, load_config
+from ..hal.contact_spec import check_contacts
 from ..hal.errors import ServoError
 from ..hal.ports import PTY_REPLY_TIMEOUT, bus_ports, is_pseudo_terminal
 from ..hal.realtime import one_cpu
@@ -73,7 +75,9 @@ class RunOptions:
     it instead of the Python loop. home_duration: s of the homing move. overrun_tolerance: s the
     real-time loop may fall behind before it stops (None: OVERRUN_TOLERANCE). hold: s to hold the
     pose the arm is in under the controller instead of the motion. dry_run: read the arm with
-    torque off and log the planned homing with the torques the controller would send, sending none."""
+    torque off and log the planned homing with the torques the controller would send, sending none.
+    contacts, obstacles: hal.contact_spec's Push (its start from the motion's start) and Plane or
+    Sphere, applied by the simulated plant (a simulated bus started by the run only)."""
     motion: str = DEFAULT_MOTION
     time_scale: float | None = None
     feedforward: bool = True
@@ -86,6 +90,8 @@ class RunOptions:
     overrun_tolerance: float | None = None
     hold: float | None = None
     dry_run: bool = False
+    contacts: tuple = ()
+    obstacles: tuple = ()
 
     @property
     def mode(self) -> str:
@@ -140,6 +146,8 @@ class Run:
         self.kind = next(iter(self.config.buses.values())).kind
         self.simulated = not self.ports or self.kind == "loopback"
         self._check_verdict()
+        check_contacts(self.config.model, o.contacts, o.obstacles, self.simulated and self.kind != "loopback",
+                       native=o.native)
         self.period = self.config.control_period
         self.swing = self.path.at_scale(self.scale, self.period)
         if o.native:
@@ -196,7 +204,8 @@ class Run:
                 raise RunError(f"'{self.config.name}' has no port: its buses are simulated, and this run was "
                                "given no simulator")
             clock = "real time" if self.realtime else "lock-step"
-            server = self.serve(self.config, "realtime" if self.realtime else "lockstep")
+            server = self.serve(self.config, "realtime" if self.realtime else "lockstep",
+                                obstacles=self.options.obstacles)
             for line in server.describe(self.config, clock):
                 self.say(line)
             return server, server.buses
@@ -234,6 +243,7 @@ class Run:
 
     def _play(self, server, per_bus: dict, out: Path) -> dict:
         o, config, say = self.options, self.config, self.say
+        self.plant_swing_start = 0.0             # the swing's start on the simulated plant's clock, once known
         bus = Robot(config, options=per_bus)     # every bus of the configuration, one tick
         try:
             bus.open()        # a port that does not open ends here: nothing ran, so no log and no summary
@@ -300,6 +310,7 @@ class Run:
             swing_start = (server.status()["time"] if realtime else len(home.traj.t) * self.period) \
                 if server is not None else 0.0
             segment = played
+            self.plant_swing_start = swing_start     # in real time, moved on to the first tick (_fault_injector)
             follow(bus, controller, played, log, realtime, on_tick=self._fault_injector(server, played),
                    observer=observer, tolerance=tolerance, guard=guards.at_offset(0.0),
                    progress=lambda t, f, err: say(f"  t = {t:5.2f} s  {100 * f:5.1f} %  "
@@ -325,6 +336,9 @@ class Run:
             stopping["now"] = True
             bus.stop()
             sim = server.status() if server is not None else None
+            # the contact the simulator applied, row by row, its times on the plant's clock (sim/contact.py)
+            self.contact_log = {"swing_start": self.plant_swing_start, **server.contact_log()} \
+                if sim and sim.get("contact") else None
             if server is not None:
                 server.stop()
             log.close()
@@ -343,6 +357,9 @@ class Run:
             # what the simulated servos saw: plant time at the stop and every torque switched off
             summary["sim_time_at_stop_s"] = sim["time"] - swing_start     # on the swing's clock
             summary["torque_off"] = sim["torque_off"]
+            if sim.get("contact"):       # what the simulator applied, its times on the swing's clock
+                summary["sim_contact"] = {**sim["contact"], "onset_t_s": None if sim["contact"]["onset_time"] is None
+                                          else sim["contact"]["onset_time"] - self.plant_swing_start}
         self.log = log
         try:
             write_summary(out, summary)
@@ -387,15 +404,23 @@ class Run:
             raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
 
     def _fault_injector(self, server, played):
-        """on_tick for follow(): fault_at's fault before its tick, on the simulated bus or, for a
-        motion fault, in the played motion."""
-        fault_at = self.options.fault_at
-        if fault_at is None or server is None:
+        """on_tick for follow(): before the first tick, the swing's start on the simulated plant's
+        clock (in real time swing_start plus the wall-clock time since it was read: the loop's set-up
+        takes milliseconds) and --contact's pushes from it; fault_at's fault before its tick, on the
+        simulated bus or, for a motion fault, in the played motion."""
+        fault_at, o = self.options.fault_at, self.options
+        if (fault_at is None and not (o.contacts or o.obstacles)) or server is None:
             return None
-        fault_tick = int(round(fault_at[0] / self.period))
-        fault = fault_at[2] if len(fault_at) > 2 else "silent"
+        fault_tick = int(round(fault_at[0] / self.period)) if fault_at is not None else None
+        fault = fault_at[2] if fault_at is not None and len(fault_at) > 2 else "silent"
+        made = time.perf_counter()        # just after swing_start was read
 
         def inject(k):
+            if k == 0 and (o.contacts or o.obstacles):
+                if self.realtime:
+                    self.plant_swing_start += time.perf_counter() - made
+                for push in o.contacts:      # a push's start counts from the swing's
+                    server.schedule_push(push, self.plant_swing_start)
             if k != fault_tick:
                 return
             if fault == "nan_motion":

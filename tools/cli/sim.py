@@ -13,6 +13,7 @@ from ...hal.realtime import SIMULATOR_PRIORITY, realtime_priority
 from ...sim.console import start_console
 from ...sim.lab import Lab
 from ...sim import serve as simulator
+from .argtypes import obstacle
 from .common import describe
 
 
@@ -33,6 +34,9 @@ def add_arguments(p) -> None:
     p.add_argument("--connect", default=None, metavar="DOF[,DOF...]",
                    help="only these joints' devices are wired to their bus (default every one); the others neither "
                         "hear nor answer, their joints hang limp")
+    p.add_argument("--obstacle", type=obstacle, action="append", default=[], metavar="SPEC",
+                   help="an obstacle in the plant from the start, as `servodyn swing --obstacle`: plane:NX,NY,NZ,D[@K] "
+                        "or sphere:X,Y,Z,R[@K] (m, K in N/m, default 40000); repeatable")
     p.add_argument("--bench", default=None, metavar="FILE",
                    help="the bench's store, a JSON file of each device's non-volatile memory (by dof) and each "
                         "horn's mounting: read at start, written whenever a memory changes, so the bench carries "
@@ -46,7 +50,8 @@ def run(args) -> int:
         connected = None if args.connect is None else [d.strip() for d in args.connect.split(",") if d.strip()]
         bench = Lab(factory=args.factory, store=args.bench, connected=connected)
     config = load_config(args.config)
-    served = simulator.serve(config, mode, process=False, can="slcan", start=False, lab=bench)
+    served = simulator.serve(config, mode, process=False, can="slcan", start=False, lab=bench,
+                             obstacles=tuple(args.obstacle))
     robot, paths = served.robot, {name: options["port"] for name, options in served.buses.items()}
     kinds = {bus.kind for bus in config.buses.values()}
     if bench is not None:
@@ -71,6 +76,10 @@ def run(args) -> int:
                 time.sleep(0.5)
     except KeyboardInterrupt:
         print(f"\nstopped after {robot.time:.2f} s of simulated time", flush=True)
+        contact = robot.status()["contact"]
+        if contact and contact["onset_time"] is not None:
+            print(f"contact: first at {contact['onset_time']:.3f} s on {contact['body']}, peak "
+                  f"{contact['peak_force_n']:.1f} N on {contact['peak_body']}", flush=True)
     finally:
         served.stop()
     return 0

@@ -9,7 +9,7 @@ from pathlib import Path
 from ...control.motion import DEFAULT_MOTION
 from ...control.timing import MAX_PLAYED_DURATION, OVERRUN_TOLERANCE
 from ...errors import FAULT_CODES, ExitCode, ServodynError, exit_codes_help
-from .argtypes import number, positive, tcp_port
+from .argtypes import contact, number, obstacle, positive, tcp_port
 from ...loop.run import RunOptions
 from ...report.swing import play as play_and_report
 from .prompt import ask
@@ -62,6 +62,14 @@ def add_arguments(p) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="torque off: read the arm and log the planned homing with the torques the controller "
                         "would send, sending none")
+    p.add_argument("--contact", type=contact, action="append", default=[], metavar="BODY:FX,FY,FZ@T[+D]",
+                   help="the simulated plant: a push of FX,FY,FZ N (world frame) at BODY's centre of mass from T s "
+                        "after the motion starts (homing excluded) for D s (default 0.3), e.g. r_hand:0,0,-10@1.2; "
+                        "repeatable; summary.json's sim_contact has what was applied")
+    p.add_argument("--obstacle", type=obstacle, action="append", default=[], metavar="SPEC",
+                   help="the simulated plant: plane:NX,NY,NZ,D[@K] (inside where n·x < D) or sphere:X,Y,Z,R[@K], in "
+                        "m in the model's base frame, a spring-damper of K N/m (default 40000, ISO/TS 15066 Table A.3's "
+                        "lower arm) hit by points on the arm's solids, there from the start; repeatable")
     p.add_argument("--view", action="store_true",
                    help="show the arm live in a browser page (servodyn view), then the logged run")
     p.add_argument("--http-port", type=tcp_port, default=8080, metavar="N",
@@ -76,7 +84,8 @@ def play(args, observer=None) -> dict:
     options = RunOptions(motion=args.motion, time_scale=args.time_scale, feedforward=not args.no_feedforward,
                          realtime=args.realtime, force=args.force, native=args.native, port=args.port,
                          overrun_tolerance=None if args.overrun_tolerance is None else args.overrun_tolerance * 1e-3,
-                         hold=args.hold, dry_run=args.dry_run)
+                         hold=args.hold, dry_run=args.dry_run, contacts=tuple(args.contact),
+                         obstacles=tuple(args.obstacle))
     return play_and_report(args.config, options, Path(args.out), observer=observer, say=say,
                            confirm=None if args.yes else (lambda question: ask(question, False, say)))
 
