@@ -131,6 +131,9 @@ int sd_observer_check(const sd_model* m, const sd_observer_config* c) {
         (c->friction_coulomb[j] > 0 && !(c->friction_speed > 0 && SD_ISFINITE(c->friction_speed)))) {
       return SD_OBSERVER_ERR_FRICTION;
     }
+    if (!(c->lowpass[j] >= 0) || !SD_ISFINITE(c->lowpass[j])) {
+      return SD_OBSERVER_ERR_LOWPASS;
+    }
   }
   return SD_OBSERVER_OK;
 }
@@ -142,6 +145,7 @@ const char* sd_observer_strerror(int code) {
     case SD_OBSERVER_ERR_GAIN:   return "a gain negative or not finite";
     case SD_OBSERVER_ERR_FRICTION:
       return "a friction negative or not finite, or Coulomb friction without a positive friction_speed";
+    case SD_OBSERVER_ERR_LOWPASS: return "a low-pass negative or not finite";
     default:                     return "unknown error";
   }
 }
@@ -165,7 +169,10 @@ void sd_observer_reset(const sd_model* m, sd_data* d, const sd_observer_config* 
   s->nfault = 0;
   for (int j = 0; j < m->ndof; j++) {
     s->decay[j] = sd_exp(-c->gain[j] * c->dt);
+    // no low-pass: rf = r
+    s->lowpass_decay[j] = c->lowpass[j] > 0 ? sd_exp(-c->lowpass[j] * c->dt) : SD_R(0);
     s->r[j] = 0;
+    s->rf[j] = 0;
   }
   if (!(sd_allfinite(q, m->nq) && sd_allfinite(qd, m->ndof) &&
         sample(m, d, c, s, q, qd, s->p, s->explained))) {
@@ -195,6 +202,7 @@ void sd_observer_step(const sd_model* m, sd_data* d, const sd_observer_config* c
     for (int j = 0; j < m->ndof; j++) {
       sd_real tau_ext = (p[j] - s->p[j]) * inv_dt - tau_m[j] + half * (explained[j] + s->explained[j]);
       s->r[j] = s->decay[j] * s->r[j] + (SD_R(1) - s->decay[j]) * tau_ext;
+      s->rf[j] = s->lowpass_decay[j] * s->rf[j] + (SD_R(1) - s->lowpass_decay[j]) * s->r[j];
     }
     s->tick++;
   }

@@ -12,14 +12,15 @@ typedef struct {
   sd_observer_state state;
 } ObserverObject;
 
-// Observer(core, dt, gain, friction_coulomb=None, friction_viscous=None, friction_speed=0)
+// Observer(core, dt, gain, friction_coulomb=None, friction_viscous=None, friction_speed=0,
+//          lowpass=None)
 static int Observer_init(ObserverObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"core", "dt", "gain", "friction_coulomb", "friction_viscous",
-                           "friction_speed", NULL};
-  PyObject *core, *gain, *coulomb = Py_None, *viscous = Py_None;
+                           "friction_speed", "lowpass", NULL};
+  PyObject *core, *gain, *coulomb = Py_None, *viscous = Py_None, *lowpass = Py_None;
   double dt, speed = 0.0;
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dO|OOd", kwlist, &CoreType, &core, &dt, &gain,
-                                   &coulomb, &viscous, &speed)) {
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dO|OOdO", kwlist, &CoreType, &core, &dt,
+                                   &gain, &coulomb, &viscous, &speed, &lowpass)) {
     return -1;
   }
   Py_INCREF(core);
@@ -32,7 +33,8 @@ static int Observer_init(ObserverObject* self, PyObject* args, PyObject* kwargs)
   c->friction_speed = (sd_real)speed;
   if (sd_fill(c->gain, gain, nv, "gain") ||
       (coulomb != Py_None && sd_fill(c->friction_coulomb, coulomb, nv, "friction_coulomb")) ||
-      (viscous != Py_None && sd_fill(c->friction_viscous, viscous, nv, "friction_viscous"))) {
+      (viscous != Py_None && sd_fill(c->friction_viscous, viscous, nv, "friction_viscous")) ||
+      (lowpass != Py_None && sd_fill(c->lowpass, lowpass, nv, "lowpass"))) {
     return -1;
   }
   int err = sd_observer_check(&self->core->model, c);
@@ -54,7 +56,7 @@ static PyObject* residual_array(const ObserverObject* self) {
   npy_intp dims[1] = {self->core->model.ndof};
   PyArrayObject* out = (PyArrayObject*)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
   if (out) {
-    sd_store_row(PyArray_DATA(out), self->state.r, (int)dims[0]);
+    sd_store_row(PyArray_DATA(out), self->state.rf, (int)dims[0]);
   }
   return (PyObject*)out;
 }
@@ -139,7 +141,7 @@ static PyObject* Observer_run(ObserverObject* self, PyObject* args) {
         Py_CLEAR(out);
         goto done;
       }
-      sd_store_row(r + k * nv, self->state.r, nv);
+      sd_store_row(r + k * nv, self->state.rf, nv);
     }
   }
 done:
@@ -167,7 +169,8 @@ static PyMethodDef Observer_methods[] = {
 };
 
 static PyGetSetDef Observer_getset[] = {
-    {"residual", (getter)Observer_residual, NULL, "the residual r (N m) of the last sample", NULL},
+    {"residual", (getter)Observer_residual, NULL,
+     "the residual (N m) of the last sample, after the low-pass", NULL},
     {"tick", (getter)Observer_tick, NULL, "samples since reset (-1: not started)", NULL},
     {NULL, NULL, NULL, NULL, NULL},
 };
@@ -178,7 +181,8 @@ static PyTypeObject ObserverType = {
     .tp_basicsize = sizeof(ObserverObject),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_doc = "Observer(core, dt, gain, friction_coulomb=None, friction_viscous=None, "
-              "friction_speed=0): the generalized-momentum observer of the C core.",
+              "friction_speed=0, lowpass=None): the generalized-momentum observer of the C core; its "
+              "residual is r after the low-pass (rf).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Observer_init,
     .tp_dealloc = (destructor)Observer_dealloc,

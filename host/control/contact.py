@@ -1,14 +1,14 @@
 """Contact detection on the momentum observer: detection, isolation and the contact force.
 
 The residual r of the C core's observer (`servodyn.model.MomentumObserver`) is each joint's
-external torque through k/(s+k). A contact is declared when some |r_j| stays above its threshold
+external torque through k/(s+k) and a low-pass. A contact is declared when some |r_j| stays above its threshold
 
     θ_j(t) = θ_static,j + d_j(t)
 
 for `debounce` samples in a row, once the observer is armed. θ_static comes from clean motions
 (`thresholds_from_clean`, margin × the largest |r_j| seen); d_j(t) is what the model's
 uncertainty allows at the present state (`Uncertainty`): the velocity resolution, which enters r
-unfiltered as K_O·M(q)·δq̇; the torque resolution; and, through the observer's own low-pass, the
+as K_O·M(q)·δq̇ before the low-pass (times the low-pass's peak response to it); the torque resolution; and, through the observer's own low-pass, the
 inverse-dynamics error the identification's standard errors allow, |Y(q, q̇, q̈)|·σ_π plus the
 friction's, and the Coulomb step the model smooths near a velocity reversal (where the true
 friction is anywhere in ±F_c).
@@ -16,7 +16,7 @@ friction is anywhere in ±F_c).
 Isolation: the force of a contact on link k reaches only the joints between the base and k, so
 the last joint with a residual over its threshold names the link (its child body). Proximal joints
 cross first (longer lever arms), so the link and the force are refined every sample for `settle`
-seconds after the detection (2/K_O: the residual then holds 86 % of a step). The force is the
+seconds after the detection (2/K_O + 2/low-pass, 40 ms by default: r then holds 91 % of a step). The force is the
 least-squares F with J(q)ᵀF = r over the joints up to that link, J the Jacobian of the link's centre
 of mass (world frame), from the core's inverse dynamics with unit forces there.
 """
@@ -31,11 +31,16 @@ from ..errors import InputError
 from ..model import MomentumObserver
 from .controller import FRICTION_SPEED
 
-# 1/s: the residual's bandwidth. The velocity quantum enters r as K_O·M·δq̇, unfiltered (0.31 N m
-# per Dynamixel velocity unit at the replica's shoulder at 50), while a step of external torque
-# needs −ln(1 − θ/τ)/K_O to cross θ (10 ms at θ/τ = 0.4): 50 keeps a 10 N hand push inside the
-# 12 ms goal with the floor below 1 N m (notes/contact, observer.md §3, §5).
-DEFAULT_GAIN = 50.0
+# 1/s and rad/s: the residual's bandwidth K_O and the low-pass after it, two equal poles (r then
+# reaches 1 − (1 + x)e⁻ˣ of a step at x = 100 t: 26 % at 10 ms, 59 % at 20 ms, 91 % at 40 ms). The velocity quantum
+# enters r unfiltered as K_O·M·δq̇ (0.31 N m per Dynamixel velocity unit at the replica's shoulder at
+# K_O 50), the external torque through K_O/(s + K_O) already: the low-pass averages the quantum's
+# noise over ~10 ticks. On the replica with Dynamixel quantization (tools/bench/contact.py, 20 pushes
+# per force) the clean-swing thresholds fell from 0.77 to 0.28 N m at the shoulder against K_O 50
+# alone, the 10 N P95 delay from 11.8 to 10.7 ms, and 3 N was detected within 50 ms in 100 % of the
+# pushes instead of 90 %; K_O/low-pass of 100/60, 150/100 and 200/70 did no better.
+DEFAULT_GAIN = 100.0
+DEFAULT_LOWPASS = 100.0
 # thresholds_from_clean: θ = margin × the largest |r| of the clean runs. 1.2 over 10 swings gave
 # 0-1 false alarms in 100 further swings in the prototype (the residual's peaks over a swing vary
 # by ~10 % from run to run with the sensors' noise); larger costs sensitivity one for one.
@@ -109,20 +114,30 @@ def thresholds_from_clean(residual_runs: list[np.ndarray], margin: float = DEFAU
     return margin * peak
 
 
+def _pulse_peak(gain: np.ndarray, lowpass: np.ndarray) -> np.ndarray:
+    """The peak of the low-pass's response to r's response to a velocity error's step, K_O·M·δ·e^(−K_O t),
+    over K_O·M·δ: (K/w)^(K/(w − K)), 1/e for equal poles, 1 without the low-pass."""
+    k, w = gain, lowpass
+    with np.errstate(divide="ignore", invalid="ignore"):
+        general = (k / w) ** (k / (w - k))
+    return np.where(w <= 0, 1.0, np.where(np.abs(w - k) < 1e-9 * k, np.exp(-1.0), general))
+
+
 class ContactObserver:
     """The momentum observer with a detection rule, isolation and the contact force.
 
     model: the identified servodyn Model; period: the sample period (s); gain: K_O (1/s, scalar or
     per dof); thresholds: static per-dof thresholds (N m; None: DEFAULT_THRESHOLD_NM); friction:
     (coulomb N m, viscous N m s/rad) per dof, the configuration's friction_coulomb_nm and
-    friction_viscous_nm_s; uncertainty: the dynamic term (Uncertainty); arm_time: seconds after
-    reset before a detection counts (None: 2/min(K_O)); settle: seconds the isolation is refined
-    after a detection (None: 2/min(K_O))."""
+    friction_viscous_nm_s; uncertainty: the dynamic term (Uncertainty); lowpass: the low-pass on r
+    (rad/s, scalar or per dof; 0: none); arm_time: seconds after reset before a detection counts,
+    and settle: seconds the isolation is refined after a detection (None: 2/K_O + 2/lowpass, the
+    slowest joint's, 40 ms by default: r then holds 91 % of a step)."""
 
     def __init__(self, model, period: float, gain=DEFAULT_GAIN, thresholds=None, friction=None,
                  uncertainty: Uncertainty | None = None, debounce: int = DEFAULT_DEBOUNCE,
                  arm_time: float | None = None, settle: float | None = None,
-                 friction_speed: float = FRICTION_SPEED, precision: str = "double"):
+                 friction_speed: float = FRICTION_SPEED, lowpass=DEFAULT_LOWPASS, precision: str = "double"):
         n = model.nv
         if not (isinstance(period, (int, float)) and np.isfinite(period) and period > 0):
             raise InputError(f"period must be a positive number of seconds, got {period!r}")
@@ -139,11 +154,14 @@ class ContactObserver:
         self.debounce = int(debounce)
         if self.debounce < 1:
             raise InputError(f"debounce must be at least 1 sample, got {debounce!r}")
-        self.arm_time = 2.0 / self.gain.min() if arm_time is None else float(arm_time)
-        self.settle = 2.0 / self.gain.min() if settle is None else float(settle)
+        self.lowpass = _per_dof(0.0 if lowpass is None else lowpass, n, "lowpass")
+        rise = float(np.max(2.0 / self.gain + np.where(self.lowpass > 0, 2.0 / np.maximum(self.lowpass, 1e-300), 0.0)))
+        self.arm_time = rise if arm_time is None else float(arm_time)
+        self.settle = rise if settle is None else float(settle)
         self._observer = MomentumObserver(model, self.period, self.gain, self.coulomb, self.viscous,
-                                          self.friction_speed, precision)
+                                          self.friction_speed, self.lowpass, precision)
         self._decay = np.exp(-self.gain * self.period)
+        self._sensor_share = _pulse_peak(self.gain, self.lowpass)
         self._prepare_uncertainty()
         self._dof_body = np.array([i for i, b in enumerate(model.bodies)
                                    for _ in range(6 if b.free else len(b.dofs))], dtype=int)
@@ -238,7 +256,7 @@ class ContactObserver:
         self._qdd = self._decay * self._qdd + (1 - self._decay) * qdd
         out = self._tau_res / 2
         if np.any(self._vel_res > 0):
-            out = out + self.gain * (np.abs(self.model.mass_matrix(q)) @ (self._vel_res / 2))
+            out = out + self._sensor_share * self.gain * (np.abs(self.model.mass_matrix(q)) @ (self._vel_res / 2))
         error = (self._sigma["coulomb_std"] + self._sigma["viscous_std"] * np.abs(qd)
                  + self._sigma["armature_std"] * np.abs(self._qdd))
         if np.any(self.coulomb > 0):
@@ -251,16 +269,22 @@ class ContactObserver:
         return out + self._model_error
 
     # ------------------------------------------------------------------ isolation and force
-    def estimate(self, q, r=None, significant=None) -> tuple[str, np.ndarray]:
+    def estimate(self, q, r=None, significant=None, link: str | None = None) -> tuple[str, np.ndarray]:
         """(link, force): the body of the last joint whose residual is significant (over its
-        threshold; every joint's by default) and the world-frame force at its centre of mass that
-        best explains r over the joints up to it (least squares, J's small singular values cut)."""
+        threshold; every joint's by default), or the given link, and the world-frame force at its
+        centre of mass that best explains r over the joints up to it (least squares, J's small
+        singular values cut)."""
         r = self.residual if r is None else np.asarray(r, dtype=float)
-        if significant is None:
-            significant = np.abs(r) > self.threshold
-        hits = np.flatnonzero(significant)
-        dof = int(hits[-1]) if len(hits) else int(np.argmax(np.abs(r) / np.maximum(self.threshold, 1e-12)))
-        body = int(self._dof_body[dof])
+        if link is not None:
+            if link not in self.model.body_names:
+                raise InputError(f"link '{link}' is not a body of the model ({', '.join(self.model.body_names)})")
+            body = self.model.body_names.index(link)
+        else:
+            if significant is None:
+                significant = np.abs(r) > self.threshold
+            hits = np.flatnonzero(significant)
+            dof = int(hits[-1]) if len(hits) else int(np.argmax(np.abs(r) / np.maximum(self.threshold, 1e-12)))
+            body = int(self._dof_body[dof])
         path = self._path[body]
         jt = self.com_jacobian_t(q, body)[path]
         force, *_ = np.linalg.lstsq(jt, r[path], rcond=RCOND)

@@ -25,17 +25,20 @@ class MomentumObserver:
 
     gain: K_O per dof (1/s), a scalar or (nv,); friction_coulomb (N m), friction_viscous (N m s/rad):
     the joint friction the model explains, F_c·tanh(q̇/friction_speed) + F_v·q̇ on the measured
-    velocity, subtracted from the motor torque (the armature is already in M)."""
+    velocity, subtracted from the motor torque (the armature is already in M); lowpass: a one-pole
+    low-pass on r (rad/s, scalar or per dof; None or 0: none), whose output `step`, `run` and
+    `residual` give: the velocity quantum reaches r unfiltered, as K_O·M·δq̇."""
 
     def __init__(self, model, dt: float, gain, friction_coulomb=None, friction_viscous=None,
-                 friction_speed: float = 0.0, precision: str = "double"):
+                 friction_speed: float = 0.0, lowpass=None, precision: str = "double"):
         n = model.nv
         self.model = model
         self.dt = float(dt)
         self.gain = np.broadcast_to(np.asarray(gain, dtype=float), (n,)).copy()
         friction = {name: np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
                     for name, value in (("friction_coulomb", friction_coulomb),
-                                        ("friction_viscous", friction_viscous)) if value is not None}
+                                        ("friction_viscous", friction_viscous),
+                                        ("lowpass", lowpass)) if value is not None}
         observer_type = _core32.Observer if precision == "float" else _core.Observer
         self._c = observer_type(model._pick(precision), self.dt, self.gain,
                                 friction_speed=float(friction_speed), **friction)

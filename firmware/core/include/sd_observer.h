@@ -39,6 +39,10 @@ typedef struct sd_observer_config_ {
   sd_real friction_coulomb[SD_MAX_DOF];   // (ndof) N m; 0 for none
   sd_real friction_viscous[SD_MAX_DOF];   // (ndof) N m s/rad; 0 for none
   sd_real friction_speed;                 // rad/s: > 0 where any friction_coulomb is
+  // a one-pole low-pass on r, rad/s (0: none): the velocity's quantum reaches r unfiltered, as
+  // gain M(q) dqd, while the external torque comes through gain/(s + gain) already; filtering r
+  // at w_f then averages that noise over ~1/w_f and delays a step by about 1/w_f
+  sd_real lowpass[SD_MAX_DOF];            // (ndof) rad/s, >= 0
 } sd_observer_config;
 
 typedef struct sd_observer_state_ {
@@ -46,7 +50,12 @@ typedef struct sd_observer_state_ {
   sd_real decay[SD_MAX_DOF];      // (ndof) exp(-gain dt), set by sd_observer_reset
   sd_real p[SD_MAX_DOF];          // (ndof) momentum M(q) qd at the last sample
   sd_real explained[SD_MAX_DOF];  // (ndof) beta + friction at the last sample
-  sd_real r[SD_MAX_DOF];          // (ndof) the residual, N m: the external torque, low-passed
+  sd_real r[SD_MAX_DOF];          // (ndof) the residual, N m: the external torque through
+                                  //   gain/(s + gain)
+  sd_real rf[SD_MAX_DOF];         // (ndof) r through the low-pass (r itself where lowpass is 0):
+                                  //   what a detection compares with its thresholds
+  sd_real lowpass_decay[SD_MAX_DOF];  // (ndof) exp(-lowpass dt) (0 without a low-pass), set by
+                                      //   sd_observer_reset
   sd_real g[SD_MAX_DOF];          // (ndof) scratch: g(q) of the last sample
   sd_real ctqd[SD_MAX_DOF];       // (ndof) scratch: C' qd of the last sample
   int status;                     // 0, or SD_OBSERVER_NONFINITE: the last sample was refused
@@ -63,6 +72,7 @@ enum sd_observer_error_ {
   SD_OBSERVER_ERR_GAIN = -2,      // a gain negative or not finite
   SD_OBSERVER_ERR_FRICTION = -3,  // a friction negative or not finite, or Coulomb friction
                                   // without a positive finite friction_speed
+  SD_OBSERVER_ERR_LOWPASS = -4,   // a low-pass negative or not finite
 };
 
 // Check a configuration against a model: SD_OBSERVER_OK or the first fault's negative code.
@@ -80,7 +90,8 @@ void sd_observer_reset(const struct sd_model_* m, struct sd_data_* d, const sd_o
 // acted over the period ending now. The residual is the exact discretization of the first-order
 // filter with the period's mean external torque held:
 //   r <- decay r + (1 - decay) [ (p - p_prev) / dt - tau_m + (b + b_prev) / 2 ],
-// b = beta + friction (trapezoidal over the period). One sd_momentum; s->r holds the result.
+// b = beta + friction (trapezoidal over the period), then rf <- e rf + (1 - e) r with
+// e = exp(-lowpass dt). One sd_momentum; s->r and s->rf hold the result.
 // A non-finite input skips the sample (status SD_OBSERVER_NONFINITE, r and p unchanged).
 void sd_observer_step(const struct sd_model_* m, struct sd_data_* d, const sd_observer_config* c,
                       sd_observer_state* s, const sd_real* q, const sd_real* qd,
