@@ -14,7 +14,8 @@ Scores (at the configuration's own period and time scale, forehand):
                mass (5 ms ramp, then held), random world directions and onsets through the swing;
   sensitivity  the smallest force detected within 50 ms in ≥ 95 % of the trials;
   isolation    the link 40 ms after onset; force error 100 ms after onset;
-  false alarms detections over clean swings of the draws ±10 % and ±20 %.
+  false alarms detections over clean swings of the draws ±10 % and ±20 %;
+  at rest      2 and 3 N at the hand with the arm holding the swing's middle pose.
 
     python -m servodyn.tools.bench.contact                  # a small run (a few minutes)
     python -m servodyn.tools.bench.contact --swings 1000    # the false-alarm goal's 1000 swings
@@ -40,6 +41,7 @@ from servodyn.hal.backend import joint_sensors
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel.units import current_unit
 from servodyn.loop import tick
+from servodyn.loop.run import hold_motion
 from servodyn.sim.dynamixel.drive import Mechanics
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -54,6 +56,8 @@ ISOLATE_AFTER_S = 0.04        # s after onset: the isolation is judged (issue 31
 FORCE_AFTER_S = 0.1           # s after onset: the force estimate is judged
 LEAD_S = 0.15                 # s of swing played before a push's onset (the observer arms in 2/K_O)
 DELAY_GOAL_S = {"replica": 0.012, "replica_can": 0.018}
+HOLD_S = 2.0                  # s: the pose held for the pushes at rest
+REST_FORCES_N = (2.0, 3.0)    # the goal at rest is 3 N
 
 
 @dataclass
@@ -70,10 +74,13 @@ class Arm:
     hand: int                     # the body pushed
 
     @classmethod
-    def of(cls, name: str) -> "Arm":
+    def of(cls, name: str, hold: float | None = None) -> "Arm":
+        """The configuration's forehand; or, with `hold` (s), its pose halfway through held still."""
         config = load_config(name)
         period = config.control_period
         swing = motion_path(MOTION, config.model).at_scale(config.time_scale_for(MOTION), period)
+        if hold is not None:
+            swing, _, _ = hold_motion(config, swing.q[len(swing.t) // 2], hold, period)
         sensors = joint_sensors(config)
         _, segment = plan_run(config.model, swing, swing.q[0], sensors=sensors)
         return cls(name=name, model=config.model, period=period, segment=segment,
@@ -272,8 +279,11 @@ def main(argv=None) -> int:
         thresholds = calibrate(arm, plant, args.calibration, rng)
         pushes = [score_pushes(arm, plant, thresholds, f, args.trials, rng) for f in forces]
         alarms = [false_alarms(arm, s, args.draws, args.swings, args.calibration, rng) for s in (0.10, 0.20)]
+        still = Arm.of(name, hold=HOLD_S)
+        rest = [score_pushes(still, plant, calibrate(still, plant, args.calibration, rng), f, args.trials, rng)
+                for f in REST_FORCES_N]
         report[name] = {"period_s": arm.period, "thresholds_nm": thresholds.tolist(), "pushes": pushes,
-                        "false_alarms": alarms}
+                        "false_alarms": alarms, "at_rest": rest}
         lines.append(f"{name} ({1 / arm.period:g} Hz), thresholds {np.array2string(thresholds, precision=2)} N m:")
         for p in pushes:
             lines.append(f"  {p['force_n']:g} N at the hand: detected {p['detected']}/{p['trials']}, within 50 ms "
@@ -284,6 +294,9 @@ def main(argv=None) -> int:
         sensitive = [p["force_n"] for p in pushes if p["within_50ms"] >= 0.95]
         lines.append(f"  smallest force detected within 50 ms in >= 95 %: "
                      f"{min(sensitive):g} N" if sensitive else "  no force detected within 50 ms in >= 95 %")
+        for p in rest:
+            lines.append(f"  at rest, {p['force_n']:g} N at the hand: within 50 ms {p['within_50ms'] * 100:.0f} %, delay "
+                         f"P50 {p['delay_p50_ms']:.1f} ms P95 {p['delay_p95_ms']:.1f} ms")
         for a in alarms:
             lines.append(f"  false alarms, masses ±{a['spread'] * 100:.0f} %: {a['false_alarms']} in {a['swings']} "
                          f"clean swings ({a['draws']} draws)")
@@ -292,7 +305,7 @@ def main(argv=None) -> int:
             met = ten["delay_p95_ms"] <= DELAY_GOAL_S[name] * 1e3
             lines.append(f"  goal P95 delay <= {DELAY_GOAL_S[name] * 1e3:g} ms for 10 N: {'met' if met else 'NOT met'}")
         lines.append(f"  ({time.perf_counter() - started:.0f} s)")
-        print("\n".join(lines[-(len(pushes) + len(alarms) + 4):]), flush=True)
+        print("\n".join(lines[-(len(pushes) + len(alarms) + len(rest) + 4):]), flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "contact.json").write_text(json.dumps(report, indent=1))

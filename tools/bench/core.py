@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 import servodyn
+from servodyn.control.contact import DEFAULT_GAIN, DEFAULT_LOWPASS
 from servodyn.model import MomentumObserver
 from servodyn.model.samples import random_model, serial_chain
 
@@ -168,7 +169,7 @@ def run_observer(model, data, reps: int) -> dict:
     timed against sd_rnea, each over the states in one C loop (one call from Python: the same row
     loading for all three), interleaved: µs per state and the ratios to one RNEA."""
     q, qd, qdd, tau = data
-    observer = MomentumObserver(model, 1e-3, 50.0)
+    observer = MomentumObserver(model, 1e-3, DEFAULT_GAIN, lowpass=DEFAULT_LOWPASS)
     us, _ = time_interleaved({"observer": {
         "sd_rnea_batch": (lambda: model.inverse_dynamics(q, qd, qdd), len(q)),
         "sd_momentum_batch": (lambda: model.momentum(q, qd), len(q)),
