@@ -45,8 +45,10 @@ DEFAULT_LOWPASS = 100.0
 # 0-1 false alarms in 100 further swings in the prototype (the residual's peaks over a swing vary
 # by ~10 % from run to run with the sensors' noise); larger costs sensitivity one for one.
 DEFAULT_MARGIN = 1.2
-# N m: the static threshold of an observer given none — no calibration yet. Above the replica's
-# floor with Dynamixel sensors and a model 20 % off (0.13-0.86 N m per joint, observer.md §5).
+# N m: the static threshold of an observer given none — no calibration yet. Calibrated on clean
+# forehands the replica's are 0.07-0.28 N m (Dynamixel sensors, masses 10 % off, the defaults above);
+# an uncalibrated arm also carries what no clean run of the model shows (a racket, friction): 1 N m,
+# a 2-4 N push at the hand, the Dynamixel servos' torque resolution times 150-200.
 DEFAULT_THRESHOLD_NM = 1.0
 # samples in a row over the threshold: one isolated sample over it is the velocity quantum's (it
 # passes r unfiltered); two cost one period (1 ms at 1 kHz)
