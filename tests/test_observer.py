@@ -197,6 +197,30 @@ def test_a_detection_is_frozen_and_says_what_the_summary_needs():
     assert d.as_dict()["force_estimate_n"] == 3.0 and d.as_dict()["link"] == "r_hand"
 
 
+def test_the_identification_standard_errors_raise_the_threshold_by_y_sigma():
+    """At rest the model error a first moment's standard error σ allows is 3σ·|∂g/∂h|: the
+    threshold rises by it once the observer's low-pass has settled. ∂g/∂h from the gravity torques
+    of the model with the hand's centre of mass moved by δ/m (independent of the regressor)."""
+    import dataclasses as dc
+    model = servodyn.load_model("replica")
+    hand, sigma, delta = model.nbody - 1, 0.002, 1e-6
+    std = np.zeros(10 * model.nbody)
+    std[10 * hand + 1] = sigma                      # h_x of the hand, the core's body frame
+    observer = ContactObserver(model, 1e-3, thresholds=0.1, uncertainty=Uncertainty(parameter_std=std))
+    q = np.array([0.3, 0.4, -0.2, 1.0, 0.2, 0.1, -0.1])
+    observer.reset(q, np.zeros(7))
+    g = model.momentum(q, np.zeros(7))[1]
+    for k in range(1, 301):
+        observer.update(k * 1e-3, q, np.zeros(7), g)
+    bodies = list(model.bodies)
+    shift = model.frame_rot[hand] @ np.array([delta / bodies[hand].mass, 0.0, 0.0])
+    bodies[hand] = dc.replace(bodies[hand], com=np.asarray(bodies[hand].com) + shift)
+    moved = servodyn.Model(bodies, gravity=model.gravity)
+    dg = (moved.momentum(q, np.zeros(7))[1] - g) / delta
+    assert np.allclose(observer.threshold, 0.1 + 3 * sigma * np.abs(dg), rtol=1e-5, atol=1e-9)
+    assert observer.detection is None
+
+
 def _peak_through_lowpass(gain, lowpass):
     """max over t of e^(−K t) through w/(s + w), by a fine Euler integration (the reference)."""
     if lowpass == 0:
