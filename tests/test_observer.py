@@ -52,7 +52,8 @@ def test_momentum_terms_with_free_root_and_ball_joints(variant):
     body: both against Pinocchio's free-flyer and spherical joints, built joint by joint."""
     import pinocchio as pin
     # human15's root is welded without a free root (Pinocchio's direct build needs a joint): human_arm then
-    hinges = servodyn.load_model("human_arm") if variant == "ball_joints" else servodyn.load_model("human15", free_root=True)
+    hinges = servodyn.load_model("human_arm") if variant == "ball_joints" else \
+        servodyn.load_model("human15", free_root=True)
     model = hinges if variant == "free_root" else hinges.with_ball_joints()
     pm = pinocchio_direct(model)
     pd = pm.createData()
@@ -171,7 +172,8 @@ def test_the_observer_refuses_bad_settings_in_one_line():
     with pytest.raises(ValueError, match="non-finite"):
         MomentumObserver(model, 1e-3, 50.0).step(np.full(7, np.nan), np.zeros(7), np.zeros(7))
     for kwargs in (dict(period=0.0), dict(period=1e-3, gain=0.0), dict(period=1e-3, thresholds=-1.0),
-                   dict(period=1e-3, debounce=0), dict(period=1e-3, friction=([1.0] * 3, None))):
+                   dict(period=1e-3, debounce=0), dict(period=1e-3, friction=([1.0] * 3, None)),
+                   dict(period=1e-3, friction=(0.1, 0.0), friction_speed=0.0)):
         with pytest.raises(InputError) as err:
             ContactObserver(model, **kwargs)
         assert "\n" not in str(err.value)

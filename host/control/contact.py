@@ -8,10 +8,10 @@ external torque through k/(s+k) and a low-pass. A contact is declared when some 
 for `debounce` samples in a row, once the observer is armed. θ_static comes from clean motions
 (`thresholds_from_clean`, margin × the largest |r_j| seen); d_j(t) is what the model's
 uncertainty allows at the present state (`Uncertainty`): the velocity resolution, which enters r
-as K_O·M(q)·δq̇ before the low-pass (times the low-pass's peak response to it); the torque resolution; and, through the observer's own low-pass, the
-inverse-dynamics error the identification's standard errors allow, |Y(q, q̇, q̈)|·σ_π plus the
-friction's, and the Coulomb step the model smooths near a velocity reversal (where the true
-friction is anywhere in ±F_c).
+as K_O·M(q)·δq̇ before the low-pass (times the low-pass's peak response to it); the torque
+resolution; and, through the observer's own low-pass, the inverse-dynamics error the
+identification's standard errors allow, |Y(q, q̇, q̈)|·σ_π plus the friction's, and the Coulomb step
+the model smooths near a velocity reversal (where the true friction is anywhere in ±F_c).
 
 Isolation: the force of a contact on link k reaches only the joints between the base and k, so
 the last joint with a residual over its threshold names the link (its child body). Proximal joints
@@ -157,11 +157,15 @@ class ContactObserver:
         if self.debounce < 1:
             raise InputError(f"debounce must be at least 1 sample, got {debounce!r}")
         self.lowpass = _per_dof(0.0 if lowpass is None else lowpass, n, "lowpass")
-        rise = float(np.max(2.0 / self.gain + np.where(self.lowpass > 0, 2.0 / np.maximum(self.lowpass, 1e-300), 0.0)))
+        lag = np.where(self.lowpass > 0, 2.0 / np.maximum(self.lowpass, 1e-300), 0.0)
+        rise = float(np.max(2.0 / self.gain + lag))
         self.arm_time = rise if arm_time is None else float(arm_time)
         self.settle = rise if settle is None else float(settle)
-        self._observer = MomentumObserver(model, self.period, self.gain, self.coulomb, self.viscous,
-                                          self.friction_speed, self.lowpass, precision)
+        try:
+            self._observer = MomentumObserver(model, self.period, self.gain, self.coulomb, self.viscous,
+                                              self.friction_speed, self.lowpass, precision)
+        except ValueError as err:
+            raise InputError(str(err)) from None
         self._decay = np.exp(-self.gain * self.period)
         self._sensor_share = _pulse_peak(self.gain, self.lowpass)
         self._prepare_uncertainty()

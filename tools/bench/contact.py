@@ -288,14 +288,16 @@ def main(argv=None) -> int:
         for p in pushes:
             lines.append(f"  {p['force_n']:g} N at the hand: detected {p['detected']}/{p['trials']}, within 50 ms "
                          f"{p['within_50ms'] * 100:.0f} %, delay P50 {p['delay_p50_ms']:.1f} ms P95 "
-                         f"{p['delay_p95_ms']:.1f} ms, isolated to the hand {p['isolated_to_hand'] * 100:.0f} % (or its parent "
+                         f"{p['delay_p95_ms']:.1f} ms, isolated to the hand {p['isolated_to_hand'] * 100:.0f} % "
+                         f"(or its parent "
                          f"{p['isolated_to_hand_or_parent'] * 100:.0f} %), "
                          f"force error median {p['force_error_n_median'] or float('nan'):.2f} N")
         sensitive = [p["force_n"] for p in pushes if p["within_50ms"] >= 0.95]
         lines.append(f"  smallest force detected within 50 ms in >= 95 %: "
                      f"{min(sensitive):g} N" if sensitive else "  no force detected within 50 ms in >= 95 %")
         for p in rest:
-            lines.append(f"  at rest, {p['force_n']:g} N at the hand: within 50 ms {p['within_50ms'] * 100:.0f} %, delay "
+            lines.append(f"  at rest, {p['force_n']:g} N at the hand: within 50 ms "
+                         f"{p['within_50ms'] * 100:.0f} %, delay "
                          f"P50 {p['delay_p50_ms']:.1f} ms P95 {p['delay_p95_ms']:.1f} ms")
         for a in alarms:
             lines.append(f"  false alarms, masses ±{a['spread'] * 100:.0f} %: {a['false_alarms']} in {a['swings']} "
