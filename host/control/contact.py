@@ -55,6 +55,8 @@ DEFAULT_THRESHOLD_NM = 1.0
 DEFAULT_DEBOUNCE = 2
 # the uncertainty's coverage: standard errors × 3
 COVERAGE = 3.0
+# s: how often the velocity resolution's term K_O·|M(q)|·δq̇/2 is recomputed
+MASS_MATRIX_EVERY_S = 0.01
 # singular values of J below this fraction of the largest are dropped from the force's solution
 RCOND = 1e-2
 
@@ -192,6 +194,14 @@ class ContactObserver:
                 raise InputError(f"parameter_std must be {10 * self.model.nbody} finite numbers >= 0 "
                                  "(Model.regressor's columns)")
             self._param_std = k * std
+        # what _dynamic has to compute, decided once
+        self._tau_half = self._tau_res / 2 if self._tau_res.any() else 0.0
+        self._vel_half = self._vel_res / 2 if self._vel_res.any() else None
+        self._vel_gain = self._sensor_share * self.gain
+        self._vel_every = max(1, int(round(MASS_MATRIX_EVERY_S / self.period)))
+        self._coulomb_band = bool(self.coulomb.any())
+        self._model_terms = self._coulomb_band or self._param_std is not None or \
+            any(v.any() for v in self._sigma.values())
 
     def _paths(self) -> list[np.ndarray]:
         """For each body, the dofs between the base and it (its own included)."""
@@ -214,6 +224,7 @@ class ContactObserver:
         self._qdd = np.zeros(self.model.nv)
         self._model_error = np.zeros(self.model.nv)
         self._over = np.zeros(self.model.nv, dtype=int)
+        self._vel_term, self._samples = None, 0
         self._t0 = None
         self.detection = None
         self.threshold = self.thresholds.copy()
@@ -233,9 +244,9 @@ class ContactObserver:
         qd = np.asarray(qd, dtype=float)
         self.threshold = self.thresholds + self._dynamic(q, qd)
         over = np.abs(r) > self.threshold
-        self._over = np.where(over, self._over + 1, 0)
+        self._over = (self._over + 1) * over
         if self.detection is None:
-            if t - self._t0 >= self.arm_time and np.any(self._over >= self.debounce):
+            if t - self._t0 >= self.arm_time and over.any() and (self._over >= self.debounce).any():
                 joint = int(np.flatnonzero(self._over >= self.debounce)[0])
                 link, force = self.estimate(q, r, over)
                 self.detection = Detection(t_s=float(t), joint=self.dof_names[joint], link=link,
@@ -255,17 +266,25 @@ class ContactObserver:
         return self._observer.residual
 
     # ------------------------------------------------------------------ thresholds
-    def _dynamic(self, q, qd: np.ndarray) -> np.ndarray:
-        """d(t): the sensors' part now, and the model's through the observer's low-pass."""
+    def _dynamic(self, q, qd: np.ndarray) -> np.ndarray | float:
+        """d(t): the sensors' part now, and the model's through the observer's low-pass (only the
+        terms the uncertainty has: the static thresholds alone cost nothing here)."""
+        out = self._tau_half
+        if self._vel_half is not None:
+            # M(q) moves little in 10 ms (a tenth of a radian at the swing's fastest): refreshed
+            # that often, it costs a few µs a sample instead of a mass matrix each
+            if self._vel_term is None or self._samples % self._vel_every == 0:
+                self._vel_term = self._vel_gain * (np.abs(self.model.mass_matrix(q)) @ self._vel_half)
+            self._samples += 1
+            out = out + self._vel_term
+        if not self._model_terms:
+            return out
         qdd = (qd - self._qd_prev) / self.period
         self._qd_prev = qd.copy()
         self._qdd = self._decay * self._qdd + (1 - self._decay) * qdd
-        out = self._tau_res / 2
-        if np.any(self._vel_res > 0):
-            out = out + self._sensor_share * self.gain * (np.abs(self.model.mass_matrix(q)) @ (self._vel_res / 2))
         error = (self._sigma["coulomb_std"] + self._sigma["viscous_std"] * np.abs(qd)
                  + self._sigma["armature_std"] * np.abs(self._qdd))
-        if np.any(self.coulomb > 0):
+        if self._coulomb_band:
             # the smoothed Coulomb step: within a few quanta of zero speed the true friction is
             # anywhere in ±F_c
             error = error + self.coulomb * (1 - np.abs(np.tanh(qd / self.friction_speed)))
