@@ -8,7 +8,8 @@
 #   make demo    the main job on the simulated servo bus
 #   make soak    swings with one random fault each, host and firmware (a few minutes; not in make test)
 #   make fuzz    the wire codecs under libFuzzer with ASan and UBSan (FUZZ_SECONDS each, default 60)
-#   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget
+#   make bench   timings against Pinocchio and MuJoCo, the control loop's rate, the firmware's budget,
+#                contact detection scored against its goals (tools/bench/contact.py)
 #   make docs    rewrite the figures the READMEs quote from the commands (tests/test_docs.py checks them)
 #   make clean   remove what the build made (keeps .venv; make distclean removes it too)
 #
@@ -53,6 +54,7 @@ bench: venv
 	@echo "== servodyn benchmark"
 	@$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check "mujoco>=3.2" "cmeel-eigen>=3.4"
 	@$(VENV)/bin/python -m servodyn.tools.bench.core
+	@$(VENV)/bin/python -m servodyn.tools.bench.contact
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench.loop
 	@$(VENV)/bin/python -m servodyn.tools.bench.view

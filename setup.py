@@ -12,7 +12,7 @@ FLAGS = ["-std=c11", "-O3", "-ffp-contract=off", "-Wall", "-Wextra"]
 def core_module(name, *defines):
     return Extension(
         f"servodyn.{name}",
-        sources=["host/binding/_core.c", "host/binding/_core_control.c", *CORE],
+        sources=[*sorted(glob.glob("host/binding/*.c")), *CORE],
         include_dirs=["firmware/core/include", "host/binding", numpy.get_include()],
         define_macros=[("SD_MODULE_NAME", name), *[(d, "1") for d in defines]],
         extra_compile_args=FLAGS,

@@ -152,10 +152,7 @@ void sd_control_step(const sd_model* m, sd_data* d, const sd_control_config* c,
   // adds no feedback, so it cannot make the loop chatter
   if (c->mode != SD_MODE_PD) {
     for (int j = 0; j < nv; j++) {
-      if (c->friction_coulomb[j] > 0) {
-        tau[j] += c->friction_coulomb[j] * sd_tanh(qd_d[j] / c->friction_speed);
-      }
-      tau[j] += c->friction_viscous[j] * qd_d[j];
+      tau[j] += sd_friction(c->friction_coulomb[j], c->friction_viscous[j], c->friction_speed, qd_d[j]);
     }
   }
 

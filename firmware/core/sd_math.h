@@ -103,6 +103,18 @@ static inline void sd_mulsym(sd_real r[3], const sd_real S[6], const sd_real v[3
   r[0] = x; r[1] = y; r[2] = z;
 }
 
+//---------------------------------- friction ----------------------------------------------------
+
+// The friction torque a joint's model gives at speed qd: F_c tanh(qd / speed) + F_v qd, the
+// Coulomb step smoothed over `speed` (control.c says why); speed is unused when coulomb is 0
+static inline sd_real sd_friction(sd_real coulomb, sd_real viscous, sd_real speed, sd_real qd) {
+  sd_real tau = viscous * qd;
+  if (coulomb > 0) {
+    tau += coulomb * sd_tanh(qd / speed);
+  }
+  return tau;
+}
+
 //---------------------------------- checks ------------------------------------------------------
 
 // 1 when the n numbers of x are all finite

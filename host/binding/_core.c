@@ -91,6 +91,24 @@ int sd_fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name) {
   return 0;
 }
 
+// load one state row of length n from a float64 array into dst, checking its size
+int sd_load_vector(sd_real* dst, PyObject* obj, int n, const char* name) {
+  npy_intp tail[1] = {n}, nrow;
+  int batched;
+  PyArrayObject* arr = sd_as_rows(obj, name, tail, 1, &nrow, &batched);
+  if (!arr) {
+    return -1;
+  }
+  if (batched) {
+    PyErr_Format(PyExc_ValueError, "%s must be one state of %d numbers", name, n);
+    Py_DECREF(arr);
+    return -1;
+  }
+  sd_load_row(dst, PyArray_DATA(arr), n);
+  Py_DECREF(arr);
+  return 0;
+}
+
 static int fill_int(int* dst, PyObject* obj, npy_intp count, const char* name) {
   PyArrayObject* arr = (PyArrayObject*)PyArray_FROMANY(
       obj, NPY_LONG, 0, 0, NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED | NPY_ARRAY_FORCECAST);
@@ -302,6 +320,54 @@ done:
   return (PyObject*)out;
 }
 
+// momentum(q, qd) -> (p, g, ctqd): M(q) qd, g(q) and C(q, qd)' qd, one state or a batch
+static PyObject* Core_momentum(CoreObject* self, PyObject* args) {
+  PyObject *oq, *oqd;
+  if (!PyArg_ParseTuple(args, "OO", &oq, &oqd)) {
+    return NULL;
+  }
+  const sd_model* m = &self->model;
+  npy_intp tail[1] = {m->ndof}, qtail[1] = {m->nq}, nq, nqd;
+  int bq, bqd;
+  PyArrayObject *aq = NULL, *aqd = NULL, *out[3] = {NULL, NULL, NULL};
+  PyObject* result = NULL;
+  aq = sd_as_rows(oq, "q", qtail, 1, &nq, &bq);
+  if (aq) aqd = sd_as_rows(oqd, "qd", tail, 1, &nqd, &bqd);
+  if (!aqd) goto done;
+  if (bqd != bq || nqd != nq) {
+    PyErr_SetString(PyExc_ValueError, "inputs must all be single states or batches of one length N");
+    goto done;
+  }
+  for (int k = 0; k < 3; k++) {
+    out[k] = (PyArrayObject*)PyArray_SimpleNew(PyArray_NDIM(aqd), PyArray_DIMS(aqd), NPY_DOUBLE);
+    if (!out[k]) goto done;
+  }
+  {
+    int n = m->ndof, nqc = m->nq;
+    sd_real rq[SD_MAX_Q], rqd[SD_MAX_DOF], rp[SD_MAX_DOF], rg[SD_MAX_DOF], rc[SD_MAX_DOF];
+    for (npy_intp r = 0; r < nq; r++) {
+      sd_load_row(rq, (const double*)PyArray_DATA(aq) + r * nqc, nqc);
+      sd_load_row(rqd, (const double*)PyArray_DATA(aqd) + r * n, n);
+      sd_momentum(m, &self->data, rq, rqd, rp, rg, rc);
+      if (!sd_allfinite_row(rp, n) || !sd_allfinite_row(rg, n) || !sd_allfinite_row(rc, n)) {
+        PyErr_Format(PyExc_FloatingPointError,
+                     "momentum: non-finite result at row %ld (the inputs overflow the precision)",
+                     (long)r);
+        goto done;
+      }
+      sd_store_row((double*)PyArray_DATA(out[0]) + r * n, rp, n);
+      sd_store_row((double*)PyArray_DATA(out[1]) + r * n, rg, n);
+      sd_store_row((double*)PyArray_DATA(out[2]) + r * n, rc, n);
+    }
+  }
+  result = PyTuple_Pack(3, (PyObject*)out[0], (PyObject*)out[1], (PyObject*)out[2]);
+done:
+  Py_XDECREF(aq);
+  Py_XDECREF(aqd);
+  for (int k = 0; k < 3; k++) Py_XDECREF(out[k]);
+  return result;
+}
+
 // step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd): nsteps steps with tau held
 static PyObject* Core_step(CoreObject* self, PyObject* args, PyObject* kwargs) {
   static char* kwlist[] = {"q", "qd", "tau", "dt", "integrator", "nsteps", "f_ext", NULL};
@@ -447,6 +513,8 @@ static PyMethodDef Core_methods[] = {
      "forward(q, qd, tau, f_ext=None) -> qdd: direct dynamics, one state or a batch"},
     {"regressor", (PyCFunction)Core_regressor, METH_VARARGS,
      "regressor(q, qd, qdd) -> Y (ndof, 10 nbody): tau = Y pi, one state or a batch"},
+    {"momentum", (PyCFunction)Core_momentum, METH_VARARGS,
+     "momentum(q, qd) -> (p, g, ctqd): M(q) qd, g(q), C(q, qd)' qd; one state or a batch"},
     {"step", (PyCFunction)(void (*)(void))Core_step, METH_VARARGS | METH_KEYWORDS,
      "step(q, qd, tau, dt, integrator, nsteps=1, f_ext=None) -> (q, qd)"},
     {"model_bytes", (PyCFunction)Core_model_bytes, METH_NOARGS, "the sd_model struct as bytes"},
@@ -543,7 +611,7 @@ PyMODINIT_FUNC SD_CAT(PyInit_, SD_MODULE_NAME)(void) {
   }
   Py_INCREF(&CoreType);
   PyModule_AddObject(mod, "Core", (PyObject*)&CoreType);
-  if (sd_add_control_types(mod) < 0) {
+  if (sd_add_control_types(mod) < 0 || sd_add_observer_type(mod) < 0) {
     Py_DECREF(mod);
     return NULL;
   }

@@ -48,6 +48,12 @@ int sd_allfinite_row(const sd_real* x, npy_intp n);
 // Copy a float64 array of exactly `count` numbers into dst; -1 with a Python error otherwise.
 int sd_fill(sd_real* dst, PyObject* obj, npy_intp count, const char* name);
 
+// Load one state of exactly n numbers (no batch axis) from a float64 array; -1 with an error.
+int sd_load_vector(sd_real* dst, PyObject* obj, int n, const char* name);
+
+// Add the Observer type to the module (_core_observer.c); -1 on failure.
+int sd_add_observer_type(PyObject* module);
+
 // Add the Controller and Trajectory types to the module; -1 on failure.
 int sd_add_control_types(PyObject* module);
 

@@ -57,24 +57,6 @@ static PyObject* Controller_reset(ControllerObject* self, PyObject* Py_UNUSED(ig
   Py_RETURN_NONE;
 }
 
-// load one state row of length n from a float64 array into dst, checking its size
-static int load_vector(sd_real* dst, PyObject* obj, int n, const char* name) {
-  npy_intp tail[1] = {n}, nrow;
-  int batched;
-  PyArrayObject* arr = sd_as_rows(obj, name, tail, 1, &nrow, &batched);
-  if (!arr) {
-    return -1;
-  }
-  if (batched) {
-    PyErr_Format(PyExc_ValueError, "%s must be one state of %d numbers", name, n);
-    Py_DECREF(arr);
-    return -1;
-  }
-  sd_load_row(dst, PyArray_DATA(arr), n);
-  Py_DECREF(arr);
-  return 0;
-}
-
 // step(q_d, qd_d, qdd_d, q, qd) -> tau: one small step of the controller
 static PyObject* Controller_step(ControllerObject* self, PyObject* args) {
   PyObject *oqd_, *oqdd_, *oqdd_d, *oq, *oqv;
@@ -84,9 +66,9 @@ static PyObject* Controller_step(ControllerObject* self, PyObject* args) {
   const sd_model* m = &self->core->model;
   sd_real q_d[SD_MAX_Q], qd_d[SD_MAX_DOF], qdd_d[SD_MAX_DOF], q[SD_MAX_Q], qd[SD_MAX_DOF];
   sd_real tau[SD_MAX_DOF];
-  if (load_vector(q_d, oqd_, m->nq, "q_d") || load_vector(qd_d, oqdd_, m->ndof, "qd_d") ||
-      load_vector(qdd_d, oqdd_d, m->ndof, "qdd_d") || load_vector(q, oq, m->nq, "q") ||
-      load_vector(qd, oqv, m->ndof, "qd")) {
+  if (sd_load_vector(q_d, oqd_, m->nq, "q_d") || sd_load_vector(qd_d, oqdd_, m->ndof, "qd_d") ||
+      sd_load_vector(qdd_d, oqdd_d, m->ndof, "qdd_d") || sd_load_vector(q, oq, m->nq, "q") ||
+      sd_load_vector(qd, oqv, m->ndof, "qd")) {
     return NULL;
   }
   sd_control_step(m, &self->core->data, &self->config, &self->state, q_d, qd_d, qdd_d, q, qd, tau);
@@ -131,7 +113,7 @@ static PyObject* Controller_simulate(ControllerObject* self, PyObject* args) {
   }
   int nq = m->nq, nv = m->ndof;
   sd_real q[SD_MAX_Q], qd[SD_MAX_DOF], tau[SD_MAX_DOF];
-  if (load_vector(q, oq0, nq, "q0") || load_vector(qd, oqd0, nv, "qd0")) {
+  if (sd_load_vector(q, oq0, nq, "q0") || sd_load_vector(qd, oqd0, nv, "qd0")) {
     return NULL;
   }
   npy_intp qtail[1] = {nq}, vtail[1] = {nv}, n1, n2, n3;

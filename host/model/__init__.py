@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .files import BUILTIN_DIR, builtin_models
 from .modelfile import load_model_file
+from .observer import MomentumObserver
 from .tree import INTEGRATORS, Body, Dof, Model, ModelError
 from .urdf import load_urdf
 
@@ -46,4 +47,4 @@ def load_model(name_or_path: str | Path, free_root: bool = False) -> Model:
         raise ModelError(f"{path}: {err}") from None
 
 
-__all__ = ["INTEGRATORS", "Body", "Dof", "Model", "ModelError", "builtin_models", "load_model"]
+__all__ = ["INTEGRATORS", "Body", "Dof", "Model", "ModelError", "MomentumObserver", "builtin_models", "load_model"]

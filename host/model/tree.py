@@ -313,6 +313,12 @@ class Model(Variants):
             out.append([mass, *(mass * c), I[0, 0], I[0, 1], I[1, 1], I[0, 2], I[1, 2], I[2, 2]])
         return np.array(out, dtype=float).ravel()
 
+    def momentum(self, q, qd, precision="double") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p, g, Cᵀq̇): the generalized momentum M(q)·q̇ (armature included), the gravity torques
+        g(q) and C(q, q̇)ᵀ·q̇ with Ṁ = C + Cᵀ, in one O(n) recursion of the core (sd_momentum); the
+        momentum observer's β = g − Cᵀq̇. A leading batch axis is computed in C in one call."""
+        return self._pick(precision).momentum(q, qd)
+
     def mass_matrix(self, q) -> np.ndarray:
         """The joint-space inertia matrix M(q), column by column from inverse dynamics (the
         armatures on its diagonal)."""

@@ -69,6 +69,7 @@ static const struct {
   {"test_model.c", sdt_model_tests},
   {"test_rnea.c", sdt_rnea_tests},
   {"test_regressor.c", sdt_regressor_tests},
+  {"test_observer.c", sdt_observer_tests},
   {"test_ag.c", sdt_ag_tests},
   {"test_integrate.c", sdt_integrate_tests},
   {"test_trajectory.c", sdt_trajectory_tests},

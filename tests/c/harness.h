@@ -17,6 +17,7 @@ typedef struct sdt_test_ {
 extern const sdt_test sdt_model_tests[];
 extern const sdt_test sdt_rnea_tests[];
 extern const sdt_test sdt_regressor_tests[];
+extern const sdt_test sdt_observer_tests[];
 extern const sdt_test sdt_ag_tests[];
 extern const sdt_test sdt_integrate_tests[];
 extern const sdt_test sdt_trajectory_tests[];

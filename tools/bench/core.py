@@ -23,6 +23,8 @@ from typing import Callable
 import numpy as np
 
 import servodyn
+from servodyn.control.contact import DEFAULT_GAIN, DEFAULT_LOWPASS
+from servodyn.model import MomentumObserver
 from servodyn.model.samples import random_model, serial_chain
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,6 +32,9 @@ BUILD = ROOT / "build" / "bench"
 SOURCES = [ROOT / "tools" / "bench" / "native" / "bench.cpp", ROOT / "tools" / "bench" / "native" / "build.sh",
            *sorted((ROOT / "firmware" / "core").rglob("*.[ch]"))]
 GOALS = {"rnea": 0.6, "forward": 0.8, "rk4": 0.8}
+# the momentum observer's tick (issue 31): at most 3 RNEA calls' time, and 5 µs, on the host
+OBSERVER_GOAL_RNEA = 3.0
+OBSERVER_GOAL_US = 5.0
 # the ratio each goal is judged on: contest, library servodyn is timed against, label
 GOAL_RATIOS = (("rnea", "pin", "inverse dynamics vs Pinocchio RNEA"),
                ("forward", "pin", "direct dynamics vs Pinocchio ABA"),
@@ -159,6 +164,38 @@ def run_python(name: str, model, data, reps: int) -> dict:
             "us_per_rep": {k: v.tolist() for k, v in us.items()}, "ratio": ratio, "descheduled": descheduled}
 
 
+def run_observer(model, data, reps: int) -> dict:
+    """The observer's tick (sd_observer_step: one sd_momentum and the filter) and sd_momentum alone,
+    timed against sd_rnea, each over the states in one C loop (one call from Python: the same row
+    loading for all three), interleaved: µs per state and the ratios to one RNEA."""
+    q, qd, qdd, tau = data
+    observer = MomentumObserver(model, 1e-3, DEFAULT_GAIN, lowpass=DEFAULT_LOWPASS)
+    us, _ = time_interleaved({"observer": {
+        "sd_rnea_batch": (lambda: model.inverse_dynamics(q, qd, qdd), len(q)),
+        "sd_momentum_batch": (lambda: model.momentum(q, qd), len(q)),
+        "sd_observer_run": (lambda: observer.run(q, qd, tau), len(q))}}, reps)
+    return {"us": {k: float(np.median(v)) for k, v in us.items()},
+            "ratio": {"observer": summary(us["sd_observer_run"] / us["sd_rnea_batch"]),
+                      "momentum": summary(us["sd_momentum_batch"] / us["sd_rnea_batch"])}}
+
+
+def observer_lines(results: list[dict]) -> list[str]:
+    """The observer's cost per model and its goal (judged on the models of up to 7 dofs, an arm's)."""
+    lines = ["The momentum observer's tick (sd_observer_step) and sd_momentum, per state, in RNEA calls "
+             "(median, interquartile range) and µs:", ""]
+    for r in results:
+        o = r["observer"]
+        lines.append(f"  {r['name']:<10} {r['ndof']:>3} dofs: observer {ratio_text(o['ratio']['observer'])} RNEA, "
+                     f"{o['us']['sd_observer_run']:.2f} µs; momentum {ratio_text(o['ratio']['momentum'])} RNEA")
+    arms = [r for r in results if r["ndof"] <= 7]
+    worst = max(arms, key=lambda r: r["observer"]["ratio"]["observer"]["median"])
+    ratio, us = worst["observer"]["ratio"]["observer"]["median"], worst["observer"]["us"]["sd_observer_run"]
+    met = ratio <= OBSERVER_GOAL_RNEA and us <= OBSERVER_GOAL_US
+    lines.append(f"goal observer tick <= {OBSERVER_GOAL_RNEA:g} RNEA and <= {OBSERVER_GOAL_US:g} µs on an arm: "
+                 f"{'met' if met else 'NOT met'} ({ratio:.2f} RNEA, {us:.2f} µs on {worst['name']})")
+    return lines
+
+
 def ratio_text(s: dict, bold: bool = False) -> str:
     """A ratio's median with its interquartile range: 0.47 (0.46–0.48)."""
     median = f"**{s['median']:.2f}**" if bold else f"{s['median']:.2f}"
@@ -276,7 +313,9 @@ def main(argv=None) -> int:
               f"direct/ABA {ratio_text(ratio['forward']['pin'])}, RK4/MuJoCo {ratio_text(ratio['rk4']['mj'])} "
               f"({native['quiet_reps']} quiet); Python ...", end="", flush=True)
         python = run_python(name, model, data, args.reps)
-        results.append({"name": name, "ndof": model.nq, "nbody": model.nbody, "native": native, "python": python})
+        observer = run_observer(model, data, args.reps)
+        results.append({"name": name, "ndof": model.nq, "nbody": model.nbody, "native": native, "python": python,
+                        "observer": observer})
         print(f" done; {native['descheduled'] * 100:.0f} % of passes waited for a core", flush=True)
     text = "\n".join([
         f"servodyn benchmark, {os.cpu_count()} cpus, {args.states} states per model, {args.reps} interleaved "
@@ -284,7 +323,7 @@ def main(argv=None) -> int:
         "(interquartile range), and over the quiet repetitions only (total time within 10 % of the fastest)",
         "", "C/C++ in one process (servodyn core, Pinocchio headers, MuJoCo library):", "", table(results),
         "", "Through Python, per call (servodyn batch: N states in one call, per state):", "", python_table(results),
-        "", *verdict(results)])
+        "", *verdict(results), "", *observer_lines(results)])
     print("\n" + text)
     (out / "table.md").write_text(text + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=1))

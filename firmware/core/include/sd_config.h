@@ -15,6 +15,7 @@ typedef float sd_real;
 #define sd_sqrt(x)    sqrtf(x)
 #define sd_fabs(x)    fabsf(x)
 #define sd_tanh(x)    tanhf(x)
+#define sd_exp(x)     expf(x)
 #define SD_EPS        1.1920929e-07f
 #else
 typedef double sd_real;
@@ -24,6 +25,7 @@ typedef double sd_real;
 #define sd_sqrt(x)    sqrt(x)
 #define sd_fabs(x)    fabs(x)
 #define sd_tanh(x)    tanh(x)
+#define sd_exp(x)     exp(x)
 #define SD_EPS        2.220446049250313e-16
 #endif
 

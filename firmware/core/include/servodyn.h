@@ -126,6 +126,11 @@ typedef struct sd_data_ {
   sd_real body_n[SD_MAX_BODY][3];         // (nbody x 3) torque n_i about the origin
   sd_real body_f[SD_MAX_BODY][3];         // (nbody x 3) force f_i
 
+  // computed by sd_momentum (sd_observer.h): the momentum of the subtree from each body on, about
+  // the body origin, body frame
+  sd_real body_hn[SD_MAX_BODY][3];        // (nbody x 3) angular momentum
+  sd_real body_hf[SD_MAX_BODY][3];        // (nbody x 3) linear momentum
+
   // computed by sd_forward (articulated-body terms, Featherstone's names)
   sd_real body_c[SD_MAX_BODY][6];         // (nbody x 6) velocity-product acceleration
   sd_real body_IA[SD_MAX_BODY][21];       // (nbody x 21) articulated inertia: A(6) B(9) C(6)
@@ -198,6 +203,7 @@ void sd_normalize_q(const sd_model* m, sd_real* q);
 #endif
 
 #include "sd_control.h"
+#include "sd_observer.h"
 #include "sd_trajectory.h"
 
 #endif  // SERVODYN_H
