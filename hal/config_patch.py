@@ -106,10 +106,17 @@ class ConfigPatch:
                 new = float(f"{new:.6g}") if math.isfinite(new) else new
             if isinstance(new, (list, tuple)):
                 new = [float(f"{v:.6g}") for v in new]
+            if isinstance(new, dict):       # a table by name (a value per dof): written inline
+                new = {k: float(f"{v:.6g}") for k, v in new.items()}
             old = _plain(table.get(key)) if key in table else None
             if old == new:
                 continue
-            table[key] = new
+            if isinstance(new, dict):
+                inline = tomlkit.inline_table()
+                inline.update(new)
+                table[key] = inline
+            else:
+                table[key] = new
             self._changes.append((f"[{name}]", key, old, new))
 
     def changes(self) -> list[str]:

@@ -42,11 +42,13 @@ class Reaction:
     segment: Segment | None
     gave_way: str | None = None      # why the reaction was cut short (torque went off)
 
-    def play(self, follow, bus, log, realtime: bool, config, observer=None) -> None:
-        """Follow the reaction's segment on the bus; a guard that trips in it ends it early."""
+    def play(self, follow, bus, log, realtime: bool, config, observer=None, contact=None) -> None:
+        """Follow the reaction's segment on the bus; a guard that trips in it ends it early.
+        `contact`: the run's contact observer, fed on (its isolation and force estimate settle
+        meanwhile), never stopping it."""
         if self.segment is None:
             return
-        guard = Guards(config, config.control_period)
+        guard = Guards(config, config.control_period, contact, detect=False, fresh_observer=False)
         try:
             follow(bus, self.controller, self.segment, log, realtime, observer=observer, guard=guard)
         except SafetyStop as err:

@@ -45,8 +45,9 @@ from ..hal.served_clock import served_clock
 from ..validation import MotionRefused, judge
 from . import Interrupted, Overrun, RunLog, follow, summarize, write_summary
 from .native import check_native, native_swing
+from .contact import contact_observer
 from .reaction import plan_reaction
-from .safety import Guards, SafetyStop, stop_reason
+from .safety import ContactStop, Guards, SafetyStop, stop_reason
 
 MOTION_FAULTS = ("nan_motion",)    # faults of the played motion, not of the bus
 STALE = ("summary.json", "swing_tracking.png")     # a previous run's results, removed before this one
@@ -346,7 +347,7 @@ class Run:
         summary.update(error_class=type(error).__name__ if error else None, exit_code=exit_code(error),
                        stop_reason=stop_reason(error, summary["completed"]))
         if isinstance(error, SafetyStop):
-            summary[error.stop_reason] = error.detail
+            summary[error.stop_reason] = self._stop_detail(error, guards, sim, self.plant_swing_start)
             summary["reaction"] = {"kind": reaction.kind, "gave_way": reaction.gave_way} if reaction else None
         summary.update(motion=path.name, mode=o.mode, time_scale=self.scale, validated=verdict.passed,
                        loop="python", bus=bus.stats.as_dict(bus.dof_names), home_ticks=home_ticks, cpu=self.cpu,
@@ -368,9 +369,8 @@ class Run:
         return summary
 
     def contact_observer(self):
-        """The run's contact observer (servodyn.control.contact), or None when `[safety] contact` is
-        off or the bus measures no torque."""
-        return None
+        """The run's contact observer (servodyn.loop.contact), or None when `[safety] contact` is off."""
+        return contact_observer(self.config) if self.config.guards.contact else None
 
     def _react(self, stop: SafetyStop, guards: Guards, segment, bus, log):
         """The configured reaction to a guard's stop (servodyn.loop.reaction), said, then played;
@@ -383,12 +383,27 @@ class Run:
         t_stop = stop.detail.get("t_s", stop.detail.get("detected_t_s"))
         reaction = plan_reaction(self.config, stop, segment, k, q_now, t_stop + self.period, self.options.feedforward)
         try:
-            reaction.play(follow, bus, log, self.realtime, self.config, observer=self.observer)
+            reaction.play(follow, bus, log, self.realtime, self.config, observer=self.observer,
+                          contact=guards.observer)
         except (ServoError, FloatingPointError, ControlFault, Overrun, Interrupted) as err:
             reaction.gave_way = f"{type(err).__name__}: {err}"
         if reaction.gave_way:
             self.say(f"the {kind.replace('_', ' ')} gave way ({reaction.gave_way}) — torque off on every servo")
         return reaction
+
+    @staticmethod
+    def _stop_detail(stop: SafetyStop, guards: Guards, sim: dict | None, swing_start: float) -> dict:
+        """summary.json's entry for a guard's stop; a contact's with the observer's last word on the
+        link and the force (refined while the reaction ran) and, where the simulator applied one,
+        when it began (on the motion's clock)."""
+        if not isinstance(stop, ContactStop):
+            return stop.detail
+        found = guards.observer.detection
+        applied = (sim or {}).get("contact") or {}
+        onset = applied.get("onset_time")
+        return {**({} if onset is None else {"applied_t_s": onset - swing_start}), "detected_t_s": found.t_s,
+                "link": found.link, "force_estimate_n": found.force_estimate_n, "force_n": list(found.force_n),
+                "joint": found.joint, "settled": found.settled}
 
     def _homing_distances(self, q_now, q_start, ask: bool) -> None:
         """Say how far each joint will move to the start pose; ask `confirm` at a real arm."""

@@ -50,11 +50,13 @@ class ContactStop(SafetyStop):
 
 
 class Guards:
-    """The checks of one run (module docstring). `clock` is added to a segment's time to put it
+    """The checks of one run (module docstring). `offset` is added to a segment's time to put it
     on the motion's clock (`at_offset`); `observer`: a contact observer with reset(q, qd),
-    update(t, q, qd, tau_measured) and detection() -> None or its Detection, or None."""
+    update(t, q, qd, tau_measured) and `detection` (None or its Detection), or None; reset at
+    the first tick unless `fresh_observer` is False (a reaction's guards go on feeding the run's)."""
 
-    def __init__(self, config, period: float, observer=None, *, following=True, stall=True):
+    def __init__(self, config, period: float, observer=None, *, following=True, stall=True, detect=True,
+                 fresh_observer=True):
         safety = config.guards
         self.names = config.model.dof_names
         self.limit = np.array(safety.following_error) if following else None
@@ -65,7 +67,8 @@ class Guards:
         self._pressed = np.zeros(len(self.names), dtype=int)
         # the poses of the last ticks: a contact's hold pose is where the arm was before it began
         self._recent = deque(maxlen=max(1, int(round(0.02 / period))) + 1)
-        self._started = False
+        self.detect = detect              # False: the observer is fed, its detection stops nothing
+        self._started = not fresh_observer
         self.last = None
 
     def at_offset(self, offset: float) -> "Guards":
@@ -104,8 +107,8 @@ class Guards:
                     f"{self.torque_limit[j]:.2f}) without moving for {held * 1e3:.0f} ms, at t = {when:.3f} s",
                     {"joint": self.names[j], "t_s": when, "value": float(abs(tau[j])),
                      "limit": float(self.torque_limit[j])}, q)
-        if self.observer is not None:
-            found = self.observer.detection()
+        if self.observer is not None and self.detect:
+            found = self.observer.detection
             if found is not None:
                 raise ContactStop(
                     f"contact: link '{found.link}' at t = {found.t_s:.3f} s, about {found.force_estimate_n:.1f} N "

@@ -58,6 +58,8 @@ VERBS = {
     "identify": Entry("servodyn.tools.cli.identify", "friction, armature, torque constants, payload from logs"),
     "demo": Entry("servodyn.tools.cli.demo", "torque profile of a sample reach of the built-in arm"),
     "soak": Entry("servodyn.tools.cli.soak", "swings with a random fault each: every one a safe stop"),
+    "contact-thresholds": Entry("servodyn.tools.cli.contact_thresholds",
+                                "the contact observer's per-joint thresholds from clean runs"),
 }
 
 
