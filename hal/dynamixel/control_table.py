@@ -9,9 +9,11 @@ Addresses 0..146 are modelled; indirect addresses, external ports and backups ar
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ..motor import MotorModel
 from ..servos import RPM, ServoSpec
 
 EEPROM_END = 64                # addresses below are EEPROM, writable only with torque off
@@ -113,11 +115,26 @@ class DynamixelSpec(ServoSpec):
     baud_rates: int = len(BAUD_RATES)    # Baud Rate(8) accepts 0 .. baud_rates - 1
     operating_modes: frozenset[int] = frozenset(OperatingMode)   # of those the simulated drive has
     absent: frozenset[str] = frozenset()  # control-table items this model has not
+    # Position Control Mode's P term: Present PWM = P_gain / p_gain_divisor × error in ticks. The
+    # e-manual writes KP = P/128; a recording of a real XL330 shows P/256 (p_gain_source says which)
+    p_gain_divisor: int = 128
+    p_gain_source: str = "e-manual (KP = P/128), not measured"
+    motor: MotorModel | None = None   # the voltage-level motor (hal.motor); None: the data-sheet estimate
     source: str = ""
 
     @property
     def max_current(self) -> float:
         return self.current_limit_max * self.current_unit
+
+    def duty_per_rad(self, p_gain):
+        """Position Control Mode's duty per rad of position error at Position P Gain `p_gain`
+        (I = D = 0): P/divisor PWM units per tick, PWM_FULL units = 100 %."""
+        return p_gain / self.p_gain_divisor * self.ticks_per_rev / (2 * math.pi) / PWM_FULL
+
+    @property
+    def motor_model(self) -> MotorModel:
+        """The catalogue's motor where a recording identified it, else the data sheet's estimate."""
+        return self.motor if self.motor is not None else MotorModel.from_datasheet(self)
 
     def items(self) -> tuple[Item, ...]:
         low_v, high_v = self.voltage_limits
