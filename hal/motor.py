@@ -15,6 +15,7 @@ and the loop: a DC motor behind its gear, every figure referred to the horn (the
     Torque off: the bridge is open, no current flows, the motor coasts (τ_m = 0, no back-EMF braking).
 
     Gearbox friction: Coulomb F_c, Stribeck F_s·exp(−|ω/ω_s|^shape) and viscous F_v·|ω| make a budget
+    (and a share of the torque the motor transmits, the gear's load-dependent loss) make a budget
     that opposes motion and, at rest, holds up to the whole budget (`friction`); the rotor's inertia
     seen at the horn, the armature, adds to the load's.
 """
@@ -38,6 +39,7 @@ class MotorModel:
     armature: float = 0.0             # kg·m²: the rotor's inertia seen at the horn
     friction_coulomb: float = 0.0     # N·m
     friction_viscous: float = 0.0     # N·m·s/rad
+    friction_load: float = 0.0        # N·m of friction per N·m the motor transmits (gear losses)
     friction_stribeck: float = 0.0    # N·m more at rest than sliding
     stribeck_velocity: float = 0.1    # rad/s
     stribeck_shape: float = 2.0       # the exponent of |ω/ω_s|
@@ -56,14 +58,16 @@ class MotorModel:
         """R at a winding temperature (°C): copper's resistance rises by α per degree."""
         return self.resistance * (1.0 + COPPER_ALPHA * (temperature - AMBIENT))
 
-    def current(self, duty, supply, velocity, temperature=AMBIENT):
-        """A through the winding for a duty (−1..1) of `supply` volts at horn speed `velocity`."""
-        return (duty * supply - self.ke * velocity) / (self.resistance_at(temperature)
-                                                        + duty * duty * self.source_resistance)
+    def current(self, duty, supply, velocity, temperature=AMBIENT, resistance=None):
+        """A through the winding for a duty (−1..1) of `supply` volts at horn speed `velocity`
+        (`resistance`: R at the winding's temperature, when the caller has it already)."""
+        r = self.resistance_at(temperature) if resistance is None else resistance
+        sag = duty * duty * self.source_resistance if self.source_resistance else 0.0
+        return (duty * supply - self.ke * velocity) / (r + sag)
 
-    def torque(self, duty, supply, velocity, temperature=AMBIENT):
+    def torque(self, duty, supply, velocity, temperature=AMBIENT, resistance=None):
         """N·m at the horn the motor gives (friction aside) for a duty of the supply (PWM drive)."""
-        return self.torque_constant * self.current(duty, supply, velocity, temperature)
+        return self.torque_constant * self.current(duty, supply, velocity, temperature, resistance)
 
     def duty_for_current(self, amps, supply, velocity, temperature=AMBIENT):
         """The duty that drives `amps` through the winding at `velocity` (R_s neglected), uncapped."""
@@ -96,17 +100,19 @@ class MotorModel:
         """rad/s at full duty with no torque (friction aside)."""
         return self.max_duty * supply / self.ke
 
-    def friction_budget(self, velocity):
-        """The most friction can oppose at `velocity` (N·m ≥ 0): Coulomb + Stribeck + viscous."""
+    def friction_budget(self, velocity, motor_torque=0.0):
+        """The most friction can oppose at `velocity` (N·m ≥ 0): Coulomb + Stribeck + viscous, and
+        the gear's load-dependent share of the torque the motor transmits."""
         speed = np.abs(velocity)
         stribeck = self.friction_stribeck * np.exp(-(speed / self.stribeck_velocity) ** self.stribeck_shape)
-        return self.friction_coulomb + stribeck + self.friction_viscous * speed
+        return (self.friction_coulomb + stribeck + self.friction_viscous * speed
+                + self.friction_load * np.abs(motor_torque))
 
-    def friction(self, velocity, torque, inertia, dt):
+    def friction(self, velocity, torque, inertia, dt, motor_torque=0.0):
         """The friction torque (N·m) on a joint of `inertia` (kg·m², armature included) moving at
         `velocity` under `torque` (all else), over one explicit step `dt`: it opposes the torque that
         would stop the joint within the step, up to the budget, so it holds at rest without chatter."""
-        return stopping_friction(inertia * velocity / dt + torque, self.friction_budget(velocity))
+        return stopping_friction(inertia * velocity / dt + torque, self.friction_budget(velocity, motor_torque))
 
     @classmethod
     def from_datasheet(cls, spec, armature: float = 0.0, **friction) -> MotorModel:

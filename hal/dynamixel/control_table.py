@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ...errors import InputError
 from ..motor import MotorModel
 from ..servos import RPM, ServoSpec
 
@@ -217,6 +218,10 @@ _X330 = dict(current_unit=1.0e-3, velocity_limit_max=2047, temperature_limit=70.
 # of the simulated drive's modes only position
 _NO_CURRENT = dict(current_control=False, current_limit_max=0,
                    operating_modes=frozenset({OperatingMode.POSITION}))
+# A real XL330's Present PWM follows P/256 x the error in ticks (not the e-manual's P/128) within 1 %
+# on the recordings in data/servo-logs/xl330-pendulum (tests/test_servo_model.py checks it there)
+_XL330_MEASURED = dict(p_gain_divisor=256, p_gain_source="measured on a real XL330 (data/servo-logs/xl330-pendulum: "
+                                                          "Present PWM = P/256 x error ticks)")
 _EMANUAL = "ROBOTIS e-manual, emanual.robotis.com/docs/en/dxl/x/{}/ (specifications and control table)"
 _THERMAL = "; no-load current, thermal resistance and time constant: estimates (not published)"
 
@@ -232,7 +237,7 @@ def _dxl(name: str, page: str, nominal: tuple, others: tuple, **fields) -> Dynam
 
 XL330_M288 = _dxl("XL330-M288", "xl330-m288", (5.0, 0.52, 1.47, 103.0), ((3.7, 0.42, 1.11, 76.0), (6.0, 0.60, 1.74, 123.0)),
                   model_number=1200, gear_ratio=288.4, current_limit_max=1750, velocity_limit_default=445,
-                  voltage_limits=(31, 70), supply_range=(3.7, 6.0), **_X330,
+                  voltage_limits=(31, 70), supply_range=(3.7, 6.0), **_X330, **_XL330_MEASURED,
                   note="; a 5 V servo: 3.7-6.0 V, recommended 5.0 V")
 XC330_T288 = _dxl("XC330-T288", "xc330-t288", (11.1, 0.92, 0.80, 65.0), ((9.0, 0.76, 0.61, 52.0), (12.0, 1.00, 0.88, 71.0)),
                   model_number=1220, gear_ratio=288.35, current_limit_max=910, velocity_limit_default=320,
@@ -270,6 +275,14 @@ XW540_T260 = _dxl("XW540-T260", "xw540-t260", (12.0, 9.5, 4.9, 40.0), ((11.1, 8.
 SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270, XL330_M288, XC330_T288, XL430_W250,
                               XC430_W240, XM430_W210, XH430_W210, XM540_W150, XH540_W150, XW540_T260)}
 MODELS = {m.model_number: m for m in SERVOS.values()}
+
+
+def servo_named(name: str) -> DynamixelSpec:
+    """The catalogue servo `name`, in any case; an InputError naming the choices otherwise."""
+    found = next((s for n, s in SERVOS.items() if n.lower() == name.lower()), None)
+    if found is None:
+        raise InputError(f"unknown servo {name!r}: one of {', '.join(sorted(SERVOS))}")
+    return found
 
 # the items the host reads and writes, by address
 ITEMS = {item.name: item for item in XM430_W350.items()}
