@@ -188,9 +188,9 @@ def rollout(grid: Grid, motor: MotorModel, duty_per_rad, offset=0.0):
     for k in range(grid.goal.shape[0]):
         qs[k] = q
         duty = np.minimum(np.maximum(duty_per_rad * (grid.goal[k] - q), -high), high)
-        duty = duty * enabled[k]                # torque off: the bridge is open, the motor coasts
-        duties[k] = duty
-        drive = motor.torque(duty, grid.volts[k], v, resistance=resistance[k])
+        duties[k] = duty * enabled[k]
+        # torque off: the bridge is open, no current, the motor coasts (no back-EMF braking)
+        drive = motor.torque(duty, grid.volts[k], v, resistance=resistance[k]) * enabled[k]
         load = drive - mgl * np.sin(q + offset)
         load = load + motor.friction(v, load, inertia, dt, drive)
         v = v + load * (dt / inertia)
