@@ -115,12 +115,18 @@ class MotorModel:
         return stopping_friction(inertia * velocity / dt + torque, self.friction_budget(velocity, motor_torque))
 
     @classmethod
-    def from_datasheet(cls, spec, armature: float = 0.0, **friction) -> MotorModel:
-        """The estimate from a data sheet's nominal row: R = V_nom / I_stall, k_t = τ_stall / I_stall
-        (gear losses at stall included), k_e = V_nom / ω₀ (no-load speed at V_nom)."""
-        return cls(torque_constant=spec.stall_torque / spec.stall_current,
-                   resistance=spec.nominal_voltage / spec.stall_current,
-                   back_emf_constant=spec.nominal_voltage / spec.no_load_speed, armature=armature, **friction)
+    def from_datasheet(cls, spec, voltage: float | None = None, armature: float = 0.0, **friction) -> MotorModel:
+        """The estimate from a data sheet (a ServoSpec): k_t = τ_stall / I_stall of the nominal row (gear
+        losses at stall included); at the nominal voltage R = V_nom / I_stall and k_e = V_nom / ω₀; at
+        another supply V, R = k_t·V / τ_stall(V) and k_e = V / ω₀(V) from the data sheet's rows
+        (ServoSpec.stall_torque_at, no_load_speed_at), so that the envelope at V is the data sheet's:
+        stall torque τ_stall(V), no-load speed ω₀(V), the line between them."""
+        kt = spec.stall_torque / spec.stall_current
+        if voltage is None or voltage == spec.nominal_voltage:
+            r, ke = spec.nominal_voltage / spec.stall_current, spec.nominal_voltage / spec.no_load_speed
+        else:
+            r, ke = kt * voltage / spec.stall_torque_at(voltage), voltage / spec.no_load_speed_at(voltage)
+        return cls(torque_constant=kt, resistance=r, back_emf_constant=ke, armature=armature, **friction)
 
 
 def stopping_friction(stop_torque, budget):

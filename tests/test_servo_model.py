@@ -170,3 +170,29 @@ def test_friction_holds_at_rest_and_opposes_motion():
     assert m.friction(0.0, 0.2, 0.007, 0.005) == pytest.approx(-0.03)     # budget at rest: 0.02 + 0.01
     f = m.friction(2.0, 0.0, 0.007, 0.005, motor_torque=0.1)
     assert f == pytest.approx(-(0.02 + 0.01 * math.exp(-400) + 0.02 + 0.02), rel=1e-9)
+
+
+@pytest.mark.parametrize("supply", [9.0, 11.1, 12.0, 14.8])
+def test_simulator_and_validator_share_the_envelope(supply):
+    """The simulated Dynamixel's current loop at full demand reaches the validator's torque–speed
+    bound (host/validation/checks.py: τ_s(V)·(1 − ω/ω₀(V)) driving, τ_s(V)·(1 + |ω|/ω₀(V)) braking)
+    at every supply voltage: both are hal.motor's line, the data sheet's rows at V."""
+    from servodyn.hal.config import load_config
+    from servodyn.sim.dynamixel.drive import Motor
+    from servodyn.validation.limits import Limits
+
+    config = load_config("replica")
+    limits = Limits.of(config, supply)
+    for j, joint in enumerate(config.joints):
+        spec = joint.servo
+        motor = Motor.of(spec)
+        kt = spec.torque_constant
+        w0, ts = limits.no_load_speed[j], limits.stall_torque[j]
+        assert ts == pytest.approx(spec.stall_torque_at(supply), rel=1e-12)
+        for along in (0.0, 0.3, 0.8):
+            omega = along * w0
+            amps, pwm = motor.current_driven(1e6, PWM_FULL, supply, omega)          # driving, saturated
+            assert amps * kt == pytest.approx(ts * (1 - along), rel=1e-9)
+            assert pwm == pytest.approx(PWM_FULL, rel=1e-12)
+            amps, _ = motor.current_driven(-1e6, PWM_FULL, supply, omega)         # braking against ω
+            assert -amps * kt == pytest.approx(ts * (1 + along), rel=1e-9)

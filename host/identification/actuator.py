@@ -188,7 +188,7 @@ class _Refine:
         lower = np.array([LOWER[n] for n in names]) / scale
         z0 = np.maximum(x0 / scale, lower + 1e-9)
         fit = least_squares(fun, z0, jac=lambda z: (fun(z), cache[z.tobytes()][1])[1], bounds=(lower, np.inf),
-                            max_nfev=max_nfev, ftol=1e-5, xtol=1e-5)
+                            max_nfev=max_nfev, ftol=1e-4, xtol=1e-4)
         return fit, scale
 
     def errors(self, motor, offset) -> list:
