@@ -34,7 +34,8 @@ from .signals import SignalError, prepare
 RESAMPLE = 0.005       # s: the linear step's even grid
 CUTOFF_HZ = 8.0        # Hz: its low-pass (the pendulum swings at ~1.3 Hz, the law's loop below 5 Hz)
 MOVING = 0.1           # rad/s: slower samples are left out of the linear step (friction's sign unknown)
-STRIBECK_VELOCITIES = (0.05, 0.1, 0.2, 0.4, 0.8)   # rad/s: the linear step's trial Stribeck velocities
+DIFF_STEP = 1e-2       # the Jacobian's relative steps: friction makes the rollout flat to smaller ones
+STRIBECK_VELOCITIES = (0.2, 0.4, 0.8, 1.6)   # rad/s: the linear step's trial Stribeck velocities (above MOVING)
 
 # the refined parameters: (key in actuator.json, MotorModel field or "offset", unit, scale of its search)
 FITTED = (("torque_constant_nm_a", "torque_constant", "N m/A"),
@@ -108,10 +109,16 @@ def _linear(logs, duty_per_rad, pwm_full) -> dict:
     if not coasting:   # back-EMF and viscous friction are the same column: viscous left to the rollout
         a_matrix[:, 2] = 0.0
     theta = np.linalg.lstsq(a_matrix, y, rcond=None)[0]
-    a, b, fv, fc, arm, offset = theta
+    # the gear's load-dependent friction, −K_l·|τ_m|·sign(q̇), with τ_m as the first pass has it
+    # (else the Coulomb column takes it, and the rollout starts far from the friction it needs)
+    motor_torque = np.abs(a_matrix[:, :2] @ theta[:2])
+    a_matrix = np.column_stack([a_matrix, motor_torque * a_matrix[:, 3]])
+    theta = np.linalg.lstsq(a_matrix, y, rcond=None)[0]
+    a, b, fv, fc, arm, offset, load = theta
     kt = b / a if a > 0 and b > 0 else None
     out = dict(torque_constant=kt, resistance=kt / a if kt else None, friction_viscous=max(fv, 0.0),
-               friction_coulomb=max(fc, 0.0), armature=max(arm, 0.0), offset=offset)
+               friction_coulomb=max(fc, 0.0), armature=max(arm, 0.0), offset=offset,
+               friction_load=float(np.clip(load, 0.0, 0.9)))
     # Stribeck friction: a column −sign(q̇)·exp(−(q̇/ω_s)²) at the ω_s that fits best; kept for the
     # rollout only where the linear step determines it (positive, relative error within REL_SIGMA_MAX)
     best = None
@@ -147,7 +154,7 @@ def free_swings(logs) -> list:
         i = off[0]
         k = slice(i, None)
         speed = log.speed[k].copy()
-        speed[0] = np.polyfit(log.t[i:i + 5] - log.t[i], log.q[i:i + 5], 1)[0]
+        speed[0] = np.polyfit(log.t[i:i + 8] - log.t[i], log.q[i:i + 8], 2)[1]   # the slope at the release
         out.append(replace(log, t=log.t[k], q=log.q[k], speed=speed, pwm=None if log.pwm is None else log.pwm[k],
                            volts=log.volts[k], temp=log.temp[k], goal=log.goal[k], enabled=log.enabled[k]))
     return out
@@ -179,7 +186,7 @@ class _Refine:
         def fun(z):
             key = z.tobytes()
             if key not in cache:
-                h = 1e-3 * np.maximum(np.abs(z), 1e-2)
+                h = DIFF_STEP * np.maximum(np.abs(z), 1e-2)
                 r = self.residuals(names, np.vstack([z, z + np.diag(h)]) * scale)
                 cache.clear()
                 cache[key] = (r[0], ((r[1:] - r[0]) / h[:, None]).T)
@@ -205,7 +212,7 @@ def identify_actuator(logs, servo, dt: float = STEP) -> ActuatorFit:
              ("torque_constant", "resistance", "armature", "friction_coulomb", "friction_viscous")}
     stribeck = lin["stribeck"]
     start.update(friction_stribeck=stribeck[0] if stribeck else 0.0, stribeck_velocity=stribeck[1] if stribeck else 0.1,
-                 friction_load=0.1, offset=lin["offset"])
+                 friction_load=lin["friction_load"], offset=lin["offset"])
     base = guess.with_(back_emf_constant=None, **{k: v for k, v in start.items() if k != "offset"})
     names = [n for _, n, _ in FITTED if stribeck or n not in ("friction_stribeck", "stribeck_velocity")]
     evaluations = 0
