@@ -221,12 +221,12 @@ _NO_CURRENT = dict(current_control=False, current_limit_max=0,
 # A real XL330's Present PWM follows P/256 x the error in ticks (not the e-manual's P/128) within 1 %
 # on the recordings in data/servo-logs/xl330-pendulum (tests/test_servo_model.py checks it there)
 # Its motor: `servodyn identify --actuator XL330-M288` on those 8 logs (a 0.49 kg pendulum at 0.1 m, supply
-# 5.7-9.2 V: above the data sheet's 6 V), rounded; its replay of them: 0.0285 rad mean (docs/servo-bench.md).
+# 5.7-9.2 V: above the data sheet's 6 V), rounded; its replay of them: 0.0281 rad mean (docs/servo-bench.md).
 # k_t and R apart are not determined (their ratio is), nor is Coulomb friction beside the load share.
 _XL330_MEASURED = dict(p_gain_divisor=256, p_gain_source="measured on a real XL330 (data/servo-logs/xl330-pendulum: "
                                                           "Present PWM = P/256 x error ticks)",
-                       motor=MotorModel(torque_constant=0.243, resistance=1.64, armature=0.00207, friction_coulomb=0.0,
-                                        friction_viscous=0.0137, friction_load=0.556))
+                       motor=MotorModel(torque_constant=0.257, resistance=1.79, armature=0.00195, friction_coulomb=0.0021,
+                                        friction_viscous=0.0125, friction_load=0.539))
 _EMANUAL = "ROBOTIS e-manual, emanual.robotis.com/docs/en/dxl/x/{}/ (specifications and control table)"
 _THERMAL = "; no-load current, thermal resistance and time constant: estimates (not published)"
 
