@@ -16,7 +16,7 @@ import pytest
 from servodyn.hal.dynamixel.control_table import PWM_FULL, SERVOS, XL330_M288
 from servodyn.hal.motor import MotorModel
 from servodyn.identification.actuator import identify_actuator, law_duty, pwm_read_lag
-from servodyn.identification.bench import Grid, read_bench_log, rollout
+from servodyn.identification.bench import BenchLog, Grid, read_bench_log, rollout
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -219,7 +219,7 @@ def test_identification_recovers_a_known_servo(tmp_path):
         t = np.arange(0.004, 6.0, 0.0053)
         goal, enabled = _trajectory(name, t)
         volts = 7.4 - 0.8 * np.abs(np.sin(1.3 * t + i))
-        log = read_bench_log.__globals__["BenchLog"](
+        log = BenchLog(
             path="sim", motor="xl330", trajectory=name, mass=0.49, length=0.1, kp=kp, vin=7.4, t=t,
             q=np.zeros_like(t), speed=np.zeros_like(t), pwm=None, volts=volts, temp=np.full_like(t, 30.0),
             goal=goal, enabled=enabled)
