@@ -9,9 +9,12 @@ Addresses 0..146 are modelled; indirect addresses, external ports and backups ar
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from ...errors import InputError
+from ..motor import MotorModel
 from ..servos import RPM, ServoSpec
 
 EEPROM_END = 64                # addresses below are EEPROM, writable only with torque off
@@ -118,11 +121,26 @@ class DynamixelSpec(ServoSpec):
     baud_rates: int = len(BAUD_RATES)    # Baud Rate(8) accepts 0 .. baud_rates - 1
     operating_modes: frozenset[int] = frozenset(OperatingMode)   # of those the simulated drive has
     absent: frozenset[str] = frozenset()  # control-table items this model has not
+    # Position Control Mode's P term: Present PWM = P_gain / p_gain_divisor × error in ticks. The
+    # e-manual writes KP = P/128; a recording of a real XL330 shows P/256 (p_gain_source says which)
+    p_gain_divisor: int = 128
+    p_gain_source: str = "e-manual (KP = P/128), not measured"
+    motor: MotorModel | None = None   # the voltage-level motor (hal.motor); None: the data-sheet estimate
     source: str = ""
 
     @property
     def max_current(self) -> float:
         return self.current_limit_max * self.current_unit
+
+    def duty_per_rad(self, p_gain):
+        """Position Control Mode's duty per rad of position error at Position P Gain `p_gain`
+        (I = D = 0): P/divisor PWM units per tick, PWM_FULL units = 100 %."""
+        return p_gain / self.p_gain_divisor * self.ticks_per_rev / (2 * math.pi) / PWM_FULL
+
+    @property
+    def motor_model(self) -> MotorModel:
+        """The catalogue's motor where a recording identified it, else the data sheet's estimate."""
+        return self.motor if self.motor is not None else MotorModel.from_datasheet(self)
 
     def items(self) -> tuple[Item, ...]:
         low_v, high_v = self.voltage_limits
@@ -205,6 +223,15 @@ _X330 = dict(current_unit=1.0e-3, velocity_limit_max=2047, temperature_limit=70.
 # of the simulated drive's modes only position
 _NO_CURRENT = dict(current_control=False, current_limit_max=0,
                    operating_modes=frozenset({OperatingMode.POSITION}))
+# A real XL330's Present PWM follows P/256 x the error in ticks (not the e-manual's P/128) within 1 %
+# on the recordings in data/servo-logs/xl330-pendulum (tests/test_servo_model.py checks it there)
+# Its motor: `servodyn identify --actuator XL330-M288` on those 8 logs (a 0.49 kg pendulum at 0.1 m, supply
+# 5.7-9.2 V: above the data sheet's 6 V), rounded; its replay of them: 0.0281 rad mean (docs/servo-bench.md).
+# k_t and R apart are not determined (their ratio is), nor is Coulomb friction beside the load share.
+_XL330_MEASURED = dict(p_gain_divisor=256, p_gain_source="measured on a real XL330 (data/servo-logs/xl330-pendulum: "
+                                                          "Present PWM = P/256 x error ticks)",
+                       motor=MotorModel(torque_constant=0.257, resistance=1.79, armature=0.00195, friction_coulomb=0.0021,
+                                        friction_viscous=0.0125, friction_load=0.539))
 _EMANUAL = "ROBOTIS e-manual, emanual.robotis.com/docs/en/dxl/x/{}/ (specifications and control table)"
 _THERMAL = "; no-load current, thermal resistance and time constant: estimates (not published)"
 
@@ -220,7 +247,7 @@ def _dxl(name: str, page: str, nominal: tuple, others: tuple, **fields) -> Dynam
 
 XL330_M288 = _dxl("XL330-M288", "xl330-m288", (5.0, 0.52, 1.47, 103.0), ((3.7, 0.42, 1.11, 76.0), (6.0, 0.60, 1.74, 123.0)),
                   model_number=1200, gear_ratio=288.4, current_limit_max=1750, velocity_limit_default=445,
-                  voltage_limits=(31, 70), supply_range=(3.7, 6.0), **_X330,
+                  voltage_limits=(31, 70), supply_range=(3.7, 6.0), **_X330, **_XL330_MEASURED,
                   note="; a 5 V servo: 3.7-6.0 V, recommended 5.0 V")
 XC330_T288 = _dxl("XC330-T288", "xc330-t288", (11.1, 0.92, 0.80, 65.0), ((9.0, 0.76, 0.61, 52.0), (12.0, 1.00, 0.88, 71.0)),
                   model_number=1220, gear_ratio=288.35, current_limit_max=910, velocity_limit_default=320,
@@ -258,6 +285,14 @@ XW540_T260 = _dxl("XW540-T260", "xw540-t260", (12.0, 9.5, 4.9, 40.0), ((11.1, 8.
 SERVOS = {m.name: m for m in (XM430_W350, XM540_W270, XH430_W350, XH540_W270, XL330_M288, XC330_T288, XL430_W250,
                               XC430_W240, XM430_W210, XH430_W210, XM540_W150, XH540_W150, XW540_T260)}
 MODELS = {m.model_number: m for m in SERVOS.values()}
+
+
+def servo_named(name: str) -> DynamixelSpec:
+    """The catalogue servo `name`, in any case; an InputError naming the choices otherwise."""
+    found = next((s for n, s in SERVOS.items() if n.lower() == name.lower()), None)
+    if found is None:
+        raise InputError(f"unknown servo {name!r}: one of {', '.join(sorted(SERVOS))}")
+    return found
 
 # the items the host reads and writes, by address
 ITEMS = {item.name: item for item in XM430_W350.items()}

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..control.timing import SMALL_TIME_STEP
 from ..hal.backend import backend
+from ..hal.motor import MotorModel
 
 
 @dataclass
@@ -53,10 +54,13 @@ class Limits:
             wire.append((name, seconds, what))
         arr = lambda values: np.array(list(values), dtype=float)
         gear = arr(j.gear_ratio for j in joints)
-        no_load = arr(s.no_load_speed_at(voltage) for s in servos)
+        # the torque-speed envelope from the motor model the simulated servos run (hal.motor): at this
+        # supply its stall torque and no-load speed are the data sheet's
+        motors = [MotorModel.from_datasheet(s, voltage) for s in servos]
+        no_load = arr(m.no_load_speed(voltage) for m in motors)
         return cls(lower=arr(j.position_limits[0] for j in joints), upper=arr(j.position_limits[1] for j in joints),
                    speed=np.minimum(arr(j.velocity_limit for j in joints), no_load / gear),
-                   stall_torque=arr(s.stall_torque_at(voltage) for s in servos), no_load_speed=no_load, gear=gear,
+                   stall_torque=arr(m.stall_torque(voltage) for m in motors), no_load_speed=no_load, gear=gear,
                    torque_constant=arr(j.torque_constant for j in joints), current=arr(j.current_limit for j in joints),
                    no_load_current=arr(s.no_load_current for s in servos),
                    resistance=arr(s.winding_resistance for s in servos),

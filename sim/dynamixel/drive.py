@@ -1,15 +1,17 @@
 """The physical side of a simulated servo, each law written once: its position PID (e-manual gain
-scaling), its motor and drive (`Motor`: PWM or a current demand → motor current and PWM at the
-supply and the shaft's speed) and its output torque with friction (`Mechanics`). The servo
+scaling), its motor and drive (`Motor`: hal.motor's model; PWM or a current demand → motor current
+and PWM at the supply and the shaft's speed) and its output torque with friction (`Mechanics`). The servo
 (servo.py) reads its registers and hands the numbers here; nothing else computes them."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 from servodyn.hal.dynamixel.control_table import PWM_FULL
+from servodyn.hal.motor import MotorModel
 
 if TYPE_CHECKING:
     from servodyn.hal.dynamixel.control_table import DynamixelSpec
@@ -47,36 +49,36 @@ class PositionPid:
         return clamp(out, -cap, cap)
 
 
+@lru_cache(maxsize=256)
+def _motor_at(spec, supply: float) -> MotorModel:
+    return MotorModel.from_datasheet(spec, supply)
+
+
 @dataclass(frozen=True)
 class Motor:
-    """The motor and its drive electronics: a DC motor whose stall current and no-load speed at the
-    nominal voltage are the datasheet's, fed a PWM duty of the supply. Speeds are the shaft's in
-    the motor's own sign (rad/s at the output), currents in A, PWM in table units of ``pwm_full``."""
-    stall_current: float      # A at the nominal voltage, shaft held
-    nominal_voltage: float    # V
-    no_load_speed: float      # rad/s at the output shaft, nominal voltage
+    """The motor and its drive electronics: hal.motor's voltage-level model of the servo's data sheet
+    at the supply it reads (Present Input Voltage: the data sheet's stall torque and no-load speed at
+    that voltage), fed a PWM duty of the supply, or its current loop. Speeds are the shaft's in the
+    motor's own sign (rad/s at the output), currents in A, PWM in table units of ``pwm_full``."""
+    spec: DynamixelSpec
     current_unit: float       # A per Goal Current unit
     pwm_full: int = PWM_FULL  # the PWM that is 100 % duty
 
     @classmethod
     def of(cls, model: DynamixelSpec) -> Motor:
-        return cls(model.stall_current, model.nominal_voltage, model.no_load_speed, model.current_unit)
+        return cls(model, model.current_unit)
 
     def pwm_driven(self, pwm: float, supply: float, velocity: float) -> float:
         """The current (A) a PWM drives at `supply` volts and shaft speed `velocity`: the duty's share
-        of the stall current less the back-EMF's (Position Control Mode)."""
-        back_emf = velocity / self.no_load_speed         # fraction of the nominal supply it cancels
-        return self.stall_current * (pwm / self.pwm_full * (supply / self.nominal_voltage) - back_emf)
+        of the supply less the back-EMF, over the winding (Position Control Mode)."""
+        return _motor_at(self.spec, supply).current(pwm / self.pwm_full, supply, velocity)
 
     def current_driven(self, units: float, pwm_cap: float, supply: float, velocity: float) -> tuple[float, float]:
         """The current loop: the current (A) and PWM for a demand of `units` Goal Current units, as far
         as the PWM cap, the supply (V) and the back-EMF at `velocity` let it reach; (amps, pwm)."""
-        stall = self.stall_current
-        back_emf = velocity / self.no_load_speed
-        supply = supply / self.nominal_voltage
-        reach = stall * pwm_cap / self.pwm_full * supply
-        amps = clamp(units * self.current_unit, -reach - stall * back_emf, reach - stall * back_emf)
-        return amps, (amps / stall + back_emf) / supply * self.pwm_full
+        amps, duty = _motor_at(self.spec, supply).current_loop(units * self.current_unit, supply, velocity,
+                                                               duty_cap=pwm_cap / self.pwm_full)
+        return amps, duty * self.pwm_full
 
 
 @dataclass(frozen=True)

@@ -56,6 +56,7 @@ VERBS = {
     "ik": Entry("servodyn.tools.cli.ik", "joint angles that put the hand at a point (or along a path)"),
     "excite": Entry("servodyn.tools.cli.excite", "write an exciting trajectory for servodyn identify"),
     "identify": Entry("servodyn.tools.cli.identify", "friction, armature, torque constants, payload from logs"),
+    "replay": Entry("servodyn.tools.cli.replay", "servo-bench logs replayed through the servo model, scored"),
     "demo": Entry("servodyn.tools.cli.demo", "torque profile of a sample reach of the built-in arm"),
     "soak": Entry("servodyn.tools.cli.soak", "swings with a random fault each: every one a safe stop"),
     "contact-thresholds": Entry("servodyn.tools.cli.contact_thresholds",

@@ -6,8 +6,9 @@ from pathlib import Path
 
 from ...identification.signals import FILTER_HZ
 from .argtypes import number, positive
+from ..actuator import run as run_actuator
 from ..identify import run as run_identify
-from .common import describe, out_folder, say
+from .common import CliError, describe, out_folder, say
 from .prompt import ask
 
 
@@ -19,9 +20,15 @@ def add_arguments(p) -> None:
              "(zero lag, -6 dB at --cutoff) before q is differentiated twice. Writes OUT/identified.json, "
              "OUT/patch.toml and OUT/torque_fit.png; what the logs cannot determine is reported so, never invented.",
              "servodyn identify --config replica out/bare out/loaded --known-payload 0.5 --out out/identify",
+             "servodyn identify --actuator XL330-M288 bench/*.json --out out/identify",
              exits="0 done, 1 patch declined")
-    p.add_argument("--config", required=True, help="robot configuration: built-in name or .toml file")
-    p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders)")
+    p.add_argument("--config", default=None, help="robot configuration: built-in name or .toml file (required "
+                                                  "unless --actuator)")
+    p.add_argument("--actuator", default=None, metavar="MODEL",
+                   help="instead: the servo MODEL's motor (k_t, R, armature, friction, zero offset) from servo-bench "
+                        "logs (JSON, docs/servo-bench.md) of PWM and supply; writes OUT/actuator.json")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders); with --actuator, "
+                                                          "bench logs (.json)")
     p.add_argument("--payload-body", default=None, metavar="BODY",
                    help="the body carrying the payload (default: the last)")
     p.add_argument("--known-payload", type=number(0, what="kg"), default=0.0, metavar="KG",
@@ -41,6 +48,12 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    if args.actuator is not None:
+        if args.config is not None:
+            raise CliError("--actuator identifies a servo from bench logs: it takes no --config")
+        return run_actuator(args.actuator, args.logs, Path(args.out), say=say)
+    if args.config is None:
+        raise CliError("identify needs --config (or --actuator MODEL for servo-bench logs)")
     return run_identify(args.config, args.logs, args.payload_body, args.known_payload, args.arm, Path(args.out),
                         cutoff=args.cutoff, apply_to=args.write, apply=args.apply,
                         confirm=lambda question: ask(question, args.yes, say), say=say, warn=say,
