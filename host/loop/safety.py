@@ -23,14 +23,21 @@ import numpy as np
 from ..errors import FAULT_CODES, ExitCode, ServodynError, exit_code
 from ..hal.safety import STALL_SPEED_RAD_S, STALL_TORQUE_SHARE
 
+# s before a contact's detection: the pose a hold keeps, about the observer's detection delay (the
+# arm was that much further into what it met when the detection came)
+HOLD_LOOKBACK_S = 0.01
+
 
 class SafetyStop(ServodynError):
     """A run stopped by a guard; `stop_reason` is summary.json's word for it, `detail` its fields
-    there, `hold_pose` the pose a `hold` reaction keeps (where the arm was when it began)."""
+    there, `hold_pose` the pose a `hold` reaction keeps and `velocity` the joints' speed at the stop:
+    given, the hold first brings the arm to rest from it (servodyn.loop.reaction); None (a contact),
+    it pulls back to `hold_pose`, where the arm was before it met what it met."""
     stop_reason = "safety"
 
-    def __init__(self, message: str, detail: dict, hold_pose):
+    def __init__(self, message: str, detail: dict, hold_pose, velocity=None):
         self.detail, self.hold_pose = detail, np.array(hold_pose, dtype=float)
+        self.velocity = None if velocity is None else np.array(velocity, dtype=float)
         super().__init__(message)
 
 
@@ -66,7 +73,7 @@ class Guards:
         self.offset = 0.0
         self._pressed = np.zeros(len(self.names), dtype=int)
         # the poses of the last ticks: a contact's hold pose is where the arm was before it began
-        self._recent = deque(maxlen=max(1, int(round(0.02 / period))) + 1)
+        self._recent = deque(maxlen=max(1, int(round(HOLD_LOOKBACK_S / period))) + 1)
         self.detect = detect              # False: the observer is fed, its detection stops nothing
         self._started = not fresh_observer
         self.last = None
@@ -95,7 +102,7 @@ class Guards:
                     f"following error: joint '{self.names[j]}' {np.degrees(error[j]):.1f}° from its command at "
                     f"t = {when:.3f} s (limit {np.degrees(self.limit[j]):.1f}°)",
                     {"joint": self.names[j], "t_s": when, "value": float(error[j]), "limit": float(self.limit[j])},
-                    q)
+                    q, qd)
         if self.stall_ticks is not None:
             pressed = (np.abs(tau) >= STALL_TORQUE_SHARE * self.torque_limit) & (np.abs(qd) < STALL_SPEED_RAD_S)
             self._pressed = np.where(pressed, self._pressed + 1, 0)
@@ -106,7 +113,7 @@ class Guards:
                     f"stall: joint '{self.names[j]}' commanded {abs(tau[j]):.2f} N m (its limit "
                     f"{self.torque_limit[j]:.2f}) without moving for {held * 1e3:.0f} ms, at t = {when:.3f} s",
                     {"joint": self.names[j], "t_s": when, "value": float(abs(tau[j])),
-                     "limit": float(self.torque_limit[j])}, q)
+                     "limit": float(self.torque_limit[j])}, q, qd)
         if self.observer is not None and self.detect:
             found = self.observer.detection
             if found is not None:
