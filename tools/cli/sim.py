@@ -85,7 +85,8 @@ def _announce(args, config, robot, paths: dict, kinds: set) -> None:
                   f"{devices} on {paths[name]}", flush=True)
         else:
             ids = ", ".join(str(j.id) for j in config.joints_on(name))
-            print(f"simulated Dynamixel bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
+            kind = "Feetech" if bus.kind == "feetech" else "Dynamixel"
+            print(f"simulated {kind} bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
                   f"{paths[name]}", flush=True)
 
     def swing(path_of):
@@ -93,7 +94,7 @@ def _announce(args, config, robot, paths: dict, kinds: set) -> None:
             f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
     # the swing asks the bus which clock this is (hal.served_clock) and keeps it
     clock = "lock-step" if args.lockstep else "real time"
-    if kinds == {"dynamixel"}:
+    if kinds <= {"dynamixel", "feetech"}:      # serial buses on pseudo-terminals
         print(f"connect with: {swing(paths.get)}   (the swing learns the plant's clock, {clock}, from the bus; "
               "Ctrl-C stops)", flush=True)
     elif len(paths) == 1:
