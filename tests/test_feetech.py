@@ -11,9 +11,10 @@ import random
 import pytest
 
 from servodyn.hal.feetech import protocol
-from servodyn.hal.feetech.protocol import (BadFrame, Packet, PacketError, PacketReader, decode_sign_magnitude,
-                                           encode_sign_magnitude)
-from servodyn.hal.feetech.table import ITEM, SERVOS, STS3215_C001, duty_for_torque, torque_for_duty
+from servodyn.hal.feetech.protocol import (BadFrame, Packet, PacketError, PacketReader, StatusBit,
+                                           decode_sign_magnitude, encode_sign_magnitude)
+from servodyn.hal.feetech.table import ITEM, SERVOS, STEP, STS3215_C001, Mode, duty_for_torque, torque_for_duty
+from servodyn.sim.feetech import FeetechServo, FeetechWire
 
 sdk = pytest.importorskip("scservo_sdk")
 
@@ -147,3 +148,117 @@ def test_duty_inverts_the_motor_model():
     assert set(SERVOS) == {"STS3215-C001", "STS3215-C018", "STS3215-C044", "STS3215-C046", "STS3250"}
     assert SERVOS["STS3215-C044"].armature == pytest.approx(s.armature * (191 / 345) ** 2, rel=1e-12)
     assert all(not spec.current_control and spec.kind == "feetech" and spec.source for spec in SERVOS.values())
+
+
+# ------------------------------------------------------------------------------ the simulated servos
+
+
+def exchange(wire: FeetechWire, frame: bytes) -> list[Packet]:
+    return [e for e in PacketReader().feed(wire.handle(frame)) if isinstance(e, Packet)]
+
+
+def test_factory_state_and_the_inverted_eeprom_lock():
+    """A factory-fresh STS3215: ID 1, 1 Mbps, position mode, Lock 1 at power-on. With Lock = 1 a
+    new ID acts at once but is gone after a power cycle; with Lock = 0 (unlocked: inverted) it stays."""
+    servo = FeetechServo.factory_fresh()
+    wire = FeetechWire([servo])
+    assert (servo.id, servo.baud, servo.get("operating_mode"), servo.get("lock")) == (1, 1_000_000, 0, 1)
+    [reply] = exchange(wire, protocol.write(1, ITEM["id"].address, b"\x07"))
+    assert reply.id == 1 and reply.error == 0                 # answered under the old ID
+    assert [p.id for p in exchange(wire, protocol.ping(7))] == [7]
+    servo.power_cycle()
+    assert servo.id == 1, "Lock = 1: the EEPROM write lasted until power-off only"
+    exchange(wire, protocol.write(1, ITEM["lock"].address, b"\x00"))
+    exchange(wire, protocol.write(1, ITEM["id"].address, b"\x07"))
+    servo.power_cycle()
+    assert servo.id == 7 and servo.get("lock") == 1, "Lock = 0: kept across the power cycle; Lock back to 1"
+
+
+def test_baud_gate():
+    """A servo hears only bytes at its own rate; a new Baud_Rate acts once the write's status is sent
+    (answered at the old rate)."""
+    servo = FeetechServo(STS3215_C001, 3)
+    wire = FeetechWire([servo])
+    wire.line_speed = 500_000
+    assert exchange(wire, protocol.ping(3)) == []
+    wire.line_speed = 1_000_000
+    assert [p.id for p in exchange(wire, protocol.write(3, ITEM["baud_rate"].address, b"\x01"))] == [3]
+    assert servo.baud == 500_000 and exchange(wire, protocol.ping(3)) == []
+    wire.line_speed = 500_000
+    assert [p.id for p in exchange(wire, protocol.ping(3))] == [3]
+
+
+def test_modes_and_the_pwm_sign_bit():
+    """Mode 2: Goal_Time 500 is +50 % duty, 0x400 | 500 is -50 % (bit 10), so the held-shaft current
+    is ±V/2/R (BAM's R, 7.4 V: 1.383 A); Present Load reads the duty back with its sign. Mode 0: the
+    P loop pushes towards the goal. Mode 1: a speed goal at that speed draws only friction's share."""
+    servo = FeetechServo(STS3215_C001, 1, supply_voltage=7.4)
+    wire = FeetechWire([servo])
+    for address, value in ((33, Mode.PWM), (40, 1)):
+        exchange(wire, protocol.write(1, address, bytes((value,))))
+    expected = 7.4 * 0.5 / STS3215_C001.motor_resistance
+    for raw, sign in ((500, 1), (0x400 | 500, -1)):
+        exchange(wire, protocol.sync_write(44, 2, {1: raw.to_bytes(2, "little")}))
+        assert servo.output_current(0.0, 0.0, 1e-3) == pytest.approx(sign * expected, rel=1e-12)
+        [reply] = exchange(wire, protocol.read(1, 60, 2))
+        assert decode_sign_magnitude(int.from_bytes(reply.params, "little"), 10) == sign * 500
+    exchange(wire, protocol.write(1, 33, bytes((Mode.POSITION,))))
+    exchange(wire, protocol.write(1, 42, (2100).to_bytes(2, "little")))
+    assert servo.output_current(2048 * STEP, 0.0, 1e-3) > 0 > servo.output_current(2200 * STEP, 0.0, 1e-3)
+    exchange(wire, protocol.write(1, 33, bytes((Mode.SPEED,))))
+    exchange(wire, protocol.write(1, 46, (1000).to_bytes(2, "little")))
+    at_speed = servo.output_current(0.0, 1000 * STEP, 1e-3)
+    assert abs(at_speed) < 1e-9, "at the goal speed the duty is the back-EMF's alone"
+
+
+def test_overload_protection_trips_after_protection_time():
+    """Mode 2 at 90 % duty (over Overload_Torque 80 %) for Protection_Time 2 s: the overload bit
+    (0x20) is in Status and the error byte, and the output falls to Protective_Torque 20 %, until
+    the torque is switched off and on. 1.99 s is not enough."""
+    servo = FeetechServo(STS3215_C001, 1, supply_voltage=7.4)
+    wire = FeetechWire([servo])
+    for address, value in ((33, Mode.PWM), (40, 1)):
+        exchange(wire, protocol.write(1, address, bytes((value,))))
+    exchange(wire, protocol.write(1, 44, (900).to_bytes(2, "little")))
+    for _ in range(1990):
+        servo.output_current(0.0, 0.0, 1e-3)
+    assert not servo.get("status") & StatusBit.OVERLOAD
+    for _ in range(20):
+        amps = servo.output_current(0.0, 0.0, 1e-3)
+    assert amps == pytest.approx(7.4 * 0.2 / STS3215_C001.motor_resistance, rel=1e-12)
+    [reply] = exchange(wire, protocol.ping(1))
+    assert reply.error & StatusBit.OVERLOAD
+    exchange(wire, protocol.write(1, 40, b"\x00"))
+    exchange(wire, protocol.write(1, 40, b"\x01"))
+    assert servo.output_current(0.0, 0.0, 1e-3) == pytest.approx(7.4 * 0.9 / STS3215_C001.motor_resistance)
+
+
+def test_simulated_so101_answers_the_sdk_through_a_pty():
+    """The SO-101's simulated bus behind a pseudo-terminal, spoken to by Feetech's SDK: PING with the
+    model number (777, the STS3215's), a READ, the STS SYNC READ of the six servos' Present
+    Position (2048 at q = 0: zero_offset pi) and a WRITE the SDK sees answered."""
+    from servodyn.hal.config import load_config
+    from servodyn.sim.robot import SimulatedRobot
+    from servodyn.sim.transport.pty import PtyServer
+
+    robot = SimulatedRobot(load_config("so101"))
+    with PtyServer(robot.port("arm"), "lockstep") as server:
+        port, handler = sdk.PortHandler(server.path), sdk.PacketHandler(0)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        try:
+            for servo_id in range(1, 7):
+                model, result, error = handler.ping(port, servo_id)
+                assert (model, result, error) == (777, sdk.COMM_SUCCESS, 0)
+            value, result, _ = handler.read1ByteTxRx(port, 3, ITEM["max_temperature_limit"].address)
+            assert (value, result) == (70, sdk.COMM_SUCCESS)
+            group = sdk.GroupSyncRead(port, handler, 56, 2)
+            for servo_id in range(1, 7):
+                group.addParam(servo_id)
+            assert group.txRxPacket() == sdk.COMM_SUCCESS
+            positions = [sdk.SCS_TOHOST(group.getData(i, 56, 2), 15) for i in range(1, 7)]
+            assert all(abs(p - 2048) <= 1 for p in positions), positions
+            assert handler.write1ByteTxRx(port, 2, ITEM["torque_enable"].address, 1)[0] == sdk.COMM_SUCCESS
+            assert robot.servo(2).torque_enabled
+            assert handler.ping(port, 9)[1] == sdk.COMM_RX_TIMEOUT      # no servo 9
+        finally:
+            port.closePort()
