@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from ..servos import RPM, ServoSpec
+from .protocol import PacketError, decode_sign_magnitude, encode_sign_magnitude
 
 TICKS_PER_REV = 4096             # Present/Goal Position: 0.088° a step
 STEP = 2 * math.pi / TICKS_PER_REV   # rad per position step, and rad/s per speed unit (step/s)
@@ -117,14 +118,12 @@ PRESENT_ADDRESS, PRESENT_LENGTH = 56, 15        # Present Position .. Present Cu
 
 def item_value(name: str, raw: int) -> int:
     """A register's value from its raw unsigned bytes (sign-magnitude decoded)."""
-    from .protocol import decode_sign_magnitude
     sign = ITEM[name].sign_bit
     return raw if sign is None else decode_sign_magnitude(raw, sign)
 
 
 def item_raw(name: str, value: int) -> int:
     """A register's raw unsigned value for `value` (sign-magnitude encoded); ProtocolError out of range."""
-    from .protocol import PacketError, encode_sign_magnitude
     item = ITEM[name]
     if item.sign_bit is not None:
         return encode_sign_magnitude(value, item.sign_bit)
