@@ -94,3 +94,14 @@ def test_swing_plays_the_pick_on_the_simulated_feetech_bus(tmp_path):
     assert summary["tracking_max_rad"] < np.radians(0.5)
     baseline = position_only_error(load_config("so101"))
     assert baseline > 3 * summary["tracking_max_rad"], (baseline, summary["tracking_max_rad"])
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_swing_learns_the_simulated_feetech_bus_clock(mode):
+    """A swing given the pseudo-terminal of `servodyn sim --config so101 [--lockstep]` asks the bus
+    which clock its plant keeps (a one-byte READ past the STS table) and gets it."""
+    from servodyn.hal.served_clock import served_clock
+    from servodyn.sim.transport.pty import PtyServer
+    config = load_config("so101")
+    with PtyServer(SimulatedRobot(config).port("arm"), mode) as server:
+        assert served_clock(config, "arm", server.path) == mode

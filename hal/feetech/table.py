@@ -32,6 +32,11 @@ EEPROM_END = 40                  # addresses below are EEPROM (kept across power
 TABLE_SIZE = 87                  # up to the factory area's last item (86)
 BAUD_RATES = (1_000_000, 500_000, 250_000, 128_000, 115_200, 76_800, 57_600, 38_400)   # Baud_Rate(6) 0..7
 DEFAULT_BAUD = 1_000_000
+# A simulated servo answers a READ of one byte here with the clock its simulator serves on
+# (SIMULATOR_CLOCKS); the STS table ends at 86, so a real servo answers no such byte: how a swing on
+# a pseudo-terminal learns its plant's clock (hal/served_clock.py)
+SIMULATOR_CLOCK_ADDRESS = 0xF0
+SIMULATOR_CLOCKS = {1: "lockstep", 2: "realtime"}
 
 
 class Mode(IntEnum):

@@ -27,14 +27,13 @@ from collections.abc import Callable
 from servodyn.hal.feetech import protocol
 from servodyn.hal.feetech.protocol import Instruction, StatusBit, decode_sign_magnitude, encode_sign_magnitude
 from servodyn.hal.feetech.table import (BAUD_RATES, CURRENT_UNIT, DUTY_FULL, EEPROM_END, ITEM, ITEMS,
-                                        PROTECTION_TIME_UNIT, STEP, STS3215_C001, TABLE_SIZE, FeetechSpec, Mode)
+                                        PROTECTION_TIME_UNIT, SIMULATOR_CLOCK_ADDRESS, STEP, STS3215_C001, TABLE_SIZE,
+                                        FeetechSpec, Mode)
 from servodyn.hal.thermal import winding_step
 
 POSITION_GAIN = 0.166      # duty per (P x rad of error): BAM's STS3215 error_gain (oscilloscope)
 SPEED_GAIN = 0.01          # duty per (speed_p x rad/s of error): a model, not a measured gain
 COULOMB_VELOCITY = 0.01    # rad/s: the Coulomb step smoothed by tanh over it
-CLOCKS = {1: "lockstep", 2: "realtime"}   # what a READ of SIMULATOR_CLOCK_ADDRESS answers
-SIMULATOR_CLOCK_ADDRESS = 0xF0             # past the table: a real servo answers nothing or an error
 FAULT_BITS = {"voltage": StatusBit.VOLTAGE, "input voltage": StatusBit.VOLTAGE, "encoder": StatusBit.ENCODER,
               "motor encoder": StatusBit.ENCODER, "temperature": StatusBit.TEMPERATURE,
               "overheating": StatusBit.TEMPERATURE, "current": StatusBit.CURRENT,

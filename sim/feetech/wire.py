@@ -9,8 +9,9 @@ from collections.abc import Callable, Sequence
 
 from servodyn.hal.feetech import protocol
 from servodyn.hal.feetech.protocol import Instruction, Packet, PacketReader
+from servodyn.hal.feetech.table import SIMULATOR_CLOCKS
 
-from .servo import CLOCKS, FeetechServo
+from .servo import FeetechServo
 
 
 class TimedReader(PacketReader):
@@ -36,7 +37,7 @@ class FeetechWire:
     @served_clock.setter
     def served_clock(self, mode: str) -> None:
         self._clock = mode
-        answer = next((code for code, name in CLOCKS.items() if name == mode), 0)
+        answer = next((code for code, name in SIMULATOR_CLOCKS.items() if name == mode), 0)
         for servo in self.servos:
             servo.clock_answer = answer
 
