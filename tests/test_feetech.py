@@ -1,12 +1,16 @@
-"""The Feetech STS codec against Feetech's own SDK (scservo_sdk, feetech-servo-sdk on PyPI) byte for
-byte, the sign-magnitude fields at their edges, the memory table, the motor model's inversion, and
-the simulated STS servos (sim/feetech) answering the SDK through a pseudo-terminal: the EEPROM
-lock, the baud gate, the modes, overload protection."""
+"""The Feetech STS codec against Feetech's own SDK (scservo_sdk, feetech-servo-sdk on PyPI) byte
+for byte, the firmware's C codec (hal/feetech/c/sts.c) against the Python one, the sign-magnitude
+fields at their edges, the memory table, the motor model's inversion, and the simulated STS servos
+(sim/feetech) answering the SDK through a pseudo-terminal: the EEPROM lock, the baud gate, the
+modes, overload protection."""
 
 from __future__ import annotations
 
-import math
+import ctypes
 import random
+import shutil
+import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -262,3 +266,128 @@ def test_simulated_so101_answers_the_sdk_through_a_pty():
             assert handler.ping(port, 9)[1] == sdk.COMM_RX_TIMEOUT      # no servo 9
         finally:
             port.closePort()
+
+
+# ------------------------------------------------------------------------------ the C codec (firmware)
+
+CODEC = Path(__file__).resolve().parent.parent / "hal" / "feetech" / "c"
+u8p, size_t, u8 = ctypes.POINTER(ctypes.c_uint8), ctypes.c_size_t, ctypes.c_uint8
+C_SIGNATURES = {
+    "sts_ping": (size_t, [u8p, size_t, u8]),
+    "sts_read": (size_t, [u8p, size_t, u8, u8, u8]),
+    "sts_write": (size_t, [u8p, size_t, u8, u8, u8p, u8]),
+    "sts_reg_write": (size_t, [u8p, size_t, u8, u8, u8p, u8]),
+    "sts_action": (size_t, [u8p, size_t, u8]),
+    "sts_sync_write": (size_t, [u8p, size_t, u8, u8, u8p, size_t, u8p]),
+    "sts_sync_read": (size_t, [u8p, size_t, u8, u8, u8p, size_t]),
+    "sts_encode_sm": (ctypes.c_int, [ctypes.c_int32, ctypes.c_uint, ctypes.POINTER(ctypes.c_uint16)]),
+    "sts_decode_sm": (ctypes.c_int32, [ctypes.c_uint16, ctypes.c_uint]),
+    "sts_reader_reset": (None, [ctypes.c_void_p]),
+    "sts_reader_feed": (ctypes.c_int, [ctypes.c_void_p, u8]),
+    "sts_reader_next": (ctypes.c_int, [ctypes.c_void_p]),
+}
+
+
+class CReader(ctypes.Structure):
+    _fields_ = [("buf", ctypes.c_uint8 * 259), ("n", ctypes.c_size_t), ("id", ctypes.c_uint8),
+                ("code", ctypes.c_uint8), ("nparam", ctypes.c_uint8), ("param", ctypes.c_uint8 * 253)]
+
+
+@pytest.fixture(scope="module")
+def sts(tmp_path_factory):
+    """sts.c built with the system C compiler (warnings as errors) and loaded through ctypes."""
+    cc = shutil.which("cc")
+    if cc is None:
+        pytest.fail("no C compiler: `cc` is not on PATH", pytrace=False)
+    lib = tmp_path_factory.mktemp("sts_c") / "libsts.so"
+    command = [cc, "-shared", "-fPIC", "-O2", "-std=c11", "-Wall", "-Wextra", "-Werror", "-o", str(lib),
+               str(CODEC / "sts.c")]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        pytest.fail(f"building the C codec failed: {' '.join(command)}\n{done.stderr}", pytrace=False)
+    so = ctypes.CDLL(str(lib))
+    for name, (restype, argtypes) in C_SIGNATURES.items():
+        getattr(so, name).restype, getattr(so, name).argtypes = restype, argtypes
+    return so
+
+
+def c_bytes(data) -> ctypes.Array:
+    return (ctypes.c_uint8 * max(1, len(data)))(*data)
+
+
+def built(call) -> bytes:
+    out = (ctypes.c_uint8 * 512)()
+    n = call(out, 512)
+    return bytes(out[:n])
+
+
+def test_c_builders_match_the_python_codec(sts):
+    """Every instruction the C codec builds equals the Python codec's (itself the SDK's, above), over
+    random IDs, addresses and data; a frame that does not fit its buffer or an ID past 0xFE is 0."""
+    rng = random.Random(3215)
+    for _ in range(300):
+        servo_id, address = rng.randrange(0xFF), rng.randrange(256)
+        data = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 9)))
+        assert built(lambda o, c: sts.sts_ping(o, c, servo_id)) == protocol.ping(servo_id)
+        assert built(lambda o, c: sts.sts_read(o, c, servo_id, address, len(data))) == \
+            protocol.read(servo_id, address, len(data))
+        assert built(lambda o, c: sts.sts_write(o, c, servo_id, address, c_bytes(data), len(data))) == \
+            protocol.write(servo_id, address, data)
+        assert built(lambda o, c: sts.sts_reg_write(o, c, servo_id, address, c_bytes(data), len(data))) == \
+            protocol.reg_write(servo_id, address, data)
+        assert built(lambda o, c: sts.sts_action(o, c, servo_id)) == protocol.action(servo_id)
+        ids = rng.sample(range(0xFD), rng.randrange(1, 12))
+        size = rng.randrange(1, 5)
+        per = {i: bytes(rng.randrange(256) for _ in range(size)) for i in ids}
+        flat = b"".join(per[i] for i in ids)
+        assert built(lambda o, c: sts.sts_sync_write(o, c, address, size, c_bytes(ids), len(ids), c_bytes(flat))) == \
+            protocol.sync_write(address, size, per)
+        assert built(lambda o, c: sts.sts_sync_read(o, c, address, size, c_bytes(ids), len(ids))) == \
+            protocol.sync_read(address, size, ids)
+    assert sts.sts_ping((ctypes.c_uint8 * 5)(), 5, 1) == 0 and sts.sts_ping((ctypes.c_uint8 * 6)(), 6, 0xFF) == 0
+
+
+def test_c_sign_magnitude_matches_at_every_edge(sts):
+    raw = ctypes.c_uint16()
+    for bit in (10, 11, 15):
+        top = (1 << bit) - 1
+        for value in (0, 1, -1, top, -top, 77, -77):
+            assert sts.sts_encode_sm(value, bit, ctypes.byref(raw)) == 1
+            assert raw.value == encode_sign_magnitude(value, bit)
+            assert sts.sts_decode_sm(raw.value, bit) == decode_sign_magnitude(raw.value, bit) == value
+        assert sts.sts_encode_sm(top + 1, bit, ctypes.byref(raw)) == 0
+        assert sts.sts_encode_sm(-(top + 1), bit, ctypes.byref(raw)) == 0
+    for raw_value in (0x8000, 0x0C05, 0x0805, 0xFFFF):
+        for bit in (10, 11, 15):
+            assert sts.sts_decode_sm(raw_value, bit) == decode_sign_magnitude(raw_value, bit)
+
+
+def test_c_reader_finds_what_the_python_reader_finds(sts):
+    """Random streams of status packets, garbage, lone FFs, truncated frames and flipped bytes, fed
+    byte by byte to the C reader: the packets (ID, error, parameters) the Python reader finds in the
+    same bytes, in the same order."""
+    rng = random.Random(101)
+    reader = CReader()
+    for _ in range(200):
+        pieces = []
+        for _ in range(rng.randrange(1, 8)):
+            frame = bytearray(protocol.status(rng.randrange(0xFE), rng.choice((0, 0x20)),
+                                              bytes(rng.randrange(256) for _ in range(rng.randrange(16)))))
+            kind = rng.random()
+            if kind < 0.15:
+                frame = frame[:rng.randrange(2, len(frame))]
+            elif kind < 0.3:
+                frame[rng.randrange(2, len(frame))] ^= 1 << rng.randrange(8)
+            elif kind < 0.45:
+                frame = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 6))) + b"\xff" + frame
+            pieces.append(bytes(frame))
+        stream = b"".join(pieces)
+        expected = [(p.id, p.code, p.params) for p in PacketReader().feed(stream) if isinstance(p, Packet)]
+        found = []
+        sts.sts_reader_reset(ctypes.byref(reader))
+        for byte in stream:
+            state = sts.sts_reader_feed(ctypes.byref(reader), byte)
+            while state == 1:
+                found.append((reader.id, reader.code, bytes(reader.param[:reader.nparam])))
+                state = sts.sts_reader_next(ctypes.byref(reader))
+        assert found == expected
