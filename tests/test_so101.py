@@ -105,3 +105,30 @@ def test_a_swing_learns_the_simulated_feetech_bus_clock(mode):
     config = load_config("so101")
     with PtyServer(SimulatedRobot(config).port("arm"), mode) as server:
         assert served_clock(config, "arm", server.path) == mode
+
+
+def test_the_backend_reads_each_tick_and_names_a_faulty_servo():
+    """FeetechBus on the simulated bus: a read gives q = 0 at the start pose (2048 steps) with the
+    servos' Present Voltage (5.0 V, the supply) and Temperature; a PWM duty written reaches the
+    servo as Goal_Time with its sign bit; an overload bit in a servo's status is a
+    ServoHardwareError naming its joint; a silent servo a ServoTimeoutError naming it."""
+    from servodyn.hal.bus import JointCommand, make_bus
+    from servodyn.hal.errors import ServoHardwareError, ServoTimeoutError
+    from servodyn.sim.serve import serve
+    config = load_config("so101")
+    with serve(config, "lockstep", process=False) as served:
+        bus = make_bus(config, **served.buses["arm"])
+        with bus:
+            state = bus.read_state()
+            assert np.abs(state.q).max() < STEP and bus.present["voltage"] == pytest.approx([5.0] * 6)
+            assert np.isfinite(bus.present["temperature"]).all()
+            bus.write(JointCommand.torque(np.array([0.0, -0.5, 0.0, 0.0, 0.0, 0.0])))
+            servo = served.robot.servo(2)
+            assert servo.get("goal_time") == bus.duties([0.0, -0.5, 0, 0, 0, 0], state.qd)[1] < 0
+            served.inject_fault(2, "overload")
+            with pytest.raises(ServoHardwareError, match="shoulder_lift"):
+                bus.read_state()
+            served.clear_faults()
+            served.inject_fault(4, "silent")
+            with pytest.raises(ServoTimeoutError, match="wrist_flex"):
+                bus.read_state()
