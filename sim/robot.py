@@ -303,7 +303,8 @@ class SimulatedRobot(PlantView):
             elif isinstance(fault, int) and not isinstance(fault, bool):
                 servo.set_hardware_error(fault)
             elif fault in HARDWARE_FAULTS:
-                servo.set_hardware_error((FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS)[fault])
+                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS
+                servo.set_hardware_error(bits[fault])
             else:
                 raise ValueError(f"a Dynamixel servo takes no {fault!r} fault")
             return

@@ -64,7 +64,8 @@ def test_instructions_match_the_sdk_byte_for_byte():
             value = rng.randrange(1 << (8 * size))
             data = value.to_bytes(size, "little")
             write = {1: "write1ByteTxOnly", 2: "write2ByteTxOnly", 4: "write4ByteTxOnly"}[size]
-            assert protocol.write(servo_id, 42, data) == sdk_bytes(lambda p, h: getattr(h, write)(p, servo_id, 42, value))
+            assert protocol.write(servo_id, 42, data) == \
+                sdk_bytes(lambda p, h: getattr(h, write)(p, servo_id, 42, value))
             assert protocol.reg_write(servo_id, 42, data) == sdk_bytes(
                 lambda p, h: h.regWriteTxOnly(p, servo_id, 42, size, list(data)))
     assert protocol.action(1) == sdk_bytes(lambda p, h: h.txPacket(p, [0, 0, 1, 2, sdk.INST_ACTION, 0]))

@@ -123,6 +123,7 @@ def test_the_backend_reads_each_tick_and_names_a_faulty_servo():
             assert np.abs(state.q).max() < STEP and bus.present["voltage"] == pytest.approx([5.0] * 6)
             assert np.isfinite(bus.present["temperature"]).all()
             bus.write(JointCommand.torque(np.array([0.0, -0.5, 0.0, 0.0, 0.0, 0.0])))
+            bus.read_state()           # answered after the write's bytes (no reply) were taken in
             servo = served.robot.servo(2)
             assert servo.get("goal_time") == bus.duties([0.0, -0.5, 0, 0, 0, 0], state.qd)[1] < 0
             served.inject_fault(2, "overload")

@@ -246,6 +246,6 @@ class FeetechBus(ServoBus):
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")
         tau = command.torque_at(self._last.q, self._last.qd)
         units = self.duties(tau, self._last.qd)
-        frame = protocol.sync_write(GOAL.address, 2, {i: encode_sign_magnitude(int(u), GOAL.sign_bit).to_bytes(2, "little")
-                                                      for i, u in zip(self.ids, units)})
+        goals = {i: encode_sign_magnitude(int(u), GOAL.sign_bit).to_bytes(2, "little") for i, u in zip(self.ids, units)}
+        frame = protocol.sync_write(GOAL.address, 2, goals)
         self._send(frame)

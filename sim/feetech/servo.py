@@ -125,7 +125,8 @@ class FeetechServo:
         r_th, tau_th = self.thermal
         if r_th <= 0 or tau_th <= 0:
             return
-        self.temperature = winding_step(self.temperature, current_squared, dt, self.model.motor_resistance, r_th, tau_th)
+        self.temperature = winding_step(self.temperature, current_squared, dt, self.model.motor_resistance,
+                                        r_th, tau_th)
         self._put("present_temperature", max(0, min(255, round(self.temperature))))
         if self.temperature > self.get("max_temperature_limit"):
             self.set_hardware_error(StatusBit.TEMPERATURE)
@@ -218,7 +219,8 @@ class FeetechServo:
             return POSITION_GAIN * self.get("p_coefficient") * (goal - position)
         if mode == Mode.SPEED:
             goal = self.get("goal_velocity") * STEP
-            return (self.model.motor_ke * goal) / self.supply_voltage + SPEED_GAIN * self.get("speed_p") * (goal - velocity)
+            feed = self.model.motor_ke * goal / self.supply_voltage
+            return feed + SPEED_GAIN * self.get("speed_p") * (goal - velocity)
         return 0.0
 
     def output_current(self, position: float, velocity: float, dt: float) -> float:

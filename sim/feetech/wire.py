@@ -56,7 +56,8 @@ class FeetechWire:
     def handle(self, data: bytes) -> bytes:
         now = self.wire_clock()
         timeout = self.reader.byte_timeout
-        if timeout is not None and self._heard_at is not None and self.reader.pending and now - self._heard_at > timeout:
+        late = timeout is not None and self._heard_at is not None and now - self._heard_at > timeout
+        if late and self.reader.pending:
             self.reader.expire()
         self._heard_at = now
         reply = bytearray()

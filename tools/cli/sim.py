@@ -15,6 +15,8 @@ from ...sim.lab import Lab
 from ...sim import serve as simulator
 from .common import describe
 
+KIND_NAMES = {"dynamixel": "Dynamixel", "feetech": "Feetech", "can": "CAN"}    # a bus kind in the banner
+
 
 def add_arguments(p) -> None:
     describe(p, "Serve the simulated bus of a configuration on a pseudo-terminal: Dynamixel, or an SLCAN adapter "
@@ -85,9 +87,8 @@ def _announce(args, config, robot, paths: dict, kinds: set) -> None:
                   f"{devices} on {paths[name]}", flush=True)
         else:
             ids = ", ".join(str(j.id) for j in config.joints_on(name))
-            kind = "Feetech" if bus.kind == "feetech" else "Dynamixel"
-            print(f"simulated {kind} bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
-                  f"{paths[name]}", flush=True)
+            print(f"simulated {KIND_NAMES[bus.kind]} bus '{name}' of '{config.name}' ({bus.baud} baud): "
+                  f"servos {ids} on {paths[name]}", flush=True)
 
     def swing(path_of):
         return f"servodyn swing --config {args.config} " + " ".join(
@@ -117,7 +118,7 @@ def _announce_bench(args, config, robot, paths: dict) -> None:
     for name, bus in config.buses.items():
         wired = [j.dof for j in config.joints_on(name) if j.dof in robot.bench.connected]
         state = "factory-fresh" if args.factory else "set up as configured"
-        print(f"simulated {'CAN' if bus.kind == 'can' else 'Dynamixel'} bus '{name}' of '{config.name}' on a bench "
+        print(f"simulated {KIND_NAMES[bus.kind]} bus '{name}' of '{config.name}' on a bench "
               f"({state}{', else as the store holds them' if args.bench else ''}; wired: "
               f"{', '.join(sorted(wired, key=dofs.index)) or 'nothing'}) on {paths[name]}", flush=True)
     if args.bench:
