@@ -69,7 +69,7 @@ def position_only_error(config, motion: str = "so101_pick") -> float:
     path = motion_path(motion, config.model).at_scale(1.0, config.control_period)
     robot.plant.q[:] = path.q[0]
     robot.plant.publish()
-    for servo in robot.servos if robot.servos else robot.drives:
+    for servo in robot.drives:
         servo.write(33, bytes((Mode.POSITION,)))
         servo.write(21, bytes((16, 32, 0)))
         servo.write(40, b"\x01")

@@ -188,8 +188,10 @@ STS3215_C001 = FeetechSpec(
     ratings=((6.0, 19.5 * KG_CM * 6.0 / 7.4, 2.0 * 6.0 / 7.4, 42.0),), temperature_limit=70.0,
     motor_kt=BAM_KT, motor_ke=BAM_KT, motor_resistance=BAM_R, armature=BAM_ARMATURE,
     friction_coulomb=BAM_KC, friction_viscous=BAM_KV,
-    source="Feetech STS3215-C001 spec (ftservo-wiki official-specs.json): 19.5 kg cm, 2.0 A, 1/345, 42 rpm at 6 V; "
-           "52 rpm no load at 7.4 V (DFRobot SER0069 listing); 4-7.4 V. " + _BAM + " (the anchor)")
+    source="Stall 19.5 kg cm: at 6 V per Feetech's spec (ftservo-wiki official-specs.json, 2.0 A, 42 rpm, 1/345), "
+           "at 7.4 V per DFRobot's SER0069 listing (52 rpm no load at 7.4 V, 4-7.4 V), 16.5 kg cm at 6 V per "
+           "TheRobotStudio's SO-ARM100 README: taken at 7.4 V and in proportion below (15.8 kg cm at 6 V, between "
+           "the two 6 V claims; the validator's envelope errs low). " + _BAM + " (the anchor)")
 STS3215_C018 = FeetechSpec(
     name="STS3215-C018", gear_ratio=345.0, nominal_voltage=12.0, supply_range=(9.0, 12.6),
     stall_torque=30.0 * KG_CM, stall_current=2.7, no_load_speed_rpm=45.0, no_load_current=0.18,
