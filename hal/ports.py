@@ -253,7 +253,7 @@ def can_links(root: Path = ROOT) -> list[CanLink]:
 # simulator's own process; on a machine loaded 4x over its cores a reply was seen to wait over
 # 250 ms. CAN: the motors' server is a thread of the loop's process, and on a loaded 2-core machine
 # a read waited 0.46 s once in 6000 ticks (measured).
-PTY_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0}
+PTY_REPLY_TIMEOUT = {"dynamixel": 1.0, "can": 2.0, "feetech": 1.0}
 
 
 def bus_ports(config, port=None) -> dict[str, str]:

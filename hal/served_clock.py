@@ -7,6 +7,7 @@ of error instead of 0.6° on the replica). `servodyn sim` serves in real time by
 
 - Dynamixel: a READ of one byte at SIMULATOR_CLOCK_ADDRESS (hal.dynamixel.control_table) from the
   bus's first servo; a simulated servo answers its simulator's clock, a real one an error;
+- Feetech: a READ of one byte at hal.feetech.table's SIMULATOR_CLOCK_ADDRESS, past the STS table;
 - CAN over SLCAN: the adapter's serial number (`N`), which the simulated adapter sets by its clock
   (hal.can.spec.SIMULATOR_SERIALS).
 
@@ -20,7 +21,11 @@ import os
 import select
 import time
 
+import serial
+
 from .can.spec import SIMULATOR_SERIALS
+from .feetech import protocol as feetech
+from .feetech.table import SIMULATOR_CLOCK_ADDRESS as FEETECH_CLOCK_ADDRESS, SIMULATOR_CLOCKS as FEETECH_CLOCKS
 from .dynamixel import instructions
 from .dynamixel.control_table import SIMULATOR_CLOCK_ADDRESS, SIMULATOR_CLOCKS
 from .dynamixel.link import Link
@@ -37,6 +42,8 @@ def served_clock(config, bus: str, path: str) -> str | None:
             return _dynamixel(path, spec.baud, config.joints_on(bus)[0].id)
         if spec.kind == "can":
             return _slcan(path)
+        if spec.kind == "feetech":
+            return _feetech(path, spec.baud, config.joints_on(bus)[0].id)
     except (HalError, OSError):
         return None
     return None
@@ -64,3 +71,16 @@ def _slcan(path: str) -> str | None:
     line = answer.split(b"\r")[0]
     serial = line[1:].decode("ascii", "replace") if line.startswith(b"N") else None
     return next((clock for clock, number in SIMULATOR_SERIALS.items() if number == serial), None)
+
+
+def _feetech(path: str, baud: int, servo_id: int) -> str | None:
+    with serial.Serial(path, baud, timeout=PTY_REPLY_TIMEOUT["feetech"]) as port:
+        port.write(feetech.read(servo_id, FEETECH_CLOCK_ADDRESS, 1))
+        reader, deadline = feetech.PacketReader(), time.monotonic() + PTY_REPLY_TIMEOUT["feetech"]
+        while time.monotonic() < deadline:
+            data = port.read(max(1, port.in_waiting))
+            found = [p for p in reader.feed(data) if isinstance(p, feetech.Packet) and p.id == servo_id]
+            if found:
+                reply = found[0]
+                return FEETECH_CLOCKS.get(reply.params[0]) if len(reply.params) == 1 and not reply.error else None
+    return None

@@ -54,6 +54,8 @@ from .lab import Lab, require
 from .can import CanMotor, CanNetwork
 from .contact import LOG_COLUMNS, Contacts
 from .dynamixel import Servo, ServoChain, DynamixelWire
+from .feetech import FeetechServo, FeetechWire
+from .feetech.servo import FAULT_BITS as FEETECH_FAULTS
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import JointFriction, Plant, PlantView
 
@@ -70,8 +72,8 @@ class SimulatedRobot(PlantView):
     def __init__(self, config: RobotConfig, *, small_time_step: float | None = None, q0=None,
                  integrator: str = "rk4", bench: Lab | None = None, obstacles=()):
         kinds = {bus.kind for bus in config.buses.values()}
-        if not kinds <= {"can", "dynamixel"}:
-            raise InputError(f"'{config.name}': the simulator serves Dynamixel and CAN buses "
+        if not kinds <= {"can", "dynamixel", "feetech"}:
+            raise InputError(f"'{config.name}': the simulator serves Dynamixel, Feetech and CAN buses "
                              f"(this configuration has {', '.join(sorted(kinds))})")
         self.config = config
         self.model = config.plant.model if config.plant is not None else config.model
@@ -82,7 +84,7 @@ class SimulatedRobot(PlantView):
         for joint, drive in zip(self.joints, self.drives):
             self._as_plant(joint, drive)
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
-        self._heated = [(d, k) for k, d in enumerate(self.drives) if isinstance(d, Servo)]   # heat()ed here
+        self._heated = [(d, k) for k, d in enumerate(self.drives) if isinstance(d, (Servo, FeetechServo))]   # heat()ed
         self._unheated = 0.0               # s the plant ran since the servos' windings were stepped
         self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
         wired = lambda j: self.bench is None or j.dof in self.bench.connected
@@ -102,6 +104,7 @@ class SimulatedRobot(PlantView):
         self.chains = {name: DynamixelWire(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
                                         chain=chain if chain is not None and chain.covers(on_bus(name)) else None)
                        for name, b in config.buses.items() if b.kind == "dynamixel"}
+        self.chains.update({name: FeetechWire(on_bus(name)) for name, b in config.buses.items() if b.kind == "feetech"})
         self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
         self.wire: dict[str, WireFault | None] = {name: None for name in self.chains}   # a Dynamixel wire's fault
         self.small_time_step = small_time_step
@@ -142,6 +145,13 @@ class SimulatedRobot(PlantView):
             def fresh():
                 return CanMotor.factory_fresh(joint.servo, dialect=joint.options["dialect"], supply_voltage=voltage)
             kind, what = CanMotor, "CAN motors"
+        elif bus.kind == "feetech":
+            def configured():
+                return FeetechServo(joint.servo, joint.id, baud=bus.baud, supply_voltage=voltage, temperature=AMBIENT)
+
+            def fresh():
+                return FeetechServo.factory_fresh(joint.servo, supply_voltage=voltage, temperature=AMBIENT)
+            kind, what = FeetechServo, "Feetech servos"
         else:
             def configured():
                 return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud, temperature=AMBIENT)
@@ -163,7 +173,11 @@ class SimulatedRobot(PlantView):
         thermal = (spec.thermal_resistance, spec.thermal_time_constant) if spec.thermal_resistance is not None \
             else drive.thermal
         drive.thermal = thermal
-        if isinstance(drive, CanMotor):
+        if isinstance(drive, FeetechServo):
+            kt, viscous, coulomb = drive.mechanics
+            drive.mechanics = (torque_constant / joint.configured_torque_constant * kt,
+                               *((0.0, 0.0) if spec.has_friction else (viscous, coulomb)))
+        elif isinstance(drive, CanMotor):
             drive.torque_constant = torque_constant
             if spec.has_friction:
                 drive.viscous = drive.coulomb = 0.0
@@ -313,7 +327,8 @@ class SimulatedRobot(PlantView):
             elif isinstance(fault, int) and not isinstance(fault, bool):
                 servo.set_hardware_error(fault)
             elif fault in HARDWARE_FAULTS:
-                servo.set_hardware_error(HARDWARE_FAULTS[fault])
+                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS
+                servo.set_hardware_error(bits[fault])
             else:
                 raise ValueError(f"a Dynamixel servo takes no {fault!r} fault")
             return

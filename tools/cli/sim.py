@@ -16,6 +16,8 @@ from ...sim import serve as simulator
 from .argtypes import obstacle
 from .common import describe
 
+KIND_NAMES = {"dynamixel": "Dynamixel", "feetech": "Feetech", "can": "CAN"}    # a bus kind in the banner
+
 
 def add_arguments(p) -> None:
     describe(p, "Serve the simulated bus of a configuration on a pseudo-terminal: Dynamixel, or an SLCAN adapter "
@@ -94,15 +96,15 @@ def _announce(args, config, robot, paths: dict, kinds: set) -> None:
                   f"{devices} on {paths[name]}", flush=True)
         else:
             ids = ", ".join(str(j.id) for j in config.joints_on(name))
-            print(f"simulated Dynamixel bus '{name}' of '{config.name}' ({bus.baud} baud): servos {ids} on "
-                  f"{paths[name]}", flush=True)
+            print(f"simulated {KIND_NAMES[bus.kind]} bus '{name}' of '{config.name}' ({bus.baud} baud): "
+                  f"servos {ids} on {paths[name]}", flush=True)
 
     def swing(path_of):
         return f"servodyn swing --config {args.config} " + " ".join(
             f"--port {name}={path_of(name)}" if len(paths) > 1 else f"--port {path_of(name)}" for name in paths)
     # the swing asks the bus which clock this is (hal.served_clock) and keeps it
     clock = "lock-step" if args.lockstep else "real time"
-    if kinds == {"dynamixel"}:
+    if kinds <= {"dynamixel", "feetech"}:      # serial buses on pseudo-terminals
         print(f"connect with: {swing(paths.get)}   (the swing learns the plant's clock, {clock}, from the bus; "
               "Ctrl-C stops)", flush=True)
     elif len(paths) == 1:
@@ -125,7 +127,7 @@ def _announce_bench(args, config, robot, paths: dict) -> None:
     for name, bus in config.buses.items():
         wired = [j.dof for j in config.joints_on(name) if j.dof in robot.bench.connected]
         state = "factory-fresh" if args.factory else "set up as configured"
-        print(f"simulated {'CAN' if bus.kind == 'can' else 'Dynamixel'} bus '{name}' of '{config.name}' on a bench "
+        print(f"simulated {KIND_NAMES[bus.kind]} bus '{name}' of '{config.name}' on a bench "
               f"({state}{', else as the store holds them' if args.bench else ''}; wired: "
               f"{', '.join(sorted(wired, key=dofs.index)) or 'nothing'}) on {paths[name]}", flush=True)
     if args.bench:
