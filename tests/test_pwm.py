@@ -185,3 +185,28 @@ def test_replica_pwm_forehand(tmp_path):
         pass       # the shoulder's following error stops it once past its envelope: its log up to then stands
     predicted, played = _first_saturation(config, tmp_path / "fast", 1.9)
     assert predicted is not None and played is not None and abs(played - predicted) <= 3, (predicted, played)
+
+
+@pytest.mark.parametrize("servo, drive, refused", [
+    ("XL430-W250", None, None), ("XC430-W240", None, None), ("XC330-T288", "pwm", None), ("XL430-W250", "current",
+     "XL430-W250 has no current control mode"), ("XC330-T288", "voltage", "'voltage': one of current, pwm")])
+def test_the_configuration_takes_servos_without_current_control(servo, drive, refused):
+    """The forearm on a servo without current control loads, driven in PWM mode (its default); `drive`
+    asks for PWM on a servo that has a current loop; a current drive on one without, or an unknown
+    drive, is one line naming the key (exit 2)."""
+    import tomllib
+    from servodyn.errors import ServodynError
+    from servodyn.hal.config import CONFIGS_DIR, config_from_dict
+    data = tomllib.loads((CONFIGS_DIR / "replica_pwm.toml").read_text())
+    joint = next(j for j in data["joint"] if j["dof"] == "r_forearm_pronation")
+    joint["servo"] = servo
+    joint.pop("drive")
+    if drive is not None:
+        joint["drive"] = drive
+    if refused is None:
+        config = config_from_dict(data)
+        assert config.joints[4].options["drive"] == "pwm", f"{servo}: driven in PWM mode"
+    else:
+        with pytest.raises(ServodynError) as caught:
+            config_from_dict(data)
+        assert refused in str(caught.value) and "drive" in str(caught.value) and caught.value.exit_code == 2
