@@ -24,9 +24,15 @@ def rated_span(servo) -> tuple[float, float]:
     return min(volts), max(volts)
 
 
+def drivable(servo) -> bool:
+    """Whether the servo's backend can drive it by its torque: by current, or (a Dynamixel without
+    current control) through PWM."""
+    return servo.current_control or getattr(backend(servo.kind), "pwm_drive", False)
+
+
 def unusable(servo, voltage: float) -> str | None:
     """Why sizing never picks `servo` at this supply voltage, or None."""
-    if not servo.current_control and not getattr(backend(servo.kind), "pwm_drive", False):
+    if not drivable(servo):
         return "no current control mode (the backend drives every joint by its torque)"
     low, high = rated_span(servo)
     if not low <= voltage <= high:
@@ -51,7 +57,7 @@ def catalogue(family: str) -> dict:
 
 def supply_voltages(family: str) -> list[float]:
     """The supply voltages worth trying when none is given: each servo's nominal voltage."""
-    return sorted({s.nominal_voltage for s in catalogue(family).values() if unusable(s, s.nominal_voltage) is None})
+    return sorted({s.nominal_voltage for s in catalogue(family).values() if drivable(s)})
 
 
 def part_mass(name: str) -> float:
