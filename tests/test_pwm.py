@@ -210,3 +210,50 @@ def test_the_configuration_takes_servos_without_current_control(servo, drive, re
         with pytest.raises(ServodynError) as caught:
             config_from_dict(data)
         assert refused in str(caught.value) and "drive" in str(caught.value) and caught.value.exit_code == 2
+
+
+def test_the_backend_writes_goal_pwm_in_the_tick_write():
+    """On replica_pwm's simulated bus (lock-step, through dynamixel-sdk): the forearm and wrist servos
+    are put in PWM Control Mode with Goal PWM 0 before torque on, and a tick's goals go out in one BULK
+    WRITE: Goal PWM for them (the duty hal.motor gives for the torque at the measured speed and the
+    Present Input Voltage read with the temperature), Goal Current for the shoulder and elbow."""
+    pytest.importorskip("dynamixel_sdk")
+    from servodyn.hal import JointCommand, make_bus
+    from servodyn.hal.config import load_config
+    from servodyn.hal.dynamixel import Instruction, InstructionPacket, PacketReader
+    from servodyn.hal.dynamixel.pwm import PwmDrive
+    from servodyn.sim.robot import SimulatedRobot
+    from servodyn.sim.transport.pty import PtyServer
+    config = load_config("replica_pwm")
+    arm = SimulatedRobot(config).port()
+    sent = []
+    handle = arm.handle
+
+    def recorded(data):
+        sent.append(bytes(data))
+        return handle(data)
+    arm.handle = recorded
+    server = PtyServer(arm, "lockstep")
+    server.start()
+    bus = make_bus(config, port=server.path, reply_timeout=0.25)
+    try:
+        bus.open()
+        modes = [arm.bus.servo(j.id).get("operating_mode") for j in config.joints]
+        assert modes == [0, 0, 0, 0, 16, 16, 16], "current mode at the shoulder and elbow, PWM at the forearm and wrist"
+        bus.enable_torque(True)
+        assert all(arm.bus.servo(i).get("goal_pwm") == 0 for i in (5, 6, 7)), "Goal PWM 0 before torque on"
+        state = bus.read_state()
+        assert bus.pwm.supply.tolist() == [12.0] * 3, "Present Input Voltage read with the temperature"
+        sent.clear()
+        tau = np.array([0.3, -0.2, 0.1, 0.4, 0.35, -0.25, 0.15])
+        bus.write(JointCommand.torque(tau))
+        bus.read_state()                                 # a round trip: the bus has taken the write
+        packets = [p for p in PacketReader(None).feed(b"".join(sent)) if isinstance(p, InstructionPacket)]
+        assert [p.instruction for p in packets][:2] == [Instruction.BULK_WRITE, Instruction.FAST_SYNC_READ]
+        want, _ = PwmDrive(config.joints, 12.0).goal_pwm(tau, state.qd, bus.temperature)
+        assert [arm.bus.servo(i).get("goal_pwm") for i in (5, 6, 7)] == want.tolist(), "Goal PWM = hal.motor's duty"
+        amps = [arm.bus.servo(i).get("goal_current") * 2.69e-3 for i in (1, 4)]
+        assert amps == pytest.approx([0.3 / 2.409, 0.4 / 1.783], abs=2.69e-3), "Goal Current as before"
+    finally:
+        bus.stop()
+        server.stop()
