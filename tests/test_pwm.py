@@ -113,16 +113,17 @@ def test_pwm_mode_obeys_pwm_limit_and_the_watchdog():
 
 # --- the HAL's torque through PWM, the validator's duty, replica_pwm ---------------------------------------
 
-def test_the_validator_counts_duty_as_the_hal_drives_it():
-    """replica_pwm's forearm and wrist: the validator's duty for a torque at a speed is the one the HAL
-    writes as Goal PWM (one set of equations, hal.motor), and the torque the simulated servo gives for
-    that Goal PWM is the torque asked (to a PWM unit's worth)."""
+@pytest.mark.parametrize("volts", [9.0, 10.5, 12.0])
+def test_the_validator_counts_duty_as_the_hal_drives_it(volts):
+    """replica_pwm's forearm and wrist at supplies across the XC330-T288's rows: the validator's duty for a
+    torque at a speed is the one the HAL writes as Goal PWM (one set of equations, hal.motor), and the
+    torque the simulated servo gives for that Goal PWM is the torque asked (to a PWM unit's worth)."""
     from servodyn.hal.config import load_config
     from servodyn.hal.dynamixel.pwm import PwmDrive
     from servodyn.validation.limits import Limits
     config = load_config("replica_pwm")
-    drive = PwmDrive(config.joints, 12.0)
-    limits = Limits.of(config, 12.0)
+    drive = PwmDrive(config.joints, volts)
+    limits = Limits.of(config, volts)
     assert [config.joints[k].dof for k in drive.index] == ["r_forearm_pronation", "r_wrist_flexion",
                                                            "r_wrist_deviation"], "forearm and wrist in PWM mode"
     tau, qd = np.array([[0.0, 0, 0, 0, 0.4, -0.3, 0.25]]), np.array([[0.0, 0, 0, 0, 2.0, 3.0, -1.5]])
@@ -132,14 +133,14 @@ def test_the_validator_counts_duty_as_the_hal_drives_it():
         "validator = HAL (the HAL in the servo's sense)"
     for k, u in zip(drive.index, units):
         joint = config.joints[k]
-        servo = Servo(joint.servo, supply_voltage=12.0, temperature=25.0)
+        servo = Servo(joint.servo, supply_voltage=volts, temperature=25.0)
         servo.write(11, bytes([OperatingMode.PWM]))
         servo.write(64, bytes([1]))
         servo.write(100, le(int(u), 2))
         sense = joint.direction * joint.gear_ratio
         amps = servo.output_current(0.0, qd[0, k] * sense, DT)
         given = amps * servo.mechanics.torque_constant * sense       # joint torque, friction aside
-        step = joint.servo.stall_torque_at(12.0) / PWM_FULL
+        step = joint.servo.stall_torque_at(volts) / PWM_FULL
         assert given == pytest.approx(tau[0, k], abs=step), f"{joint.dof}: the simulated servo gives the torque"
 
 
