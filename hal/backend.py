@@ -37,6 +37,7 @@ class Backend:
     port_key, baud_key = "port", "baud"        # what its [bus] table calls the port and the rate
     device_key = "servo"                       # what a [[joint]] calls its device's model
     bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
+    torque_through_pwm: bool = False           # drives servos without current control by a PWM duty
 
     bus: str = ""                              # "module:class" of its ServoBus
     bringup: str = ""                          # "module:class" of its bring-up (hal.bringup.BringUp), if any

@@ -214,7 +214,7 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
                                f"{bus.kind}")
         c.fail(device_key, f"{servo_name!r} is not a known {bus.kind} {spec.device_key} ({', '.join(catalogue)})")
     servo = catalogue[servo_name]
-    if not servo.current_control and not getattr(backend(servo.kind), "pwm_drive", False):
+    if not servo.current_control and not backend(servo.kind).torque_through_pwm:
         drivable = ", ".join(k for k, s in catalogue.items() if s.current_control)
         c.fail(device_key, f"{servo_name} has no current control mode, and the {bus.kind} backend drives every "
                            f"joint by its torque (Goal Current); choose one that has ({drivable})")

@@ -33,7 +33,7 @@ class Dynamixel(Backend):
     protocols = (2.0,)
     max_id = MAX_ID
     joint_keys = frozenset({"current_unit", "drive"})
-    pwm_drive = True         # a servo without current control is driven by its torque through PWM (pwm.py)
+    torque_through_pwm = True    # a servo without current control is driven by its torque through PWM (pwm.py)
 
     @classmethod
     def new_bus(cls) -> dict:

@@ -27,7 +27,7 @@ def rated_span(servo) -> tuple[float, float]:
 def drivable(servo) -> bool:
     """Whether the servo's backend can drive it by its torque: by current, or (a Dynamixel without
     current control) through PWM."""
-    return servo.current_control or getattr(backend(servo.kind), "pwm_drive", False)
+    return servo.current_control or backend(servo.kind).torque_through_pwm
 
 
 def unusable(servo, voltage: float) -> str | None:
