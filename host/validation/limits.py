@@ -70,7 +70,9 @@ class Limits:
         # the torque-speed envelope from the motor model the simulated servos run (hal.motor): at this
         # supply its stall torque and no-load speed are the data sheet's
         motors = [drive_motor(s, voltage) for s in servos]
-        pwm = np.array([j.options.get("drive") == "pwm" for j in joints], dtype=bool)
+        # driven through PWM: a joint configured so, and any whose servo has no current control
+        pwm = np.array([j.options.get("drive", "current" if j.servo.current_control else "pwm") == "pwm"
+                        for j in joints], dtype=bool)
         no_load = arr(m.no_load_speed(voltage) for m in motors)
         return cls(lower=arr(j.position_limits[0] for j in joints), upper=arr(j.position_limits[1] for j in joints),
                    speed=np.minimum(arr(j.velocity_limit for j in joints), no_load / gear),
