@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -127,6 +128,23 @@ class MotorModel:
         else:
             r, ke = kt * voltage / spec.stall_torque_at(voltage), voltage / spec.no_load_speed_at(voltage)
         return cls(torque_constant=kt, resistance=r, back_emf_constant=ke, armature=armature, **friction)
+
+
+@lru_cache(maxsize=256)
+def drive_motor(spec, supply: float) -> MotorModel:
+    """The motor a servo's drive runs at `supply` volts, as the simulated servo, the HAL's torque through
+    PWM and the validator all count on it: the data sheet's estimate at that voltage (from_datasheet), so
+    the three agree by construction."""
+    return MotorModel.from_datasheet(spec, supply)
+
+
+def duty_for_torque(spec, torque, supply, velocity, temperature=AMBIENT, torque_constant=None):
+    """The duty (uncapped; ±max_duty is the most the bridge gives) that makes `torque` N·m at the horn
+    of a `spec` servo turning at `velocity` rad/s on `supply` volts: I = τ / k_t through R(T), plus the
+    back-EMF k_e·ω, over the supply. `torque_constant`: the configuration's k_t (default the model's)."""
+    motor = drive_motor(spec, float(supply))
+    kt = motor.torque_constant if torque_constant is None else torque_constant
+    return motor.duty_for_current(np.asarray(torque) / kt, supply, velocity, temperature)
 
 
 def stopping_friction(stop_torque, budget):

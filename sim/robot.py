@@ -154,10 +154,12 @@ class SimulatedRobot(PlantView):
             kind, what = FeetechServo, "Feetech servos"
         else:
             def configured():
-                return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud, temperature=AMBIENT)
+                return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud, temperature=AMBIENT,
+                             supply_voltage=voltage or 12.0)
 
             def fresh():
-                return Servo.factory_fresh(joint.servo, position=0.0, zero_ticks=0, temperature=AMBIENT)
+                return Servo.factory_fresh(joint.servo, position=0.0, zero_ticks=0, temperature=AMBIENT,
+                                           supply_voltage=voltage or 12.0)
             kind, what = Servo, "Dynamixel servos"
         if bench is None:
             return configured()

@@ -65,7 +65,7 @@ def test_eeprom_is_locked_while_torque_is_on():
     (116, le(0, 2), ErrorNumber.DATA_LENGTH, "2 bytes of the 4-byte Goal Position"),
     (117, le(0, 4), ErrorNumber.DATA_LENGTH, "starting inside Goal Position"),
     (145, h("00 00 00"), ErrorNumber.ACCESS, "past the end of the table"),
-    (11, h("01"), ErrorNumber.DATA_RANGE, "Operating Mode 1 (velocity) is not simulated"),
+    (11, h("06"), ErrorNumber.DATA_RANGE, "Operating Mode 6 does not exist"),
     (11, h("02"), ErrorNumber.DATA_RANGE, "Operating Mode 2 does not exist"),
     (63, h("02"), ErrorNumber.DATA_RANGE, "Shutdown bit 1 is unused"),
     (102, le(1194, 2), ErrorNumber.DATA_LIMIT, "Goal Current above Current Limit 1193"),

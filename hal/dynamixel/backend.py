@@ -8,7 +8,9 @@ so the feed-forward could not be added (see the notes on what users struggle wit
 
 A tick is two transactions: one fast sync read (0x8A) of Present Current, Velocity and Position
 (addresses 126..135) that every servo answers inside one status packet, and one sync write of
-Goal Current. At open: Return Delay Time 0, Current Control Mode, Hardware Error Status checked,
+Goal Current. A joint driven in PWM Control Mode (a servo without current control: pwm.py) gets its
+torque as Goal PWM through the motor model; a bus with one writes every goal in one bulk write
+instead (Goal PWM at 100 or Goal Current at 102, each servo its own). At open: Return Delay Time 0, Current Control Mode, Hardware Error Status checked,
 the Bus Watchdog armed so the servos stop if the host dies.
 
 dynamixel-sdk 4.1.0 sends instruction packets without byte stuffing, and its fastSyncRead takes
@@ -41,7 +43,7 @@ from ..errors import (ServoError, ServoHardwareError, ServoInitializationError, 
 from ..port_access import claim_port, open_failure
 from ..ports import is_pseudo_terminal
 from . import bringup as bench
-from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT,
+from .control_table import (TABLE_SIZE, ADDR_BUS_WATCHDOG, ADDR_GOAL_CURRENT, ITEMS,
                             ADDR_OPERATING_MODE, ADDR_PRESENT, ADDR_RETURN_DELAY, ADDR_TORQUE_ENABLE,
                             PRESENT_LENGTH, PRESENT_WITH_TEMPERATURE_LENGTH, OperatingMode, hardware_faults,
                             watchdog_units)
@@ -50,9 +52,13 @@ from . import instructions
 from .diagnosis import Diagnosis
 from .fast_read import FastRead
 from .protocol import BROADCAST_ID, Instruction, encode_frame
+from .pwm import PwmDrive, pwm_driven
 from .units import ServoMap
 
+ADDR_GOAL_PWM = ITEMS["goal_pwm"].address
 GOAL = np.dtype([("id", "u1"), ("current", "<i2")])      # one servo's part of the Goal Current sync write
+# one servo's part of the bulk write of a bus with joints in PWM mode: Goal PWM or Goal Current
+BULK_GOAL = np.dtype([("id", "u1"), ("address", "<u2"), ("length", "<u2"), ("current", "<i2")])
 
 
 def _patient(port, reply_timeout: float | None):
@@ -146,7 +152,8 @@ class DynamixelBus(FastRead, Diagnosis, ServoBus):
             self._check_servo(joint)
             self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 0)      # EEPROM writes need torque off
             self._write_item(joint, ADDR_RETURN_DELAY, 1, 0)
-            self._write_item(joint, ADDR_OPERATING_MODE, 1, OperatingMode.CURRENT)
+            self._write_item(joint, ADDR_OPERATING_MODE, 1,
+                             OperatingMode.PWM if pwm_driven(joint) else OperatingMode.CURRENT)
             self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)       # clear a tripped watchdog
         # the tick's two packets, built once: the fast sync read is constant; the sync write's
         # parameters are a record array the goals are written into (its frame needs no stuffing:
@@ -156,10 +163,18 @@ class DynamixelBus(FastRead, Diagnosis, ServoBus):
         self._length = PRESENT_LENGTH          # the span of the read in flight
         self._temperature_in = 0               # reads until the next one that takes the temperature
         self.temperature = np.full(len(self.ids), np.nan)   # °C, as last read
-        self._goal = np.zeros(len(self.ids), dtype=GOAL)
+        self.pwm = PwmDrive(self.joints, self.config.supply.voltage if self.config.supply else None)
+        if len(self.pwm):         # no stuffing either: FF FF FD would need ID 0xFD after a goal's bytes
+            self._goal = np.zeros(len(self.ids), dtype=BULK_GOAL)
+            self._goal["address"] = ADDR_GOAL_CURRENT
+            self._goal["address"][self.pwm.index] = ADDR_GOAL_PWM
+            self._goal["length"] = 2
+            self._goal_head = bytes([Instruction.BULK_WRITE])
+        else:
+            self._goal = np.zeros(len(self.ids), dtype=GOAL)
+            self._goal_head = bytes([Instruction.SYNC_WRITE]) + ADDR_GOAL_CURRENT.to_bytes(2, "little") + \
+                (GOAL.itemsize - 1).to_bytes(2, "little")
         self._goal["id"] = self.ids
-        self._goal_head = bytes([Instruction.SYNC_WRITE]) + ADDR_GOAL_CURRENT.to_bytes(2, "little") + \
-            (GOAL.itemsize - 1).to_bytes(2, "little")
         self._id_bytes = bytes(self.ids)
         self._reader = _dxl.Reader()
         self._fault = None
@@ -173,8 +188,8 @@ class DynamixelBus(FastRead, Diagnosis, ServoBus):
 
     def _enable_torque(self, on: bool) -> None:
         for joint in self.joints:
-            if on:
-                self._write_item(joint, ADDR_GOAL_CURRENT, 2, 0)
+            if on:         # PWM mode: Goal PWM 0 first, or the servo starts at its PWM Limit (e-manual)
+                self._write_item(joint, ADDR_GOAL_PWM if pwm_driven(joint) else ADDR_GOAL_CURRENT, 2, 0)
                 self._write_item(joint, ADDR_TORQUE_ENABLE, 1, 1)
             else:
                 self._write_item(joint, ADDR_BUS_WATCHDOG, 1, 0)
@@ -233,6 +248,9 @@ class DynamixelBus(FastRead, Diagnosis, ServoBus):
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")
         tau = command.torque_at(self._last.q, self._last.qd)
         units, limited = self.units.goal_current_units(tau, self.current_limit)
+        if len(self.pwm):
+            k = self.pwm.index
+            units[k], limited[k] = self.pwm.goal_pwm(tau, self._last.qd, self.temperature)
         self.stats.limited += limited
         self._goal["current"] = units
         frame = encode_frame(BROADCAST_ID, self._goal_head + self._goal.tobytes(), stuffed=False)

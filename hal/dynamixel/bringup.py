@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 
 from ..bringup import WARNING, Finding, Found
 from ..errors import ServoInitializationError, ServoOperationError
-from .control_table import BAUD_RATES, ITEMS, MODELS, TABLE_SIZE, TICKS_PER_REV, hardware_faults
+from .control_table import BAUD_RATES, ITEMS, MODELS, PWM_FULL, TABLE_SIZE, TICKS_PER_REV, hardware_faults
 from .link import FACTORY_BAUD, FACTORY_ID, Link
 from . import instructions
 from .protocol import BROADCAST_ID, MAX_ID, StatusPacket, unpack_field
+from .pwm import pwm_driven
 from .units import current_unit
 
 MIN_FIRMWARE = 45          # fast sync read (0x8A), which every tick uses, needs X430/540 firmware 45
@@ -172,7 +173,12 @@ def table_findings(joint, table: dict[str, int], supply_voltage: float | None = 
     if table.get("status_return_level", 2) != 2:
         out.append(Finding("status return level", table["status_return_level"], "2 (every instruction answered)",
                            "power-cycle or `servodyn reboot` (it is RAM and comes back as 2)", **where))
-    if "current_limit" in table:
+    if pwm_driven(joint):       # PWM mode: no current limit acts, PWM Limit caps the duty
+        if table["pwm_limit"] < PWM_FULL:
+            out.append(Finding("PWM limit", f"{table['pwm_limit']} ({table['pwm_limit'] / PWM_FULL:.0%})",
+                               f"{PWM_FULL} (100 %)", "the servo would cap the torque it is driven by silently: "
+                               "`servodyn setup` writes 885", **where))
+    elif "current_limit" in table:
         unit = current_unit(joint)
         amps = table["current_limit"] * unit
         if amps + unit / 2 < joint.current_limit:
@@ -298,12 +304,13 @@ def setup_plan(link: Link, found: Found, joint, bus) -> list[Step]:
     table = servo_table(link, found.id)
     steps = []
     unit = current_unit(joint)
+    limit = "pwm_limit" if pwm_driven(joint) else "current_limit"     # PWM Limit at 100 % in PWM mode
     wanted = {"id": joint.id, "return_delay_time": 0, "drive_mode": table["drive_mode"] & ~0x01,
               "homing_offset": 0,
-              "current_limit": max(table["current_limit"], min(joint.servo.current_limit_max,
-                                                              int(round(joint.current_limit / unit)))),
+              limit: PWM_FULL if limit == "pwm_limit" else max(table["current_limit"], min(
+                  joint.servo.current_limit_max, int(round(joint.current_limit / unit)))),
               "baud_rate": BAUD_RATES.index(bus.baud)}
-    for name in ("return_delay_time", "drive_mode", "homing_offset", "current_limit", "id", "baud_rate"):
+    for name in ("return_delay_time", "drive_mode", "homing_offset", limit, "id", "baud_rate"):
         if table[name] != wanted[name]:
             steps.append(Step(name, table[name], wanted[name]))
     return steps

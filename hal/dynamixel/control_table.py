@@ -36,11 +36,13 @@ DRIVE_MODE_REVERSE = 0x01      # Drive Mode(10) bit 0: Present/Goal Position cou
 
 
 class OperatingMode(IntEnum):
-    """The modes the simulated drive implements (1 velocity, 4 extended position and 16 PWM exist
-    on the real servo but are refused here with a data range error)."""
+    """Operating Mode(11): the X-series modes, each of which the simulated drive implements."""
     CURRENT = 0
+    VELOCITY = 1
     POSITION = 3
+    EXTENDED_POSITION = 4
     CURRENT_POSITION = 5
+    PWM = 16
 
 
 class HardwareError(IntEnum):
@@ -219,10 +221,10 @@ _X430 = dict(thermal_resistance=12.0, thermal_time_constant=240.0, supply_range=
 _X540 = dict(thermal_resistance=6.0, thermal_time_constant=420.0, supply_range=(10.0, 14.8))
 _X330 = dict(current_unit=1.0e-3, velocity_limit_max=2047, temperature_limit=70.0, baud_rates=7,
              thermal_resistance=30.0, thermal_time_constant=120.0)       # thermal: estimates
-# no current control: Operating Mode(11) offers velocity, position, extended position and PWM;
-# of the simulated drive's modes only position
+# no current control: Operating Mode(11) offers velocity, position, extended position and PWM
 _NO_CURRENT = dict(current_control=False, current_limit_max=0,
-                   operating_modes=frozenset({OperatingMode.POSITION}))
+                   operating_modes=frozenset({OperatingMode.VELOCITY, OperatingMode.POSITION,
+                                              OperatingMode.EXTENDED_POSITION, OperatingMode.PWM}))
 # A real XL330's Present PWM follows P/256 x the error in ticks (not the e-manual's P/128) within 1 %
 # on the recordings in data/servo-logs/xl330-pendulum (tests/test_servo_model.py checks it there)
 # Its motor: `servodyn identify --actuator XL330-M288` on those 8 logs (a 0.49 kg pendulum at 0.1 m, supply

@@ -16,17 +16,19 @@ from ..bus import JointState, port_gone
 from ..errors import BusStallError, ServoHardwareError, ServoOperationError
 from . import _dxl
 from . import instructions
-from .control_table import (ADDR_HARDWARE_ERROR, PRESENT_LENGTH, PRESENT_WITH_TEMPERATURE_LENGTH,
+from .control_table import (ADDR_HARDWARE_ERROR, ADDR_PRESENT, ITEMS, PRESENT_LENGTH, PRESENT_WITH_TEMPERATURE_LENGTH,
                             hardware_faults)
 from .instructions import fast_reply_blocks
 from .protocol import ALERT_BIT, BROADCAST_ID, HEADER
 
 # a fast sync read reply's data block: Present Current (2), Velocity (4), Position (4)
 PRESENT = np.dtype([("current", "<i2"), ("velocity", "<i4"), ("position", "<i4")])
-# ... and on to Present Temperature: velocity and position trajectories, input voltage, temperature
-PRESENT_WITH_TEMPERATURE = np.dtype({"names": ["current", "velocity", "position", "temperature"],
-                                     "formats": ["<i2", "<i4", "<i4", "u1"],
-                                     "offsets": [0, 2, 6, PRESENT_WITH_TEMPERATURE_LENGTH - 1],
+# ... and on to Present Temperature: velocity and position trajectories, input voltage (0.1 V: the
+# supply a joint in PWM mode divides its torque's voltage by), temperature
+PRESENT_WITH_TEMPERATURE = np.dtype({"names": ["current", "velocity", "position", "voltage", "temperature"],
+                                     "formats": ["<i2", "<i4", "<i4", "<u2", "u1"],
+                                     "offsets": [0, 2, 6, ITEMS["present_input_voltage"].address - ADDR_PRESENT,
+                                                 PRESENT_WITH_TEMPERATURE_LENGTH - 1],
                                      "itemsize": PRESENT_WITH_TEMPERATURE_LENGTH})
 # every this many reads, the tick's read runs on to Present Temperature: 11 more bytes a servo
 # (at 4 Mbaud, 7 servos: 0.19 ms) on one tick in a hundred, no transaction of its own (a round
@@ -95,6 +97,8 @@ class FastRead:
         else:
             rows = np.frombuffer(data, dtype=PRESENT_WITH_TEMPERATURE)
             self.temperature = rows["temperature"].astype(float)
+            if len(self.pwm):
+                self.pwm.measured(rows["voltage"] / 10)
             self._temperature_in = TEMPERATURE_EVERY - 1
         q, qd, current, tau = self.units.state_from_units(rows["position"], rows["velocity"], rows["current"])
         now = time.monotonic()

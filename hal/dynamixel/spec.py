@@ -1,5 +1,5 @@
 """The Dynamixel X-series bus described (hal.backend): its servos, rates, ids, configuration keys,
-one tick's wire time and the torque range of Goal Current."""
+one tick's wire time and the torque range of Goal Current (of Goal PWM for a joint in PWM mode)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,10 @@ import math
 from ..backend import Backend
 from ..servos import RPM
 from . import instructions
-from .control_table import ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_WITH_TEMPERATURE_LENGTH, SERVOS
+from ..motor import drive_motor
+from .control_table import (ADDR_GOAL_CURRENT, ADDR_PRESENT, BAUD_RATES, PRESENT_WITH_TEMPERATURE_LENGTH, PWM_FULL,
+                            SERVOS)
+from .pwm import drive_of, pwm_driven
 from .protocol import MAX_ID
 from .units import current_unit
 
@@ -29,7 +32,8 @@ class Dynamixel(Backend):
     default_baud = 4_000_000
     protocols = (2.0,)
     max_id = MAX_ID
-    joint_keys = frozenset({"current_unit"})
+    joint_keys = frozenset({"current_unit", "drive"})
+    torque_through_pwm = True    # a servo without current control is driven by its torque through PWM (pwm.py)
 
     @classmethod
     def new_bus(cls) -> dict:
@@ -37,10 +41,13 @@ class Dynamixel(Backend):
 
     @classmethod
     def joint_options(cls, checker, servo) -> dict:
-        return {"current_unit": checker.positive("current_unit", servo.current_unit)}
+        return {"current_unit": checker.positive("current_unit", servo.current_unit), "drive": drive_of(checker, servo)}
 
     @classmethod
     def max_current(cls, servo, options: dict) -> tuple[float, str]:
+        if options["drive"] == "pwm":       # no current limit acts in PWM mode: the data sheet's stall currents
+            highest = max(servo.stall_current, *(row[2] for row in servo.ratings))
+            return highest, f"its highest stall current (PWM mode limits no current), {highest:g} A"
         unit = options["current_unit"]
         return servo.current_limit_max * unit, f"{servo.current_limit_max} x {unit:g} A"
 
@@ -52,13 +59,22 @@ class Dynamixel(Backend):
         ids = [j.id for j in joints]
         read = len(instructions.fast_sync_read(ADDR_PRESENT, PRESENT_WITH_TEMPERATURE_LENGTH, ids).encode())
         reply = instructions.fast_reply_size([PRESENT_WITH_TEMPERATURE_LENGTH] * len(ids))
-        write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
+        if any(pwm_driven(j) for j in joints):      # a bulk write: Goal PWM or Goal Current per servo
+            write = len(instructions.bulk_write([(i, ADDR_GOAL_CURRENT, b"\0\0") for i in ids]).encode())
+        else:
+            write = len(instructions.sync_write(ADDR_GOAL_CURRENT, 2, {i: b"\0\0" for i in ids}).encode())
         total = read + reply + write
         return wire_seconds(total, bus.baud), f"{read} + {reply} + {write} = {total} B at {bus.baud} baud"
 
     @classmethod
     def command_range(cls, joint) -> tuple[float, float]:
-        """Goal Current is clamped to ±Current Limit(38), in whole current units."""
+        """Goal Current is clamped to ±Current Limit(38), in whole current units; Goal PWM (PWM mode) to
+        ±PWM Limit(36): at most the stall torque at the servo's highest rated supply, in 1/885 of it."""
+        if pwm_driven(joint):
+            servo = joint.servo
+            volts = max(servo.nominal_voltage, *(row[0] for row in servo.ratings))
+            stall = drive_motor(servo, volts).stall_torque(volts) * joint.gear_ratio
+            return stall, stall / PWM_FULL
         unit = current_unit(joint)
         per_unit = unit * joint.torque_constant * joint.gear_ratio
         return round(joint.current_limit / unit) * per_unit, per_unit

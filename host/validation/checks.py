@@ -85,8 +85,10 @@ def check(model, limits: Limits, traj: Trajectory, margin: float = 1.0, repeat: 
 
     motor = torque / L.torque_constant                    # A the torque needs
     current = motor + L.no_load_current
-    ratios["current"] = current / L.current
-    values["current"], bounds["current"] = current, np.broadcast_to(L.current, current.shape)
+    # a joint in PWM mode has no current limit: the duty its torque needs at its speed (back-EMF included)
+    duty = np.abs(L.duty(tau, qd))
+    ratios["current"] = np.where(L.pwm, duty, current / L.current)
+    values["current"], bounds["current"] = np.where(L.pwm, duty, current), np.where(L.pwm, 1.0, L.current + 0 * current)
 
     temperature = winding_temperature(current, traj.t[1] - traj.t[0] if n_samples > 1 else L.period,
                                       L, repeat, ambient)
@@ -175,6 +177,9 @@ def _describe(violation: dict, config, limits: Limits, repeat: int) -> str:
         return (f"{dof} needs {fixed(value, 2)} N·m at {fixed(abs(violation['speed_rad_s']), 2)} rad/s {when}: "
                 f"{percent(violation['ratio'])} of its {servo}'s torque-speed envelope at {V} (it gives {fixed(limit, 2)} N·m "
                 f"at that speed)")
+    if check_name == "current" and limits.pwm[j]:
+        return (f"{dof} needs {percent(value)} duty of the {V} supply {when} (its torque and back-EMF); "
+                f"its {servo}'s PWM Limit gives 100 %")
     if check_name == "current":
         return f"{dof} draws {fixed(value, 2)} A {when}; its current limit is {fixed(limit, 2)} A"
     if check_name == "temperature":

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..control.timing import SMALL_TIME_STEP
 from ..hal.backend import backend
-from ..hal.motor import MotorModel
+from ..hal.motor import drive_motor, duty_for_torque
 
 
 @dataclass
@@ -35,6 +35,19 @@ class Limits:
     period: float = SMALL_TIME_STEP            # s: the configuration's control period, the sampling
     friction_coulomb: np.ndarray | None = None   # N m at the joint (the configuration's; None: none)
     friction_viscous: np.ndarray | None = None   # N m s/rad at the joint
+    pwm: np.ndarray | None = None                # per joint: driven in PWM mode (its duty, not its current, checked)
+    servos: list = field(default_factory=list)   # the joints' servos (ServoSpec)
+
+    def duty(self, tau: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """(N, n) the duty of the supply each joint in PWM mode needs for joint torques `tau` at joint
+        speeds `qd`, back-EMF included (hal.motor.duty_for_torque: the equations the HAL turns the
+        controller's torque into Goal PWM with, and the simulated servo its Goal PWM into torque); 0
+        for the others. Beyond ±1 the servo's PWM Limit saturates."""
+        out = np.zeros(np.shape(tau))
+        for j in np.flatnonzero(self.pwm) if self.pwm is not None else ():
+            out[:, j] = duty_for_torque(self.servos[j], tau[:, j] / self.gear[j], self.voltage, qd[:, j] * self.gear[j],
+                                        torque_constant=self.torque_constant[j])
+        return out
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
         """The joints' friction torque (N m) against their speeds: F_c·sign(q̇) + F_v·q̇, what the
@@ -56,7 +69,10 @@ class Limits:
         gear = arr(j.gear_ratio for j in joints)
         # the torque-speed envelope from the motor model the simulated servos run (hal.motor): at this
         # supply its stall torque and no-load speed are the data sheet's
-        motors = [MotorModel.from_datasheet(s, voltage) for s in servos]
+        motors = [drive_motor(s, voltage) for s in servos]
+        # driven through PWM: a joint configured so, and any whose servo has no current control
+        pwm = np.array([j.options.get("drive", "current" if j.servo.current_control else "pwm") == "pwm"
+                        for j in joints], dtype=bool)
         no_load = arr(m.no_load_speed(voltage) for m in motors)
         return cls(lower=arr(j.position_limits[0] for j in joints), upper=arr(j.position_limits[1] for j in joints),
                    speed=np.minimum(arr(j.velocity_limit for j in joints), no_load / gear),
@@ -67,7 +83,9 @@ class Limits:
                    thermal_resistance=arr(j.thermal_resistance for j in joints),
                    thermal_time_constant=arr(j.thermal_time_constant for j in joints),
                    temperature=arr(s.temperature_limit for s in servos),
-                   command=arr(c[0] for c in command), command_step=arr(c[1] for c in command),
+                   # a joint in PWM mode: Goal PWM's ±100 % at this supply commands at most its stall torque
+                   command=np.where(pwm, gear * arr(m.stall_torque(voltage) for m in motors), arr(c[0] for c in command)),
+                   command_step=arr(c[1] for c in command), pwm=pwm, servos=servos,
                    friction_coulomb=arr(j.friction_coulomb for j in joints),
                    friction_viscous=arr(j.friction_viscous for j in joints),
                    voltage=voltage, supply_current=config.supply.current_limit if config.supply else None,

@@ -5,7 +5,7 @@ MOTORS) by family, why a servo is no candidate at a supply voltage, and a servo'
 from __future__ import annotations
 
 from ..errors import ServodynError
-from ..hal.backend import servo_catalogue
+from ..hal.backend import backend, servo_catalogue
 from ..model.modelfile import parts
 
 FAMILIES = ("dynamixel", "can", "any")
@@ -24,9 +24,15 @@ def rated_span(servo) -> tuple[float, float]:
     return min(volts), max(volts)
 
 
+def drivable(servo) -> bool:
+    """Whether the servo's backend can drive it by its torque: by current, or (a Dynamixel without
+    current control) through PWM."""
+    return servo.current_control or backend(servo.kind).torque_through_pwm
+
+
 def unusable(servo, voltage: float) -> str | None:
     """Why sizing never picks `servo` at this supply voltage, or None."""
-    if not servo.current_control:
+    if not drivable(servo):
         return "no current control mode (the backend drives every joint by its torque)"
     low, high = rated_span(servo)
     if not low <= voltage <= high:
@@ -51,7 +57,7 @@ def catalogue(family: str) -> dict:
 
 def supply_voltages(family: str) -> list[float]:
     """The supply voltages worth trying when none is given: each servo's nominal voltage."""
-    return sorted({s.nominal_voltage for s in catalogue(family).values() if s.current_control})
+    return sorted({s.nominal_voltage for s in catalogue(family).values() if drivable(s)})
 
 
 def part_mass(name: str) -> float:

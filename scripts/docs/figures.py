@@ -517,7 +517,7 @@ def _current_sentence(pct: float, joint: str) -> str:
 
 # ------------------------------------------------------------------- every built-in configuration
 
-CONFIGS = ("replica", "replica_can", "replica_mixed")
+CONFIGS = ("replica", "replica_can", "replica_mixed", "replica_pwm")
 
 
 def configurations_table() -> None:
@@ -792,3 +792,18 @@ def readme_tour() -> dict:
             "failing": failing, "first_dof": first["dof"] if first else "none",
             "first_check": first["check"].replace("_", "-") if first else "none",
             "fit": human["fit_time_scale"], "fit_s": human["fit_time_scale"] * human["duration_s"]}
+
+
+def pwm_figures() -> dict:
+    """replica_pwm (forearm and wrist driven by their torque through PWM): the forehand's fitted time
+    scale, the peak duty of its PWM joints there, and its forehand with and without feed-forward."""
+    checked = validate("replica_pwm", "tennis_forehand", "--time-scale", "2.65", "--fit")
+    cfg = config("replica_pwm")
+    pwm = [j.dof for j in cfg.joints if j.options.get("drive") == "pwm"]
+    duty = {dof: checked["joints"][dof]["checks"]["current"] for dof in pwm}
+    worst = max(duty, key=duty.get)
+    fed, pd = swing("--config", "replica_pwm"), swing("--config", "replica_pwm", "--no-feedforward")
+    return {"fit": checked["fit_time_scale"], "scale": cfg.swing_time_scale, "servo": cfg.joints[-1].servo.name,
+            "duty_pct": 100 * duty[worst], "duty_dof": worst,
+            "ff_deg": deg(fed["tracking_max_rad"]), "pd_deg": deg(pd["tracking_max_rad"]),
+            "gain": pd["tracking_max_rad"] / fed["tracking_max_rad"]}

@@ -7,17 +7,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 from servodyn.hal.dynamixel.control_table import PWM_FULL
-from servodyn.hal.motor import MotorModel
+from servodyn.hal.motor import drive_motor
 
 if TYPE_CHECKING:
     from servodyn.hal.dynamixel.control_table import DynamixelSpec
 
 # The e-manual gives the gains' scaling (KP = P/128, KI = I/65536, KD = D/16) but not the firmware's
-# sample time; the I and D terms here count in samples of this period.
+# sample time; the I and D terms here count in samples of this period. P's divisor is the catalogue's
+# (DynamixelSpec.p_gain_divisor: 256 measured on a real XL330, the e-manual's 128 elsewhere).
 CONTROL_PERIOD = 1e-3
 
 
@@ -31,7 +31,9 @@ def clamp(value, low, high):
 @dataclass
 class PositionPid:
     """Position PID in table units: error in ticks → PWM units (Position Control Mode) or current
-    units (Current-based Position Control Mode). D acts on the measured speed, not the error."""
+    units (Current-based Position Control Mode). D acts on the measured speed, not the error.
+    `p_divisor`: KP = P / p_divisor (the catalogue's DynamixelSpec.p_gain_divisor)."""
+    p_divisor: int = 128
     integral: float = 0.0      # ticks × samples
 
     def reset(self) -> None:
@@ -40,7 +42,7 @@ class PositionPid:
     def step(self, error: float, ticks_per_second: float, dt: float,
              gains: tuple[int, int, int], cap: float) -> float:
         p_gain, i_gain, d_gain = gains
-        kp, ki, kd = p_gain / 128, i_gain / 65536, d_gain / 16
+        kp, ki, kd = p_gain / self.p_divisor, i_gain / 65536, d_gain / 16
         self.integral += error * dt / CONTROL_PERIOD
         # anti-windup: the integral term alone never exceeds the output cap
         bound = cap / ki if ki else 0.0
@@ -49,9 +51,25 @@ class PositionPid:
         return clamp(out, -cap, cap)
 
 
-@lru_cache(maxsize=256)
-def _motor_at(spec, supply: float) -> MotorModel:
-    return MotorModel.from_datasheet(spec, supply)
+@dataclass
+class VelocityPi:
+    """Velocity Control Mode's PI in table units: error in velocity units (0.229 rpm) → PWM units,
+    KvP = P/128 and KvI = I/65536 (e-manual), the integral counted in CONTROL_PERIOD samples."""
+    integral: float = 0.0      # velocity units × samples
+
+    def reset(self) -> None:
+        self.integral = 0.0
+
+    def step(self, error: float, dt: float, gains: tuple[int, int], cap: float) -> float:
+        p_gain, i_gain = gains
+        kp, ki = p_gain / 128, i_gain / 65536
+        self.integral += error * dt / CONTROL_PERIOD
+        bound = cap / ki if ki else 0.0
+        self.integral = clamp(self.integral, -bound, bound)
+        return clamp(kp * error + ki * self.integral, -cap, cap)
+
+
+_motor_at = drive_motor
 
 
 @dataclass(frozen=True)

@@ -160,7 +160,7 @@ class Instructions:
             elif item.name == "operating_mode" and value != before:
                 self._enter_mode(value)
             elif item.name == "torque_enable" and value != before:
-                self._pid.reset()
+                self._reset_loops()
                 if value and self.get("operating_mode") == OperatingMode.POSITION:
                     self._reset_turns()
         self._stale = True         # Present registers as the items now stand, written when next read
@@ -171,7 +171,7 @@ class Instructions:
             self._set(name, self.items[name].default)
         self._set("goal_pwm", self.get("pwm_limit"))
         self._goal_current_to_limit()
-        self._pid.reset()
+        self._reset_loops()
         if mode == OperatingMode.POSITION:
             self._reset_turns()
 

@@ -21,11 +21,13 @@ from servodyn.hal.dynamixel.control_table import (HARDWARE_FAULTS, BAUD_RATES, D
 
 from servodyn.hal.thermal import winding_step
 
-from .drive import Mechanics, Motor, PositionPid, clamp
+from .drive import Mechanics, Motor, PositionPid, VelocityPi, clamp
 from .instructions import WATCHDOG_TRIPPED, Instructions
 
 OVERHEATING = HARDWARE_FAULTS["overheating"]
-_POSITION, _CURRENT = int(OperatingMode.POSITION), int(OperatingMode.CURRENT)   # plain ints: an enum's cost less
+# plain ints: an enum's cost less
+_POSITION, _CURRENT, _PWM = int(OperatingMode.POSITION), int(OperatingMode.CURRENT), int(OperatingMode.PWM)
+_VELOCITY, _CURRENT_POSITION_MODE = int(OperatingMode.VELOCITY), int(OperatingMode.CURRENT_POSITION)
 _FROM_SHAFT = frozenset({"present_position", "present_velocity", "present_current", "present_load",
                          "moving"})   # set_present
 # a little-endian field of each (size, signed), read and written in place in the table
@@ -82,7 +84,8 @@ class Servo(Instructions):
         self._table = bytearray(TABLE_SIZE)
         self._shaft = (position, 0.0, 0.0)      # rad, rad/s, A
         self._stale = False            # the shaft moved since the Present registers were written
-        self._pid = PositionPid()
+        self._pid = PositionPid(model.p_gain_divisor)
+        self._velocity_pi = VelocityPi()
         self._turns = 0                # whole turns hidden from Present Position
         self._registered: tuple[int, bytes] | None = None
         self._heard_at: float | None = None
@@ -221,7 +224,7 @@ class Servo(Instructions):
         self._goal_current_to_limit()
         self._registered = None
         self._heard_at = None
-        self._pid.reset()
+        self._reset_loops()
         self._reset_turns()
         self._refresh_present()
         self._set("goal_position", self.get("present_position"))
@@ -246,10 +249,13 @@ class Servo(Instructions):
             self._trip_watchdog()
 
     def _trip_watchdog(self) -> None:
-        """Stop: a current-mode servo drops its goal current, a position servo holds where it is."""
+        """Stop: a current-mode servo drops its goal current, a PWM-mode one its goal PWM, a
+        velocity-mode one its goal velocity; a position servo holds where it is."""
         self._set("bus_watchdog", WATCHDOG_TRIPPED)
-        if self.get("operating_mode") == OperatingMode.CURRENT:
-            self._set("goal_current", 0)
+        mode = self.get("operating_mode")
+        if mode in (OperatingMode.CURRENT, OperatingMode.PWM, OperatingMode.VELOCITY):
+            self._set({OperatingMode.CURRENT: "goal_current", OperatingMode.PWM: "goal_pwm",
+                       OperatingMode.VELOCITY: "goal_velocity"}[mode], 0)
         else:
             self._set("goal_position", self.get("present_position"))
             self._set("position_trajectory", self.get("present_position"))
@@ -277,7 +283,7 @@ class Servo(Instructions):
         self._set("hardware_error_status", self.get("hardware_error_status") | bits)
         if bits & self.get("shutdown"):
             self._set("torque_enable", 0)
-            self._pid.reset()
+            self._reset_loops()
 
     # --- the plant's side ------------------------------------------------------------------------
 
@@ -322,7 +328,7 @@ class Servo(Instructions):
         mode's demand from the registers, turned into current and PWM by the motor (drive.py)."""
         table, at = self._table, self._at
         if table[at["torque_enable"]] != 1:
-            self._pid.reset()
+            self._reset_loops()
             self._set("present_pwm", 0)
             return 0.0
         u16, i16 = _U16.unpack_from, _I16.unpack_from
@@ -332,8 +338,17 @@ class Servo(Instructions):
         goal_pwm, pwm_limit = abs(i16(table, at["goal_pwm"])[0]), u16(table, at["pwm_limit"])[0]
         pwm_cap = pwm_limit if pwm_limit < goal_pwm else goal_pwm         # min(goal_pwm, pwm_limit)
         mode = table[at["operating_mode"]]
-        if mode == _POSITION:                                 # position PID → PWM
+        if mode == _CURRENT or mode == _CURRENT_POSITION_MODE:
+            pwm = None
+        elif mode == _PWM:                                    # Goal PWM straight to the bridge
+            pwm = clamp(i16(table, at["goal_pwm"])[0], -pwm_limit, pwm_limit)
+        elif mode == _VELOCITY:                               # velocity PI → PWM
+            error = _I32.unpack_from(table, self.items["goal_velocity"].address)[0] - speed / VELOCITY_UNIT
+            gains = (self.get("velocity_p_gain"), self.get("velocity_i_gain"))
+            pwm = self._velocity_pi.step(error, dt, gains, pwm_limit)
+        else:                                                 # (extended) position PID → PWM
             pwm = self._pid_output(position, velocity, dt, pwm_cap)
+        if pwm is not None:
             amps = self.motor.pwm_driven(pwm, supply, speed)
         else:
             if mode == _CURRENT:
@@ -344,6 +359,11 @@ class Servo(Instructions):
             amps, pwm = self.motor.current_driven(units, pwm_cap, supply, speed)
         self._set_clamped("present_pwm", pwm)
         return sign * amps
+
+    def _reset_loops(self) -> None:
+        """The position PID's and velocity PI's integrals back to 0 (torque or mode changed)."""
+        self._pid.reset()
+        self._velocity_pi.reset()
 
     def _pid_output(self, position: float, velocity: float, dt: float, cap: float) -> float:
         error = self.get("goal_position") - self._position_ticks(position)
