@@ -6,7 +6,7 @@
     reaction = "hold"                   # hold | float | retract | torque_off
     reaction_time_s = 1.0               # how long the reaction runs before torque goes off
     contact = true                      # the momentum observer watches for contact
-    contact_threshold_nm = { shoulder_flexion = 0.9, ... }   # `servodyn contact-thresholds` writes it
+    contact_threshold_nm = { shoulder_flexion = 0.9, ... }   # `servodyn contact` writes it
 
 Every key has a default (SafetyConfig), so a file without the table is guarded as well. The
 defaults and their reasons:

@@ -1,7 +1,7 @@
 """Contact in a run, end to end on the simulated replica: a push detected, isolated and estimated;
 an obstacle met, the contact ended by the reaction; the hold's stop from full speed; the
 calibration command. The thresholds are the built-in configuration's, calibrated by `servodyn
-contact-thresholds` on its clean runs."""
+contact` on its clean runs."""
 
 import json
 import math
@@ -108,7 +108,7 @@ def test_hold_stops_the_hand_from_full_speed(tmp_path):
 
 def test_contact_thresholds_calibrates_into_a_copy(tmp_path):
     target = tmp_path / "replica.toml"
-    res = run_cli("contact-thresholds", "--config", "replica", "--runs", "1", "--write", str(target),
+    res = run_cli("contact", "--config", "replica", "--runs", "1", "--write", str(target),
                   "--out", str(tmp_path / "runs"), "--yes")
     assert res.returncode == 0, res.stderr[-800:]
     written = tomlkit.parse(target.read_text())

@@ -30,9 +30,10 @@ def with_sim(sim: dict, name: str = "replica"):
     with open(CONFIGS_DIR / f"{name}.toml", "rb") as f:
         data = tomllib.load(f)
     data["sim"] = copy.deepcopy(sim)
-    # a plant that is not the model trips a contact watch calibrated on the model's: these runs are
-    # about the plant, so the watch is off (docs/identify.md: identify first, then calibrate)
-    data["safety"] = {**data.get("safety", {}), "contact": False}
+    # a plant that is not the model trips a contact watch calibrated on the model's, and an unmodelled
+    # 0.3 kg homed in 0.5 s lags the elbow 20° and more: these runs are about the plant's physics, so the
+    # watch is off and the following error let go to 1 rad (docs/identify.md: identify, then calibrate)
+    data["safety"] = {**data.get("safety", {}), "contact": False, "following_error_rad": 1.0}
     return config_from_dict(data, origin="test.toml")
 
 
@@ -229,6 +230,7 @@ def test_friction_feedforward_cuts_the_tracking_error(tmp_path):
     for known in (False, True):
         data = copy.deepcopy(REPLICA)
         data["sim"] = sim
+        data["safety"]["contact"] = False      # the blind run's plant is not its model: no contact watch
         if known:
             for joint in data["joint"]:
                 joint.update(friction_coulomb_nm=coulomb[joint["dof"]], friction_viscous_nm_s=coulomb[joint["dof"]] / 4)

@@ -1,4 +1,4 @@
-"""`servodyn contact-thresholds`: the contact observer's per-joint thresholds from clean runs.
+"""`servodyn contact`: the contact observer's per-joint thresholds from clean runs.
 
 Each motion is played `runs` times on the configuration's buses (the simulated ones unless it has
 a port) with the contact guard off; a momentum observer that watches nothing is fed every tick

@@ -1,6 +1,6 @@
 """The run's contact observer, built from a configuration: its `[safety]` table (gain, static
 thresholds), its identified friction, and its sensors' resolution (the dynamic term of the
-thresholds). One builder for the run's guard and for `servodyn contact-thresholds`."""
+thresholds). One builder for the run's guard and for `servodyn contact`."""
 
 from __future__ import annotations
 

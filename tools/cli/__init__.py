@@ -59,8 +59,7 @@ VERBS = {
     "replay": Entry("servodyn.tools.cli.replay", "servo-bench logs replayed through the servo model, scored"),
     "demo": Entry("servodyn.tools.cli.demo", "torque profile of a sample reach of the built-in arm"),
     "soak": Entry("servodyn.tools.cli.soak", "swings with a random fault each: every one a safe stop"),
-    "contact-thresholds": Entry("servodyn.tools.cli.contact_thresholds",
-                                "the contact observer's per-joint thresholds from clean runs"),
+    "contact": Entry("servodyn.tools.cli.contact_thresholds", "calibrate the contact watch's thresholds on clean runs"),
 }
 
 

@@ -1,4 +1,4 @@
-"""`servodyn contact-thresholds --config FILE`: the contact observer's thresholds from clean runs."""
+"""`servodyn contact --config FILE`: the contact observer's thresholds from clean runs."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def add_arguments(p) -> None:
              "are shown, then written to the configuration's [safety] contact_threshold_nm after asking (a built-in "
              "configuration's copy goes to --write, default ./NAME.toml; comments kept). Without a port the "
              "simulated buses are used; on a real arm, play motions it will really play, with nothing in reach.",
-             "servodyn contact-thresholds --config replica --runs 3 --motion tennis_forehand",
+             "servodyn contact --config replica --runs 3 --motion tennis_forehand",
              exits="0 written or nothing to change, 1 declined or a run did not complete cleanly, 2 bad input")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--motion", action="append", default=None, metavar="NAME|FILE",
