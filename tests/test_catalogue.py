@@ -178,17 +178,16 @@ DIALECT_UNPACK = {"damiao": frames.unpack_damiao_feedback, "cubemars": frames.un
 
 
 @pytest.mark.parametrize("name", sorted(n for n, s in SERVOS.items() if not s.current_control))
-def test_a_servo_without_current_control_is_refused_with_one_line(name, tmp_path):
+def test_a_servo_without_current_control_is_driven_by_pwm(name, tmp_path):
     """XL430-W250 and XC430-W240: Operating Mode(11) has no current mode, their tables no Goal
-    Current; the backend drives Goal Current, so a configuration naming one is refused."""
+    Current; a configuration naming one drives it by PWM (hal/dynamixel/pwm.py: the torque becomes a
+    duty through the motor model), which its table has."""
     assert name in ("XL430-W250", "XC430-W240")
-    with pytest.raises(ConfigError) as err:
-        load(one_joint(name, tmp_path), tmp_path)
-    line = str(err.value)
-    assert "\n" not in line and "no current control" in line and "Goal Current" in line, line
+    config = load(one_joint(name, tmp_path), tmp_path)
+    assert config.joints[0].options.get("drive", "pwm") == "pwm", config.joints[0].options
     items = {item.name for item in SERVOS[name].items()}
-    assert not items & {"current_limit", "goal_current", "present_current"} and "present_load" in items, \
-        "its table: no current items, Present Load(126)"
+    assert not items & {"current_limit", "goal_current", "present_current"} and {"present_load", "goal_pwm"} <= items, \
+        "its table: no current items, Present Load(126) and Goal PWM(100)"
 
 
 def test_a_5_volt_servo_at_12_volts_is_refused(tmp_path):
