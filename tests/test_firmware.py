@@ -79,6 +79,26 @@ def test_codegen_model_is_the_hosts(tmp_path):
         assert key in files["servodyn_gen.c"], key
 
 
+def test_codegen_writes_the_python_observers_constants():
+    """The firmware's contact rule has the Python loop's constants (servodyn.loop.contact's
+    contact_observer): K_O, the low-pass and each joint's threshold to the 9 digits codegen writes,
+    the debounce, and the arm time in ticks (40 ms at 1 ms: 2/K_O + 2/low-pass at 100/100); with
+    `[safety] contact = false` the firmware does not watch."""
+    from dataclasses import replace
+    from servodyn.loop.contact import contact_observer
+    config = load_config("replica")
+    observer = contact_observer(config)
+    source = generate(config)["servodyn_gen.c"]
+    for key, expected in (("observer_gain", observer.gain), ("observer_lowpass", observer.lowpass),
+                          ("contact_threshold", observer.thresholds)):
+        written = [float(v) for v in re.findall(rf"\.{key} = SD_R\(([^)]*)\)", source)]
+        assert np.allclose(written, expected, rtol=1e-8, atol=0), (key, written, expected)
+    assert f".contact_debounce = {observer.debounce}," in source and ".contact_arm_ticks = 40," in source
+    assert ".contact = 1," in source, "the replica's [safety] watches for contact"
+    off = generate(replace(config, safety=replace(config.guards, contact=False)))["servodyn_gen.c"]
+    assert ".contact = 0," in off, "contact = false: the observer runs, its rule stops nothing"
+
+
 def test_register_addresses_come_from_the_control_table():
     """Every Dynamixel register the firmware names is generated from hal/dynamixel/control_table.py:
     the header defines each at the table's address, and fw_main.c writes no number of its own."""
