@@ -50,3 +50,12 @@ def test_a_board_that_fails_is_one_line_and_exit_1(monkeypatch, capsys, tmp_path
     assert "second line" not in out and "Traceback" not in out, out
     with pytest.raises(SystemExit):
         fw_budget.main(["--budget", "x"])
+
+
+def test_every_section_the_firmware_times_has_a_row():
+    """The budget's table names each section fw_main.c times (the observer's included), in its order."""
+    import re
+    from pathlib import Path
+    source = (Path(__file__).resolve().parent.parent / "firmware/app/fw_main.c").read_text()
+    names = re.search(r"g_section_name\[NSEC\] = \{([^}]*)\}", source).group(1)
+    assert re.findall(r'"(\w+)"', names) == [key for key, _ in fw_budget.ROWS], names

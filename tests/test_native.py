@@ -14,11 +14,12 @@ import pytest
 
 from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.hal.config import load_config
+from servodyn.hal.contact_spec import Push
 from servodyn.hal.dynamixel.units import ServoMap
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
 from servodyn.hil import FirmwareLink, replay
-from servodyn.loop.native import NATIVE, run_native
+from servodyn.loop.native import NATIVE, contact_detail, run_native
 from runs import run_swing
 
 from helpers import quiet
@@ -27,6 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 HOME_TICKS = round(HOME_DURATION / SMALL_TIME_STEP) + 1
 SWING_TICKS = 7201
 FAULT_TICK = 100
+PUSH = Push("r_hand", (0.0, 0.0, -10.0), 0.3, 0.3)    # 10 N down at the hand, 0.3 s into the swing
 
 
 @pytest.fixture(scope="module")
@@ -149,3 +151,51 @@ def test_swing_native_has_the_python_loops_summary(native, tmp_path):
     assert all(summary["torque_off"]), "torque off on every servo"
     assert summary["exit_code"] == 0, "the exit status `servodyn swing` takes from the summary, as the Python loop's"
     assert (tmp_path / "swing_log.csv").read_text().count("\n") == 1 + SWING_TICKS, "the log, as the Python loop's"
+
+
+@pytest.fixture(scope="module")
+def pushed(native):
+    """The native loop with PUSH on the simulated arm: (report, log, record, arm)."""
+    def on_tick(k, arm):
+        if k == 0:
+            arm.schedule_push(PUSH, origin=HOME_TICKS * SMALL_TIME_STEP)
+    return _run(args=f"ticks={HOME_TICKS + 500}", on_tick=on_tick)
+
+
+def test_native_detects_a_push(pushed):
+    """The native loop's observer on a 10 N push down at the hand, 0.3 s into the swing (the
+    firmware's test under QEMU holds the same push against the Python loop's detection): fault 18
+    within 20 ms of the push, and summary.json's `contact` entry from `contact_detail`: the joint the
+    firmware names, the link (the child body of the last joint over its threshold), the residual
+    over that joint's threshold, and the host's force estimate at the tick before the detection.
+    The residual has then risen only part of the way (two 100 rad/s poles: 6 % of a step after
+    4 ms) and the link is the first joint's, not yet the hand (the Python loop refines both while
+    its reaction runs; the firmware has switched torque off): measured 4.8 N, asserted 2-12 N."""
+    report, log, record, arm = pushed
+    assert (report["fault"], report["code"], report["exit_code"]) == ("contact", 18, 18), report
+    assert record.torque_off, "torque off sent after the contact"
+    config = load_config("replica")
+    detail = contact_detail(config, report)
+    assert PUSH.start <= detail["detected_t_s"] <= PUSH.start + 0.02, detail
+    assert detail["joint"] in config.model.dof_names and detail["link"] in config.model.body_names, detail
+    assert detail["residual_nm"] > config.guards.contact_threshold[config.model.dof_names.index(detail["joint"])]
+    assert detail["force_estimate_n"] is not None and 2.0 <= detail["force_estimate_n"] <= 12.0, detail
+
+
+def test_swing_native_summary_names_the_contact(pushed, tmp_path, monkeypatch):
+    """`swing --native`'s summary of that run (native_swing, its run_native given the run above):
+    stop_reason "contact", the `contact` entry contact_detail gives, the firmware's exit status 18."""
+    import json
+    from types import SimpleNamespace
+    from servodyn.loop import native as native_module
+    report, log, _, _ = pushed
+    monkeypatch.setattr(native_module, "run_native", lambda *a, **k: (dict(report), log))
+    config = load_config("replica")
+    run = SimpleNamespace(config=config, realtime=False, say=quiet, options=SimpleNamespace(
+        overrun_tolerance=None, mode="feedforward_pd"), swing=SimpleNamespace(t=np.zeros(SWING_TICKS)),
+        verdict=SimpleNamespace(path=Path("forehand.toml"), passed=True), scale=1.0, cpu=None)
+    summary = native_module.native_swing(None, "/dev/null", run, tmp_path)
+    assert summary["stop_reason"] == "contact" and summary["exit_code"] == 18, summary.get("error")
+    assert summary["contact"] == contact_detail(config, report), summary["contact"]
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert set(written["contact"]) == {"detected_t_s", "joint", "link", "residual_nm", "force_estimate_n"}

@@ -27,6 +27,10 @@ typedef struct fw_servo_ {
   sd_real friction_coulomb;   // N m at the joint, compensated on the desired velocity (smoothed)
   sd_real friction_viscous;   // N m s/rad at the joint
   sd_real following_error;    // rad: |q_d - q| above it is a fault ([safety] following_error_rad)
+  // the momentum observer (sd_observer.h) and its contact rule, servodyn.loop.contact's values
+  sd_real observer_gain;      // 1/s: K_O, the residual's bandwidth
+  sd_real observer_lowpass;   // rad/s: the low-pass on the residual
+  sd_real contact_threshold;  // N m: |residual| above it, contact_debounce ticks in a row, is a contact
 } fw_servo;
 
 // A gain schedule: knots at times t (s from the start of its phase), linear in between.
@@ -52,6 +56,9 @@ typedef struct fw_plan_ {
   long stall_ticks;           // periods at the torque limit without moving that are a stall
   sd_real stall_speed;        // rad/s: slower than this a joint "does not move"
   sd_real stall_share;        // of the joint's torque limit: "at its limit"
+  int contact;                // 1: the observer watches for contact ([safety] contact)
+  int contact_debounce;       // ticks in a row over a threshold that are a contact
+  long contact_arm_ticks;     // ticks after the observer's start (homing's first) before one counts
 } fw_plan;
 
 extern const sd_model fw_model;

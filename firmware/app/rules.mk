@@ -30,7 +30,7 @@ FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/
 FW_ELFS := $(foreach b,$(FW_BOARDS),$(FW_DIR)/$(b)/servodyn-fw.elf)
 FW_CODEGEN_DEPS := $(STAMP) $(wildcard tools/codegen.py host/control/*.py host/model/*.py \
   host/model/builtin/*.toml host/control/motions/*.toml hal/config.py hal/dynamixel/control_table.py \
-  hal/dynamixel/units.py hal/configs/*.toml)
+  hal/dynamixel/units.py hal/configs/*.toml hal/safety.py hal/backend.py host/loop/contact.py)
 
 # codegen writes only what changed, so the touch keeps make from asking again
 $(FW_GEN_FILES) &: $(FW_CODEGEN_DEPS)

@@ -6,6 +6,14 @@ a USB adapter's or the simulated bus's pseudo-terminal.
 lines the firmware writes under QEMU) and its per-tick log (one record of native doubles a tick:
 tick, start (s), wall time (s), CPU time (s), then q_d, q, qd, tau, current per joint), turned into
 the host loop's RunLog so a run with `native=True` summarizes and writes it as the Python loop's.
+
+A contact (fault 18) is the firmware's own detection: its tick, the joint first over its threshold
+(the report's servo, with its |residual| as value_micro) and the last joint over its threshold at
+that tick (link_servo), whose child body is the link. The firmware does not estimate the force
+(its tick has no room for the link's Jacobian and a least-squares solve): `contact_detail` gives
+the host's estimate instead, the Python observer's (servodyn.loop.contact) run over the
+measurements the firmware logged up to its last logged tick, one tick before the detection, at
+the firmware's link; None when nothing was logged.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from ..control.motion import DEFAULT_MOTION
 from ..control.timing import HOME_DURATION, SMALL_TIME_STEP
 from ..errors import ServodynError
 from . import summarize, write_summary
+from .contact import contact_observer
 from .log import RunLog
 
 ROOT = Path(__file__).resolve().parents[2]     # the repository: make fw builds under build/
@@ -47,6 +56,10 @@ def parse_report(text: str) -> dict:
             report["result"], report["fault"] = words[0], words[1]
             report.update(values)
     return report
+
+
+def _rows(rows: np.ndarray, n: int) -> np.ndarray:
+    return rows[: rows.size - rows.size % (HEAD + 5 * n)].reshape(-1, HEAD + 5 * n)
 
 
 def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe: Path | None = None,
@@ -77,7 +90,7 @@ def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe
         raise FirmwareError(f"the native loop gave no report (exit {proc.returncode}): "
                             f"{(proc.stdout + proc.stderr).strip()[-300:]}")
     n = len(dof_names)
-    rows = rows[: rows.size - rows.size % (HEAD + 5 * n)].reshape(-1, HEAD + 5 * n)
+    rows = _rows(rows, n)
     home_ticks = int(round(HOME_DURATION / SMALL_TIME_STEP)) + 1       # as codegen's fw_plan_
     report["home_ticks"] = home_ticks
     log = RunLog(tuple(dof_names))
@@ -89,6 +102,7 @@ def run_native(port: str, dof_names, realtime: bool = False, args: str = "", exe
     log.tick_start, log.tick_seconds = list(swing[:, 1]), list(swing[:, 2])
     log.cpu_seconds = log.process_cpu_seconds = list(swing[:, 3])    # one thread: the process's own
     log.missed = int(report.get("missed", 0))
+    report["rows"] = rows         # every tick logged, homing's too (contact_detail replays them)
     return report, log
 
 
@@ -104,6 +118,29 @@ def fault_message(report: dict) -> str | None:
             + (f", servo {servo}" if servo not in (None, -1) else "")
             + (f"; {report.get('missed')} deadlines missed, {report.get('lost')} periods behind"
                if report["fault"] == "overrun" else ""))
+
+
+def contact_detail(config, report: dict) -> dict:
+    """summary.json's `contact` of the firmware's contact fault (module docstring): its time on the
+    motion's clock, the joint it names, the link (the child body of the last joint over its
+    threshold), the firmware's |residual| (N m) and the host's force estimate (N, or None)."""
+    model, period = config.model, config.control_period
+    dof_of = {j.id: j.dof for j in config.joints}
+    joint = dof_of.get(report.get("servo"))
+    link_dof = dof_of.get(report.get("link_servo"), joint)
+    link = next((b.name for b in model.bodies if any(d.name == link_dof for d in b.dofs)), None)
+    force = None
+    rows, n = report.get("rows"), model.nv
+    if rows is not None and len(rows) and link is not None:
+        observer = contact_observer(config, watching=False)
+        nm_per_amp = np.array([j.torque_constant * j.gear_ratio for j in config.joints])
+        part = lambda row, p: row[HEAD + p * n:HEAD + (p + 1) * n]
+        observer.reset(part(rows[0], 1), part(rows[0], 2))
+        for k, row in enumerate(rows):
+            observer.update(k * period, part(row, 1), part(row, 2), nm_per_amp * part(row, 4))
+        force = float(np.linalg.norm(observer.estimate(part(rows[-1], 1), link=link)[1]))
+    return {"detected_t_s": (report["fault_tick"] - report["home_ticks"]) * period, "joint": joint, "link": link,
+            "residual_nm": report.get("value_micro", 0) * 1e-6, "force_estimate_n": force}
 
 
 def check_native(config, motion: str, scale: float, mode: str, fault_at) -> None:
@@ -137,7 +174,7 @@ def native_swing(server, port: str, run, out: Path) -> dict:
                    validated=run.verdict.passed, loop="native",
                    bus={"reads": report.get("ticks"), "writes": report.get("ticks"), "reads_retried": 0,
                         "limited_ticks": report.get("limited")},
-                   native={k: report.get(k) for k in ("result", "fault", "code", "servo", "fault_tick", "ticks",
+                   native={k: report.get(k) for k in ("result", "fault", "code", "servo", "link_servo", "fault_tick", "ticks",
                                                       "missed", "lost", "exit_code", "notes")},
                    cpu=run.cpu, home_ticks=report.get("home_ticks"),
                    exit_code=(report.get("exit_code") or 2) if error else 0)    # the firmware's fault code
@@ -151,6 +188,8 @@ def native_swing(server, port: str, run, out: Path) -> dict:
                  else joint.torque_limit)
         summary[fault] = {"joint": joint.dof, "value": report.get("value_micro", 0) * 1e-6, "limit": limit,
                           "t_s": (report["fault_tick"] - report["home_ticks"]) * config.control_period}
+    if fault == "contact":
+        summary["contact"] = contact_detail(config, report)
     if sim is not None:
         # on the swing's clock in lock-step; in real time the plant's clock at the swing's start is
         # the native process's to know, not this one's
