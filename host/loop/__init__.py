@@ -78,12 +78,14 @@ def _follow(bus, controller, segment, log, realtime, on_tick, progress, toleranc
     traj = segment.traj
     n = len(traj.t)
     period = traj.t[1] - traj.t[0]
-    start = time.perf_counter()
+    start = None
     next_report = 0.0
     missed = 0
     for k in range(n):
         if on_tick is not None:
             on_tick(k)
+        if start is None:      # the schedule starts at the first tick, after what on_tick(0) did
+            start = time.perf_counter()
         began = time.perf_counter()
         if realtime and began - (start + k * period) > tolerance:
             raise Overrun(f"overrun: tick {k} began {(began - start - k * period) * 1e3:.1f} ms behind its "

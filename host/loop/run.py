@@ -419,10 +419,10 @@ class Run:
             raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
 
     def _fault_injector(self, server, played):
-        """on_tick for follow(): before the first tick, the swing's start on the simulated plant's
-        clock (in real time swing_start plus the wall-clock time since it was read: the loop's set-up
-        takes milliseconds) and --contact's pushes from it; fault_at's fault before its tick, on the
-        simulated bus or, for a motion fault, in the played motion."""
+        """on_tick for follow(), made just before the swing: --contact's pushes scheduled from the
+        swing's start on the simulated plant's clock (in real time swing_start plus the wall-clock time
+        since it was read); fault_at's fault before its tick, on the simulated bus or, for a motion
+        fault, in the played motion."""
         fault_at, o = self.options.fault_at, self.options
         if (fault_at is None and not (o.contacts or o.obstacles)) or server is None:
             return None
@@ -431,7 +431,9 @@ class Run:
         made = time.perf_counter()        # just after swing_start was read
 
         def inject(k):
-            if k == 0 and (o.contacts or o.obstacles):
+            if k == 0 and o.contacts:
+                # before the first tick, whose schedule starts when this returns (follow): in real
+                # time the plant has moved on since swing_start was read, by the wall clock
                 if self.realtime:
                     self.plant_swing_start += time.perf_counter() - made
                 for push in o.contacts:      # a push's start counts from the swing's
