@@ -49,7 +49,7 @@ class _Checker:
             raise ConfigError(f"{where}: must be a table")
         unknown = sorted(set(table) - allowed)
         if unknown:
-            raise ConfigError(f"{where}: unknown key '{unknown[0]}' (known: {', '.join(sorted(allowed))})")
+            raise ConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(allowed))})")
         self.table, self.where = table, where
 
     def fail(self, key: str, message: str):

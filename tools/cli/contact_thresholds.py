@@ -18,7 +18,7 @@ def add_arguments(p) -> None:
              "configuration's copy goes to --write, default ./NAME.toml; comments kept). Without a port the "
              "simulated buses are used; on a real arm, play motions it will really play, with nothing in reach.",
              "servodyn contact --config replica --runs 3 --motion tennis_forehand",
-             exits="0 written or nothing to change, 1 declined or a run did not complete cleanly, 2 bad input")
+             exits="0 written or nothing to change, 1 declined or a run did not complete cleanly")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--motion", action="append", default=None, metavar="NAME|FILE",
                    help=f"a motion to play (repeatable; default {DEFAULT_MOTION}), at the configuration's time scale")
