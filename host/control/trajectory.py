@@ -37,6 +37,13 @@ class Trajectory:
     qdd: np.ndarray    # (N, nq)
     derived: bool      # qd and qdd came from the spline
 
+    @classmethod
+    def still(cls, q, n: int, period: float, t0: float = 0.0) -> "Trajectory":
+        """Pose q held for n samples every `period` s from t0: at rest throughout."""
+        q = np.asarray(q, dtype=float)
+        return cls(t=t0 + np.arange(n) * period, q=np.tile(q, (n, 1)), qd=np.zeros((n, len(q))),
+                   qdd=np.zeros((n, len(q))), derived=False)
+
 
 @dataclass(frozen=True)
 class MotionPath:

@@ -27,6 +27,7 @@ import numpy as np
 from ..control import ControlConfig, Controller
 from ..control.schedule import GainSchedule, Segment, homing
 from ..control.trajectory import Trajectory
+from . import follow
 from .safety import Guards, SafetyStop
 
 RETRACT_BACK_S = 0.2          # s of the path a retract goes back along
@@ -46,7 +47,7 @@ class Reaction:
     gave_way: str | None = None      # why the reaction was cut short (torque went off)
     settle_tick: int | None = None   # from this tick the target is where the arm is (it came to rest)
 
-    def play(self, follow, bus, log, realtime: bool, config, observer=None, contact=None) -> None:
+    def play(self, bus, log, realtime: bool, config, observer=None, contact=None) -> None:
         """Follow the reaction's segment on the bus; a guard that trips in it ends it early.
         `contact`: the run's contact observer, fed on (its isolation and force estimate settle
         meanwhile), never stopping it."""
@@ -67,12 +68,6 @@ class Reaction:
                    on_tick=settle if self.settle_tick is not None else None)
         except SafetyStop as err:
             self.gave_way = str(err)
-
-
-def _constant(q, n: int, period: float, t0: float = 0.0) -> Trajectory:
-    q = np.asarray(q, dtype=float)
-    return Trajectory(t=t0 + np.arange(n) * period, q=np.tile(q, (n, 1)), qd=np.zeros((n, len(q))),
-                      qdd=np.zeros((n, len(q))), derived=False)
 
 
 def _to_rest(q0, qd0, n: int, period: float, t0: float) -> Trajectory:
@@ -106,12 +101,12 @@ def plan_reaction(config, stop: SafetyStop, segment: Segment, k: int, q_now, t0:
         controller = Controller(model, ControlConfig(mode="computed_torque", small_time_step=period,
                                                      kp=0.0, kd=FLOAT_DAMPING))
         gains = _held(np.zeros(model.nv), np.full(model.nv, FLOAT_DAMPING), None)
-        return Reaction(kind, controller, Segment("float", _constant(q_now, n, period, t0), gains))
+        return Reaction(kind, controller, Segment("float", Trajectory.still(q_now, n, period, t0), gains))
     friction = config.friction if feedforward else {}
     controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=period, **friction))
     if kind == "hold":
         if stop.velocity is None:
-            return Reaction(kind, controller, Segment("hold", _constant(stop.hold_pose, n, period, t0),
+            return Reaction(kind, controller, Segment("hold", Trajectory.still(stop.hold_pose, n, period, t0),
                                                       _held(kp, kd, lowpass)))
         return Reaction(kind, controller, Segment("hold", _to_rest(stop.hold_pose, stop.velocity, n, period, t0),
                                                   _held(kp, kd, lowpass)),
@@ -120,7 +115,7 @@ def plan_reaction(config, stop: SafetyStop, segment: Segment, k: int, q_now, t0:
     distance = float(np.abs(back - q_now).max())
     duration = max(4 * period, MIN_JERK_PEAK * distance / RETRACT_SPEED_RAD_S)
     move = homing(q_now, back, duration, period)
-    rest = _constant(back, max(2, n - len(move.t)), period)
+    rest = Trajectory.still(back, max(2, n - len(move.t)), period)
     traj = Trajectory(t=t0 + np.arange(len(move.t) + len(rest.t)) * period, q=np.vstack([move.q, rest.q]),
                       qd=np.vstack([move.qd, rest.qd]), qdd=np.vstack([move.qdd, rest.qdd]), derived=False)
     return Reaction(kind, controller, Segment("retract", traj, _held(kp, kd, lowpass)))

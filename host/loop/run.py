@@ -383,7 +383,7 @@ class Run:
         t_stop = stop.detail.get("t_s", stop.detail.get("detected_t_s"))
         reaction = plan_reaction(self.config, stop, segment, k, q_now, t_stop + self.period, self.options.feedforward)
         try:
-            reaction.play(follow, bus, log, self.realtime, self.config, observer=self.observer,
+            reaction.play(bus, log, self.realtime, self.config, observer=self.observer,
                           contact=guards.observer)
         except (ServoError, FloatingPointError, ControlFault, Overrun, Interrupted) as err:
             reaction.gave_way = f"{type(err).__name__}: {err}"
@@ -451,10 +451,7 @@ class Run:
 def hold_motion(config, q, seconds: float, period: float):
     """Hold pose q for `seconds`: the trajectory, its validator's verdict (gravity at that pose),
     and its path."""
-    n = max(2, int(round(seconds / period)) + 1)
-    q = np.asarray(q, dtype=float)
-    traj = Trajectory(t=np.arange(n) * period, q=np.tile(q, (n, 1)), qd=np.zeros((n, len(q))),
-                      qdd=np.zeros((n, len(q))), derived=False)
+    traj = Trajectory.still(q, max(2, int(round(seconds / period)) + 1), period)
     path = MotionPath.of_trajectory("hold", traj)
     verdict = judge(config, path, 1.0)
     if not verdict.passed:

@@ -29,6 +29,14 @@ def _pyplot():
     return plt
 
 
+def _save(fig, path: Path, dpi: int, tight: bool = True) -> None:
+    """Lay the figure out (unless `tight` is False), write it to `path` and free it."""
+    if tight:
+        fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    _pyplot().close(fig)
+
+
 def skeleton(model, q) -> list[np.ndarray]:
     """Line segments (2 x 3 world points) of a stick figure: parent origin to child origin, and
     for a body without children its origin to twice its centre of mass (the segment's end)."""
@@ -68,8 +76,7 @@ def posture_series(path: Path, model, qs, times, views=("side", "top"), title: s
     fig.colorbar(sm, ax=axes.tolist(), label="time (s)", shrink=0.8)
     if title:
         fig.suptitle(short(title))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, 110, tight=False)
 
 
 def snapshots(path: Path, model, qs, times, view: str = "front", title: str = "") -> None:
@@ -94,9 +101,7 @@ def snapshots(path: Path, model, qs, times, view: str = "front", title: str = ""
         ax.tick_params(labelsize=7)
     if title:
         fig.suptitle(short(title))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, 110)
 
 
 def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str = "",
@@ -115,9 +120,7 @@ def curves(path: Path, t, series: dict[str, np.ndarray], ylabel: str, title: str
     ax.legend(fontsize=8)
     if title:
         ax.set_title(short(title))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, 110)
 
 
 def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
@@ -143,9 +146,7 @@ def weights_and_torques(path: Path, model, q, tau, title: str = "") -> None:
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(short(title))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, 110)
 
 
 ERROR_SMOOTHING = 0.05    # s: the tracking error's moving average in the swing's figure
@@ -216,8 +217,7 @@ def tracking_figure(path: Path, t, q_d, q, tau, names, title: str, torque_limits
     for ax in (angles, torques):
         ax.grid(alpha=0.3)
     fig.suptitle(short(title))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(fig, path, 100, tight=False)
 
 
 def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
@@ -254,9 +254,7 @@ def envelope_figure(file: Path, result, limits, dof_names, title: str) -> None:
         axes[k // cols][k % cols].axis("off")
     axes[0][0].legend(fontsize=7)
     fig.suptitle(short(title))
-    fig.tight_layout()
-    fig.savefig(file, dpi=100)
-    plt.close(fig)
+    _save(fig, file, 100)
 
 
 def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> None:
@@ -276,6 +274,4 @@ def limits_in_time_figure(file: Path, result, limits, dof_names, title: str) -> 
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
     top.set_title(short(title))
-    fig.tight_layout()
-    fig.savefig(file, dpi=100)
-    plt.close(fig)
+    _save(fig, file, 100)
