@@ -50,3 +50,17 @@ def test_commands_import_no_other_command():
         if wrong:
             offenders[str(rel)] = wrong
     assert not offenders, f"commands imported as libraries (move what they share below the tools): {offenders}"
+
+
+def test_every_package_folder_is_installed():
+    """pyproject.toml lists the packages an install copies: a folder with an __init__.py missing from
+    that list works in the editable checkout and is absent from a wheel (servodyn.hal.feetech was)."""
+    import tomllib
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {path: name for name, path in project["package-dir"].items()}
+    found = set()
+    for folder, name in folders.items():
+        for init in (ROOT / folder).rglob("__init__.py"):
+            found.add(".".join([name, *init.parent.relative_to(ROOT / folder).parts]))
+    missing = found - set(project["packages"])
+    assert not missing, f"packages pyproject.toml does not install: {sorted(missing)}"
