@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..control.motion import DEFAULT_MOTION
+from ..control.motion import DEFAULT_MOTION, builtin_motions
 from ..control.timing import SMALL_TIME_STEP, check_control_period
 from ..model import load_model
 from ..model.files import read_toml, string_key
@@ -91,6 +91,7 @@ class RobotConfig:
     buses: dict[str, BusConfig]
     joints: tuple[JointConfig, ...]       # model dof order
     swing_time_scale: float | None = None
+    swing_motion: str = DEFAULT_MOTION   # `[swing] motion`: what a swing plays unless told otherwise
     supply: SupplyConfig | None = None    # None: the servos' nominal voltage, no current rating
     control_period: float = SMALL_TIME_STEP   # s: one read and write of every bus (`[control] period`)
     payload: "Payload | None" = None      # `[payload]`, already in `model`
@@ -103,9 +104,9 @@ class RobotConfig:
         return self.safety if self.safety is not None else SafetyConfig.default(self.model.dof_names)
 
     def time_scale_for(self, motion: str) -> float:
-        """The time scale a motion plays at by default: the configuration's (`swing_time_scale`) for
-        the forehand it was tuned on, 1 for any other motion."""
-        return (self.swing_time_scale if motion == DEFAULT_MOTION else None) or 1.0
+        """The time scale a motion plays at by default: the configuration's (`[swing] time_scale`) for
+        its own motion (`[swing] motion`, the forehand unless it names another), 1 for any other."""
+        return (self.swing_time_scale if motion == self.swing_motion else None) or 1.0
 
     @property
     def friction(self) -> dict:
@@ -267,6 +268,19 @@ def _geared_armature(model, joints: dict[str, JointConfig]):
     return model.with_armature(scaled) if scaled else model
 
 
+def _swing_motion(c, base: Path | None) -> str:
+    """`[swing] motion`: a built-in motion's name, or a keyframe file or trajectory CSV (relative to
+    the configuration's folder) that exists."""
+    name = c.get("motion", "str")
+    if name in builtin_motions():
+        return name
+    path = (base or Path.cwd()) / name
+    if path.suffix not in (".toml", ".csv") or not path.is_file():
+        c.fail("motion", f"{name!r} is neither a built-in motion ({', '.join(builtin_motions())}) nor a keyframe "
+                         ".toml or trajectory .csv file")
+    return str(path)
+
+
 def config_from_dict(data: dict, origin: str = "config", base: Path | None = None) -> RobotConfig:
     """Build and check a RobotConfig from parsed TOML; `base` resolves relative model paths."""
     top = _Checker(data, origin, TOP_KEYS)
@@ -320,9 +334,11 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
         why = supply_voltage_error(supply.voltage, joints.values())
         if why:
             c.fail("voltage", why)
-    time_scale = None
+    time_scale, swing_motion = None, DEFAULT_MOTION
     if "swing" in data:
-        time_scale = _Checker(data["swing"], f"{origin}: swing", {"time_scale"}).positive("time_scale")
+        c = _Checker(data["swing"], f"{origin}: swing", {"time_scale", "motion"})
+        time_scale = c.positive("time_scale") if "time_scale" in data["swing"] else None
+        swing_motion = _swing_motion(c, base) if "motion" in data["swing"] else DEFAULT_MOTION
     period = SMALL_TIME_STEP
     if "control" in data:
         c = _Checker(data["control"], f"{origin}: control", {"period"})
@@ -331,7 +347,7 @@ def config_from_dict(data: dict, origin: str = "config", base: Path | None = Non
         if why:
             c.fail("period", why)
     return RobotConfig(name=name, path=None, model_ref=model_ref, model=model, buses=buses,
-                       joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale,
+                       joints=tuple(joints[d] for d in model.dof_names), swing_time_scale=time_scale, swing_motion=swing_motion,
                        supply=supply, control_period=period, payload=payload, plant=plant,
                        safety=safety_from_table(data["safety"], f"{origin}: safety", model.dof_names)
                        if "safety" in data else None)

@@ -64,6 +64,22 @@ def test_validate_names_the_overloaded_shoulder(tmp_path):
     assert "FAIL (torque_speed)" in next(line for line in result.stdout.splitlines() if "shoulder_lift" in line)
 
 
+def test_the_configuration_names_its_own_motion(tmp_path):
+    """so101's `[swing] motion` is its pick: a swing given no --motion plays it (refused, as the pick at
+    5 V is, naming it and its fix), and a configuration naming a motion that is neither built in nor a
+    file is refused in one line."""
+    assert load_config("so101").swing_motion == "so101_pick"
+    result = run_cli("swing", "--config", "so101", "--out", tmp_path)
+    assert result.returncode == 2 and "'so101_pick' at time scale 1" in result.stderr, result.stderr
+    assert "servodyn validate so101 so101_pick --fit" in result.stderr
+    bad = tmp_path / "bad.toml"
+    from servodyn.hal.config import builtin_configs
+    bad.write_text(builtin_configs()["so101"].read_text().replace('motion = "so101_pick"', 'motion = "nope"'))
+    result = run_cli("validate", bad, "so101_pick")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "swing: 'motion' 'nope' is neither a built-in motion" in result.stderr
+
+
 def position_only_error(config, motion: str = "so101_pick") -> float:
     """The largest tracking error (rad) of LeRobot's control on the same simulated servos: each
     servo in position mode (0) with its gains 16/0/32, Goal_Position each period, no feed-forward."""

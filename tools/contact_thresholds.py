@@ -35,7 +35,7 @@ def calibrate(config_arg: str, motions, runs: int, margin: float = DEFAULT_MARGI
     config = load_config(config_arg)
     quiet = replace(config, safety=replace(config.guards, contact=False))    # the guard must not stop a clean run
     residual_runs, names = [], config.model.dof_names
-    for motion in motions:
+    for motion in motions or [config.swing_motion]:
         for k in range(runs):
             observer = contact_observer(config, watching=False)
             residual = []

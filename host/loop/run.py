@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control import ControlConfig, ControlFault, Controller
-from ..control.motion import DEFAULT_MOTION, motion_path
+from ..control.motion import motion_path
 from ..control.schedule import plan_run
 from ..control.timing import HOME_DURATION, MAX_PLAYED_DURATION, TIME_STEP
 from ..control.trajectory import MotionPath, Trajectory
@@ -66,8 +66,9 @@ class Declined(ServodynError):
 class RunOptions:
     """What a run plays and how; every field has the swing's default.
 
-    motion: a built-in motion, a keyframe file or a trajectory CSV, played `time_scale` times slower
-    (None: the configuration's for the forehand, else 1). port: None (each bus's configured port;
+    motion: a built-in motion, a keyframe file or a trajectory CSV (None: the configuration's,
+    `[swing] motion`), played `time_scale` times slower (None: the configuration's for its own
+    motion, else 1). port: None (each bus's configured port;
     "auto" means simulated), a path, or "BUS=PATH" items (hal.ports.bus_ports). fault_at = (time,
     servo id) or (time, servo id, fault): on the simulated bus that servo stops answering then
     ("silent", the default), raises Hardware Error Status bits ("overload", ... or the bits as an
@@ -79,7 +80,7 @@ class RunOptions:
     torque off and log the planned homing with the torques the controller would send, sending none.
     contacts, obstacles: hal.contact_spec's Push (its start from the motion's start) and Plane or
     Sphere, applied by the simulated plant (a simulated bus started by the run only)."""
-    motion: str = DEFAULT_MOTION
+    motion: str | None = None
     time_scale: float | None = None
     feedforward: bool = True
     realtime: bool = False
@@ -134,14 +135,15 @@ class Run:
         self.options, self.serve, self.say, self.confirm, self.observer = options, serve, say, confirm, observer
         self.log = log
         o = options
-        self.scale = o.time_scale if o.time_scale is not None else self.config.time_scale_for(o.motion)
+        self.motion = o.motion or self.config.swing_motion
+        self.scale = o.time_scale if o.time_scale is not None else self.config.time_scale_for(self.motion)
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise RunError(f"a time scale is a positive number, not {self.scale}")
         if o.hold is not None and not (math.isfinite(o.hold) and 0 < o.hold <= MAX_PLAYED_DURATION):
             # checked before the hold's samples are made: 1e308 s would be terabytes
             raise RunError(f"a hold lasts a positive number of seconds up to {MAX_PLAYED_DURATION:g} (the longest "
                            f"a run plays), not {o.hold:g}")
-        self.path = motion_path(o.motion, self.config.model)
+        self.path = motion_path(self.motion, self.config.model)
         self.verdict = judge(self.config, self.path, self.scale) if o.hold is None else None
         self.ports = bus_ports(self.config, o.port)
         self.kind = next(iter(self.config.buses.values())).kind
@@ -154,7 +156,7 @@ class Run:
         if o.native:
             if o.hold is not None or o.dry_run:
                 raise RunError("--hold and --dry-run run in the Python loop, not with --native")
-            check_native(self.config, o.motion, self.scale, o.mode, o.fault_at)
+            check_native(self.config, self.motion, self.scale, o.mode, o.fault_at)
         self.realtime, self.paced = o.realtime, None
         if not self.simulated and not o.realtime and any(not is_pseudo_terminal(p) for p in self.ports.values()):
             # lock-step means "as fast as the bus answers": on real servos that would play the motion
@@ -172,7 +174,7 @@ class Run:
             more = f"{len(found)} violations, --verbose lists them; " if len(found) > 1 else ""
             raise MotionRefused(
                 f"'{self.path.name}' at time scale {self.scale:g} would leave a servo's limits: {first} ({more}"
-                f"servodyn validate {self.config.name} {self.options.motion} --fit finds a time scale that passes"
+                f"servodyn validate {self.config.name} {self.motion} --fit finds a time scale that passes"
                 f"{'; --force plays it anyway on the simulated bus' if self.simulated else ''})", found)
         self.say(f"forced past the validator: {first}")
 

@@ -34,12 +34,13 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
         timeline = log_timeline(model, config, Path(log))
     motion_obj = None
     nothing_to_play = None             # why there is no Play panel
+    default = config.swing_motion if config is not None else DEFAULT_MOTION
     if log is None and motion is None:
-        try:                           # the forehand, where the model has its dofs
-            motion_obj = load_motion(DEFAULT_MOTION, model)
+        try:                           # the configuration's motion (the forehand), where the model has its dofs
+            motion_obj = load_motion(default, model)
         except (TrajectoryError, ModelError) as err:
             nothing_to_play = (f"**No Play panel**: nothing to play. No --motion or --log was given, and the "
-                               f"default motion, {DEFAULT_MOTION}, does not fit model '{model.name}' "
+                               f"default motion, {default}, does not fit model '{model.name}' "
                                f"({str(err).split(': ', 1)[-1]}). Give `--motion` a keyframe file or a "
                                f"trajectory CSV of this model's dofs, or `--log` a run's folder.")
     elif log is None:
@@ -55,7 +56,7 @@ def open_view(spec: str | None = None, log: str | None = None, motion: str | Non
             except (TrajectoryError, ModelError) as err:
                 raise ViewError(str(err)) from None
     if time_scale is None:
-        time_scale = config.time_scale_for(DEFAULT_MOTION) if config is not None and motion is None else 1.0
+        time_scale = config.time_scale_for(default) if config is not None and motion is None else 1.0
     if not (math.isfinite(time_scale) and time_scale > 0):
         raise ViewError(f"the time scale must be a positive number, got {time_scale}")
     overlay = None

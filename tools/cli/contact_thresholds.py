@@ -21,7 +21,8 @@ def add_arguments(p) -> None:
              exits="0 written or nothing to change, 1 declined or a run did not complete cleanly")
     p.add_argument("--config", default="replica", help="robot configuration (default replica)")
     p.add_argument("--motion", action="append", default=None, metavar="NAME|FILE",
-                   help=f"a motion to play (repeatable; default {DEFAULT_MOTION}), at the configuration's time scale")
+                   help="a motion to play (repeatable; default the configuration's `[swing] motion`, "
+                        f"{DEFAULT_MOTION} unless it names another), at the configuration's time scale")
     p.add_argument("--runs", type=count(1, what="runs"), default=3, metavar="N",
                    help="clean runs of each motion (default 3)")
     p.add_argument("--margin", type=number(1.0, 10.0, "times the largest residual"), default=1.2, metavar="F",
@@ -34,7 +35,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    return calibrate(args.config, args.motion or [DEFAULT_MOTION], args.runs, args.margin, Path(args.out),
+    return calibrate(args.config, args.motion or [], args.runs, args.margin, Path(args.out),
                      port=args.port, write_to=args.write,
                      confirm=(lambda question: True) if args.yes else (lambda question: ask(question, False, say)),
                      say=say)

@@ -35,8 +35,8 @@ def add_arguments(p) -> None:
     out_folder(p, "out/swing")
     p.add_argument("--no-feedforward", action="store_true", help="PD only, no inverse dynamics")
     p.add_argument("--time-scale", type=positive, default=None, metavar="S",
-                   help="play the swing S times slower (default: the configuration's for "
-                        f"{DEFAULT_MOTION}, else 1)")
+                   help="play the swing S times slower (default: the configuration's for its own motion, "
+                        "else 1)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the loop and the simulated plant by the wall clock (default lock-step on a simulated "
                         "bus; a real bus always runs in real time); on the simulated Dynamixel bus the loop, "
@@ -45,8 +45,9 @@ def add_arguments(p) -> None:
     p.add_argument("--overrun-tolerance", type=number(0, what="ms"), default=None, metavar="MS",
                    help="in real time, how far (ms) the loop may fall behind its period schedule before it stops "
                         f"safely (overrun, exit {int(ExitCode.OVERRUN)}; default {OVERRUN_TOLERANCE * 1e3:g})")
-    p.add_argument("--motion", default=DEFAULT_MOTION, metavar="NAME|FILE",
-                   help=f"built-in motion, keyframe file or trajectory CSV (default {DEFAULT_MOTION})")
+    p.add_argument("--motion", default=None, metavar="NAME|FILE",
+                   help="built-in motion, keyframe file or trajectory CSV (default: the configuration's `[swing] "
+                        f"motion`, {DEFAULT_MOTION} unless it names another, e.g. so101_pick for so101)")
     p.add_argument("--force", action="store_true",
                    help="play a motion the validator refuses (on the simulated bus only)")
     p.add_argument("--verbose", action="store_true",
