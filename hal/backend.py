@@ -69,6 +69,10 @@ class Backend:
         return {}
 
     @classmethod
+    def check_joint(cls, checker, servo, bus) -> None:
+        """A servo this kind drives but not on this bus (hal.config.BusConfig), refused by checker.fail."""
+
+    @classmethod
     def max_current(cls, servo, options: dict) -> tuple[float, str]:
         """The largest current limit (A) a joint may configure, and how it follows."""
         return servo.max_current, f"{servo.max_current:g} A"

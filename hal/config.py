@@ -223,6 +223,7 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail("direction", f"must be +1 or -1, got {direction}")
     gear_ratio = c.positive("gear_ratio", 1.0)
     servo_backend = backend(servo.kind)        # whose units and registers the servo has
+    servo_backend.check_joint(c, servo, bus)
     options = servo_backend.joint_options(c, servo)
     lower, upper = model.lower[model.dof_names.index(dof)], model.upper[model.dof_names.index(dof)]
     limits = c.get("position_limits", "pair", (lower, upper))
