@@ -69,6 +69,12 @@ class Backend:
         return {}
 
     @classmethod
+    def catalogue(cls, bus) -> dict | None:
+        """The servo models a joint on `bus` (hal.config.BusConfig) may name: its catalogue, and
+        any the kind drives on one of its buses alone (check_joint says which)."""
+        return cls.servos
+
+    @classmethod
     def check_joint(cls, checker, servo, bus) -> None:
         """A servo this kind drives but not on this bus (hal.config.BusConfig), refused by checker.fail."""
 

@@ -206,7 +206,8 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail(given[1], f"and '{given[0]}' both name the device: give one")
     device_key = given[0] if given else (spec.device_key if spec is not None else "servo")
     servo_name = c.get(device_key, "str")
-    catalogue = servo_catalogue(bus.kind)
+    own = backend(bus.kind).catalogue(bus)
+    catalogue = dict(own) if own is not None else servo_catalogue(bus.kind)
     if servo_name not in catalogue:
         others = {k: s for k, s in servo_catalogue(None).items() if k not in catalogue}
         if servo_name in others:

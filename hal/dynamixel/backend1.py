@@ -34,6 +34,7 @@ from ..errors import ServoHardwareError, ServoInitializationError, ServoOperatio
 from ..port_access import claim_port, open_failure
 from ..ports import is_pseudo_terminal
 from . import protocol1
+from .backend import DynamixelBus
 from .protocol1 import FAULT_BITS, Packet, PacketReader, error_faults
 from .spec1 import BITS_PER_BYTE, sequential
 from .table1 import (CURRENT_UNIT, CURRENT_ZERO, GOAL_TORQUE_MAX, LOAD_FULL, PRESENT, SIGN_BIT, VOLTAGE_UNIT,
@@ -50,7 +51,6 @@ def dynamixel_bus(config, bus=None, **options):
     spec = config.buses.get(name)
     if spec is not None and spec.protocol == 1.0:
         return Dynamixel1Bus(config, bus, **options)
-    from .backend import DynamixelBus
     return DynamixelBus(config, bus, **options)
 
 

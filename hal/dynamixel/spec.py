@@ -29,7 +29,7 @@ class Dynamixel(Backend):
     kind = "dynamixel"
     bus = "servodyn.hal.dynamixel.backend1:dynamixel_bus"     # DynamixelBus, or Dynamixel1Bus on protocol 1.0
     bringup = "servodyn.hal.dynamixel.session:DynamixelBringUp"
-    servos = {**SERVOS, **SERVOS1}       # X-series on 2.0; AX and MX on 1.0 (hal/dynamixel/table1.py)
+    servos = SERVOS             # the X-series, on 2.0: what sizing picks from
     bauds = BAUD_RATES          # a 1.0 bus takes those of them Baud Rate(4) has too (bus_options)
     default_baud = 4_000_000
     protocols = (2.0, 1.0)      # the first is the default
@@ -46,6 +46,11 @@ class Dynamixel(Backend):
         protocol, baud = checker.get("protocol", "float", cls.protocols[0]), checker.get("baud", "int", cls.default_baud)
         spec1.check_baud(checker, protocol, baud)
         return {}
+
+    @classmethod
+    def catalogue(cls, bus) -> dict:
+        """The X-series and the 1.0 servos (hal/dynamixel/table1.py: AX and MX on a protocol = 1.0 bus)."""
+        return {**SERVOS, **SERVOS1}
 
     @classmethod
     def check_joint(cls, checker, servo, bus) -> None:
