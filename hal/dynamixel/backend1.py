@@ -76,6 +76,12 @@ class Dynamixel1Bus(ServoBus):
         self.zero_offset = np.array([j.zero_offset for j in self.joints], dtype=float)
         self.kt = np.array([j.torque_constant for j in self.joints], dtype=float)
         self.torque_mode = np.array([s.torque_mode for s in self.servos], dtype=bool)
+        self.motors = [s.motor_model for s in self.servos]
+        self.step = np.array([s.step for s in self.servos])
+        self.speed_unit = np.array([speed_rad(s) for s in self.servos])
+        self.torque_cap = np.array([min(GOAL_TORQUE_MAX, int(j.current_limit / CURRENT_UNIT)) for j in self.joints])
+        self.duty_per_tick = np.array([s.duty_per_tick(POSITION_GAIN) for s in self.servos])
+        self.position_max = np.array([s.position_max for s in self.servos])
         supply = config.supply.voltage if config.supply else None
         self.voltage = np.array([supply or s.nominal_voltage for s in self.servos], dtype=float)
         self.temperature = np.full(self.n, np.nan)
@@ -231,19 +237,18 @@ class Dynamixel1Bus(ServoBus):
         word = lambda p, a: decode_sign_magnitude(p[a - PRESENT] | p[a - PRESENT + 1] << 8, SIGN_BIT)
         params = [got[i].params for i in self.ids]
         self._ticks = np.array([p[0] | p[1] << 8 for p in params], dtype=float)
-        step = np.array([s.step for s in self.servos])
-        horn_speed = np.array([word(p, 38) for p in params]) * np.array([speed_rad(s) for s in self.servos])
+        horn_speed = np.array([word(p, 38) for p in params]) * self.speed_unit
         load = np.array([word(p, 40) for p in params]) / LOAD_FULL
         volts = np.array([p[42 - PRESENT] for p in params]) * VOLTAGE_UNIT
         self.voltage = np.where(volts > 0, volts, self.voltage)
         self.temperature = np.array([p[43 - PRESENT] for p in params], dtype=float)
         # the horn's current: measured (Current(68)) in torque mode; else the motor's at the duty Present Load reports
         amps = np.array([((p[68 - PRESENT] | p[69 - PRESENT] << 8) - CURRENT_ZERO) * CURRENT_UNIT if tm else
-                         s.motor_model.current(d, v, w)
-                         for p, tm, s, d, v, w in zip(params, self.torque_mode, self.servos, load, self.voltage,
+                         m.current(d, v, w)
+                         for p, tm, m, d, v, w in zip(params, self.torque_mode, self.motors, load, self.voltage,
                                                       horn_speed)])
         sense = self.direction * self.gear
-        q = (self._ticks * step - self.zero_offset) / sense
+        q = (self._ticks * self.step - self.zero_offset) / sense
         state = JointState(t=t, q=q, qd=horn_speed / sense, current=self.direction * amps,
                            tau=sense * self.kt * amps, temperature=self.temperature.copy())
         self._last = state
@@ -256,20 +261,19 @@ class Dynamixel1Bus(ServoBus):
         sense = self.direction * self.gear
         amps = np.asarray(tau, dtype=float) / sense / self.kt           # horn current wanted
         horn_speed = np.asarray(qd, dtype=float) * sense
-        goal, limited = np.zeros(self.n), np.zeros(self.n, dtype=bool)
-        for k, (servo, joint) in enumerate(zip(self.servos, self.joints)):
-            if servo.torque_mode:
-                cap = min(GOAL_TORQUE_MAX, int(joint.current_limit / CURRENT_UNIT))
-                units = round(amps[k] / CURRENT_UNIT)
-                goal[k], limited[k] = max(-cap, min(cap, units)), abs(units) > cap
-                continue
-            motor = servo.motor_model
-            duty = motor.duty_for_current(amps[k], self.voltage[k], horn_speed[k], np.nan_to_num(
-                self.temperature[k], nan=25.0))
-            capped = max(-motor.max_duty, min(motor.max_duty, duty))
-            ticks = round(self._ticks[k] + capped / servo.duty_per_tick(POSITION_GAIN))
-            goal[k] = max(0, min(servo.position_max, ticks))
-            limited[k] = capped != duty or goal[k] != ticks
+        # torque mode: Goal Torque units, clamped to the joint's current limit
+        units = np.rint(amps / CURRENT_UNIT)
+        torque_goal = np.clip(units, -self.torque_cap, self.torque_cap)
+        # the position loop: the duty for that current, capped, as a position offset from the present
+        heat = np.nan_to_num(self.temperature, nan=25.0)
+        duty = np.array([m.duty_for_current(a, v, w, t) for m, a, v, w, t in
+                         zip(self.motors, amps, self.voltage, horn_speed, heat)])
+        top = np.array([m.max_duty for m in self.motors])
+        capped = np.clip(duty, -top, top)
+        ticks = np.rint(self._ticks + capped / self.duty_per_tick)
+        position_goal = np.clip(ticks, 0, self.position_max)
+        goal = np.where(self.torque_mode, torque_goal, position_goal)
+        limited = np.where(self.torque_mode, torque_goal != units, (capped != duty) | (position_goal != ticks))
         return goal.astype(int), limited
 
     def _enable_torque(self, on: bool) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 from ..motor import MotorModel
 from ..servos import RPM, ServoSpec
@@ -109,8 +110,9 @@ class Dynamixel1Spec(ServoSpec):
         """The identified motor's k_t where there is one (BAM's), else stall torque / stall current."""
         return self.motor.torque_constant if self.motor is not None else self.stall_torque / self.stall_current
 
-    @property
+    @cached_property
     def motor_model(self) -> MotorModel:
+        """The identified motor, else the data sheet's estimate (made once)."""
         if self.motor is not None:
             return self.motor
         return MotorModel.from_datasheet(self).with_(max_duty=MX_MAX_DUTY if self.mx else 1.0)
