@@ -213,6 +213,24 @@ def test_bad_configurations_are_refused_in_one_line(tmp_path, servo, protocol, b
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
+def test_bring_up_refuses_a_1_0_bus_in_one_line():
+    """scan/setup/doctor/calibrate/monitor speak Protocol 2.0: on a 1.0 bus they refuse at once
+    (rather than report every 1.0 servo as silent)."""
+    from servodyn.hal.bringup import BadRequest, bringup_class
+    with pytest.raises(BadRequest, match="protocol = 1.0: servodyn's bring-up") as err:
+        bringup_class("dynamixel")(load_config("replica_mx"), "arm", "/dev/null")
+    assert "\n" not in str(err.value)
+
+
+def test_replica_mx_validates_its_forehand(tmp_path):
+    """`servodyn validate replica_mx tennis_forehand` passes (exit 0): at its time scale every joint
+    within its limits, the tick's BULK READ and SYNC WRITEs within the 2 ms period at 3 Mbps."""
+    from helpers import run_cli
+    proc = run_cli("validate", "replica_mx", "tennis_forehand", "-o", tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "PASS: every joint within every limit" in proc.stdout
+
+
 def test_replica_mx_loads_and_every_table_is_once():
     """replica_mx: protocol 1.0, MX-106/64 in torque mode, the MX-28 through its position loop; the
     control tables' items never overlap, and Goal Torque sits at 71 on the torque-mode models only."""
