@@ -57,7 +57,7 @@ from .dynamixel import Servo, ServoChain, DynamixelWire
 from .feetech import FeetechServo, FeetechWire
 from .feetech.servo import FAULT_BITS as FEETECH_FAULTS
 from .dynamixel.servo1 import Dynamixel1Servo
-from .dynamixel.wire1 import Dynamixel1Wire
+from .dynamixel.wire1 import Dynamixel1Wire, Wire1Fault
 from servodyn.hal.dynamixel.protocol1 import HARDWARE_FAULTS as PROTOCOL1_FAULTS
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import JointFriction, Plant, PlantView
@@ -338,7 +338,8 @@ class SimulatedRobot(PlantView):
             if fault == "silent":
                 servo.silent = True
             elif fault in WIRE_FAULTS:
-                self.wire[bus] = WireFault(fault, len(self.chains[bus].servos), seed=device_id)
+                kind = Wire1Fault if isinstance(servo, Dynamixel1Servo) else WireFault
+                self.wire[bus] = kind(fault, len(self.chains[bus].servos), seed=device_id)
             elif isinstance(fault, int) and not isinstance(fault, bool):
                 servo.set_hardware_error(fault)
             elif fault in HARDWARE_FAULTS:

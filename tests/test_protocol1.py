@@ -296,6 +296,30 @@ def test_the_bus_reads_each_tick_writes_goals_and_names_a_faulty_servo(tmp_path,
             served.clear_faults()
 
 
+@pytest.mark.parametrize("fault", ["flipped_byte", "garbage", "wrong_id", "delayed_reply"])
+def test_wire_faults_on_the_1_0_bus_end_in_a_timeout_naming_a_joint(fault):
+    """The 2.0 simulator's wire faults on 1.0 frames: a reply with a flipped bit, garbage, every
+    status packet under its neighbour's ID, or the tick's reply held back 0.5 s (past the 0.1 s
+    patience given here) fail every try of the read: a ServoTimeoutError naming a joint, after the
+    bus's retries (reads_retried counts one). Cleared, the next read succeeds."""
+    import time
+    from servodyn.hal.bus import make_bus
+    from servodyn.hal.errors import ServoTimeoutError
+    from servodyn.sim.serve import serve
+    config = load_config(REPLICA_MX)
+    with serve(config, "lockstep", process=False) as served:
+        with make_bus(config, **{**served.buses["arm"], "reply_timeout": 0.1}) as bus:
+            bus.read_state()
+            served.inject_fault(1, fault)
+            served.robot.wire["arm"].delay = 0.5
+            with pytest.raises(ServoTimeoutError, match="r_"):
+                bus.read_state()
+            assert bus.stats.reads_retried == 1
+            served.clear_faults()
+            time.sleep(1.6)                  # the held-back replies have come and gone
+            assert bus.read_state().q.shape == (7,)
+
+
 @pytest.mark.parametrize("mode", ["lockstep", "realtime"])
 def test_a_swing_learns_the_simulated_1_0_bus_clock(mode):
     """A swing given the pseudo-terminal of `servodyn sim --config replica_mx` asks the 1.0 bus which

@@ -14,8 +14,10 @@ from collections.abc import Callable, Sequence
 
 from servodyn.hal.dynamixel import protocol1
 from servodyn.hal.dynamixel.protocol1 import Instruction, Packet, PacketReader
+from servodyn.hal.dynamixel.table1 import PRESENT_LENGTH
 from servodyn.hal.feetech.table import SIMULATOR_CLOCKS
 
+from ..faults import WireFault
 from .servo1 import Dynamixel1Servo
 
 
@@ -102,3 +104,20 @@ class Dynamixel1Wire:
                 if reply is not None and not broadcast:
                     out += reply
         return bytes(out)
+
+
+class Wire1Fault(WireFault):
+    """sim/faults.py's wire faults on 1.0 frames: `delayed_reply` holds back each reply to a tick's
+    read (a status packet of a present span, PRESENT_LENGTH bytes or more; pings and writes are
+    answered at once), `wrong_id` re-frames every status packet under the next ID (checksums
+    valid); the others act on bytes alike on either protocol."""
+
+    def apply(self, reply: bytes) -> bytes:
+        packets = [e for e in PacketReader().feed(reply) if isinstance(e, Packet)] if reply else []
+        if self.kind == "delayed_reply":
+            if packets and len(packets[0].params) >= PRESENT_LENGTH:
+                time.sleep(self.delay)
+            return reply
+        if self.kind == "wrong_id" and packets:
+            return b"".join(protocol1.status((p.id + 1) % protocol1.BROADCAST_ID, p.error, p.params) for p in packets)
+        return super().apply(reply)
