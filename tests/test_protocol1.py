@@ -192,24 +192,26 @@ def test_factory_state_and_the_torque_mode_current_loop():
 
 # ------------------------------------------------------------------------------ configurations
 
-def _config(tmp_path, servo="MX-64", protocol="1.0", baud=1_000_000):
+def _config(tmp_path, servo="MX-64", protocol="1.0", baud=1_000_000, extra="current_limit = 4.0\n"):
     path = tmp_path / "bad.toml"
     path.write_text(f'name = "bad"\nmodel = "replica"\n[bus.arm]\nkind = "dynamixel"\nbaud = {baud}\n'
                     f'protocol = {protocol}\n' + "".join(
-                        f'[[joint]]\ndof = "{d}"\nid = {k + 1}\nservo = "{servo}"\ncurrent_limit = 4.0\n'
+                        f'[[joint]]\ndof = "{d}"\nid = {k + 1}\nservo = "{servo}"\n{extra}'
                         for k, d in enumerate(load_config("replica").model.dof_names)))
     return path
 
 
-@pytest.mark.parametrize("servo, protocol, baud, message", [
-    ("XM430-W350", "1.0", 1_000_000, "X-series servo, driven on Protocol 2.0 only"),
-    ("MX-64", "2.0", 1_000_000, "speaks Protocol 1.0"),
-    ("MX-64", "3.0", 1_000_000, "must be 2.0 or 1.0"),
-    ("MX-64", "1.0", 4_000_000, "is not a Protocol 1.0 rate"),
+@pytest.mark.parametrize("servo, protocol, baud, extra, message", [
+    ("XM430-W350", "1.0", 1_000_000, "", "X-series servo, driven on Protocol 2.0 only"),
+    ("MX-64", "2.0", 1_000_000, "", "speaks Protocol 1.0"),
+    ("MX-64", "3.0", 1_000_000, "", "must be 2.0 or 1.0"),
+    ("MX-64", "1.0", 4_000_000, "", "is not a Protocol 1.0 rate"),
+    ("MX-106", "1.0", 1_000_000, "", "exceeds the MX-106's largest current limit"),    # 5.2 A stall > 4.6
+    ("MX-28", "1.0", 1_000_000, 'drive = "pwm"\n', "does not apply to the MX-28 on Protocol 1.0"),
 ])
-def test_bad_configurations_are_refused_in_one_line(tmp_path, servo, protocol, baud, message):
+def test_bad_configurations_are_refused_in_one_line(tmp_path, servo, protocol, baud, extra, message):
     with pytest.raises(ServodynError) as err:
-        load_config(_config(tmp_path, servo, protocol, baud))
+        load_config(_config(tmp_path, servo, protocol, baud, extra))
     assert message in str(err.value) and "\n" not in str(err.value)
 
 

@@ -59,7 +59,7 @@ class Dynamixel(Backend):
     @classmethod
     def joint_options(cls, checker, servo) -> dict:
         if is_protocol1(servo):
-            return {}
+            return spec1.joint_options(checker, servo)
         return {"current_unit": checker.positive("current_unit", servo.current_unit), "drive": drive_of(checker, servo)}
 
     @classmethod

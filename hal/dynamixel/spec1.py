@@ -27,6 +27,16 @@ def check_joint(checker, servo, bus) -> None:
                               f"'{bus.name}' has protocol = {bus.protocol:.1f}: set protocol = 1.0 on it")
 
 
+def joint_options(checker, servo) -> dict:
+    """A 1.0 servo takes neither `drive` nor `current_unit`: how it is driven and its units follow
+    from its model (table1)."""
+    for key in ("drive", "current_unit"):
+        if key in checker.table:
+            how = "torque control mode, 4.5 mA a unit" if servo.torque_mode else "its position loop (no current loop)"
+            checker.fail(key, f"does not apply to the {servo.name} on Protocol 1.0 (driven by {how}): leave it out")
+    return {}
+
+
 def check_baud(checker, protocol: float, baud: int) -> None:
     if protocol == 1.0 and baud not in BAUD_RATES:
         checker.fail("baud", f"{baud} is not a Protocol 1.0 rate (Baud Rate(4): "
