@@ -137,7 +137,7 @@ class Dynamixel1Spec(ServoSpec):
             Item("ccw_angle_limit", 8, 2, self.position_max, high=self.position_max),
             Item("temperature_limit", 11, 1, round(self.temperature_limit), high=99),
             Item("min_voltage_limit", 12, 1, 60, high=250),
-            Item("max_voltage_limit", 13, 1, 160 if mx else 140, high=250),
+            Item("max_voltage_limit", 13, 1, 240 if mx else 140, high=250),
             Item("max_torque", 14, 2, 1023, high=1023),
             Item("status_return_level", 16, 1, 2, high=2),
             Item("alarm_led", 17, 1, 36, high=127),
@@ -207,22 +207,27 @@ AX_12A = Dynamixel1Spec(
 MX_28 = Dynamixel1Spec(
     name="MX-28", model_number=29, gear_ratio=193.0, stall_torque=2.5, stall_current=1.4, no_load_speed_rpm=55.0,
     nominal_voltage=12.0, supply_range=_MX_SUPPLY, current_control=False,
+    ratings=((11.1, 2.3, 1.3, 50.0), (14.8, 3.1, 1.7, 67.0)),
     duty_source="BAM's MX position-loop gain H = 0.158 duty per (P x rad), measured on MX-64/106 (assumed for MX-28)",
-    source=_EMANUAL.format("mx/mx-28") + "; 193:1, 2.5 N m and 1.4 A at 12 V, 55 rpm (the MX-28(2.0) page's figures)")
+    source=_EMANUAL.format("mx/mx-28") + "; 193:1; 2.3, 2.5, 3.1 N m at 11.1, 12, 14.8 V (1.3, 1.4, 1.7 A); "
+    "50, 55, 67 rpm; 10-14.8 V (the MX series page's table, Protocol 1.0 and 2.0 alike)")
 MX_64 = Dynamixel1Spec(
     name="MX-64", model_number=310, gear_ratio=200.0, stall_torque=6.0, stall_current=4.1, no_load_speed_rpm=63.0,
     nominal_voltage=12.0, supply_range=_MX_SUPPLY, torque_mode=True,
+    ratings=((11.1, 5.5, 3.9, 58.0), (14.8, 7.3, 5.2, 78.0)),
     motor=_bam(1.6225, 3.949, 0.01195, 0.0904, 0.01169), motor_source="BAM mx64 m1",
     duty_source="BAM's MX position-loop gain H = 0.158 duty per (P x rad) (oscilloscope)",
-    source=_EMANUAL.format("mx/mx-64") + "; 200:1, 6.0 N m and 4.1 A at 12 V, 63 rpm (the MX-64(2.0) page's figures)"
+    source=_EMANUAL.format("mx/mx-64") + "; 200:1; 5.5, 6.0, 7.3 N m at 11.1, 12, 14.8 V (3.9, 4.1, 5.2 A); "
+    "58, 63, 78 rpm; 10-14.8 V"
     + _BAM.format("mx64", kt=1.6225, R=3.949, a=0.01195, c=0.0904, v=0.01169))
 MX_106 = Dynamixel1Spec(
     name="MX-106", model_number=320, gear_ratio=225.0, stall_torque=8.4, stall_current=5.2, no_load_speed_rpm=45.0,
     nominal_voltage=12.0, supply_range=_MX_SUPPLY, torque_mode=True,
+    ratings=((11.1, 8.0, 4.8, 41.0), (14.8, 10.0, 6.3, 55.0)),
     motor=_bam(2.1914, 2.965, 0.02661, 0.1035, 0.03520), motor_source="BAM mx106 m1",
     duty_source="BAM's MX position-loop gain H = 0.158 duty per (P x rad) (oscilloscope)",
-    source=_EMANUAL.format("mx/mx-106") + "; 225:1 (BAM's atomic README), 8.4 N m and 5.2 A at 12 V, 45 rpm "
-    "(the MX-106(2.0) page's 12 V row: not re-read for the notes, check before relying on it)"
+    source=_EMANUAL.format("mx/mx-106") + "; 225:1; 8.0, 8.4, 10.0 N m at 11.1, 12, 14.8 V (4.8, 5.2, 6.3 A); "
+    "41, 45, 55 rpm; 10-14.8 V"
     + _BAM.format("mx106", kt=2.1914, R=2.965, a=0.02661, c=0.1035, v=0.0352))
 
 SERVOS1 = {s.name: s for s in (AX_12A, MX_28, MX_64, MX_106)}
