@@ -310,15 +310,17 @@ def test_wire_faults_on_the_1_0_bus_end_in_a_timeout_naming_a_joint(fault):
     from servodyn.sim.serve import serve
     config = load_config(REPLICA_MX)
     with serve(config, "lockstep", process=False) as served:
-        with make_bus(config, **{**served.buses["arm"], "reply_timeout": 0.1}) as bus:
+        with make_bus(config, **served.buses["arm"]) as bus:
             bus.read_state()
             served.inject_fault(1, fault)
             served.robot.wire["arm"].delay = 0.5
+            bus.reply_timeout = 0.1          # the faulty tries (the simulator's own patience: 1 s)
             with pytest.raises(ServoTimeoutError, match="r_"):
                 bus.read_state()
             assert bus.stats.reads_retried == 1
             served.clear_faults()
             time.sleep(1.6)                  # the held-back replies have come and gone
+            bus.reply_timeout = served.buses["arm"]["reply_timeout"]
             assert bus.read_state().q.shape == (7,)
 
 
