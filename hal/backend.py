@@ -69,6 +69,16 @@ class Backend:
         return {}
 
     @classmethod
+    def catalogue(cls, bus) -> dict | None:
+        """The servo models a joint on `bus` (hal.config.BusConfig) may name: its catalogue, and
+        any the kind drives on one of its buses alone (check_joint says which)."""
+        return cls.servos
+
+    @classmethod
+    def check_joint(cls, checker, servo, bus) -> None:
+        """A servo this kind drives but not on this bus (hal.config.BusConfig), refused by checker.fail."""
+
+    @classmethod
     def max_current(cls, servo, options: dict) -> tuple[float, str]:
         """The largest current limit (A) a joint may configure, and how it follows."""
         return servo.max_current, f"{servo.max_current:g} A"

@@ -207,7 +207,8 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail(given[1], f"and '{given[0]}' both name the device: give one")
     device_key = given[0] if given else (spec.device_key if spec is not None else "servo")
     servo_name = c.get(device_key, "str")
-    catalogue = servo_catalogue(bus.kind)
+    own = backend(bus.kind).catalogue(bus)
+    catalogue = dict(own) if own is not None else servo_catalogue(bus.kind)
     if servo_name not in catalogue:
         others = {k: s for k, s in servo_catalogue(None).items() if k not in catalogue}
         if servo_name in others:
@@ -224,6 +225,7 @@ def _joint(table, where: str, model, buses: dict[str, BusConfig]) -> JointConfig
         c.fail("direction", f"must be +1 or -1, got {direction}")
     gear_ratio = c.positive("gear_ratio", 1.0)
     servo_backend = backend(servo.kind)        # whose units and registers the servo has
+    servo_backend.check_joint(c, servo, bus)
     options = servo_backend.joint_options(c, servo)
     lower, upper = model.lower[model.dof_names.index(dof)], model.upper[model.dof_names.index(dof)]
     limits = c.get("position_limits", "pair", (lower, upper))

@@ -38,6 +38,8 @@ def served_clock(config, bus: str, path: str) -> str | None:
     None when it does not say."""
     spec = config.buses[bus]
     try:
+        if spec.kind == "dynamixel" and spec.protocol == 1.0:    # 1.0 frames as the STS's
+            return _feetech(path, spec.baud, config.joints_on(bus)[0].id)
         if spec.kind == "dynamixel":
             return _dynamixel(path, spec.baud, config.joints_on(bus)[0].id)
         if spec.kind == "can":

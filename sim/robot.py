@@ -56,6 +56,9 @@ from .contact import LOG_COLUMNS, Contacts
 from .dynamixel import Servo, ServoChain, DynamixelWire
 from .feetech import FeetechServo, FeetechWire
 from .feetech.servo import FAULT_BITS as FEETECH_FAULTS
+from .dynamixel.servo1 import Dynamixel1Servo
+from .dynamixel.wire1 import Dynamixel1Wire, Wire1Fault
+from servodyn.hal.dynamixel.protocol1 import HARDWARE_FAULTS as PROTOCOL1_FAULTS
 from .faults import CAN_WIRE_FAULTS, WIRE_FAULTS, WireFault
 from .plant import JointFriction, Plant, PlantView
 
@@ -84,7 +87,7 @@ class SimulatedRobot(PlantView):
         for joint, drive in zip(self.joints, self.drives):
             self._as_plant(joint, drive)
         self.servos = [d for d in self.drives if isinstance(d, Servo)]
-        self._heated = [(d, k) for k, d in enumerate(self.drives) if isinstance(d, (Servo, FeetechServo))]   # heat()ed
+        self._heated = [(d, k) for k, d in enumerate(self.drives) if isinstance(d, (Servo, FeetechServo, Dynamixel1Servo))]   # heat()ed
         self._unheated = 0.0               # s the plant ran since the servos' windings were stepped
         self.motors = [d for d in self.drives if isinstance(d, CanMotor)]
         wired = lambda j: self.bench is None or j.dof in self.bench.connected
@@ -103,7 +106,9 @@ class SimulatedRobot(PlantView):
         self._servo_clock = lambda: self.plant.time
         self.chains = {name: DynamixelWire(on_bus(name), clock=lambda: self._servo_clock(), byte_timeout=None,
                                         chain=chain if chain is not None and chain.covers(on_bus(name)) else None)
-                       for name, b in config.buses.items() if b.kind == "dynamixel"}
+                       for name, b in config.buses.items() if b.kind == "dynamixel" and b.protocol != 1.0}
+        self.chains.update({name: Dynamixel1Wire(on_bus(name)) for name, b in config.buses.items()
+                            if b.kind == "dynamixel" and b.protocol == 1.0})
         self.chains.update({name: FeetechWire(on_bus(name)) for name, b in config.buses.items() if b.kind == "feetech"})
         self.networks = {name: CanNetwork(on_bus(name)) for name, b in config.buses.items() if b.kind == "can"}
         self.wire: dict[str, WireFault | None] = {name: None for name in self.chains}   # a Dynamixel wire's fault
@@ -152,6 +157,14 @@ class SimulatedRobot(PlantView):
             def fresh():
                 return FeetechServo.factory_fresh(joint.servo, supply_voltage=voltage, temperature=AMBIENT)
             kind, what = FeetechServo, "Feetech servos"
+        elif bus.protocol == 1.0:
+            def configured():
+                return Dynamixel1Servo(joint.servo, joint.id, baud=bus.baud, supply_voltage=voltage,
+                                       temperature=AMBIENT)
+
+            def fresh():
+                return Dynamixel1Servo.factory_fresh(joint.servo, supply_voltage=voltage, temperature=AMBIENT)
+            kind, what = Dynamixel1Servo, "Dynamixel 1.0 servos"
         else:
             def configured():
                 return Servo(joint.servo, joint.id, position=0.0, zero_ticks=0, baud=bus.baud, temperature=AMBIENT,
@@ -175,7 +188,7 @@ class SimulatedRobot(PlantView):
         thermal = (spec.thermal_resistance, spec.thermal_time_constant) if spec.thermal_resistance is not None \
             else drive.thermal
         drive.thermal = thermal
-        if isinstance(drive, FeetechServo):
+        if isinstance(drive, (FeetechServo, Dynamixel1Servo)):
             kt, viscous, coulomb = drive.mechanics
             drive.mechanics = (torque_constant / joint.configured_torque_constant * kt,
                                *((0.0, 0.0) if spec.has_friction else (viscous, coulomb)))
@@ -325,11 +338,16 @@ class SimulatedRobot(PlantView):
             if fault == "silent":
                 servo.silent = True
             elif fault in WIRE_FAULTS:
-                self.wire[bus] = WireFault(fault, len(self.chains[bus].servos), seed=device_id)
+                kind = Wire1Fault if isinstance(servo, Dynamixel1Servo) else WireFault
+                self.wire[bus] = kind(fault, len(self.chains[bus].servos), seed=device_id)
             elif isinstance(fault, int) and not isinstance(fault, bool):
                 servo.set_hardware_error(fault)
             elif fault in HARDWARE_FAULTS:
-                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS
+                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else \
+                    PROTOCOL1_FAULTS if isinstance(servo, Dynamixel1Servo) else HARDWARE_FAULTS
+                if fault not in bits:
+                    raise ValueError(f"a Protocol 1.0 servo has no {fault!r} fault (its error byte has "
+                                     f"{', '.join(bits)})")
                 servo.set_hardware_error(bits[fault])
             else:
                 raise ValueError(f"a Dynamixel servo takes no {fault!r} fault")

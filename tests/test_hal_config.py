@@ -149,7 +149,7 @@ BAD = [  # (what is wrong, mutation, words the one-line message must contain)
     ("no joints", lambda d: d.pop("joint"), ["'joint'"]),
     ("bus kind", lambda d: d["bus"]["arm"].update(kind="rs485"), ["bus 'arm'", "'kind'", "rs485"]),
     ("baud rate", lambda d: d["bus"]["arm"].update(baud=12345), ["bus 'arm'", "'baud'", "12345"]),
-    ("protocol 1.0", lambda d: d["bus"]["arm"].update(protocol=1.0), ["'protocol'", "2.0"]),
+    ("protocol 3.0", lambda d: d["bus"]["arm"].update(protocol=3.0), ["'protocol'", "2.0 or 1.0"]),
     ("a bus kind without a backend", bus_kind_ethercat, ["bus 'arm'", "'kind'", "'ethercat'", "dynamixel, loopback, can"]),
     ("a CAN bus with a serial bus's keys", bus_kind_can, ["bus 'arm'", "unknown key 'baud'", "bitrate, channel"]),
     ("swing time scale", lambda d: d["swing"].update(time_scale=-1.0), ["swing", "'time_scale'", "positive"]),

@@ -2,7 +2,9 @@
 (``instructions``), an incremental frame reader (``reader``), the servos' data sheets and control
 table (``control_table``), joint <-> register units (``units``), the bus described for the
 configuration and the validator (``spec``), the run-time bus (``backend``, ``DynamixelBus``) and
-bring-up (``bringup``); ``c/`` is the codec in C, for the firmware and the run-time reads."""
+bring-up (``bringup``); ``c/`` is the codec in C, for the firmware and the run-time reads.
+Protocol 1.0 (AX-12A, MX-28/64/106 on their 1.0 firmware, a bus with ``protocol = 1.0``): the codec
+``protocol1``, the tables and data sheets ``table1``, the bus described ``spec1`` and run ``backend1``."""
 
 from . import instructions
 from .instructions import BadParameters, FastReadBlock, ResetOption, encode_fast_reply, split_fast_reply

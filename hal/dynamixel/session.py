@@ -23,6 +23,10 @@ class DynamixelBringUp(BringUp):
     device = "servo"
 
     def __init__(self, config, bus, path):
+        if config is not None and bus in config.buses and config.buses[bus].protocol == 1.0:
+            raise BadRequest(f"bus '{bus}' has protocol = 1.0: servodyn's bring-up (scan, setup, doctor, calibrate, "
+                             "monitor) speaks Protocol 2.0 only; set 1.0 servos up with ROBOTIS's own tools "
+                             "(ID, baud rate), then `servodyn swing`")
         super().__init__(config, bus, path)
         self.baud = config.buses[bus].baud if config is not None else FACTORY_BAUD
         self.link: Link | None = None
