@@ -81,10 +81,10 @@ def infer_units(dataset: Dataset, columns: list[int], config) -> tuple[str, str]
         return "degrees", f"a joint reaches {peak:.1f}, beyond range_m100_100's ±100"
     major = dataset.version.lstrip("v").split(".")[0]
     if major.isdigit() and int(major) >= 3:
-        return "degrees", (f"codebase {dataset.version}: LeRobot's followers record degrees by default "
-                           "(--units range_m100_100 if this one did not)")
-    return "range_m100_100", (f"codebase {dataset.version or 'unstated'}: LeRobot's older datasets record ±100 "
-                              "(--units degrees if this one did not)")
+        return "degrees", (f"codebase {dataset.version}, whose followers record degrees by default; "
+                           "--units range_m100_100 if this one did not")
+    return "range_m100_100", (f"codebase {dataset.version or 'unstated'}, whose followers recorded ±100; "
+                              "--units degrees if this one did not")
 
 
 def to_radians(values: np.ndarray, units: str, config, columns: list[int]) -> np.ndarray:
