@@ -11,7 +11,8 @@ episode, ...) at the time scale asked (1: as recorded), and its fastest passing 
 nearest (or furthest past) what the check allows (ratio / allowed, as the validator's per-joint table
 ranks them); `worst_ratio` its peak ratio to the limit; a whole-robot check (supply, bus) has
 `worst_joint` null. `fit_time_scale` is the smallest uniform time scale at which every check passes
-(< 1: the episode could play faster), null when none up to 64 does."""
+(< 1: the episode could play faster), null when none up to 64 does (or up to the 600 s a played motion
+may last)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.timing import MAX_PLAYED_DURATION
 from ..errors import InputError
 from ..hal.thermal import AMBIENT
 from ..readable import fixed
@@ -77,6 +79,9 @@ def fit_episode(model, limits, path, judged, margin: float, repeat: int, ambient
         if result.ratios[name].max(initial=0.0) > result.allowed(name):
             return None, f"{name} fails at any time scale"
     first = max(FIT_GRID[0], float(result.ratios["speed"].max(initial=0.0)) * s0 / margin)
+    last = min(FIT_GRID[1], MAX_PLAYED_DURATION / max(path.duration, 1e-9))    # what can be checked at all
+    if first > last:
+        return None, f"no time scale up to {last:.3g} passes"
 
     def at(scale, samples=SEARCH_SAMPLES):
         return score(check(model, limits, path.at_scale(scale, scale / (samples * fps)), margin, repeat, ambient))
@@ -88,9 +93,9 @@ def fit_episode(model, limits, path, judged, margin: float, repeat: int, ambient
         hi, f_hi = lo, f_lo
     while f_hi > 1:                                # the bracket: up by FIT_GRID's ratio until one passes
         lo, f_lo = hi, f_hi
-        hi *= FIT_GRID[2] if f_hi < 2 else math.sqrt(f_hi)   # far over: inertial torques fall as 1/s²
-        if hi > FIT_GRID[1]:
-            return None, f"no time scale from {first:.3g} to {FIT_GRID[1]:g} passes"
+        if hi >= last:
+            return None, f"no time scale from {first:.3g} to {last:.3g} passes"
+        hi = min(last, hi * (FIT_GRID[2] if f_hi < 2 else math.sqrt(f_hi)))   # far over: inertial torques fall as 1/s²
         f_hi = at(hi)
     keep_lo = keep_hi = 1.0                        # Illinois: the end kept twice has its value halved
     if f_lo <= 1:                                  # passes at the speed's bound: none smaller can
@@ -109,8 +114,8 @@ def fit_episode(model, limits, path, judged, margin: float, repeat: int, ambient
     scale = hi
     while at(scale, FIT_SAMPLES) > 1:
         scale *= 1 + FIT_TOLERANCE
-        if scale > FIT_GRID[1]:
-            return None, f"no time scale up to {FIT_GRID[1]:g} passes"
+        if scale > last:
+            return None, f"no time scale up to {last:.3g} passes"
     return scale, f"regula falsi to {FIT_TOLERANCE:.0%} from the speed's bound {first:.3g}"
 
 
@@ -156,6 +161,10 @@ def validate_dataset(config, root, *, feature: str = "action", units: str = "aut
         raise InputError(f"--jobs must be from 1 to {MAX_JOBS} processes, got {jobs}")
     if units not in ("auto", *UNITS):
         raise InputError(f"--units must be auto, {' or '.join(UNITS)}, got '{units}'")
+    if not (math.isfinite(margin) and margin > 0):
+        raise InputError(f"--margin must be a positive fraction of each limit, got {margin}")
+    if not math.isfinite(ambient) or ambient >= min(j.servo.temperature_limit for j in config.joints):
+        raise InputError(f"--ambient must be a temperature below the servos' limits, got {ambient}")
     start = time.perf_counter()
     dataset = read_dataset(root, feature, episodes)
     where = str(dataset.root / "meta" / "info.json")

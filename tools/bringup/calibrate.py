@@ -141,6 +141,10 @@ def from_lerobot(config_name: str, calibration: str, joints: list[str] | None, c
         if entry is None:
             raise BadRequest(f"{calibration}: no motor '{joint.dof}' for joint '{joint.dof}' of '{config.name}'")
         name = f"{calibration}: '{joint.dof}'"
+        if config.buses[joint.bus].kind != "feetech":
+            raise BadRequest(f"joint '{joint.dof}' is on a {config.buses[joint.bus].kind} bus: --from-lerobot reads "
+                             "LeRobot's Feetech calibrations (on its Dynamixel buses the drive mode is written into "
+                             "the servo, which servodyn's setup clears); calibrate it with servodyn calibrate")
         if entry["id"] != joint.id:
             raise BadRequest(f"{name} is servo id {entry['id']}, the configuration's is {joint.id}")
         sign = -1 if entry["drive_mode"] else 1
@@ -186,6 +190,9 @@ def _read_lerobot_calibration(path: str) -> dict:
             value = entry.get(key)
             if isinstance(value, bool) or not isinstance(value, int):
                 raise BadRequest(f"{path}: '{motor}'.{key} must be a whole number, got {value!r}")
+        if abs(entry["homing_offset"]) > RESOLUTION // 2 - 1:      # 11 bits and a sign bit in the servo
+            raise BadRequest(f"{path}: '{motor}'.homing_offset {entry['homing_offset']} is beyond the servo's "
+                             f"±{RESOLUTION // 2 - 1} steps")
         if entry["drive_mode"] not in (0, 1):
             raise BadRequest(f"{path}: '{motor}'.drive_mode must be 0 or 1, got {entry['drive_mode']}")
         if not 0 <= entry["range_min"] < entry["range_max"] < RESOLUTION:
