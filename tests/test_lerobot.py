@@ -315,3 +315,16 @@ def test_a_flipped_calibration_is_refused(tmp_path, so101):
     lines = done.stderr.strip().splitlines()
     assert "'shoulder_lift' has drive_mode 1" in lines[-1] and "flipped" in lines[-1], done.stderr
     assert not (tmp_path / "mine.toml").exists()
+
+
+def test_a_joint_on_a_dynamixel_bus_is_not_imported(tmp_path):
+    """The replica's joints are on Dynamixel buses, where LeRobot writes the drive mode into the servo
+    (which servodyn's setup clears): its calibration is not read, in one line, exit 2."""
+    replica = load_config("replica")
+    joint = replica.joints[0]
+    (tmp_path / "cal.json").write_text(json.dumps({joint.dof: {"id": joint.id, "drive_mode": 0, "homing_offset": 0,
+                                                               "range_min": 1000, "range_max": 3000}}))
+    done = run_cli("calibrate", "--config", "replica", "--from-lerobot", tmp_path / "cal.json", "--joint", joint.dof,
+                   "--write", tmp_path / "mine.toml", "--yes")
+    assert done.returncode == 2
+    assert "dynamixel bus" in done.stderr.strip().splitlines()[-1] and not (tmp_path / "mine.toml").exists()

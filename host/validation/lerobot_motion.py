@@ -113,11 +113,15 @@ def smooth(t: np.ndarray, q: np.ndarray, fps: float, cutoff: float) -> tuple[np.
     return grid, low_pass(uniform, fps, cutoff)
 
 
+def check_cutoff(cutoff: float, fps: float) -> None:
+    if not (math.isfinite(cutoff) and 0 < cutoff < fps / 2):
+        raise DatasetError(f"--cutoff must lie between 0 and half the dataset's {fps:g} fps, got {cutoff:g} Hz")
+
+
 def episode_motion(episode: Episode, dataset: Dataset, config, columns: list[int], units: str,
                    cutoff: float = CUTOFF_HZ) -> MotionPath:
     """The episode as a motion on its own clock (MotionPath: time scaled and sampled like any other)."""
-    if not (math.isfinite(cutoff) and 0 < cutoff < dataset.fps / 2):
-        raise DatasetError(f"--cutoff must lie between 0 and half the dataset's {dataset.fps:g} fps, got {cutoff:g} Hz")
+    check_cutoff(cutoff, dataset.fps)
     q = to_radians(episode.values, units, config, columns)
     t, q = smooth(episode.t, q, dataset.fps, cutoff)
     spline = CubicSpline(t, q, axis=0, bc_type="not-a-knot" if len(t) > 3 else "natural")

@@ -32,7 +32,7 @@ from ..readable import fixed
 from .checks import CHECKS, check, judge
 from .fit import FIT_GRID
 from .lerobot import read_dataset
-from .lerobot_motion import CUTOFF_HZ, UNITS, episode_motion, infer_units, joint_columns
+from .lerobot_motion import CUTOFF_HZ, UNITS, check_cutoff, episode_motion, infer_units, joint_columns
 
 REPORT_KEYS = ("episode_index", "passed", "worst_check", "worst_joint", "worst_ratio", "fit_time_scale")
 MAX_JOBS = 256
@@ -135,8 +135,9 @@ _SHARED: dict = {}       # the parent's configuration, dataset and options, inhe
 
 
 def _one(k: int) -> dict:
-    config, dataset, paths, options = (_SHARED[key] for key in ("config", "dataset", "paths", "options"))
-    return {"episode_index": dataset.episodes[k].index, **check_episode(config, paths[k], **options)}
+    config, dataset, motion, options = (_SHARED[key] for key in ("config", "dataset", "motion", "options"))
+    path = episode_motion(dataset.episodes[k], dataset, config, **motion)
+    return {"episode_index": dataset.episodes[k].index, **check_episode(config, path, **options)}
 
 
 def episode_line(row: dict) -> str:
@@ -156,7 +157,8 @@ def validate_dataset(config, root, *, feature: str = "action", units: str = "aut
     """Every episode asked (default all) validated on `config`, over `jobs` forked processes; a line
     each as they finish in order, the report (written to OUT/report.json when `out`); its `code` is
     0 when every episode passes, 1 when one fails. A malformed dataset raises DatasetError (exit 2)
-    before any episode is judged: every episode is read and made a motion's input first."""
+    before any episode is judged: every episode is read and checked first, then each is made a motion
+    (lerobot_motion) and judged in a worker."""
     if not 1 <= jobs <= MAX_JOBS:
         raise InputError(f"--jobs must be from 1 to {MAX_JOBS} processes, got {jobs}")
     if units not in ("auto", *UNITS):
@@ -172,16 +174,19 @@ def validate_dataset(config, root, *, feature: str = "action", units: str = "aut
     why = "given (--units)"
     if units == "auto":
         units, why = infer_units(dataset, columns, config)
-    # every episode made a motion (every fault a dataset can have found) before the long work
-    paths = [episode_motion(episode, dataset, config, columns, units, cutoff) for episode in dataset.episodes]
+    check_cutoff(cutoff, dataset.fps)       # every fault a dataset can have is found before the long work
     n = len(dataset.episodes)
     frames = sum(len(e.t) for e in dataset.episodes)
     say(f"validate LeRobot dataset {dataset.root} ({dataset.version or 'version unstated'}, {dataset.fps:g} fps): "
         f"{n} episode{'s' * (n != 1)}, {frames} frames of '{feature}' in {units} ({why}), on '{config.name}' at "
         f"time scale {time_scale:g}, low-pass {cutoff:g} Hz forwards and backwards; {min(jobs, n)} job"
         f"{'s' * (min(jobs, n) != 1)}")
-    _SHARED.update(config=config, dataset=dataset, paths=paths, options={"time_scale": time_scale, "fps": dataset.fps, "margin": margin,
-                                                                             "repeat": repeat, "ambient": ambient})
+    motion = {"columns": columns, "units": units, "cutoff": cutoff}
+    if n:       # one episode made a motion here: the low-pass's imports load once, before the workers fork
+        episode_motion(dataset.episodes[0], dataset, config, **motion)
+    _SHARED.update(config=config, dataset=dataset, motion=motion,
+                   options={"time_scale": time_scale, "fps": dataset.fps, "margin": margin, "repeat": repeat,
+                            "ambient": ambient})
     rows = []
     if jobs > 1 and n > 1:
         with ProcessPoolExecutor(min(jobs, n), mp_context=multiprocessing.get_context("fork")) as pool:
