@@ -306,10 +306,11 @@ def test_calibration_import_round_trip(tmp_path, so101):
 
 def test_a_flipped_calibration_is_refused(tmp_path, so101):
     """shoulder_lift with drive_mode 1 (LeRobot negates its reading: lerobot#1130's flipped drive mode)
-    against the model's direction +1: exit 2, one line naming the joint, nothing written."""
+    against the model's direction +1: exit 2, one line naming the joint, nothing written. (DESIGN.md's
+    form, `servodyn calibrate --from-lerobot FILE`: the SO-101's configuration unless --config names one.)"""
     calibration, _ = lerobot_calibration(so101, {"shoulder_lift": 1})
     (tmp_path / "cal.json").write_text(json.dumps(calibration))
-    done = run_cli("calibrate", "--config", "so101", "--from-lerobot", tmp_path / "cal.json", "--write",
+    done = run_cli("calibrate", "--from-lerobot", tmp_path / "cal.json", "--write",      # so101 by default
                    tmp_path / "mine.toml", "--yes")
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()

@@ -110,7 +110,7 @@ def feature_names(info: dict, feature: str, path: Path) -> list:
     return names
 
 
-def data_files(root: Path, info: dict) -> list[Path]:
+def data_files(root: Path) -> list[Path]:
     files = sorted((root / "data").glob("**/*.parquet"))
     if not files:
         _fail(root, "no data/**/*.parquet files")
@@ -198,7 +198,7 @@ def read_dataset(root, feature: str = "action", episodes=None) -> Dataset:
     fps = float(info["fps"])
     pq = pyarrow_parquet()
     frames: dict[int, list] = {}
-    for path in data_files(root, info):
+    for path in data_files(root):
         table = _read_table(pq, path, feature)
         values = _vectors(table.column(feature), len(names), path, feature)
         index = np.asarray(table.column("episode_index").to_numpy(zero_copy_only=False), dtype=np.int64)

@@ -107,7 +107,7 @@ def to_radians(values: np.ndarray, units: str, config, columns: list[int]) -> np
 def smooth(t: np.ndarray, q: np.ndarray, fps: float, cutoff: float) -> tuple[np.ndarray, np.ndarray]:
     """The frames on a uniform 1/fps clock from 0, through the zero-phase low-pass (mocap.smoothing's:
     Butterworth forwards and backwards, 3 dB down at `cutoff` for both passes together)."""
-    n = int(math.floor(t[-1] * fps + 1e-6)) + 1
+    n = int(round(t[-1] * fps)) + 1           # float32 timestamps land a hair off the frame's time
     grid = np.arange(n) / fps
     uniform = np.column_stack([np.interp(grid, t, q[:, j]) for j in range(q.shape[1])])
     return grid, low_pass(uniform, fps, cutoff)

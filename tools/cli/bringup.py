@@ -9,7 +9,7 @@ from __future__ import annotations
 from .. import bringup
 from ..bringup.calibrate import from_lerobot
 from .argtypes import count, number
-from .common import Verb, bus_options, describe, port_option, say
+from .common import CliError, Verb, bus_options, describe, port_option, say
 from .prompt import ask
 
 
@@ -19,6 +19,7 @@ def _confirm(args):
 
 FINDINGS = "0 all well, 1 findings"
 lerobot_calibration = bringup.command(from_lerobot)     # its HAL errors one line, as every bring-up verb's
+LEROBOT_ARM = "so101"          # the configuration a LeRobot calibration is written into unless --config names one
 
 
 def _scan_arguments(p) -> None:
@@ -73,7 +74,10 @@ def _calibrate_arguments(p) -> None:
              "servodyn calibrate --config my_arm.toml --joint r_elbow_flexion",
              "servodyn calibrate --config so101 --from-lerobot ~/.cache/huggingface/lerobot/calibration/robots/"
              "so101_follower/my_arm.json --write my_so101.toml")
-    bus_options(p)
+    p.add_argument("--config", default=None,
+                   help="robot configuration (required; with --from-lerobot the default is so101, LeRobot's SO-101 "
+                        "follower)")
+    port_option(p)
     p.add_argument("--from-lerobot", default=None, metavar="CALIBRATION.json",
                    help="move nothing: write a LeRobot calibration (lerobot-calibrate's file: per motor id, drive_mode, "
                         "homing_offset, range_min, range_max) into the joints' zero_offset and position_limits, each "
@@ -112,7 +116,9 @@ doctor = Verb(_doctor_arguments, lambda a: bringup.doctor(a.config, a.port, a.js
 monitor = Verb(_monitor_arguments, lambda a: bringup.monitor(a.config, a.port, a.count, a.rate))
 def _calibrate(a) -> int:
     if a.from_lerobot is not None:
-        return lerobot_calibration(a.config, a.from_lerobot, a.joint, _confirm(a), a.write, say=say)
+        return lerobot_calibration(a.config or LEROBOT_ARM, a.from_lerobot, a.joint, _confirm(a), a.write, say=say)
+    if a.config is None:
+        raise CliError("calibrate moves the joints of a configuration: give --config CONFIG")
     return bringup.calibrate(a.config, a.port, a.joint, a.margin, _confirm(a), a.write, say=say)
 
 
