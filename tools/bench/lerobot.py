@@ -14,6 +14,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -62,22 +63,27 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="servodyn-lerobot-") as tmp:
         root = dataset(Path(tmp) / "dataset")
         load = os.getloadavg()[0]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()
         done = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", "validate", "so101", "--lerobot", str(root),
                                "--jobs", str(args.jobs), "--out", str(Path(tmp) / "out")],
                               capture_output=True, text=True)
         seconds = time.perf_counter() - start
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         if done.returncode not in (0, 1):
             print(done.stdout + done.stderr)
             return 1
         report = json.loads((Path(tmp) / "out" / "report.json").read_text())
     passed = sum(e["passed"] for e in report["episodes"])
     rows = {"seconds": seconds, "episodes": len(report["episodes"]), "passed": passed, "jobs": args.jobs,
-            "load_1min_before": load, "goal_s": GOAL_S}
+            "cpu_s": cpu, "load_1min_before": load, "goal_s": GOAL_S}
     lines = ["| what | time | goal |", "|---|---:|---|",
              f"| validate {EPISODES} episodes × {SECONDS:g} s at {FPS:g} fps ({passed} pass), {args.jobs} jobs, the "
              f"whole command | {seconds:.2f} s | ≤ {GOAL_S:g} s: {'met' if seconds <= GOAL_S else 'NOT met'} |",
-             "", f"load average (1 min) before the run: {load:.2f} on {os.cpu_count()} cores"]
+             f"| its CPU time, every process (user + system) | {cpu:.2f} s | |",
+             "", f"load average (1 min) before the run: {load:.2f} on {os.cpu_count()} cores (a busy machine "
+             "stretches the time, not the CPU time)"]
     publish(Path(args.out), "lerobot", "\n".join(lines), rows)
     return 0
 
