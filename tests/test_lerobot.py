@@ -329,3 +329,14 @@ def test_a_joint_on_a_dynamixel_bus_is_not_imported(tmp_path):
                    "--write", tmp_path / "mine.toml", "--yes")
     assert done.returncode == 2
     assert "dynamixel bus" in done.stderr.strip().splitlines()[-1] and not (tmp_path / "mine.toml").exists()
+
+
+def test_names_as_a_table_of_one_list_are_read(tmp_path, pick):
+    """LeRobot v2.0's info.json gives a feature's names as {"motors": [...]}: the same six joints."""
+    from servodyn.validation.lerobot import read_dataset
+    root = write_dataset(tmp_path / "data", [(0, recorded(pick, 1.0, "degrees"))], FPS, "v2.1")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"]["action"]["names"] = {"motors": SO101_NAMES}
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    dataset = read_dataset(root)
+    assert dataset.names == SO101_NAMES and dataset.version == "v2.1" and dataset.episodes[0].values.shape == (181, 6)
