@@ -60,6 +60,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.view
 	@$(VENV)/bin/python -m servodyn.tools.bench.ik
 	@$(VENV)/bin/python -m servodyn.tools.bench.validate
+	@$(VENV)/bin/python -m servodyn.tools.bench.lerobot
 	@$(VENV)/bin/python -m servodyn.tools.bench.size
 	@$(VENV)/bin/python -m servodyn.tools.bench.identify
 	@$(VENV)/bin/python -m servodyn.tools.bench.can

@@ -12,8 +12,10 @@ from collections.abc import Callable
 from contextlib import ExitStack
 
 from ...hal.bringup import BadRequest, PortLost, config_and_ports, open_limp
+from ...hal.config import load_config
 from ...hal.config_patch import ConfigPatch
 from ...hal.errors import ServoError, ServoOperationError
+from ...validation.lerobot_motion import GRIPPERS, RESOLUTION
 
 MIN_TRAVEL = math.radians(3.0)      # a "move it" step that turns the horn less is asked again
 
@@ -101,3 +103,99 @@ def _calibrate_joint(joint, horn: Callable[[], float], config, margin: float, sa
         + (" (limited to the model's range)" if clipped else ""))
     zero = math.remainder(zero, 2 * math.pi) if abs(zero) > 2 * math.pi else zero
     return {"direction": direction, "zero_offset": zero, "position_limits": (lower, upper)}
+
+
+# ---------------------------------------------------------------------------- from LeRobot's calibration
+
+LEROBOT_KEYS = ("id", "drive_mode", "homing_offset", "range_min", "range_max")
+
+
+def from_lerobot(config_name: str, calibration: str, joints: list[str] | None, confirm, write_to: str | None,
+                 say=print) -> int:
+    """A LeRobot calibration (lerobot-calibrate's JSON: per motor id, drive_mode, homing_offset,
+    range_min, range_max, in the servo's steps) written into the configuration's joints, nothing
+    moved: `zero_offset` the recorded range's middle (LeRobot's zero, which its degrees are about;
+    the servo keeps LeRobot's Homing_Offset, so Present Position is already relative to it), the
+    gripper's recorded range laid on the model's instead (LeRobot records it 0..100 over its range),
+    `position_limits` the recorded stops (within the model's limits). The sign: LeRobot's drive_mode 1
+    negates a joint's reading; the configuration's `direction` is the model's sign for the servo as
+    mounted (the SO-101's URDF turns positive with every horn: direction +1). A calibration whose
+    drive_mode disagrees with it would play every recording of that joint mirrored: refused."""
+    config = load_config(config_name)
+    data = _read_lerobot_calibration(calibration)
+    step = 2 * math.pi / RESOLUTION
+    chosen = [j for j in config.joints if joints is None or j.dof in joints]
+    unknown = sorted(set(joints or ()) - {j.dof for j in config.joints})
+    if unknown:
+        raise BadRequest(f"'{config.name}' has no joint '{unknown[0]}'")
+    extra = sorted(set(data) - {j.dof for j in config.joints})
+    if extra:
+        raise BadRequest(f"{calibration}: motor '{extra[0]}' names no joint of '{config.name}' "
+                         f"(its joints: {', '.join(config.model.dof_names)})")
+    try:
+        patch = ConfigPatch.of(config, write_to)
+    except OSError as err:
+        raise BadRequest(str(err)) from None
+    for joint in chosen:
+        entry = data.get(joint.dof)
+        if entry is None:
+            raise BadRequest(f"{calibration}: no motor '{joint.dof}' for joint '{joint.dof}' of '{config.name}'")
+        name = f"{calibration}: '{joint.dof}'"
+        if config.buses[joint.bus].kind != "feetech":
+            raise BadRequest(f"joint '{joint.dof}' is on a {config.buses[joint.bus].kind} bus: --from-lerobot reads "
+                             "LeRobot's Feetech calibrations (on its Dynamixel buses the drive mode is written into "
+                             "the servo, which servodyn's setup clears); calibrate it with servodyn calibrate")
+        if entry["id"] != joint.id:
+            raise BadRequest(f"{name} is servo id {entry['id']}, the configuration's is {joint.id}")
+        sign = -1 if entry["drive_mode"] else 1
+        if sign != joint.direction:
+            raise BadRequest(f"{name} has drive_mode {entry['drive_mode']} (LeRobot {'negates' if sign < 0 else 'keeps'} "
+                             f"its reading), but the model turns it {'with' if joint.direction > 0 else 'against'} "
+                             f"the servo (direction {joint.direction:+d}): a flipped calibration, which would play "
+                             f"every recording of it mirrored; recalibrate it (nothing written)")
+        j = config.model.dof_names.index(joint.dof)
+        lower, upper = float(config.model.lower[j]), float(config.model.upper[j])
+        scale = joint.direction * joint.gear_ratio
+        middle = (entry["range_min"] + entry["range_max"]) / 2
+        centre = (lower + upper) / 2 if joint.dof in GRIPPERS else 0.0   # q where the range's middle lies
+        zero = middle * step - scale * centre
+        stops = sorted(((entry["range_min"] - middle) * step / scale + centre,
+                        (entry["range_max"] - middle) * step / scale + centre))
+        limits = (max(stops[0], lower), min(stops[1], upper))
+        clipped = limits != (stops[0], stops[1])
+        say(f"  {joint.dof}: zero at step {middle:g} (horn {math.degrees(zero):.2f}°), stops "
+            f"{math.degrees(stops[0]):.1f}° .. {math.degrees(stops[1]):.1f}°"
+            + (f" (limited to the model's {math.degrees(lower):.1f}° .. {math.degrees(upper):.1f}°)" if clipped else "")
+            + f", direction {joint.direction:+d} as the model's")
+        patch.set_joint(joint.dof, zero_offset=zero, position_limits=limits)
+    return patch.offer(confirm, say)
+
+
+def _read_lerobot_calibration(path: str) -> dict:
+    """{motor: {id, drive_mode, homing_offset, range_min, range_max}} of a LeRobot calibration file,
+    one line for anything else."""
+    import json
+    try:
+        data = json.loads(open(path, encoding="utf-8").read())
+    except FileNotFoundError:
+        raise BadRequest(f"{path}: no such LeRobot calibration file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise BadRequest(f"{path}: not a LeRobot calibration (JSON): {err}") from None
+    if not isinstance(data, dict) or not data:
+        raise BadRequest(f"{path}: not a LeRobot calibration: expected {{motor: {{{', '.join(LEROBOT_KEYS)}}}}}")
+    for motor, entry in data.items():
+        if not isinstance(entry, dict):
+            raise BadRequest(f"{path}: '{motor}' is not a table of {', '.join(LEROBOT_KEYS)}")
+        for key in LEROBOT_KEYS:
+            value = entry.get(key)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise BadRequest(f"{path}: '{motor}'.{key} must be a whole number, got {value!r}")
+        if abs(entry["homing_offset"]) > RESOLUTION // 2 - 1:      # 11 bits and a sign bit in the servo
+            raise BadRequest(f"{path}: '{motor}'.homing_offset {entry['homing_offset']} is beyond the servo's "
+                             f"±{RESOLUTION // 2 - 1} steps")
+        if entry["drive_mode"] not in (0, 1):
+            raise BadRequest(f"{path}: '{motor}'.drive_mode must be 0 or 1, got {entry['drive_mode']}")
+        if not 0 <= entry["range_min"] < entry["range_max"] < RESOLUTION:
+            raise BadRequest(f"{path}: '{motor}' range_min {entry['range_min']} .. range_max {entry['range_max']} is "
+                             "no range of steps")
+    return data

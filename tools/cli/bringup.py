@@ -7,8 +7,9 @@ write to the servos and the configuration, on stderr."""
 from __future__ import annotations
 
 from .. import bringup
+from ..bringup.calibrate import from_lerobot
 from .argtypes import count, number
-from .common import Verb, bus_options, describe, port_option, say
+from .common import CliError, Verb, bus_options, describe, port_option, say
 from .prompt import ask
 
 
@@ -17,6 +18,8 @@ def _confirm(args):
     return lambda question: ask(question, args.yes, say)
 
 FINDINGS = "0 all well, 1 findings"
+lerobot_calibration = bringup.command(from_lerobot)     # its HAL errors one line, as every bring-up verb's
+LEROBOT_ARM = "so101"          # the configuration a LeRobot calibration is written into unless --config names one
 
 
 def _scan_arguments(p) -> None:
@@ -68,8 +71,17 @@ def _calibrate_arguments(p) -> None:
              "from both sides (`zero_offset`, their mean) and move it to both stops (`position_limits`, a margin "
              "inside). The configuration is then patched, its comments and layout kept, after the change is shown "
              "and confirmed; a built-in configuration's patched copy goes to ./NAME.toml.",
-             "servodyn calibrate --config my_arm.toml --joint r_elbow_flexion")
-    bus_options(p)
+             "servodyn calibrate --config my_arm.toml --joint r_elbow_flexion",
+             "servodyn calibrate --config so101 --from-lerobot ~/.cache/huggingface/lerobot/calibration/robots/"
+             "so101_follower/my_arm.json --write my_so101.toml")
+    p.add_argument("--config", default=None,
+                   help="robot configuration (required; with --from-lerobot the default is so101, LeRobot's SO-101 "
+                        "follower)")
+    port_option(p)
+    p.add_argument("--from-lerobot", default=None, metavar="CALIBRATION.json",
+                   help="move nothing: write a LeRobot calibration (lerobot-calibrate's file: per motor id, drive_mode, "
+                        "homing_offset, range_min, range_max) into the joints' zero_offset and position_limits, each "
+                        "joint's sign checked against the model (a flipped one refused); docs/lerobot.md")
     p.add_argument("--joint", action="append", default=None, metavar="DOF", help="only this joint (repeatable)")
     p.add_argument("--margin", type=number(0, what="degrees"), default=3.0, metavar="DEG",
                    help="how far inside the stops the limits go (default 3 degrees)")
@@ -102,8 +114,15 @@ scan = Verb(_scan_arguments, lambda a: bringup.scan(a.port, a.baud, a.config, a.
 setup = Verb(_setup_arguments, lambda a: bringup.setup(a.config, a.joint, a.port, _confirm(a), say=say))
 doctor = Verb(_doctor_arguments, lambda a: bringup.doctor(a.config, a.port, a.json))
 monitor = Verb(_monitor_arguments, lambda a: bringup.monitor(a.config, a.port, a.count, a.rate))
-calibrate = Verb(_calibrate_arguments,
-                 lambda a: bringup.calibrate(a.config, a.port, a.joint, a.margin, _confirm(a), a.write, say=say))
+def _calibrate(a) -> int:
+    if a.from_lerobot is not None:
+        return lerobot_calibration(a.config or LEROBOT_ARM, a.from_lerobot, a.joint, _confirm(a), a.write, say=say)
+    if a.config is None:
+        raise CliError("calibrate moves the joints of a configuration: give --config CONFIG")
+    return bringup.calibrate(a.config, a.port, a.joint, a.margin, _confirm(a), a.write, say=say)
+
+
+calibrate = Verb(_calibrate_arguments, _calibrate)
 reboot = Verb(_reboot_arguments, lambda a: bringup.reboot(a.config, a.port, _confirm(a)))
 clear_errors = Verb(_clear_errors_arguments, lambda a: bringup.clear_errors(a.config, a.port))
 torque = Verb(_torque_arguments, lambda a: bringup.torque_off(a.config, a.port))

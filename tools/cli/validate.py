@@ -8,6 +8,9 @@ from pathlib import Path
 
 from ...hal.config import load_config
 from ...validation import AMBIENT
+from ...validation.lerobot import FEATURES
+from ...validation.lerobot_motion import CUTOFF_HZ, UNITS
+from ...validation.lerobot_report import validate_dataset
 from .argtypes import count, positive
 from ...report.validation import expand_motions, validate, validate_many
 from .common import CliError, describe, out_folder
@@ -20,8 +23,10 @@ def add_arguments(p) -> None:
              "bus's time per tick and the range the wire can command.",
              "servodyn validate replica tennis_forehand --time-scale 4 --fit",
              "servodyn validate --config replica_can 'logs/*.csv' --jobs 2",
-             "servodyn validate replica tennis_forehand --near-people", exits="0 pass, 1 fail")
-    p.add_argument("subjects", nargs="+", metavar="[CONFIG] MOTION",
+             "servodyn validate replica tennis_forehand --near-people",
+             "servodyn validate so101 --lerobot ~/datasets/pick_cube --episode 0 3 --jobs 2 --out out/pick_cube",
+             exits="0 pass, 1 fail (with --lerobot: every episode passes / one fails)")
+    p.add_argument("subjects", nargs="*", metavar="[CONFIG] MOTION",
                    help="robot configuration (built-in name or .toml file; or give it as --config), then the "
                         "motions: built-in motion, keyframe file (.toml) or trajectory CSV (.csv); several, a folder "
                         "of CSVs or a glob ('logs/*.csv'): one verdict each, OUT/<motion>/ each report, "
@@ -57,10 +62,31 @@ def add_arguments(p) -> None:
     p.add_argument("--simulate", action="store_true",
                    help="also play the motion on the simulated servos and compare where they saturate with the "
                         "prediction")
+    lerobot = p.add_argument_group("a LeRobot dataset (v3.0 or v2.1, read with pyarrow: pip install "
+                                   "'servodyn[lerobot]'; docs/lerobot.md)")
+    lerobot.add_argument("--lerobot", default=None, metavar="DATASET_DIR",
+                         help="validate each episode of this dataset (its meta/info.json and data/ parquet files) "
+                              "instead of a motion: a line each, OUT/report.json; --time-scale 1 unless given")
+    lerobot.add_argument("--episode", type=count(0, what="an episode_index"), nargs="+", default=None, metavar="N",
+                         help="only these episodes (default every one)")
+    lerobot.add_argument("--feature", choices=FEATURES, default="action",
+                         help="the joint positions to validate (default action: what the arm was told to do)")
+    lerobot.add_argument("--units", choices=("auto", *UNITS), default="auto",
+                         help="the body joints' units: degrees about the calibration's midpoint or the older "
+                              "range_m100_100 (the gripper is always 0..100); default auto: from meta/info.json, "
+                              "the values or the codebase version, said with the verdicts")
+    lerobot.add_argument("--cutoff", type=positive, default=CUTOFF_HZ, metavar="HZ",
+                         help=f"the zero-lag low-pass's cutoff before differentiating (default {CUTOFF_HZ:g} Hz)")
     out_folder(p, "out/validate")
 
 
 def run(args) -> int:
+    if args.lerobot is not None:
+        return run_lerobot(args)
+    if args.episode is not None:
+        raise CliError("--episode picks episodes of a LeRobot dataset: give it with --lerobot DATASET_DIR")
+    if not args.subjects:
+        raise CliError("give a configuration and a motion: servodyn validate CONFIG MOTION")
     config_ref, motions = (args.config, args.subjects) if args.config else (args.subjects[0], args.subjects[1:])
     if not motions:
         raise CliError("give a motion after the configuration: servodyn validate CONFIG MOTION")
@@ -73,3 +99,22 @@ def run(args) -> int:
     if len(motions) == 1 and expanded == motions:       # one motion: its report, as always
         return 0 if validate(config, expanded[0], out=Path(args.out), say=print, **options)["passed"] else 1
     return validate_many(config, expanded, jobs=args.jobs, out=Path(args.out), say=print, **options)["code"]
+
+
+def run_lerobot(args) -> int:
+    """servodyn validate CONFIG --lerobot DIR: 0 every episode passes, 1 one fails, 2 a bad dataset."""
+    config_ref = args.config or (args.subjects[0] if args.subjects else None)
+    extra = args.subjects[1:] if not args.config else args.subjects
+    if config_ref is None:
+        raise CliError("give the configuration: servodyn validate CONFIG --lerobot DATASET_DIR")
+    unused = [flag for flag, given in (("--fit", args.fit), ("--retime", args.retime), ("--simulate", args.simulate),
+                                       ("--near-people", args.near_people), ("--payload", args.payload),
+                                       ("--supply-voltage", args.supply_voltage is not None)) if given]
+    if unused:
+        raise CliError(f"{unused[0]} is not for --lerobot (each episode's fit time scale is always found)")
+    if extra:
+        raise CliError(f"--lerobot validates a dataset's episodes; '{extra[0]}' is a motion too: give one or the other")
+    report = validate_dataset(load_config(config_ref), args.lerobot, feature=args.feature, units=args.units,
+                              episodes=args.episode, time_scale=args.time_scale or 1.0, cutoff=args.cutoff,
+                              margin=args.margin, repeat=args.repeat, ambient=args.ambient, jobs=args.jobs, out=Path(args.out), say=print)
+    return report["code"]
