@@ -329,6 +329,17 @@ class BringUp(ABC):
     @abstractmethod
     def _monitor(self) -> list[MonitorRow]: ...
 
+    def _calibration(self, joint, values: dict) -> tuple[dict, list]:
+        """A calibration measured by hand (direction, zero_offset: the horn's angle at the zero pose,
+        position_limits) as the device will hold it: the values the configuration then gets, and
+        the writes to the device (each with .what and .line()) that make it so; nothing sent but
+        reads. A kind that keeps no calibration in its devices: the values as they are, no write."""
+        return values, []
+
+    def _apply_calibration(self, joint, steps: list) -> str:
+        """The calibration's writes made and checked; a line saying so."""
+        raise BadRequest(f"a {type(self).__name__} keeps no calibration in its devices")
+
     # --- what the commands call
     def __enter__(self) -> "BringUp":
         refused = not_a_bus(self.path)
@@ -385,6 +396,8 @@ class BringUp(ABC):
     clear_errors = _guarded("clear_errors")
     horn = _guarded("horn")
     monitor = _guarded("monitor")
+    calibration = _guarded("calibration")
+    apply_calibration = _guarded("apply_calibration")
     del _guarded
 
 

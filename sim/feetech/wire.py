@@ -1,6 +1,14 @@
 """The simulated STS servos of one bus answering the host's bytes: framing (the HAL's PacketReader),
 the line speed (a servo hears only bytes sent at its own rate: the baud gate), dispatch by ID,
-broadcast, SYNC WRITE and the STS SYNC READ (each listed servo answers in the order of the IDs)."""
+broadcast, SYNC WRITE and the STS SYNC READ (each listed servo answers in the order of the IDs).
+
+Collisions: servos sharing an ID (factory-fresh ones all say ID 1) answer one instruction at once
+and talk over each other on the half-duplex wire: the host receives the bitwise AND of their bytes
+(a low bit wins; past the shorter one the line idles high), whose checksum never checks (`collide`:
+identical replies get their checksum inverted, as two UARTs never start on the same bit). Replies
+of different IDs to a broadcast PING do not collide here: they come one after another in the order
+of the IDs (an assumption: whether an STS servo staggers its answer to a broadcast PING by its ID,
+as a Dynamixel does, is not documented; bring-up's scan reads by SYNC READ when replies collide)."""
 
 from __future__ import annotations
 
@@ -82,14 +90,35 @@ class FeetechWire:
         if packet.id == protocol.BROADCAST_ID and packet.code == Instruction.SYNC_READ:
             address, length = packet.params[0], packet.params[1]
             for servo_id in packet.params[2:]:
-                for servo in (s for s in hearing if s.id == servo_id and not s.silent):
-                    out += protocol.status(servo.id, servo.mem[65], servo.read(address, length))
+                replies = [protocol.status(s.id, s.mem[65], s.read(address, length))
+                           for s in hearing if s.id == servo_id and not s.silent]
+                out += (replies[0] if len(replies) == 1 else collide(replies)) if replies else b""
             return bytes(out)
+        by_id: dict[int, list[bytes]] = {}
         for servo in hearing:
             if packet.id in (servo.id, protocol.BROADCAST_ID):
+                answering = servo.id
                 reply = servo.execute(packet)
                 if packet.id == protocol.BROADCAST_ID and packet.code != Instruction.PING:
                     reply = None
                 if reply is not None and not servo.silent:
-                    out += reply
+                    by_id.setdefault(answering, []).append(reply)
+        for servo_id in sorted(by_id):
+            replies = by_id[servo_id]
+            out += replies[0] if len(replies) == 1 else collide(replies)
         return bytes(out)
+
+
+def collide(packets: list[bytes]) -> bytes:
+    """What the host receives when servos send `packets` at once: their bytes ANDed, and the packet
+    the result announces never checks (the module's docstring)."""
+    size = max(len(p) for p in packets)
+    wire = -1
+    for packet in packets:
+        wire &= int.from_bytes(bytes(packet).ljust(size, b"\xff"), "big")
+    out = bytearray(wire.to_bytes(size, "big"))
+    if size >= 6:
+        end = 4 + out[3]
+        if 6 <= end <= size and protocol.checksum(bytes(out[2:end - 1])) == out[end - 1]:
+            out[end - 1] ^= 0xFF
+    return bytes(out)
