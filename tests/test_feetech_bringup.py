@@ -209,9 +209,12 @@ def test_a_status_fault_is_named_by_the_backend(bench, fault):
 @pytest.mark.slow
 @pytest.mark.parametrize("fault", WIRE)
 def test_a_wire_fault_is_named_by_the_backend(bench, fault):
+    """A servo gone silent, a corrupt line or replies under the wrong ID: the servo is named; replies
+    held back past their time-out: the bus is named as stalled (never a late reply taken)."""
     served, _ = bench()
     message = _one_tick(served, fault)
-    assert "\n" not in message and "did not answer" in message, message
+    expected = "bus 'arm' stalled" if fault == "delayed_reply" else "joint '"
+    assert "\n" not in message and expected in message, message
 
 
 def test_overload_protection_caps_the_duty_then_torque_off_and_on_clears_it():
@@ -282,8 +285,12 @@ def test_factory_fresh_so101_brought_up_to_a_swing(tmp_path):
             setup = run_cli("setup", "--config", "so101", "--joint", joint.dof, "--port", port, "--yes")
         said = setup.stdout + setup.stderr
         assert setup.returncode == 0, (joint.dof, said)
-        assert "found STS3215-C001 at ID 1, 1000000 baud" in said and "Lock(55) 0" in said, said
-        assert f"answers at ID {joint.id}, 1000000 baud" in said, said
+        assert "found STS3215-C001 at ID 1, 1000000 baud" in said, said
+        if joint.id == 1:                 # a new servo's ID and rate, and every other item, are this joint's
+            assert "already set up as joint 'shoulder_pan'" in said, said
+        else:
+            assert "Lock(55) 0" in said and f"id: 1 -> {joint.id}" in said, said
+            assert f"answers at ID {joint.id}, 1000000 baud" in said, said
     with sim(store) as port:                                # a power-up: the EEPROM only
         scan = run_cli("scan", "--port", port, "--config", "so101", "--baud", "all", "--json")
         doctor = run_cli("doctor", "--config", "so101", "--port", port, "--json")
@@ -331,7 +338,12 @@ def test_factory_fresh_so101_brought_up_to_a_swing(tmp_path):
         assert joints[joint.dof]["zero_offset"] / STEP == pytest.approx(expected, abs=2), joint.dof
         assert abs(joints[joint.dof]["zero_offset"] / STEP - 2048) <= 2, joint.dof
     with sim(store, "--lockstep") as port:
-        swing = run_cli("swing", "--config", str(target), "--port", port, "--out", str(tmp_path / "swing"), "--yes")
-    assert swing.returncode in (0, 1), swing.stdout[-2000:] + swing.stderr
+        # at time scale 1.3: the pick at 1.0 overloads the shoulder at 5 V, which the validator refuses on
+        # real ports (`servodyn validate so101 so101_pick --fit`: passes from 1.2594)
+        swing = run_cli("swing", "--config", str(target), "--motion", "so101_pick", "--time-scale", "1.3",
+                        "--port", port, "--out", str(tmp_path / "swing"), "--yes")
+    assert swing.returncode == 0, swing.stdout[-2000:] + swing.stderr
     summary = json.loads((tmp_path / "swing" / "summary.json").read_text())
-    assert summary["ticks"] > 0 and math.isfinite(summary["tracking_max_rad"]), summary
+    # the SO-101's pick tracks within 0.5 degrees on the configured simulated bus (test_so101.py);
+    # here on the calibrated copy, its zeros within two steps (0.18 degrees) of the bench's truth
+    assert summary["completed"] and math.degrees(summary["tracking_max_rad"]) < 1.0, summary
