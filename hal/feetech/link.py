@@ -89,7 +89,7 @@ class Link:
         deadline = time.monotonic() + window + patience
         while want is None or not want <= got.keys():
             left = deadline - time.monotonic()
-            if heard and want is None:
+            if heard:                     # replies come back to back: a pause after bytes ends them
                 left = min(left, quiet + patience / 10)
             if left <= 0:
                 break
