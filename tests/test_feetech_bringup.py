@@ -176,10 +176,11 @@ def test_doctor_names_each_setting_against_the_configuration(bench):
 
 # ---------------------------------------------------------------------------- faults
 
-HARDWARE = {"voltage": "voltage", "input voltage": "voltage", "encoder": "encoder", "temperature": "temperature",
+HARDWARE = {"voltage": "voltage", "input voltage": "voltage", "encoder": "encoder", "motor encoder": "encoder",
+            "temperature": "temperature",
             "overheating": "temperature", "overheat": "temperature", "current": "current",
             "electrical shock": "current", "overload": "overload"}
-WIRE = ("silent", "flipped_byte", "garbage", "wrong_id", "delayed_reply")
+WIRE = ("silent", "flipped_byte", "garbage", "wrong_id", "delayed_reply", "stall")
 
 
 def _one_tick(served, fault: str, servo_id: int = 2) -> str:
@@ -213,8 +214,36 @@ def test_a_wire_fault_is_named_by_the_backend(bench, fault):
     held back past their time-out: the bus is named as stalled (never a late reply taken)."""
     served, _ = bench()
     message = _one_tick(served, fault)
-    expected = "bus 'arm' stalled" if fault == "delayed_reply" else "joint '"
+    expected = "bus 'arm' stalled" if fault in ("delayed_reply", "stall") else "joint '"
     assert "\n" not in message and expected in message, message
+
+
+def test_a_pushed_joint_is_named_past_its_limit(bench):
+    """"pushed": the plant moves the joint 0.5 rad past its upper limit; the backend's read names it
+    there, in one line."""
+    served, _ = bench()
+    bus = FeetechBus(CONFIG, "arm", **served.buses["arm"])
+    bus.open()
+    try:
+        served.inject_fault(3, "pushed")
+        with served.robot.lock:
+            served.robot.advance(CONFIG.control_period)          # the servos read the plant as it steps
+        with pytest.raises(ServoError, match=r"joint 'elbow_flex' at 2\.19\d rad, outside its limits"):
+            bus.read_state()
+    finally:
+        bus.close()
+
+
+def test_reboot_restarts_a_servo_out_of_its_overload_and_clear_errors_says_what_remains(bench):
+    served, port = bench()
+    served.inject_fault(2, "overload")
+    with FeetechBringUp(CONFIG, "arm", port) as here:
+        _, cleared = here.clear_errors()
+        _, off = here.torque_off()
+        _, rebooted = here.reboot()
+    by_joint = {o.joint.dof: o for o in cleared}
+    assert not by_joint["shoulder_lift"].ok and "servodyn reboot" in by_joint["shoulder_lift"].text
+    assert all(o.ok for o in off) and all(o.ok for o in rebooted), [o.text for o in rebooted]
 
 
 def test_overload_protection_caps_the_duty_then_torque_off_and_on_clears_it():

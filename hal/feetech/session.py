@@ -123,20 +123,21 @@ class FeetechBringUp(BringUp):
                          "did not answer: switch its power off" if state[j.id] is None else
                          "still on: switch its power off") for j in self.joints])
 
-    def _status_outcomes(self, state: dict, none: str, clear: str) -> list[Outcome]:
+    def _status_outcomes(self, state: dict, none: str, clear: str, still: str) -> list[Outcome]:
         return [Outcome(j, state[j.id] == 0, none if state[j.id] is None else clear if state[j.id] == 0 else
                         f"status 0x{state[j.id]:02X} ({', '.join(status_faults(state[j.id])) or 'unknown bits'}) "
-                        "still set: its cause is still there") for j in self.joints]
+                        f"still set: {still}") for j in self.joints]
 
     def _reboot(self):
         state = sts.restart(self.link, self._ids(), self.patience)
         return (f"bus '{self.bus}' ({self.path}): each servo restarted (RESTART 0x08)",
-                self._status_outcomes(state, "did not come back", "up, no error"))
+                self._status_outcomes(state, "did not come back", "up, no error", "its cause is still there"))
 
     def _clear_errors(self):
         state = sts.clear_protection(self.link, self._ids())
-        return (f"bus '{self.bus}' ({self.path}): torque off (it ends an overload's protection), status read",
-                self._status_outcomes(state, "did not answer", "no error"))
+        return (f"bus '{self.bus}' ({self.path}): torque off on each servo (an overload's protection ends when "
+                "torque next goes on), status read", self._status_outcomes(
+                    state, "did not answer", "no error", "`servodyn reboot` restarts the servo, which clears it"))
 
     # --- calibrate and monitor
     def _horn(self, joint) -> float:
