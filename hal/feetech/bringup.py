@@ -80,32 +80,44 @@ def identify(link: Link, servo_id: int, baud: int) -> Found:
                  extra={"firmware_version": f"{data[0]}.{data[1]}"})
 
 
-def scan(link: Link, rates: Iterable[int] = SCAN_RATES, patience: float = 0.0) -> ScanResult:
+def scan(link: Link, rates: Iterable[int] = SCAN_RATES, patience: float = 0.0,
+         again: float | None = None) -> ScanResult:
     """A broadcast PING at each rate, then each servo that answered identified (the module's
-    docstring). `patience`: s added to each listen (a simulated bus on a loaded machine)."""
+    docstring). `patience`: s added to each listen. `again`: a simulated bus on a pseudo-terminal,
+    whose bytes carry no rate, so a reply later than the listen would be heard at the next rate: a
+    scan that heard nothing, or a reply whose servo then does not answer a READ at that rate, is
+    made again with this patience (a loaded machine's simulator answers late)."""
     started, sent, before = time.monotonic(), link.transactions, link.sent + link.received
-    result = ScanResult(rates=tuple(rates))
-    for baud in result.rates:
+    result, late = _scan_pass(link, tuple(rates), patience)
+    if again is not None and (late or not (result.found or result.collisions or result.corrupt)):
+        result, _ = _scan_pass(link, tuple(rates), again)
+    result.transactions = link.transactions - sent
+    result.wire_bytes = link.sent + link.received - before
+    result.seconds = time.monotonic() - started
+    return result
+
+
+def _scan_pass(link: Link, rates: tuple[int, ...], patience: float) -> tuple[ScanResult, bool]:
+    """One scan at `rates`, and whether a servo that answered the PING then did not answer a READ."""
+    result, late = ScanResult(rates=rates), False
+    for baud in rates:
         link.set_baud(baud)
         packets, bad = link.exchange(protocol.ping(BROADCAST_ID), window=SCAN_WINDOW, patience=patience)
         ids = [p.id for p in packets if p.id <= SCAN_MAX_ID]
         for servo_id in sorted(bad):
-            alone, again = link.ping(servo_id)
+            alone, collided = link.ping(servo_id)
             if alone is not None:
                 ids.append(servo_id)
-            elif again:
+            elif collided:
                 result.collisions.setdefault(baud, set()).add(servo_id)
         if link.heard and not ids and not bad:
             result.corrupt.append(baud)
         for servo_id in sorted(set(ids)):
             try:
                 result.found.append(identify(link, servo_id, baud))
-            except ServoOperationError:        # it answered a ping, not a read: seen all the same
-                result.found.append(Found(servo_id, None, None, None, baud, kind="feetech"))
-    result.transactions = link.transactions - sent
-    result.wire_bytes = link.sent + link.received - before
-    result.seconds = time.monotonic() - started
-    return result
+            except ServoOperationError:        # a reply to an earlier PING, or a servo that answers pings only
+                late = True
+    return result, late
 
 
 def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
@@ -150,9 +162,10 @@ def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:
     return findings
 
 
-def find_alone(link: Link, rates: Sequence[int] = SCAN_RATES, patience: float = 0.0) -> Found:
+def find_alone(link: Link, rates: Sequence[int] = SCAN_RATES, patience: float = 0.0,
+               again: float | None = None) -> Found:
     """The one servo on the line, at any ID and rate; one line naming what is wrong otherwise."""
-    result = scan(link, rates, patience)
+    result = scan(link, rates, patience, again)
     if result.collisions or result.corrupt:
         raise ServoInitializationError(f"{link.path}: several servos answer at once (collisions at "
                                        f"{', '.join(map(str, sorted(result.collisions) or result.corrupt))} baud): "

@@ -61,13 +61,18 @@ class FeetechBringUp(BringUp):
     def _scan_patience(self) -> float:
         return min(self.patience, SCAN_PATIENCE)
 
+    @property
+    def _again(self) -> float | None:
+        """A scan's second pass, on a simulated bus only (hal.feetech.bringup.scan)."""
+        return self.patience if self.patience > SCAN_PATIENCE else None
+
     # --- scan
     def scanning(self, rates) -> str:
         return (f"scanning {self.path} at {', '.join(map(str, rates))} baud, IDs 0-{SCAN_MAX_ID} "
                 "(STS broadcast ping) ...")
 
     def _scan(self, rates) -> Scan:
-        result = sts.scan(self.link, rates, self._scan_patience)
+        result = sts.scan(self.link, rates, self._scan_patience, self._again)
         lines = []
         if result.found:
             lines.append(f"  {'ID':>3}  {'model':<14} {'number':>6} {'firmware':>8} {'baud':>8}")
@@ -89,7 +94,7 @@ class FeetechBringUp(BringUp):
         return f"looking for the one servo on {self.path} (every STS rate, every ID) ..."
 
     def _find_alone(self, joint):
-        found = sts.find_alone(self.link, patience=self._scan_patience)
+        found = sts.find_alone(self.link, patience=self._scan_patience, again=self._again)
         return found, (f"found {found.model or found.model_number} at ID {found.id}, {found.baud} baud, "
                        f"firmware {sts.firmware_text(found)}")
 
