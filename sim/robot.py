@@ -334,8 +334,7 @@ class SimulatedRobot(PlantView):
                 servo.set_hardware_error(fault)
             elif isinstance(servo, FeetechServo) and fault == "overheat":
                 servo.overheat()
-            elif fault in (FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS):
-                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS
+            elif fault in (bits := FEETECH_FAULTS if isinstance(servo, FeetechServo) else HARDWARE_FAULTS):
                 servo.set_hardware_error(bits[fault])
             else:
                 raise ValueError(f"a {type(servo).__name__} takes no {fault!r} fault")

@@ -6,6 +6,7 @@ SO-101 brought up through the command line to a swing."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -102,6 +103,24 @@ def test_setup_reads_back_after_a_restart_and_catches_a_write_left_locked(bench)
         with pytest.raises(ServoOperationError, match="does not answer at ID 4"):
             sts.verify_stored(link, 4, [sts.Step("id", 3, 4)], patience=0.0)
         assert link.ping(3)[0] is not None                            # the EEPROM's ID after the restart
+
+
+def test_setup_moves_a_fresh_servo_to_another_id_and_rate_through_the_lock(bench):
+    """A bus at 500 kbaud: the ID, then the rate (the servo answers that write at 1 Mbps, then
+    changes), Lock 1 at the new rate; after the restart the servo answers at ID 3, 500 kbaud only."""
+    served, port = bench(factory=True, connected=["elbow_flex"])
+    joint = next(j for j in CONFIG.joints if j.dof == "elbow_flex")
+    bus = dataclasses.replace(CONFIG.buses["arm"], baud=500_000)
+    with Link(port, 1_000_000, patience=1.0) as link:
+        found = sts.find_alone(link, patience=0.05, again=1.0)
+        steps = sts.setup_plan(link, found, joint, bus)
+        assert [(s.name, s.old, s.new) for s in steps] == [("id", 1, 3), ("baud_rate", 0, 1)]
+        after = sts.apply_setup(link, found, steps, patience=1.0)
+        assert (after.id, after.baud, link.baud) == (3, 500_000, 500_000)
+        link.set_baud(1_000_000)
+        assert link.ping(3)[0] is None and link.ping(1)[0] is None      # the baud gate: nothing at 1 Mbps
+    servo = served.robot.device("elbow_flex")
+    assert servo.nonvolatile()["id"] == 3 and servo.nonvolatile()["baud_rate"] == 1
 
 
 # ---------------------------------------------------------------------------- scan
