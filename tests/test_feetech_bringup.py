@@ -155,6 +155,18 @@ def test_scan_all_takes_under_two_seconds(bench):
     assert len(result.found) == 6 and result.seconds <= 2.0, result.seconds
 
 
+def test_servos_answering_a_broadcast_ping_at_once_are_found_by_sync_read(bench):
+    """Were STS servos to answer a broadcast PING all at once (undocumented), their replies garble
+    each other: the scan asks the IDs again by SYNC READ (two instructions for IDs 0-252), which
+    they answer in turn, and finds all six."""
+    served, port = bench()
+    served.robot.chains["arm"].staggered = False
+    with FeetechBringUp(CONFIG, "arm", port) as here:
+        result = here.scan((1_000_000,)).result
+    assert sorted(f.id for f in result.found) == [1, 2, 3, 4, 5, 6] and not result.collisions
+    assert result.transactions <= 1 + 2 + 1 + 6, result.transactions     # PING, sweep, a suspect, reads
+
+
 def test_the_baud_gate_keeps_a_servo_at_another_rate_silent(bench):
     served, port = bench(memory={"elbow_flex": {"baud_rate": BAUD_RATES.index(57_600)}})
     with Link(port, 1_000_000, patience=1.0) as link:

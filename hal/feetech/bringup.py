@@ -8,8 +8,10 @@ servo listening at that rate answers it, so the whole ID range costs one 6-byte 
 then one READ of the servo's first 7 bytes (firmware, model, ID, rate) for each servo found. The
 listen after each PING is SCAN_WINDOW: a servo answers within its Return Delay Time (at most 254 x
 2 us = 508 us, then its bytes), which a USB adapter's latency timer (16 ms on an FTDI) delays; the
-window covers both. A reply that does not check (servos sharing an ID collide) is pinged again at
-the IDs readable in it: corrupt again, it is several servos at that ID.
+window covers both. Replies that do not check are asked again by SYNC READ, which the servos
+answer one after another in the order of the IDs (`sweep`: two instructions for IDs 0-252), and
+the IDs readable in what still does not check are pinged alone: corrupt again, it is several
+servos at that ID.
 
 Set-up. Lock(55) is inverted: 0 unlocks (an EEPROM write is stored), 1 locks (an EEPROM write acts
 until power-off, then the old value is back: a set-up that forgets the lock works until the next
@@ -103,21 +105,40 @@ def _scan_pass(link: Link, rates: tuple[int, ...], patience: float) -> tuple[Sca
     for baud in rates:
         link.set_baud(baud)
         packets, bad = link.exchange(protocol.ping(BROADCAST_ID), window=SCAN_WINDOW, patience=patience)
-        ids = [p.id for p in packets if p.id <= SCAN_MAX_ID]
-        for servo_id in sorted(bad):
+        ids = {p.id for p in packets if p.id <= SCAN_MAX_ID}
+        garbled = bool(bad) or bool(link.heard) and not packets
+        if garbled:                     # replies that did not check: ask again, each servo in its turn
+            swept, bad = sweep(link, patience)
+            ids |= swept
+        for servo_id in sorted(bad - ids):
             alone, collided = link.ping(servo_id)
             if alone is not None:
-                ids.append(servo_id)
+                ids.add(servo_id)
             elif collided:
                 result.collisions.setdefault(baud, set()).add(servo_id)
-        if link.heard and not ids and not bad:
+        if garbled and not ids and baud not in result.collisions:
             result.corrupt.append(baud)
-        for servo_id in sorted(set(ids)):
+        for servo_id in sorted(ids):
             try:
                 result.found.append(identify(link, servo_id, baud))
             except ServoOperationError:        # a reply to an earlier PING, or a servo that answers pings only
                 late = True
     return result, late
+
+
+def sweep(link: Link, patience: float = 0.0) -> tuple[set[int], set[int]]:
+    """The IDs 0-252 asked for their model number by SYNC READ (two instructions: a packet carries
+    at most 248 IDs), which the servos answer in the order of the IDs, one after another (Feetech's
+    protocol), where replies to a broadcast PING garbled each other: the IDs that answered, and
+    the IDs readable in replies that did not check (servos sharing an ID still collide)."""
+    found, bad = set(), set()
+    ids = list(range(SCAN_MAX_ID + 1))
+    for start in range(0, len(ids), protocol.MAX_PARAMS - 2):
+        packets, suspects = link.exchange(protocol.sync_read(3, 2, ids[start:start + protocol.MAX_PARAMS - 2]),
+                                          window=SCAN_WINDOW, patience=patience)
+        found |= {p.id for p in packets if len(p.params) == 2}
+        bad |= suspects
+    return found, bad - found
 
 
 def compare(config, bus_name: str, result: ScanResult) -> list[Finding]:

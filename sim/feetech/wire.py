@@ -8,7 +8,8 @@ and talk over each other on the half-duplex wire: the host receives the bitwise 
 identical replies get their checksum inverted, as two UARTs never start on the same bit). Replies
 of different IDs to a broadcast PING do not collide here: they come one after another in the order
 of the IDs (an assumption: whether an STS servo staggers its answer to a broadcast PING by its ID,
-as a Dynamixel does, is not documented; bring-up's scan reads by SYNC READ when replies collide)."""
+as a Dynamixel does, is not documented; `staggered = False` makes them collide, and bring-up's
+scan then reads by SYNC READ, which the servos answer in turn)."""
 
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ class FeetechWire:
         self.reader = TimedReader()
         self.line_speed: int | None = None     # the host's bytes' speed (None: every servo hears them)
         self.on_command: Callable[[], None] | None = None    # told after each SYNC WRITE (lock-step)
+        self.staggered = True          # replies of different IDs to a broadcast PING come in turn
         self.wire_clock = time.monotonic
         self._heard_at: float | None = None
         self._clock = "none"
@@ -103,6 +105,8 @@ class FeetechWire:
                     reply = None
                 if reply is not None and not servo.silent:
                     by_id.setdefault(answering, []).append(reply)
+        if not self.staggered and packet.id == protocol.BROADCAST_ID and len(by_id) > 1:
+            return collide([r for replies in by_id.values() for r in replies])
         for servo_id in sorted(by_id):
             replies = by_id[servo_id]
             out += replies[0] if len(replies) == 1 else collide(replies)
