@@ -123,6 +123,37 @@ def test_setup_moves_a_fresh_servo_to_another_id_and_rate_through_the_lock(bench
     assert servo.nonvolatile()["id"] == 3 and servo.nonvolatile()["baud_rate"] == 1
 
 
+class _Registers:
+    """A link's read_item over a dict (calibration_plan reads three registers)."""
+
+    def __init__(self, **values):
+        self.values = values
+
+    def read_item(self, servo_id, name):
+        return self.values[name]
+
+
+@pytest.mark.parametrize("old, zero, offset, after", [
+    (0, 100.0, -1948, 2048.0),          # the zero read at 100: offset -1948 puts it at 2048
+    (300, 2048.0, 300, 2048.0),         # already at the middle: the offset stays
+    (0, 0.0, -2047, 2047.0),            # -2048 does not fit 11 bits: one step short
+    (0, 4200.0, -1944, 2048.0),         # a reading unwrapped past a turn (the session's _horn): 104
+])
+def test_calibration_puts_the_zero_at_step_2048_through_a_sign_magnitude_offset(old, zero, offset, after):
+    joint = next(j for j in CONFIG.joints if j.dof == "elbow_flex")
+    link = _Registers(homing_offset=old, min_position_limit=0, max_position_limit=4095)
+    values = {"direction": 1, "zero_offset": zero * STEP, "position_limits": (-1.0, 1.5)}
+    got, steps = sts.calibration_plan(link, joint, values)
+    by_name = {st.name: st.new for st in steps}
+    assert by_name.get("homing_offset", old) == offset
+    assert got["zero_offset"] / STEP == pytest.approx(after, abs=1e-9)
+    # the range as the servo then reads it, the stops rounded outwards
+    assert by_name["min_position_limit"] == math.floor(after - 1.0 / STEP)
+    assert by_name["max_position_limit"] == math.ceil(after + 1.5 / STEP)
+    assert protocol.encode_sign_magnitude(offset, ITEM["homing_offset"].sign_bit) == \
+        (abs(offset) | 0x800 if offset < 0 else offset)
+
+
 # ---------------------------------------------------------------------------- scan
 
 MIXED = {"shoulder_pan": 500_000, "shoulder_lift": 1_000_000, "elbow_flex": 57_600, "wrist_flex": 38_400,

@@ -442,7 +442,8 @@ def calibration_plan(link: Link, joint, values: dict) -> tuple[dict, list[Step]]
     offset = max(-MAX_OFFSET, (shift + CENTRE) % TICKS_PER_REV - CENTRE)     # a turn wrapped into ±2047
     zero_after = (zero - (offset - old)) % TICKS_PER_REV
     ends = sorted(horn_ticks(values["direction"], joint.gear_ratio, q, zero_after) for q in values["position_limits"])
-    now = {"homing_offset": old, **{n: link.read_item(joint.id, n) for n in ("min_position_limit", "max_position_limit")}}
+    now = {n: link.read_item(joint.id, n) for n in ("min_position_limit", "max_position_limit")}
+    now["homing_offset"] = old
     wanted = {"homing_offset": offset, "min_position_limit": max(0, math.floor(ends[0])),
               "max_position_limit": min(TICKS_PER_REV - 1, math.ceil(ends[1]))}
     steps = [Step(n, now[n], v) for n, v in wanted.items() if now[n] != v]

@@ -77,8 +77,8 @@ class FeetechBringUp(BringUp):
         if result.found:
             lines.append(f"  {'ID':>3}  {'model':<14} {'number':>6} {'firmware':>8} {'baud':>8}")
             for f in sorted(result.found, key=lambda f: (f.baud, f.id)):
-                lines.append(f"  {f.id:>3}  {f.model or '?':<14} {f.model_number if f.model_number is not None else '?':>6} "
-                             f"{sts.firmware_text(f):>8} {f.baud:>8}")
+                number = f.model_number if f.model_number is not None else "?"
+                lines.append(f"  {f.id:>3}  {f.model or '?':<14} {number:>6} {sts.firmware_text(f):>8} {f.baud:>8}")
         for baud, ids in sorted(result.collisions.items()):
             lines.append(f"  several servos answer at ID {', '.join(map(str, sorted(ids)))} at {baud} baud "
                          "(their replies collide): connect one at a time")
