@@ -1,7 +1,8 @@
 """Bring-up on every kind of bus: what it finds (`Found`, a device a scan found; `Finding`, what a
 check found wrong, with its fix) and `BringUp`, the one interface the commands (servodyn.tools.bringup)
 drive a bus through, whatever its kind. Each backend describes its own (`Backend.bringup`, "module:class",
-imported on first use as python-can finds its interfaces): hal.dynamixel.session, hal.can.session.
+imported on first use as python-can finds its interfaces): hal.dynamixel.session, hal.can.session,
+hal.feetech.session.
 The host's side (ports, permissions, the latency timer, locks) is hal.ports and hal.port_access.
 
     Finding("firmware", found=44, expected=">= 45", joint="r_elbow_flexion", id=4,
