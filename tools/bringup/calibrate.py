@@ -2,8 +2,9 @@
 zero (the mean of two approaches) and both stops, moved by hand and read through its bus kind's
 bring-up (hal.bringup); then the configuration patched (comments kept) after the change is shown
 and confirmed, with the writes a kind that keeps the calibration in its devices makes (a Feetech
-servo's Homing_Offset and position limits, made after the yes and before the file is written). Its errors are the HAL's, one line each (tools/bringup makes them the command's);
-nothing is written unless every joint asked for was calibrated."""
+servo's Homing_Offset and position limits, made after the yes and before the file is written).
+Its errors are the HAL's, one line each (tools/bringup makes them the command's); nothing is
+written unless every joint asked for was calibrated."""
 
 from __future__ import annotations
 
