@@ -1,7 +1,8 @@
 """Bring-up on every kind of bus: what it finds (`Found`, a device a scan found; `Finding`, what a
 check found wrong, with its fix) and `BringUp`, the one interface the commands (servodyn.tools.bringup)
 drive a bus through, whatever its kind. Each backend describes its own (`Backend.bringup`, "module:class",
-imported on first use as python-can finds its interfaces): hal.dynamixel.session, hal.can.session.
+imported on first use as python-can finds its interfaces): hal.dynamixel.session, hal.can.session,
+hal.feetech.session.
 The host's side (ports, permissions, the latency timer, locks) is hal.ports and hal.port_access.
 
     Finding("firmware", found=44, expected=">= 45", joint="r_elbow_flexion", id=4,
@@ -329,6 +330,17 @@ class BringUp(ABC):
     @abstractmethod
     def _monitor(self) -> list[MonitorRow]: ...
 
+    def _calibration(self, joint, values: dict) -> tuple[dict, list]:
+        """A calibration measured by hand (direction, zero_offset: the horn's angle at the zero pose,
+        position_limits) as the device will hold it: the values the configuration then gets, and
+        the writes to the device (each with .what and .line()) that make it so; nothing sent but
+        reads. A kind that keeps no calibration in its devices: the values as they are, no write."""
+        return values, []
+
+    def _apply_calibration(self, joint, steps: list) -> str:
+        """The calibration's writes made and checked; a line saying so."""
+        raise BadRequest(f"a {type(self).__name__} keeps no calibration in its devices")
+
     # --- what the commands call
     def __enter__(self) -> "BringUp":
         refused = not_a_bus(self.path)
@@ -385,6 +397,8 @@ class BringUp(ABC):
     clear_errors = _guarded("clear_errors")
     horn = _guarded("horn")
     monitor = _guarded("monitor")
+    calibration = _guarded("calibration")
+    apply_calibration = _guarded("apply_calibration")
     del _guarded
 
 

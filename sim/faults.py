@@ -10,7 +10,9 @@ bus puts on the wire goes through it.
     stall           the whole bus paused for `delay` s, once (no reply, no plant time)
 
 They act on bytes only: the servos' registers and the plant are untouched, as on a real bus
-whose cable, transceiver or adapter fails."""
+whose cable, transceiver or adapter fails. On a Feetech STS bus (`protocol="feetech"`) a read reply
+is any status packet that carries data (a READ's or a SYNC READ's), and `wrong_id` re-frames each
+status packet under the next ID with a valid checksum."""
 
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from servodyn.hal.dynamixel import BROADCAST_ID, FastReadBlock, PacketError, Sta
 from servodyn.hal.dynamixel.instructions import FAST_BLOCKS_START, encode_fast_reply
 from servodyn.hal.dynamixel.protocol import FRAME_OVERHEAD, frame_length
 from servodyn.hal.can.frames import CAN_ERR_BUSOFF, CAN_ERR_PROT
+from servodyn.hal.feetech import protocol as sts
 
 WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
 # s the simulator pauses for a stall, and a delayed reply waits: past the patience a swing gives the
@@ -28,16 +31,18 @@ WIRE_FAULTS = ("flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall")
 # or the host rightly rides through them (a 0.3 s pause did, once that patience grew from 0.25 s)
 STALL = 1.5
 DELAY = 1.5
+STS_BARE_STATUS = 6      # bytes of an STS status packet without data (a PING's or a WRITE's)
 
 
 class WireFault:
     """One wire fault, applied to every reply from now on (`stall`: once). `nservos` lets a fast
     read reply be cut into its blocks, for `wrong_id`; `seed` makes the bytes reproducible."""
 
-    def __init__(self, kind: str, nservos: int, seed: int = 0, delay: float | None = None):
+    def __init__(self, kind: str, nservos: int, seed: int = 0, delay: float | None = None,
+                 protocol: str = "dynamixel"):
         if kind not in WIRE_FAULTS:
             raise ValueError(f"unknown wire fault {kind!r} (one of {', '.join(WIRE_FAULTS)})")
-        self.kind, self.nservos = kind, nservos
+        self.kind, self.nservos, self.protocol = kind, nservos, protocol
         self.rng = random.Random(seed)
         self.delay = delay if delay is not None else STALL if kind == "stall" else DELAY
         self.stalled = False
@@ -50,7 +55,8 @@ class WireFault:
                 time.sleep(self.delay)
             return reply
         if self.kind == "delayed_reply":
-            if reply[4:5] == bytes([BROADCAST_ID]):
+            read = len(reply) > STS_BARE_STATUS if self.protocol == "feetech" else reply[4:5] == bytes([BROADCAST_ID])
+            if read:
                 time.sleep(self.delay)
             return reply
         if not reply:
@@ -60,6 +66,9 @@ class WireFault:
             return reply[:at] + bytes([reply[at] ^ (1 << self.rng.randrange(8))]) + reply[at + 1:]
         if self.kind == "garbage":
             return bytes(self.rng.randrange(256) for _ in range(len(reply) + self.rng.randrange(64)))
+        if self.protocol == "feetech":
+            return b"".join(sts.status((p.id + 1) % sts.BROADCAST_ID, p.error, p.params) if isinstance(p, sts.Packet)
+                            else p.raw for p in sts.PacketReader().feed(reply))
         return b"".join(self._other_id(frame) for frame in _frames(reply))
 
     def _other_id(self, frame: bytes) -> bytes:

@@ -66,7 +66,9 @@ PUSHED = 0.5     # rad beyond its upper limit an external push moves a joint ("p
                  # the host's and the firmware's range margins (0.05, 0.35 rad)
 HEAT_PERIOD = 0.01   # s: the Dynamixel servos' windings are stepped on their mean I² this often (their
                      # time constants are minutes; Present Temperature counts whole degrees)
-FAULTS = ("silent", "pushed", "overheat", *HARDWARE_FAULTS, *WIRE_FAULTS, *CAN_WIRE_FAULTS)
+FAULTS = tuple(dict.fromkeys(("silent", "pushed", "overheat", *HARDWARE_FAULTS, *FEETECH_FAULTS, *PROTOCOL1_FAULTS,
+                               *WIRE_FAULTS,
+                               *CAN_WIRE_FAULTS)))
 
 
 class SimulatedRobot(PlantView):
@@ -317,7 +319,9 @@ class SimulatedRobot(PlantView):
         """From now on, on the device with this id (a Dynamixel servo first, then a CAN motor):
         "silent" (it stops answering); "pushed" (an external push moves its joint PUSHED rad beyond
         the configuration's upper limit); a Dynamixel servo: Hardware Error Status bits by name
-        ("overload", "overheating", ...) or as an int, or a fault of its bus's wire (sim/faults.py:
+        ("overload", "overheating", ...) or as an int, a Feetech servo its Status bits by name ("voltage",
+        "encoder", "temperature", "current", "overload", or the Dynamixel names) or "overheat" (its
+        winding past its limit), either a fault of its bus's wire (sim/faults.py:
         "flipped_byte", "garbage", "delayed_reply", "wrong_id", "stall"); a CAN motor: "overheat"
         (the winding over its limit: its own over-temperature fault on its next step), a status or
         error code as an int, or a fault of its wire ("garbage", "wrong_id", "error_frame", "bus_off")."""
@@ -338,19 +342,20 @@ class SimulatedRobot(PlantView):
             if fault == "silent":
                 servo.silent = True
             elif fault in WIRE_FAULTS:
-                kind = Wire1Fault if isinstance(servo, Dynamixel1Servo) else WireFault
-                self.wire[bus] = kind(fault, len(self.chains[bus].servos), seed=device_id)
+                if isinstance(servo, Dynamixel1Servo):
+                    self.wire[bus] = Wire1Fault(fault, len(self.chains[bus].servos), seed=device_id)
+                else:
+                    self.wire[bus] = WireFault(fault, len(self.chains[bus].servos), seed=device_id,
+                                               protocol=self.config.buses[bus].kind)
             elif isinstance(fault, int) and not isinstance(fault, bool):
                 servo.set_hardware_error(fault)
-            elif fault in HARDWARE_FAULTS:
-                bits = FEETECH_FAULTS if isinstance(servo, FeetechServo) else \
-                    PROTOCOL1_FAULTS if isinstance(servo, Dynamixel1Servo) else HARDWARE_FAULTS
-                if fault not in bits:
-                    raise ValueError(f"a Protocol 1.0 servo has no {fault!r} fault (its error byte has "
-                                     f"{', '.join(bits)})")
+            elif isinstance(servo, FeetechServo) and fault == "overheat":
+                servo.overheat()
+            elif fault in (bits := FEETECH_FAULTS if isinstance(servo, FeetechServo) else
+                           PROTOCOL1_FAULTS if isinstance(servo, Dynamixel1Servo) else HARDWARE_FAULTS):
                 servo.set_hardware_error(bits[fault])
             else:
-                raise ValueError(f"a Dynamixel servo takes no {fault!r} fault")
+                raise ValueError(f"a {type(servo).__name__} takes no {fault!r} fault")
             return
         motor = self.motor(device_id)
         if fault == "silent":

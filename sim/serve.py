@@ -5,7 +5,7 @@ pseudo-terminal (PtyServer), a CAN bus on python-can's virtual interface (Virtua
 SLCAN adapter on a pseudo-terminal (SlcanServer) — and gives the options that point each bus's
 backend at it.
 
-A configuration of one Dynamixel bus read from a file is served by a child process of its own
+A configuration of one Dynamixel or Feetech bus read from a file is served by a child process of its own
 (`SimProcess`, `python -m servodyn.sim.serve`), so the host loop's figures are its own: the
 child dies with its parent (PR_SET_PDEATHSIG, and the end of its control socket), and the parent
 injects faults and reads the plant's clock and the servos' torque through that socket, each request
@@ -152,7 +152,7 @@ class Served(SimulatedBuses):
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
           q0=None, start: bool = True, lab: Lab | None = None, obstacles=()) -> SimulatedBuses:
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a
-    SimProcess for one Dynamixel bus of a configuration file (unless process=False, or q0 is given),
+    SimProcess for one Dynamixel or Feetech bus of a configuration file (unless process=False, or q0 is given),
     else a `Served` robot in this process (CAN buses on python-can's virtual interface, or with
     can="slcan" on an SLCAN adapter's pseudo-terminal). `lab`: the robot on a simulated lab bench
     (sim/lab.py), in the child process too. `obstacles`: hal/contact_spec's Plane and Sphere, in the
@@ -161,7 +161,7 @@ def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None =
         raise SimProcessError(f"a simulated bus runs {' or '.join(MODES)}, not {mode!r}")
     kinds = [bus.kind for bus in config.buses.values()]
     if process is None:
-        process = kinds == ["dynamixel"] and config.path is not None and q0 is None
+        process = kinds in (["dynamixel"], ["feetech"]) and config.path is not None and q0 is None
     if process:
         return SimProcess(config.path, mode, lab=lab, obstacles=obstacles)
     robot = SimulatedRobot(config, q0=q0, bench=lab, obstacles=obstacles)
@@ -221,6 +221,7 @@ class SimProcess(SimulatedBuses):
             self.stop()
             raise SimProcessError(f"simulated bus: {hello.get('error')}")
         self.path, self.servos, self.bus = hello["path"], hello["servos"], hello["bus"]
+        self.kind = hello.get("kind", "dynamixel")
         self._control.settimeout(10.0)
 
     def _receive(self) -> dict:
@@ -276,7 +277,7 @@ class SimProcess(SimulatedBuses):
     @property
     def buses(self) -> dict:
         """The options that point the bus's backend at the simulated bus."""
-        return {self.bus: {"port": self.path, "reply_timeout": PTY_REPLY_TIMEOUT["dynamixel"]}}
+        return {self.bus: {"port": self.path, "reply_timeout": PTY_REPLY_TIMEOUT[self.kind]}}
 
     def stop(self) -> None:
         """Ask the child to end, and make sure it has."""
@@ -346,7 +347,8 @@ def main(argv=None) -> int:
         return 2
     server = ContactPtyServer(arm, args.mode)
     gc.freeze()      # the set-up's objects (model, tables, numpy) out of every later collection
-    control.sendall((json.dumps({"ok": True, "path": server.path, "servos": len(arm.servos), "bus": arm.name}) + "\n").encode())
+    control.sendall((json.dumps({"ok": True, "path": server.path, "servos": len(arm.servos), "bus": arm.name,
+                             "kind": arm.robot.config.buses[arm.name].kind}) + "\n").encode())
     try:
         # in real time the simulated servos answer ahead of everything else, as hardware does
         with realtime_priority(SIMULATOR_PRIORITY, "the simulated bus") if args.mode == "realtime" else nullcontext():

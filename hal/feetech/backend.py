@@ -9,9 +9,10 @@ Goal_Time(44) (0.1 %, sign bit 10).
 A tick is two transactions: one SYNC READ (0x82) of Present Position .. Present Current
 (addresses 56..70: position, speed, load = the applied duty, voltage, temperature, status,
 current) that every servo answers with a status packet of its own, in the order of the IDs; and
-one SYNC WRITE of the duties, which no servo answers. A short reply is retried; then each silent
-servo is named (ServoTimeoutError). A status byte with a fault bit (voltage, encoder, temperature,
-current, overload) is a ServoHardwareError naming it.
+one SYNC WRITE of the duties, which no servo answers. A short reply is retried (what still arrives
+after its time-out dropped first; replies that come only after it are a stalled bus,
+BusStallError); then each silent servo is named (ServoTimeoutError). A status byte with a fault
+bit (voltage, encoder, temperature, current, overload) is a ServoHardwareError naming it.
 
 At open, each servo: answers a PING; Torque_Enable 0; Lock 1 (so the mode written next lasts
 until power-off and is not written to flash: the lock is inverted, 0 persists); Return_Delay_Time
@@ -27,7 +28,7 @@ import time
 import numpy as np
 
 from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
-from ..errors import ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
+from ..errors import BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
 from ..port_access import claim_port, open_failure
 from ..ports import is_pseudo_terminal
 from . import protocol
@@ -133,6 +134,19 @@ class FeetechBus(ServoBus):
                     got[event.id] = event
         return got
 
+    def _drain(self, quiet: float) -> int:
+        """After a failed read, the bytes that still arrive dropped until the line has been quiet for
+        `quiet` s (at most 4 x): a reply after its time-out is never taken for the retry's."""
+        dropped, deadline = 0, time.monotonic() + 4 * quiet
+        while time.monotonic() < deadline:
+            try:
+                if not select.select([self._fd], [], [], quiet)[0]:
+                    break
+                dropped += len(os.read(self._fd, 4096))
+            except PORT_ERRORS as err:
+                raise self._gone(err) from None
+        return dropped
+
     def transact(self, servo_id: int, frame: bytes, reply_params: int = 0) -> Packet | None:
         """One instruction to one servo and its status packet (None if it did not answer)."""
         self._send(frame)
@@ -208,6 +222,12 @@ class FeetechBus(ServoBus):
             got = self._receive(self.ids, nbytes)
             if len(got) == len(self.ids) and all(len(p.params) == PRESENT_LENGTH for p in got.values()):
                 break
+            late = self._drain(self._timeout(nbytes))
+            if late and not got:
+                # nothing in time, then replies after the time-out: the bus held back; a retry
+                # would take them for its own (a tick old, and every later one too)
+                raise BusStallError(self.bus.name, f"no reply to the tick's SYNC READ in time; {late} bytes "
+                                                   "came after the time-out and were dropped")
         else:
             silent = next(j for j in self.joints if j.id not in got or len(got[j.id].params) != PRESENT_LENGTH)
             raise ServoTimeoutError(silent.dof, silent.id, "no reply to the tick's SYNC READ")

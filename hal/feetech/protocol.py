@@ -31,6 +31,7 @@ class Instruction(IntEnum):
     REG_WRITE = 0x04
     ACTION = 0x05
     RECOVERY = 0x06          # every parameter but the ID back to the factory's
+    RESTART = 0x08           # the servo restarts (as at power-up); no status packet
     RESET = 0x0A
     SYNC_READ = 0x82
     SYNC_WRITE = 0x83
@@ -107,6 +108,11 @@ def write(servo_id: int, address: int, data: bytes) -> bytes:
 
 def reg_write(servo_id: int, address: int, data: bytes) -> bytes:
     return frame(servo_id, Instruction.REG_WRITE, bytes((address,)) + bytes(data))
+
+
+def restart(servo_id: int) -> bytes:
+    """RESTART 0x08: the servo starts again from its EEPROM, as at power-up, and sends no status."""
+    return frame(servo_id, Instruction.RESTART)
 
 
 def action(servo_id: int = BROADCAST_ID) -> bytes:

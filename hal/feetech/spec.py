@@ -25,6 +25,7 @@ def joint_duty(tau, qd, joint, voltage: float):
 class Feetech(Backend):
     kind = "feetech"
     bus = "servodyn.hal.feetech.backend:FeetechBus"
+    bringup = "servodyn.hal.feetech.session:FeetechBringUp"
     servos = SERVOS
     bauds = BAUD_RATES
     default_baud = DEFAULT_BAUD

@@ -17,6 +17,11 @@ current bit and, when Unloading_Condition(19) selects it, switches the torque of
 The EEPROM lock (Lock 55, inverted): with Lock = 0 a write to an EEPROM address (< 40) is kept
 across a power cycle (and `on_nonvolatile` is told); with Lock = 1 it acts until power-off only.
 Its power-on value is 1 here (the newest Feetech table; the fw 3.x translation says 0).
+
+Present_Position wraps within 0..4095 while Phase(18) bit 4 is clear (single-turn feedback, the
+STS3215's default): Actual − Homing_Offset modulo a turn, which is why a calibration puts the joint's
+range in the middle of the turn (LeRobot: Homing_Offset = position − 2047 at mid-range). RESTART
+(0x08) powers it up again from its EEPROM, without a status packet.
 """
 
 from __future__ import annotations
@@ -28,12 +33,14 @@ from servodyn.hal.feetech import protocol
 from servodyn.hal.feetech.protocol import Instruction, StatusBit, decode_sign_magnitude, encode_sign_magnitude
 from servodyn.hal.feetech.table import (BAUD_RATES, CURRENT_UNIT, DUTY_FULL, EEPROM_END, ITEM, ITEMS,
                                         PROTECTION_TIME_UNIT, SIMULATOR_CLOCK_ADDRESS, STEP, STS3215_C001, TABLE_SIZE,
+                                        TICKS_PER_REV,
                                         FeetechSpec, Mode)
 from servodyn.hal.thermal import winding_step
 
 POSITION_GAIN = 0.166      # duty per (P x rad of error): BAM's STS3215 error_gain (oscilloscope)
 SPEED_GAIN = 0.01          # duty per (speed_p x rad/s of error): a model, not a measured gain
 COULOMB_VELOCITY = 0.01    # rad/s: the Coulomb step smoothed by tanh over it
+MULTI_TURN = 0x10          # Phase(18) bit 4: full-range (multi-turn) angle feedback; clear: 0..4095
 FAULT_BITS = {"voltage": StatusBit.VOLTAGE, "input voltage": StatusBit.VOLTAGE, "encoder": StatusBit.ENCODER,
               "motor encoder": StatusBit.ENCODER, "temperature": StatusBit.TEMPERATURE,
               "overheating": StatusBit.TEMPERATURE, "current": StatusBit.CURRENT,
@@ -77,7 +84,7 @@ class FeetechServo:
         self._put("present_voltage", round(self.supply_voltage * 10))
         self._put("present_temperature", round(self.temperature))
         self.baud = BAUD_RATES[self.get("baud_rate")]
-        self._shaft = (0.0, 0.0, 0.0)
+        self._shaft = getattr(self, "_shaft", (0.0, 0.0, 0.0))     # the shaft stays where it is
         self._overload_for = self._overcurrent_for = 0.0
         self._protected = False
         self._duty = 0.0
@@ -121,6 +128,12 @@ class FeetechServo:
         if bits & self.get("unloading_condition"):
             self._put("torque_enable", 0)
 
+    def overheat(self) -> None:
+        """The winding past Max_Temperature_Limit(13): the temperature bit, as the next heat() would set it."""
+        self.temperature = self.get("max_temperature_limit") + 1.0
+        self._put("present_temperature", round(self.temperature))
+        self.set_hardware_error(StatusBit.TEMPERATURE)
+
     def heat(self, current_squared: float, dt: float) -> None:
         r_th, tau_th = self.thermal
         if r_th <= 0 or tau_th <= 0:
@@ -153,6 +166,9 @@ class FeetechServo:
             if after is not None:
                 after()                           # a new rate once the status is on its way
             return reply
+        if code == Instruction.RESTART:
+            self.power_cycle()                    # no status packet: it is starting again
+            return None
         if code == Instruction.ACTION and self._registered is not None:
             (address, data), self._registered = self._registered, None
             after = self.write(address, data)
@@ -203,6 +219,8 @@ class FeetechServo:
         position, velocity, current = self._shaft
         offset = self.get("homing_offset")
         ticks = round(position / STEP) - offset                 # Present = Actual − Homing_Offset
+        if not self.get("phase") & MULTI_TURN:
+            ticks %= TICKS_PER_REV                              # single-turn feedback: 0..4095, wrapping
         self._put("present_position", max(-32767, min(32767, ticks)))
         self._put("present_velocity", max(-32767, min(32767, round(velocity / STEP))))
         self._put("present_load", max(-1023, min(1023, round(self._duty * DUTY_FULL))))

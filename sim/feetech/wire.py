@@ -1,6 +1,15 @@
 """The simulated STS servos of one bus answering the host's bytes: framing (the HAL's PacketReader),
 the line speed (a servo hears only bytes sent at its own rate: the baud gate), dispatch by ID,
-broadcast, SYNC WRITE and the STS SYNC READ (each listed servo answers in the order of the IDs)."""
+broadcast, SYNC WRITE and the STS SYNC READ (each listed servo answers in the order of the IDs).
+
+Collisions: servos sharing an ID (factory-fresh ones all say ID 1) answer one instruction at once
+and talk over each other on the half-duplex wire: the host receives the bitwise AND of their bytes
+(a low bit wins; past the shorter one the line idles high), whose checksum never checks (`collide`:
+identical replies get their checksum inverted, as two UARTs never start on the same bit). Replies
+of different IDs to a broadcast PING do not collide here: they come one after another in the order
+of the IDs (an assumption: whether an STS servo staggers its answer to a broadcast PING by its ID,
+as a Dynamixel does, is not documented; `staggered = False` makes them collide, and bring-up's
+scan then reads by SYNC READ, which the servos answer in turn)."""
 
 from __future__ import annotations
 
@@ -26,6 +35,7 @@ class FeetechWire:
         self.reader = TimedReader()
         self.line_speed: int | None = None     # the host's bytes' speed (None: every servo hears them)
         self.on_command: Callable[[], None] | None = None    # told after each SYNC WRITE (lock-step)
+        self.staggered = True          # replies of different IDs to a broadcast PING come in turn
         self.wire_clock = time.monotonic
         self._heard_at: float | None = None
         self._clock = "none"
@@ -82,14 +92,37 @@ class FeetechWire:
         if packet.id == protocol.BROADCAST_ID and packet.code == Instruction.SYNC_READ:
             address, length = packet.params[0], packet.params[1]
             for servo_id in packet.params[2:]:
-                for servo in (s for s in hearing if s.id == servo_id and not s.silent):
-                    out += protocol.status(servo.id, servo.mem[65], servo.read(address, length))
+                replies = [protocol.status(s.id, s.mem[65], s.read(address, length))
+                           for s in hearing if s.id == servo_id and not s.silent]
+                out += (replies[0] if len(replies) == 1 else collide(replies)) if replies else b""
             return bytes(out)
+        by_id: dict[int, list[bytes]] = {}
         for servo in hearing:
             if packet.id in (servo.id, protocol.BROADCAST_ID):
+                answering = servo.id
                 reply = servo.execute(packet)
                 if packet.id == protocol.BROADCAST_ID and packet.code != Instruction.PING:
                     reply = None
                 if reply is not None and not servo.silent:
-                    out += reply
+                    by_id.setdefault(answering, []).append(reply)
+        if not self.staggered and packet.id == protocol.BROADCAST_ID and len(by_id) > 1:
+            return collide([r for replies in by_id.values() for r in replies])
+        for servo_id in sorted(by_id):
+            replies = by_id[servo_id]
+            out += replies[0] if len(replies) == 1 else collide(replies)
         return bytes(out)
+
+
+def collide(packets: list[bytes]) -> bytes:
+    """What the host receives when servos send `packets` at once: their bytes ANDed, and the packet
+    the result announces never checks (the module's docstring)."""
+    size = max(len(p) for p in packets)
+    wire = -1
+    for packet in packets:
+        wire &= int.from_bytes(bytes(packet).ljust(size, b"\xff"), "big")
+    out = bytearray(wire.to_bytes(size, "big"))
+    if size >= 6:
+        end = 4 + out[3]
+        if 6 <= end <= size and protocol.checksum(bytes(out[2:end - 1])) == out[end - 1]:
+            out[end - 1] ^= 0xFF
+    return bytes(out)

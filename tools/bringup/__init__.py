@@ -2,8 +2,8 @@
 `reboot`, `clear-errors` and `torque off` here, `monitor` (monitor.py) and `calibrate`
 (calibrate.py) beside, on every bus a configuration names. Each bus is driven through its
 kind's bring-up (hal.bringup.BringUp, found by name from the backend: hal.dynamixel.session,
-hal.can.session), so nothing here knows a bus kind; the host's side (ports, permissions, latency
-timer) is hal.ports and hal.port_access.
+hal.can.session, hal.feetech.session), so nothing here knows a bus kind; the host's side (ports,
+permissions, latency timer) is hal.ports and hal.port_access.
 
 Every command that writes to a servo says what it will write first and asks `confirm(question)`
 (the command line's question, which `--yes` answers); a command that moves nothing but switches

@@ -1,8 +1,10 @@
 """`servodyn calibrate`: torque off on every bus of a configuration; per joint, its + direction, its
 zero (the mean of two approaches) and both stops, moved by hand and read through its bus kind's
 bring-up (hal.bringup); then the configuration patched (comments kept) after the change is shown
-and confirmed. Its errors are the HAL's, one line each (tools/bringup makes them the command's);
-nothing is written unless every joint asked for was calibrated."""
+and confirmed, with the writes a kind that keeps the calibration in its devices makes (a Feetech
+servo's Homing_Offset and position limits, made after the yes and before the file is written).
+Its errors are the HAL's, one line each (tools/bringup makes them the command's); nothing is
+written unless every joint asked for was calibrated."""
 
 from __future__ import annotations
 
@@ -44,14 +46,41 @@ def calibrate(config_name: str, port, joints: list[str] | None, margin_deg: floa
         patch = ConfigPatch.of(config, write_to)
     except OSError as err:
         raise BadRequest(str(err)) from None
-    results = {}
+    results, writes = {}, []
     with ExitStack() as stack:
         sessions = open_limp(config, ports, stack, ": move the joints by hand", say)
         for joint in chosen:
             results[joint.dof] = _calibrate_joint(joint, _horn(joint, sessions[joint.bus]), config, margin, say)
-    for dof, values in results.items():
-        patch.set_joint(dof, **values)
-    return patch.offer(confirm, say)
+        for joint in chosen:        # a kind that keeps the calibration in its devices (Feetech: Homing_Offset)
+            results[joint.dof], steps = sessions[joint.bus].calibration(joint, results[joint.dof])
+            if steps:
+                writes.append((sessions[joint.bus], joint, steps))
+        for dof, values in results.items():
+            patch.set_joint(dof, **values)
+        ask = _devices_first(writes, confirm, say)
+        if writes and not patch.changes():
+            return 0 if ask("write these to the servos?") else 1
+        return patch.offer(ask, say)
+
+
+def _devices_first(writes: list, confirm, say):
+    """`confirm`, which shows the calibration's writes to the devices with its question and, on a
+    yes, makes them before the configuration is written (a device that refuses stops the command
+    with the file untouched)."""
+    if not writes:
+        return confirm
+
+    def ask(question: str) -> bool:
+        say("and to the servos' EEPROM:")
+        for _, joint, steps in writes:
+            for step in steps:
+                say(f"  joint '{joint.dof}' (id {joint.id}): {step.line()}")
+        if not confirm(question):
+            return False
+        for here, joint, steps in writes:
+            say(here.apply_calibration(joint, steps))
+        return True
+    return ask
 
 
 def _horn(joint, here) -> Callable[[], float]:

@@ -24,8 +24,8 @@ LEROBOT_ARM = "so101"          # the configuration a LeRobot calibration is writ
 
 def _scan_arguments(p) -> None:
     describe(p, "Protocol 2.0 broadcast ping at each baud rate (57600 first, a new servo's rate, then 4.5M down to "
-             "9600): each servo's ID, model, firmware and rate. With --config, what differs from it, each with its "
-             "fix.", "servodyn scan --port /dev/ttyUSB0 --baud 57600,4000000",
+             "9600): each servo's ID, model, firmware and rate; on a Feetech bus an STS broadcast ping at each of its 8 rates "
+             "(1000000 first). With --config, what differs from it, each with its fix.", "servodyn scan --port /dev/ttyUSB0 --baud 57600,4000000",
              exits="0 found (and as configured), 1 nothing found or findings")
     port_option(p)
     p.add_argument("--baud", default="all", metavar="all|RATE,...", help="the rates to try (default all)")
@@ -37,7 +37,8 @@ def _scan_arguments(p) -> None:
 def _setup_arguments(p) -> None:
     describe(p, "With only that servo connected: find it at any ID and baud rate, check its model, show what it will "
              "write (ID, Return Delay Time 0, Drive Mode reverse bit clear, Homing Offset 0, Current Limit, the bus's "
-             "baud rate last), ask, write it to the EEPROM with torque off and find it again at its new ID and rate.",
+             "baud rate last), ask, write it to the EEPROM with torque off and find it again at its new ID and rate. A "
+             "Feetech servo: through its EEPROM lock, read back after a restart.",
              "servodyn setup --config my_arm.toml --joint r_elbow_flexion --port /dev/ttyUSB0")
     bus_options(p)
     p.add_argument("--joint", required=True, metavar="DOF", help="the joint this servo drives")

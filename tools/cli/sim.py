@@ -27,7 +27,7 @@ def add_arguments(p) -> None:
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one period per command transaction (default: real time)")
     p.add_argument("--factory", action="store_true",
-                   help="a bench of devices as they leave the factory (Dynamixel: ID 1 at 57600 baud), their horns "
+                   help="a bench of devices as they leave the factory (Dynamixel: ID 1 at 57600 baud; Feetech: ID 1 at 1000000), their horns "
                         "mounted otherwise than the configuration says (zeros off, one joint reversed), unless the "
                         "--bench store holds them")
     p.add_argument("--console", action="store_true",
