@@ -294,6 +294,9 @@ def _assumed(logs, servo: BenchServo, motor: MotorModel, whole, offset, tie, swi
         out["friction_viscous_nm_s"] = ("no torque-off stretch: viscous friction and back-EMF braking (k_t^2/R) "
                                          f"act alike with the motor driving: held at the catalogue's "
                                          f"{servo.motor.friction_viscous:.3g} N m s/rad, k_e = k_t takes the rest")
+    fastest = max(float(np.max(np.abs(np.diff(log.goal) / np.diff(log.t)))) for log in logs)
+    out["goal_speed"] = (f"the fastest goal in these logs moves {fastest:.1f} rad/s: any limit the firmware puts on "
+                         "its goal's speed above that is not exercised (the replay applies none)")
     if all(abs(log.kp - logs[0].kp) < 1e-9 for log in logs):
         out["p_gain"] = (f"one P gain ({logs[0].kp:g}) in every log: the law's dead band and its scaling with P "
                          "are not exercised")

@@ -14,9 +14,9 @@ from .prompt import ask
 
 
 def add_arguments(p) -> None:
-    describe(p, "Choose a servo per joint from the catalogue (the Dynamixel, CAN and Feetech servos servodyn drives) so that "
-             "every motion passes every check of `servodyn validate`, each chosen servo's housing and rotor mounted "
-             "on the model (a heavier wrist servo loads the shoulder): from the hand inwards, the lightest that "
+    describe(p, "Choose a servo per joint from the catalogue (the Dynamixel, CAN and Feetech servos servodyn drives) "
+             "so that every motion passes every check of `servodyn validate`, each chosen servo's housing and rotor "
+             "mounted on the model (a heavier wrist servo loads the shoulder): from the hand inwards, the lightest that "
              "passes (or, --objective margin, the lightest set with the largest reserve). Writes OUT/config.toml and "
              "OUT/model.toml, validates them on every motion, and OUT/size.json. When nothing passes it names the "
              "joint and check, and the time scale at which a set would.",
@@ -56,6 +56,7 @@ def run(args) -> int:
                       supply_voltage=args.supply_voltage, margin=args.margin,
                       family=args.family or default_family(args.model),
                       objective=args.objective, jobs=args.jobs, repeat=args.repeat, out=Path(args.out),
-                      confirm=lambda question: ask(question, args.yes, say), say=say, progress=None if args.json else say)
+                      confirm=lambda question: ask(question, args.yes, say), say=say,
+                      progress=None if args.json else say)
     print(json.dumps(report, indent=1) if args.json else text(report))
     return 0 if report["passed"] else 1
