@@ -80,3 +80,11 @@ def test_identified_on_both_logs(fits):
     assert data["torque_constant_nm_a"] == pytest.approx(1.52, rel=0.2)           # 1.336 measured
     assert data["armature_kg_m2"] == pytest.approx(0.012, rel=0.3)                # 0.0092 measured
     assert data["replay_error_rad"]["mean"] <= 0.004                               # 0.0024 measured
+    # docs/servo-bench.md's figures, to within what another machine's arithmetic may move a fit
+    # (each well inside its own standard error)
+    assert data["torque_constant_nm_a"] == pytest.approx(1.34, abs=0.05)
+    assert data["resistance_ohm"] == pytest.approx(1.45, abs=0.08)
+    assert data["armature_kg_m2"] == pytest.approx(0.0092, abs=0.001)
+    assert data["friction_coulomb_nm"] == pytest.approx(0.24, abs=0.01)
+    assert data["zero_offset_rad"] == pytest.approx(-0.076, abs=0.02)
+    assert "largest duty on these logs 0.6" in data["assumed"]["max_duty"]         # 0.65: below 0.7, never 0.97

@@ -50,16 +50,28 @@ def unusable(servo, voltage: float) -> str | None:
     return None
 
 
+def _builtin_configs_of(model_ref: str) -> list[dict]:
+    """The built-in configurations (hal/configs) of the model `model_ref` names, as TOML tables."""
+    found = []
+    for path in builtin_configs().values():
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        if data.get("model") == model_ref:
+            found.append(data)
+    return found
+
+
 def default_family(model_ref: str) -> str:
     """The family a model is sized within when none is named: its built-in configurations' bus kind
     where they all share one (the SO-101's Feetech bus: a Feetech bus drives no Dynamixel), else
     the first family."""
-    kinds = set()
-    for path in builtin_configs().values():
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-        if data.get("model") == model_ref:
-            kinds |= {bus.get("kind") for bus in data.get("bus", {}).values()}
+    kinds = {bus.get("kind") for data in _builtin_configs_of(model_ref) for bus in data.get("bus", {}).values()}
     return kinds.pop() if len(kinds) == 1 and kinds <= set(FAMILIES) else FAMILIES[0]
+
+
+def configured_voltages(model_ref: str) -> list[float]:
+    """The supply voltages the model's built-in configurations run at (the SO-101's 5 V)."""
+    return sorted({float(data["supply"]["voltage"]) for data in _builtin_configs_of(model_ref)
+                   if isinstance(data.get("supply", {}).get("voltage"), (int, float))})
 
 
 def catalogue(family: str) -> dict:
@@ -73,9 +85,11 @@ def catalogue(family: str) -> dict:
     return found
 
 
-def supply_voltages(family: str) -> list[float]:
-    """The supply voltages worth trying when none is given: each servo's nominal voltage."""
-    return sorted({s.nominal_voltage for s in catalogue(family).values() if drivable(s)})
+def supply_voltages(family: str, model_ref: str | None = None) -> list[float]:
+    """The supply voltages worth trying when none is given: each servo's nominal voltage, and those
+    the model's built-in configurations run at (what the robot has today)."""
+    configured = configured_voltages(model_ref) if model_ref else []
+    return sorted({s.nominal_voltage for s in catalogue(family).values() if drivable(s)} | set(configured))
 
 
 def part_mass(name: str) -> float:
