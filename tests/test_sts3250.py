@@ -88,3 +88,23 @@ def test_identified_on_both_logs(fits):
     assert data["friction_coulomb_nm"] == pytest.approx(0.24, abs=0.01)
     assert data["zero_offset_rad"] == pytest.approx(-0.076, abs=0.02)
     assert "largest duty on these logs 0.6" in data["assumed"]["max_duty"]         # 0.65: below 0.7, never 0.97
+
+
+def test_a_logged_present_load_is_read_as_the_feetech_writes_it(logs, fits, tmp_path):
+    """A Feetech log that records its Present Load (sign-magnitude, bit 10, 0.1 % duty) is compared
+    duty for duty: here the sin_sin log with the law's duty on its own positions written in, as a
+    real servo's register would read; the identified model's duty follows it within 0.03 (its
+    position within 0.003 rad, times the law's 5.3 duty/rad), and negative duties stay negative."""
+    data = json.loads(logs["sin_sin"].read_text())
+    for e in data["entries"]:
+        duty = max(-0.97, min(0.97, 0.166 * 32 * (e["goal_position"] - e["position"])))
+        units = round(duty * 1000)
+        e["load"] = -units | 1 << 10 if units < 0 else units
+    assert any(e["load"] > 1024 for e in data["entries"])              # some are negative
+    log = tmp_path / "with_load.json"
+    log.write_text(json.dumps(data))
+    done = run_cli("replay", log, "--servo", "STS3250", "--actuator", fits["both"][0], "--out", tmp_path / "r")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((tmp_path / "r/replay.json").read_text())
+    assert summary["mean_duty_error"] <= 0.03, summary
+    assert summary["mean_error_rad"] <= 0.006

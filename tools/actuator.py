@@ -9,13 +9,12 @@ import time
 from pathlib import Path
 
 from ..identification.actuator import FITTED, identify_actuator
-from ..identification.bench import read_bench_log
 from ..identification.bench_servo import bench_servo
 
 
 def run(servo_name: str, paths, out: Path, say) -> int:
     servo = bench_servo(servo_name)
-    logs = [read_bench_log(p) for p in paths]
+    logs = [servo.read(p) for p in paths]
     start = time.process_time()
     fit = identify_actuator(logs, servo)
     seconds = time.process_time() - start

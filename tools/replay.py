@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..identification.actuator import load_actuator, pwm_read_lag
-from ..identification.bench import Grid, read_bench_log, rollout
+from ..identification.actuator import law_duty, load_actuator, pwm_read_lag
+from ..identification.bench import Grid, rollout
 from ..identification.bench_servo import bench_servo
 from ..report.plots import _pyplot, short
 
@@ -46,16 +46,19 @@ class Replayed:
 def replay(paths, servo_name: str, actuator=None) -> tuple[list[Replayed], float]:
     """Every log replayed at once; and the lag (s) at which the logs' Present PWM was read (compared there)."""
     servo = bench_servo(servo_name)
-    logs = [read_bench_log(p) for p in paths]
+    logs = [servo.read(p) for p in paths]
     motor, offset = load_actuator(actuator, servo.motor) if actuator else (servo.motor, 0.0)
     gains = [servo.duty_per_rad(log.kp) for log in logs]
     lag = pwm_read_lag(logs, gains, servo.pwm_full)
     grid = Grid.of(logs)
-    qs, duties = rollout(grid, motor, np.array(gains), offset)
+    qs = rollout(grid, motor, np.array(gains), offset)[0]
     out = []
     for j, log in enumerate(logs):
         q = grid.sample(qs, j)[:, 0]
-        duty = grid.sample(duties, j, lag)[:, 0]
+        # the law on the predicted position where the PWM was read, with the goal the log holds then (a
+        # goal written every 20 ms moves the law by a tenth of full duty between two steps: interpolating
+        # the rollout's duty across that jump would blur it)
+        duty = law_duty(log, gains[j], grid.sample(qs, j, lag)[:, 0], motor.max_duty) * log.enabled
         duty_error = None
         if log.pwm is not None:
             measured = log.pwm / servo.pwm_full
