@@ -8,21 +8,20 @@ import json
 import time
 from pathlib import Path
 
-from ..hal.dynamixel.control_table import servo_named
 from ..identification.actuator import FITTED, identify_actuator
-from ..identification.bench import read_bench_log
+from ..identification.bench_servo import bench_servo
 
 
 def run(servo_name: str, paths, out: Path, say) -> int:
-    servo = servo_named(servo_name)
-    logs = [read_bench_log(p) for p in paths]
+    servo = bench_servo(servo_name)
+    logs = [servo.read(p) for p in paths]
     start = time.process_time()
     fit = identify_actuator(logs, servo)
     seconds = time.process_time() - start
     out.mkdir(parents=True, exist_ok=True)
     data = fit.as_json()
     data["logs"] = [log.path for log in logs]
-    data["position_law"] = {"p_gain_divisor": servo.p_gain_divisor, "source": servo.p_gain_source}
+    data["position_law"] = {"duty_per_p_rad": servo.gain_per_p, "law": servo.law}
     file = out / "actuator.json"
     file.write_text(json.dumps(data, indent=2) + "\n")
     print(f"{'parameter':<26} {'value':>11} {'std':>10}  unit")
@@ -32,6 +31,8 @@ def run(servo_name: str, paths, out: Path, say) -> int:
         mark = "" if p.determined else "  not determined"
         value = f"{data[key]:.5g}" if key in data else "-"
         print(f"{key:<26} {value:>11} {std:>10}  {unit}{mark}")
+    for key, why in data["assumed"].items():
+        print(f"undetermined: {key}: {why}")
     print(f"replay mean |q error| over {len(logs)} logs: {data['replay_error_rad']['mean']:.4f} rad "
           f"({fit.evaluations} rollouts, {seconds:.2f} s of CPU)")
     say(f"wrote {file}; use it with: servodyn replay LOG.json --servo {servo.name} --actuator {file}")

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..hal.dynamixel.control_table import PWM_FULL, servo_named
-from ..identification.actuator import load_actuator, pwm_read_lag
-from ..identification.bench import Grid, read_bench_log, rollout
+from ..identification.actuator import law_duty, load_actuator, pwm_read_lag
+from ..identification.bench import Grid, rollout
+from ..identification.bench_servo import bench_servo
 from ..report.plots import _pyplot, short
 
 SATURATED = 0.95       # |duty| at or above: the law saturated, its duty is left out of the duty error
@@ -26,6 +26,7 @@ SATURATED = 0.95       # |duty| at or above: the law saturated, its duty is left
 class Replayed:
     """One log's replay: its samples, the predicted position and duty, and the scores."""
     log: object
+    pwm_full: float              # the log's PWM units at 100 % duty
     q_predicted: np.ndarray
     duty_predicted: np.ndarray
     error: float                 # mean |q_predicted − q_measured|, rad
@@ -33,7 +34,7 @@ class Replayed:
 
     @property
     def duty_measured(self) -> np.ndarray | None:
-        return None if self.log.pwm is None else self.log.pwm / PWM_FULL
+        return None if self.log.pwm is None else self.log.pwm / self.pwm_full
 
     def rows(self) -> tuple[list[str], np.ndarray]:
         cols = {"t": self.log.t, "q_measured": self.log.q, "q_predicted": self.q_predicted}
@@ -44,23 +45,26 @@ class Replayed:
 
 def replay(paths, servo_name: str, actuator=None) -> tuple[list[Replayed], float]:
     """Every log replayed at once; and the lag (s) at which the logs' Present PWM was read (compared there)."""
-    servo = servo_named(servo_name)
-    logs = [read_bench_log(p) for p in paths]
-    motor, offset = load_actuator(actuator, servo.motor_model) if actuator else (servo.motor_model, 0.0)
+    servo = bench_servo(servo_name)
+    logs = [servo.read(p) for p in paths]
+    motor, offset = load_actuator(actuator, servo.motor) if actuator else (servo.motor, 0.0)
     gains = [servo.duty_per_rad(log.kp) for log in logs]
-    lag = pwm_read_lag(logs, gains)
+    lag = pwm_read_lag(logs, gains, servo.pwm_full)
     grid = Grid.of(logs)
-    qs, duties = rollout(grid, motor, np.array(gains), offset)
+    qs = rollout(grid, motor, np.array(gains), offset)[0]
     out = []
     for j, log in enumerate(logs):
         q = grid.sample(qs, j)[:, 0]
-        duty = grid.sample(duties, j, lag)[:, 0]
+        # the law on the predicted position where the PWM was read, with the goal the log holds then (a
+        # goal written every 20 ms moves the law by a tenth of full duty between two steps: interpolating
+        # the rollout's duty across that jump would blur it)
+        duty = law_duty(log, gains[j], grid.sample(qs, j, lag)[:, 0], motor.max_duty) * log.enabled
         duty_error = None
         if log.pwm is not None:
-            measured = log.pwm / PWM_FULL
+            measured = log.pwm / servo.pwm_full
             fair = log.enabled & (np.abs(measured) < SATURATED) & (np.abs(duty) < SATURATED)
             duty_error = float(np.mean(np.abs(duty - measured)[fair])) if fair.any() else None
-        out.append(Replayed(log, q, duty, float(np.mean(np.abs(q - log.q))), duty_error))
+        out.append(Replayed(log, servo.pwm_full, q, duty, float(np.mean(np.abs(q - log.q))), duty_error))
     return out, lag
 
 

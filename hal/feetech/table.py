@@ -174,6 +174,11 @@ class FeetechSpec(ServoSpec):
 
 
 KG_CM = 9.80665e-2        # N m per kg cm
+# Position mode's law (P, I = D = 0): duty = POSITION_GAIN x P x error (rad), capped at ±MAX_DUTY; both
+# measured by Rhoban's BAM with an oscilloscope on an STS3215 (bam/feetech/actuator.py: error_gain
+# 0.166, max_pwm 0.97). Feetech's table writes P at 1/4 (0.163 per P per rad in 0.1 % duty steps)
+POSITION_GAIN = 0.166     # duty per (P unit x rad of position error)
+MAX_DUTY = 0.97
 # Rhoban BAM's identified STS3215 (7.4 V) model m1, the only one identified for it (bam/params/
 # feetech_sts3215_7_4V/m1.json): the anchor every STS3215 entry below is scaled from
 BAM_KT, BAM_R, BAM_ARMATURE, BAM_KC, BAM_KV = 1.21164135295077, 2.6761663274455603, 0.02840336348682085, \
@@ -222,12 +227,13 @@ STS3215_C046 = FeetechSpec(
            "no-load speed and motor model from the C001's scaled by 345/147 (DERIVED, an estimate)")
 STS3250 = FeetechSpec(
     name="STS3250", model_number=2825, gear_ratio=345.0, nominal_voltage=12.0, supply_range=(9.0, 12.6),
-    stall_torque=50.0 * KG_CM, stall_current=3.0, no_load_speed_rpm=60.0 / (0.133 * 6.0),
+    stall_torque=50.0 * KG_CM, stall_current=3.0, no_load_speed_rpm=60.0 / (0.133 * 6.0), no_load_current=0.18,
     temperature_limit=70.0, motor_kt=50.0 * KG_CM / 3.0, motor_ke=12.0 / (60.0 / (0.133 * 6.0) * RPM),
     motor_resistance=12.0 / 3.0, armature=BAM_ARMATURE, friction_coulomb=BAM_KC, friction_viscous=BAM_KV,
     source="Feetech STS3250-C001 page (ftservo-wiki st-3250-c001): 50 kg cm at 12 V, 9-12.6 V, 0.133 s/60 deg "
            "no load at 12 V, 70 degC cut; 1/345 (robonine's comparison); model number 2825 (LeRobot's table). "
-           "Stall current 3.0 A is an ESTIMATE (not published in the sources read); kt, ke, R DERIVED from these; "
+           "Stall current 3.0 A and no-load current 0.18 A (the 12 V STS3215-C018's) are ESTIMATES (not published in "
+           "the sources read); kt, ke, R DERIVED from these; "
            "armature and friction BAM's STS3215 fit (an estimate, the STS3250 logs identify it)")
 
 SERVOS = {s.name: s for s in (STS3215_C001, STS3215_C018, STS3215_C044, STS3215_C046, STS3250)}

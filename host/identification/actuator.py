@@ -14,6 +14,13 @@ friction and the bench's zero offset, with standard errors, from logs of PWM and
    log weighted alike, by scipy's least_squares, with Stribeck friction added; the rollouts of a
    Jacobian run at once, one lane per parameter. Standard errors from its Jacobian, widened by the
    residuals' correlation (an effective sample count from their lag-one autocorrelation).
+
+Logs without a torque-off stretch never show the motor coasting, so the friction that acts then is
+not theirs to tell (with the motor driving, Coulomb friction and the gear's load share trade off):
+Coulomb friction is held at k_t × the data sheet's no-load current (the torque the motor spends on
+its own and its gear's friction with no load), where the catalogue has one. Logs without the PWM
+(the position law's duty on the logged positions stands in for it) determine the law's gain times
+k_t/R, not either alone: the law's gain is the catalogue's, and what stands on it is `assumed`.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from scipy.optimize import least_squares
 from ..hal.dynamixel.control_table import PWM_FULL
 from ..hal.motor import MotorModel
 from .bench import GRAVITY, STEP, BenchLog, Grid, rollout
+from .bench_servo import BenchServo, bench_servo
 from .estimate import REL_SIGMA_MAX, IdentificationError, Parameter
 from .signals import SignalError, prepare
 
@@ -61,6 +69,7 @@ class ActuatorFit:
     linear: dict              # key → value of the linear step
     errors: list              # per log, mean |q_sim − q_log| (rad) with the fitted motor
     evaluations: int
+    assumed: dict             # what the logs leave undetermined and the fit takes from the catalogue, why
 
     def as_json(self) -> dict:
         out = {"servo": self.servo}
@@ -71,6 +80,7 @@ class ActuatorFit:
             out[key] = float(self.offset if name == "offset" else getattr(self.motor, name))
         out["standard_errors"] = {k: p.std for k, p in self.parameters.items() if p.std is not None}
         out["not_determined"] = {k: p.note for k, p in self.parameters.items() if not p.determined}
+        out["assumed"] = dict(self.assumed)
         out["units"] = {key: unit for key, _, unit in FITTED}
         out["replay_error_rad"] = {"per_log": self.errors, "mean": float(np.mean(self.errors))}
         return out
@@ -136,9 +146,12 @@ def _linear(logs, duty_per_rad, pwm_full) -> dict:
     return out
 
 
-def _lanes(base: MotorModel, names, x) -> tuple[MotorModel, np.ndarray]:
-    """A motor whose fields named in `names` are the columns of x (lanes, params); the offset apart."""
+def _lanes(base: MotorModel, names, x, coulomb_per_kt=None) -> tuple[MotorModel, np.ndarray]:
+    """A motor whose fields named in `names` are the columns of x (lanes, params); the offset apart;
+    Coulomb friction tied to k_t (× `coulomb_per_kt` A) where that is given."""
     changes = {n: x[:, i:i + 1] for i, n in enumerate(names) if n != "offset"}
+    if coulomb_per_kt is not None:
+        changes["friction_coulomb"] = changes.get("torque_constant", base.torque_constant) * coulomb_per_kt
     offset = x[:, names.index("offset"), None] if "offset" in names else 0.0
     return base.with_(**changes), offset
 
@@ -164,15 +177,15 @@ class _Refine:
     """Least squares on the rollout's position error over `names` (MotorModel fields and "offset"),
     the others held at `base`'s; every Jacobian's rollouts at once, one lane each."""
 
-    def __init__(self, logs, base: MotorModel, gains, dt: float):
-        self.logs, self.base, self.dt = logs, base, dt
+    def __init__(self, logs, base: MotorModel, gains, dt: float, coulomb_per_kt=None):
+        self.logs, self.base, self.dt, self.coulomb_per_kt = logs, base, dt, coulomb_per_kt
         self.grid = Grid.of(logs, dt)
         self.gain = np.asarray(gains, dtype=float)
         self.weights = [1.0 / math.sqrt(len(log.t)) for log in logs]   # each log counts as one
         self.evaluations = 0
 
     def residuals(self, names, xs) -> np.ndarray:
-        motor, offset = _lanes(self.base, names, xs)
+        motor, offset = _lanes(self.base, names, xs, self.coulomb_per_kt)
         self.evaluations += xs.shape[0]
         qs = rollout(self.grid, motor, self.gain, offset)[0]
         return np.concatenate([(self.grid.sample(qs, j) - log.q[:, None]).T * w for j, (log, w) in
@@ -204,10 +217,12 @@ class _Refine:
 
 
 def identify_actuator(logs, servo, dt: float = STEP) -> ActuatorFit:
-    """The servo's motor from its bench logs (see the module): `servo` a catalogue DynamixelSpec."""
+    """The servo's motor from its bench logs (see the module): `servo` a BenchServo (or a catalogue
+    servo, looked up by its name)."""
+    servo = servo if isinstance(servo, BenchServo) else bench_servo(servo.name)
     gains = [servo.duty_per_rad(log.kp) for log in logs]
-    lin = _linear(logs, gains, PWM_FULL)
-    guess = servo.motor_model
+    lin = _linear(logs, gains, servo.pwm_full)
+    guess = servo.motor
     start = {n: (lin.get(n) if lin.get(n) is not None else getattr(guess, n)) for n in
              ("torque_constant", "resistance", "armature", "friction_coulomb", "friction_viscous")}
     stribeck = lin["stribeck"]
@@ -217,6 +232,7 @@ def identify_actuator(logs, servo, dt: float = STEP) -> ActuatorFit:
     names = [n for _, n, _ in FITTED if stribeck or n not in ("friction_stribeck", "stribeck_velocity")]
     evaluations = 0
     swings = free_swings(logs)
+    tie = None if swings or not servo.no_load_current else servo.no_load_current
     if swings:      # the free swing alone: the armature, cleanly (the motor coasts)
         free = _Refine(swings, base, [servo.duty_per_rad(log.kp) for log in swings], dt)
         held = ["armature", "friction_coulomb", "friction_viscous", "offset"]
@@ -226,7 +242,13 @@ def identify_actuator(logs, servo, dt: float = STEP) -> ActuatorFit:
         base = base.with_(armature=start["armature"])
         names.remove("armature")
         evaluations += free.evaluations
-    whole = _Refine(logs, base, gains, dt)
+    else:           # the motor never coasts: viscous friction is the back-EMF's twin, held at the catalogue's
+        names.remove("friction_viscous")
+        start["friction_viscous"] = guess.friction_viscous
+        base = base.with_(friction_viscous=guess.friction_viscous)
+        if tie:
+            names.remove("friction_coulomb")
+    whole = _Refine(logs, base, gains, dt, tie)
     fit, scale = whole.fit(names, start)
     x = fit.x * scale
     params = _errors(fit, scale, x, names)
@@ -236,10 +258,49 @@ def identify_actuator(logs, servo, dt: float = STEP) -> ActuatorFit:
         for key in ("friction_stribeck_nm", "stribeck_velocity_rad_s"):
             params[key] = Parameter(None, None, "not determined: " + lin["stribeck_note"])
     motor = base.with_(**{n: float(v) for n, v in zip(names, x) if n != "offset"})
+    if not swings:
+        params["friction_viscous_nm_s"] = Parameter(None, None, "not determined: held at the catalogue's (no torque "
+                                                                "off: it acts as the back-EMF does)")
+    if tie:
+        motor = motor.with_(friction_coulomb=motor.torque_constant * tie)
+        kt = params["torque_constant_nm_a"]
+        params["friction_coulomb_nm"] = Parameter(motor.friction_coulomb, None if kt.std is None else kt.std * tie)
     offset = float(x[names.index("offset")])
     linear = {key: lin.get(n) for key, n, _ in FITTED if n in lin}
     return ActuatorFit(servo=servo.name, motor=motor, offset=offset, parameters=params, linear=linear,
-                       errors=whole.errors(motor, offset), evaluations=evaluations + whole.evaluations)
+                       errors=whole.errors(motor, offset), evaluations=evaluations + whole.evaluations,
+                       assumed=_assumed(logs, servo, motor, whole, offset, tie, swings))
+
+
+def _assumed(logs, servo: BenchServo, motor: MotorModel, whole, offset, tie, swings) -> dict:
+    """What the logs leave undetermined, each with the catalogue's figure the fit stands on."""
+    out = {}
+    if all(log.pwm is None for log in logs):
+        p = float(np.median([log.kp for log in logs]))
+        volts = float(np.median(np.concatenate([log.volts for log in logs])))
+        stiffness = servo.duty_per_rad(p) * volts * motor.torque_constant / motor.resistance
+        out["position_law"] = (f"the logs have no PWM: they determine the law's gain x k_t/R (the stiffness, "
+                               f"{stiffness:.1f} N m/rad at P {p:g} and {volts:.1f} V), not either alone; the gain is "
+                               f"the catalogue's, {servo.law}: k_t/R and the stall torque stand on it")
+    duties = rollout(whole.grid, motor, whole.gain, offset)[1]
+    peak = float(np.max(np.abs(duties)))
+    if peak < motor.max_duty:
+        out["max_duty"] = (f"never reached (the law's largest duty on these logs {peak:.2f}): "
+                           f"{motor.max_duty:g} taken from the catalogue")
+    if not swings:
+        out["friction_coulomb_nm"] = (
+            "no torque-off stretch: the friction that acts while the motor coasts is not in the logs; "
+            + (f"held at k_t x {tie:g} A, the catalogue's no-load current" if tie else "fitted with the motor driving"))
+        out["friction_viscous_nm_s"] = ("no torque-off stretch: viscous friction and back-EMF braking (k_t^2/R) "
+                                         f"act alike with the motor driving: held at the catalogue's "
+                                         f"{servo.motor.friction_viscous:.3g} N m s/rad, k_e = k_t takes the rest")
+    fastest = max(float(np.max(np.abs(np.diff(log.goal) / np.diff(log.t)))) for log in logs)
+    out["goal_speed"] = (f"the fastest goal in these logs moves {fastest:.1f} rad/s: any limit the firmware puts on "
+                         "its goal's speed above that is not exercised (the replay applies none)")
+    if all(abs(log.kp - logs[0].kp) < 1e-9 for log in logs):
+        out["p_gain"] = (f"one P gain ({logs[0].kp:g}) in every log: the law's dead band and its scaling with P "
+                         "are not exercised")
+    return out
 
 
 def _errors(fit, scale, x, names) -> dict:

@@ -3,7 +3,7 @@
 The log (JSON, the format of BAM's recorders, documented in docs/servo-bench.md): `mass` (kg) at
 `length` (m) on the horn, the servo's Position P Gain `kp`, the nominal supply `vin` (V), and
 `entries`, samples of `position` (rad, 0 = hanging), `speed` (rad/s), `load` (the raw Present PWM
-as an unsigned 16-bit number, or 0 throughout when not recorded), `input_volts` (V), `temp` (°C),
+as an unsigned 16-bit number, a Feetech's raw Present Load, or 0 throughout when not recorded), `input_volts` (V), `temp` (°C),
 `timestamp` (s), `goal_position` (rad), `torque_enable`.
 
 The replay (`rollout`): from the first logged position and speed, the servo's own position law runs
@@ -76,8 +76,15 @@ def _number(value, what: str, path: str, positive: bool = True) -> float:
     return float(value)
 
 
-def read_bench_log(path) -> BenchLog:
-    """A bench log read and checked: any fault is one BenchLogError line naming the file."""
+def twos_complement(load: np.ndarray) -> np.ndarray:
+    """A Dynamixel's Present PWM logged as an unsigned 16-bit number, signed."""
+    return np.where(load > 32767, load - 65536, load)
+
+
+def read_bench_log(path, decode_load=twos_complement) -> BenchLog:
+    """A bench log read and checked: any fault is one BenchLogError line naming the file. `decode_load`
+    turns the logged `load` register into signed PWM units (the servo's: a Feetech's Present Load is
+    sign-magnitude)."""
     path = str(path)
     try:
         with open(path, encoding="utf-8") as f:
@@ -111,7 +118,7 @@ def read_bench_log(path) -> BenchLog:
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise BenchLogError(f"{path}: entry {i}: the timestamps must increase")
     load = columns["load"]
-    pwm = np.where(load > 32767, load - 65536, load) if np.any(load) else None   # uint16 → two's complement
+    pwm = decode_load(load) if np.any(load) else None
     volts = columns["input_volts"]
     if np.any(volts <= 0):
         raise BenchLogError(f"{path}: `input_volts` must be positive")

@@ -27,12 +27,12 @@ from ..validation.sizing import SizingError
 SHOWN = 6             # candidates per joint in the printed table (every one is in size.json)
 
 
-def _voltages(family: str, voltage: float | None) -> list[float]:
+def _voltages(family: str, voltage: float | None, model_ref: str) -> list[float]:
     if voltage is not None:
         if not (math.isfinite(voltage) and 0 < voltage <= 100):
             raise SizingError(f"--supply-voltage must be a voltage from 0 to 100 V, got {voltage:g}")
         return [voltage]
-    return sizing.supply_voltages(family)
+    return sizing.supply_voltages(family, model_ref)
 
 
 def _check_inputs(time_scale, margin, payload, jobs, repeat):
@@ -63,7 +63,7 @@ def run_size(model_ref: str, motions: list[str], *, time_scale: float = 1.0, pay
     base_model = sizing.model_from_dict(data, origin=Path(ref).stem, folder=folder)
     paths = [motion_path(m, base_model) for m in motions]
     tries = []
-    for voltage in _voltages(family, supply_voltage):
+    for voltage in _voltages(family, supply_voltage, model_ref):
         try:
             problem = sizing.problem(model_ref, paths, family=family, voltage=voltage, time_scale=time_scale,
                                      margin=margin, payload=payload, repeat=repeat)
@@ -88,6 +88,7 @@ def run_size(model_ref: str, motions: list[str], *, time_scale: float = 1.0, pay
             progress(f"no set passes at time scale {time_scale:g}: finding the time scale at which one does")
         outcome["fit"] = sizing.fit_scale(problem)
     report = _report(problem, outcome, family, objective, [p.voltage for p, _ in tries])
+    report["by_voltage"] = [_at_voltage(p, o) for p, o in tries]
     if outcome["sizing"].passed:
         report["files"] = _write(problem, outcome, out, confirm, say) if out is not None else {}
         if out is not None:
@@ -108,6 +109,26 @@ def _rank(problem, outcome, objective):
     mass = sum(sizing.part_mass(s) for s in found.choice.values())
     worst = max(_row(found, d).score for d in found.choice)
     return (0, mass, worst) if objective == "mass" else (0, worst, mass)
+
+
+def _count(choice: dict) -> dict:
+    """A bill: each servo chosen and how many, in the order first chosen."""
+    return {name: list(choice.values()).count(name) for name in dict.fromkeys(choice.values())}
+
+
+def _at_voltage(problem, outcome) -> dict:
+    """One supply voltage tried: whether a set passed there, its servo mass, or where it failed (the
+    joint, and each of its candidates' worst check and ratio)."""
+    found = outcome["sizing"]
+    out = {"voltage": problem.voltage, "passed": found.passed}
+    if found.passed:
+        out["servo_mass_kg"] = sum(sizing.part_mass(s) for s in found.choice.values())
+        out["choice"] = dict(found.choice)
+    else:
+        out["failed_dof"] = found.failed_dof
+        out["candidates"] = [{"servo": r.servo, "worst_check": r.worst_check, "worst_ratio": r.worst_ratio}
+                             for r in found.rows[found.failed_dof] if r.why_not is None]
+    return out
 
 
 def _row(found, dof):
@@ -138,7 +159,7 @@ def _report(problem, outcome, family, objective, voltages) -> dict:
               "control_period_s": problem.period, "joints": joints}
     if found.passed:
         report["servo_mass_kg"] = sum(sizing.part_mass(s) for s in found.choice.values())
-        report["bill"] = {name: list(found.choice.values()).count(name) for name in dict.fromkeys(found.choice.values())}
+        report["bill"] = _count(found.choice)
     if outcome["reached_margin"] is not None:
         report["reached_margin"] = outcome["reached_margin"]
     if not found.passed:
@@ -252,6 +273,15 @@ def text(report: dict) -> str:
     left_out = _left_out(report)
     if left_out:
         lines.append("  not candidates: " + "; ".join(f"{', '.join(names)} ({why})" for why, names in left_out.items()))
+    for tried in report.get("by_voltage", []):
+        if tried["voltage"] != report["supply_voltage"] and tried["passed"]:
+            kinds = ", ".join(f"{n} × {name}" for name, n in _count(tried["choice"]).items())
+            lines.append(f"  at {tried['voltage']:g} V a set passes too: {kinds}; servos {tried['servo_mass_kg']:.3f} kg")
+        elif tried["voltage"] != report["supply_voltage"]:
+            over = ", ".join(f"{c['servo']} {_short(c['worst_check'])} {fixed(c['worst_ratio'])}"
+                             for c in tried["candidates"])
+            lines.append(f"  at {tried['voltage']:g} V none passes: {tried['failed_dof']} over its limit with every "
+                         f"servo ({over})")
     if report["passed"] or "servo_mass_kg" in report:
         bill = ", ".join(f"{n} × {name}" for name, n in report["bill"].items())
         lines.append(f"bill: {bill}; servos {report['servo_mass_kg']:.3f} kg")

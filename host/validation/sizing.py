@@ -71,7 +71,8 @@ from .limits import Limits
 from .mounting import Housing, housings, load_model_data, mounted
 # the model's housings and the catalogue, importable from here as before the split
 from .mounting import _centroid, _flange, _shaft_offset_scale, flange_centre, mount, shaft_line  # noqa: F401
-from .servos import FAMILIES, SizingError, catalogue, part_mass, supply_voltages, unusable  # noqa: F401
+from .servos import (FAMILIES, SizingError, catalogue, default_family, part_mass, supply_voltages,  # noqa: F401
+                     unusable)
 from ..hal.thermal import AMBIENT
 
 SIZING_MARGIN = 0.8     # the share of each limit a sized servo may use by default: 20 % kept in reserve
@@ -82,7 +83,7 @@ BUS_SHARE = 0.8             # of the control period one tick's transactions may 
 PERIODS = (0.001, 0.002, 0.0025, 0.005, 0.01)   # s: control periods that divide the ID period
 MARGIN_TOLERANCE = 0.01     # relative width the margin objective's bisection stops at
 SIZE_FIT_TOLERANCE = 0.01   # relative width of the time-scale scan when nothing passes
-BUS_NAMES = {"dynamixel": "arm", "can": "can"}   # a sized configuration's bus of each kind (its table: the backend's)
+BUS_NAMES = {"dynamixel": "arm", "can": "can", "feetech": "arm"}   # a sized configuration's bus of each kind (its table: the backend's)
 
 
 # ---------------------------------------------------------------------------- configurations

@@ -21,12 +21,14 @@ def add_arguments(p) -> None:
              "OUT/patch.toml and OUT/torque_fit.png; what the logs cannot determine is reported so, never invented.",
              "servodyn identify --config replica out/bare out/loaded --known-payload 0.5 --out out/identify",
              "servodyn identify --actuator XL330-M288 bench/*.json --out out/identify",
+             "servodyn identify --actuator STS3250 sts3250/*.json --out out/sts3250",
              exits="0 done, 1 patch declined")
     p.add_argument("--config", default=None, help="robot configuration: built-in name or .toml file (required "
                                                   "unless --actuator)")
     p.add_argument("--actuator", default=None, metavar="MODEL",
                    help="instead: the servo MODEL's motor (k_t, R, armature, friction, zero offset) from servo-bench "
-                        "logs (JSON, docs/servo-bench.md) of PWM and supply; writes OUT/actuator.json")
+                        "logs (JSON, docs/servo-bench.md) of position, supply and the PWM where logged (without "
+                        "it, what the logs leave undetermined is printed); writes OUT/actuator.json")
     p.add_argument("logs", nargs="+", metavar="LOG", help="swing_log.csv files (or their folders); with --actuator, "
                                                           "bench logs (.json)")
     p.add_argument("--payload-body", default=None, metavar="BODY",

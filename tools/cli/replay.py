@@ -17,7 +17,8 @@ def add_arguments(p) -> None:
              "servodyn replay bench/*.json --servo XL330-M288 --actuator out/identify/actuator.json --out out/replay",
              exits="0 done")
     p.add_argument("logs", nargs="+", metavar="LOG.json", help="servo-bench logs")
-    p.add_argument("--servo", required=True, metavar="MODEL", help="the catalogue servo (servodyn list), e.g. XL330-M288")
+    p.add_argument("--servo", required=True, metavar="MODEL",
+                   help="the catalogue servo (servodyn list), Dynamixel or Feetech, e.g. XL330-M288 or STS3250")
     p.add_argument("--actuator", default=None, metavar="FILE",
                    help="actuator.json from `servodyn identify --actuator` (default: the catalogue's motor)")
     p.add_argument("-o", "--output", default=None, metavar="OUT.csv", help="one log's CSV here (one LOG only)")
