@@ -190,17 +190,17 @@ class SimulatedRobot(PlantView):
         thermal = (spec.thermal_resistance, spec.thermal_time_constant) if spec.thermal_resistance is not None \
             else drive.thermal
         drive.thermal = thermal
-        if isinstance(drive, (FeetechServo, Dynamixel1Servo)):
-            kt, viscous, coulomb = drive.mechanics
-            drive.mechanics = (torque_constant / joint.configured_torque_constant * kt,
-                               *((0.0, 0.0) if spec.has_friction else (viscous, coulomb)))
-        elif isinstance(drive, CanMotor):
+        if isinstance(drive, CanMotor):
             drive.torque_constant = torque_constant
             if spec.has_friction:
                 drive.viscous = drive.coulomb = 0.0
         else:
+            # an X-series servo's k_t is the configured one; a servo with an identified motor (Feetech,
+            # Protocol 1.0) keeps its own: each as [sim] scales it
+            kt = spec.torque_constant_scale * drive.mechanics.torque_constant \
+                if isinstance(drive, (FeetechServo, Dynamixel1Servo)) else torque_constant
             friction = {"viscous_friction": 0.0, "coulomb_friction": 0.0} if spec.has_friction else {}
-            drive.mechanics = dataclasses.replace(drive.mechanics, torque_constant=torque_constant, **friction)
+            drive.mechanics = dataclasses.replace(drive.mechanics, torque_constant=kt, **friction)
 
     def _friction(self) -> JointFriction | None:
         """The joints' friction of a [sim] plant that gives any (None: the devices' own only)."""

@@ -17,7 +17,7 @@ import pytest
 from servodyn.hal.feetech import protocol
 from servodyn.hal.feetech.protocol import (BadFrame, Packet, PacketError, PacketReader, StatusBit,
                                            decode_sign_magnitude, encode_sign_magnitude)
-from servodyn.hal.feetech.table import ITEM, SERVOS, STEP, STS3215_C001, Mode, duty_for_torque, torque_for_duty
+from servodyn.hal.feetech.table import ITEM, SERVOS, STEP, STS3215_C001, Mode
 from servodyn.sim.feetech import FeetechServo, FeetechWire
 
 sdk = pytest.importorskip("scservo_sdk")
@@ -142,14 +142,16 @@ def test_a_packet_inside_a_truncated_one_is_found():
 
 
 def test_duty_inverts_the_motor_model():
-    """torque_for_duty(duty_for_torque(τ)) = τ to 1e-12 N m; at stall (ω = 0) full duty gives kt·V/R
-    (BAM's STS3215 at 7.4 V: 3.35 N m, feetech.md §5's DERIVED figure, to 0.01)."""
-    s = STS3215_C001
+    """The servo's motor (hal.motor's model with BAM's constants): the duty for a torque gives that
+    torque back to 1e-12 N m; at stall (ω = 0) full duty gives kt·V/R (BAM's STS3215 at 7.4 V:
+    3.35 N m, feetech.md §5's DERIVED figure, to 0.01), of which the bridge gives 97 %."""
+    s, m = STS3215_C001, STS3215_C001.motor
+    assert (m.torque_constant, m.ke, m.resistance) == (s.motor_kt, s.motor_ke, s.motor_resistance)
     for tau, omega in ((0.5, 0.0), (-1.2, 2.0), (0.0, -3.0)):
-        duty = duty_for_torque(tau, omega, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4)
-        assert torque_for_duty(duty, omega, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4) == \
-            pytest.approx(tau, abs=1e-12)
-    assert torque_for_duty(1.0, 0.0, s.motor_kt, s.motor_ke, s.motor_resistance, 7.4) == pytest.approx(3.35, abs=0.01)
+        duty = m.duty_for_current(tau / m.torque_constant, 7.4, omega)
+        assert m.torque(duty, 7.4, omega) == pytest.approx(tau, abs=1e-12)
+    assert m.torque(1.0, 7.4, 0.0) == pytest.approx(3.35, abs=0.01)
+    assert m.stall_torque(7.4) == pytest.approx(0.97 * 3.35, abs=0.01)
     assert set(SERVOS) == {"STS3215-C001", "STS3215-C018", "STS3215-C044", "STS3215-C046", "STS3250"}
     assert SERVOS["STS3215-C044"].armature == pytest.approx(s.armature * (191 / 345) ** 2, rel=1e-12)
     assert all(not spec.current_control and spec.kind == "feetech" and spec.source for spec in SERVOS.values())

@@ -6,8 +6,8 @@ run-time bus (``backend``, ``FeetechBus``), which drives every joint by PWM (mod
 from . import protocol
 from .protocol import (BROADCAST_ID, MAX_ID, BadFrame, Instruction, Packet, PacketError, PacketReader, StatusBit,
                        decode_sign_magnitude, encode_sign_magnitude, status_faults)
-from .table import BAUD_RATES, ITEM, ITEMS, SERVOS, FeetechSpec, Mode, duty_for_torque, torque_for_duty
+from .table import BAUD_RATES, ITEM, ITEMS, SERVOS, FeetechSpec, Mode
 
 __all__ = ["BAUD_RATES", "BROADCAST_ID", "ITEM", "ITEMS", "MAX_ID", "SERVOS", "BadFrame", "FeetechSpec", "Instruction",
-           "Mode", "Packet", "PacketError", "PacketReader", "StatusBit", "decode_sign_magnitude", "duty_for_torque",
-           "encode_sign_magnitude", "protocol", "status_faults", "torque_for_duty"]
+           "Mode", "Packet", "PacketError", "PacketReader", "StatusBit", "decode_sign_magnitude",
+           "encode_sign_magnitude", "protocol", "status_faults"]

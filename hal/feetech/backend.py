@@ -34,8 +34,7 @@ from ..ports import is_pseudo_terminal
 from . import protocol
 from .protocol import Instruction, Packet, PacketReader, decode_sign_magnitude, encode_sign_magnitude, status_faults
 from .spec import BITS_PER_BYTE, joint_duty
-from .table import (CURRENT_UNIT, DUTY_FULL, ITEM, PRESENT_ADDRESS, PRESENT_LENGTH, STEP, VOLTAGE_UNIT, Mode,
-                    torque_for_duty)
+from .table import CURRENT_UNIT, DUTY_FULL, ITEM, PRESENT_ADDRESS, PRESENT_LENGTH, STEP, VOLTAGE_UNIT, Mode
 
 PACKET_TIMEOUT = 0.05     # s beyond the wire time a reply may take (the SDK's LATENCY_TIMER, 50 ms)
 GOAL = ITEM["goal_time"]
@@ -243,8 +242,8 @@ class FeetechBus(ServoBus):
         self.temperature = rows[:, 4]
         current = self.direction * rows[:, 6] * CURRENT_UNIT
         duty = rows[:, 2] / DUTY_FULL
-        horn = np.array([torque_for_duty(d, w, j.servo.motor_kt, j.servo.motor_ke, j.servo.motor_resistance, v)
-                         for d, w, j, v in zip(duty, rows[:, 1] * STEP, self.joints, self.voltage)])
+        horn = np.array([j.servo.motor.torque(d, v, w) for d, w, j, v in zip(duty, rows[:, 1] * STEP, self.joints,
+                                                                                    self.voltage)])
         self.present = {"load": duty * self.direction, "voltage": self.voltage, "temperature": self.temperature,
                         "current": current}
         state = JointState(t=t, q=q, qd=qd, current=current, tau=sense * horn, temperature=self.temperature.copy())

@@ -2,13 +2,13 @@
 torque range of its PWM command and the resolution of what its servos report.
 
 STS servos have no current loop: the backend drives every joint in Operating_Mode 2 (open-loop
-PWM), its torque turned into a duty through the servo's motor model (table.duty_for_torque)."""
+PWM), its torque turned into a duty through the servo's motor model (FeetechSpec.motor, hal.motor)."""
 
 from __future__ import annotations
 
 from ..backend import Backend
 from . import protocol
-from .table import BAUD_RATES, DEFAULT_BAUD, DUTY_FULL, PRESENT_ADDRESS, PRESENT_LENGTH, SERVOS, STEP, duty_for_torque
+from .table import BAUD_RATES, DEFAULT_BAUD, DUTY_FULL, PRESENT_ADDRESS, PRESENT_LENGTH, SERVOS, STEP
 
 BITS_PER_BYTE = 10      # on the wire: start, 8 data, stop
 STATUS_OVERHEAD = 6     # FF FF ID LEN ERR .. CHK
@@ -18,8 +18,8 @@ def joint_duty(tau, qd, joint, voltage: float):
     """The duty (fraction, unclipped) that gives joint torque `tau` at joint speed `qd` on a joint
     (hal.config.JointConfig) whose servo's motor model is output-referred: the joint's gear G
     multiplies its kt and ke (duty = (τ/(kt·G)·R + ke·G·q̇)/V). The one place a torque becomes a duty."""
-    servo, gear = joint.servo, joint.gear_ratio
-    return duty_for_torque(tau, qd, servo.motor_kt * gear, servo.motor_ke * gear, servo.motor_resistance, voltage)
+    motor, gear = joint.servo.motor, joint.gear_ratio
+    return motor.duty_for_current(tau / (gear * motor.torque_constant), voltage, gear * qd)
 
 
 class Feetech(Backend):

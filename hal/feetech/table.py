@@ -17,7 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from functools import cached_property
 
+from ..motor import MotorModel
 from ..servos import RPM, ServoSpec
 from .protocol import PacketError, decode_sign_magnitude, encode_sign_magnitude
 
@@ -160,6 +162,16 @@ class FeetechSpec(ServoSpec):
     velocity_unit: float = 60.0 / TICKS_PER_REV   # rpm per speed unit (1 step/s)
     source: str = ""
 
+    @cached_property
+    def motor(self) -> MotorModel:
+        """The voltage-level motor at the horn (hal.motor), the one the backend inverts to turn a
+        torque into a duty, the simulated servo runs forwards and identification starts from; its
+        bridge gives at most MAX_DUTY (BAM's max_pwm)."""
+        return MotorModel(torque_constant=self.motor_kt, back_emf_constant=self.motor_ke,
+                          resistance=self.motor_resistance, armature=self.armature,
+                          friction_coulomb=self.friction_coulomb, friction_viscous=self.friction_viscous,
+                          max_duty=MAX_DUTY)
+
     @property
     def torque_constant(self) -> float:
         """N m per A at the horn: the motor model's kt. Present_Current reads the motor's current, so
@@ -238,15 +250,3 @@ STS3250 = FeetechSpec(
 
 SERVOS = {s.name: s for s in (STS3215_C001, STS3215_C018, STS3215_C044, STS3215_C046, STS3250)}
 MODELS = {s.model_number: s for s in (STS3215_C001, STS3250)}     # Model_Number(3) -> the servo it names
-
-
-def duty_for_torque(tau, omega, kt, ke, resistance, voltage):
-    """The PWM duty (fraction of the supply, unclipped) that makes a DC motor give torque `tau`
-    at speed `omega`: V·duty = R·τ/kt + ke·ω (the voltage-level model, inductance neglected).
-    Output-referred constants with output τ, ω; or a joint's, with kt and ke times its gear."""
-    return (resistance * tau / kt + ke * omega) / voltage
-
-
-def torque_for_duty(duty, omega, kt, ke, resistance, voltage):
-    """The inverse: the torque a duty gives at speed `omega`, τ = kt·(V·duty − ke·ω)/R."""
-    return kt * (voltage * duty - ke * omega) / resistance

@@ -117,6 +117,12 @@ class Mechanics:
     def of(cls, model: DynamixelSpec, **overrides: float) -> Mechanics:
         return cls(model.stall_torque / model.stall_current, **overrides)
 
+    @classmethod
+    def of_motor(cls, motor) -> Mechanics:
+        """A servo whose motor is identified (hal.motor.MotorModel: its k_t and friction at the horn)."""
+        return cls(motor.torque_constant, viscous_friction=motor.friction_viscous,
+                   coulomb_friction=motor.friction_coulomb)
+
     def torque(self, current: float, velocity: float) -> float:
         friction = (self.viscous_friction * velocity
                     + self.coulomb_friction * math.tanh(velocity / self.coulomb_velocity))

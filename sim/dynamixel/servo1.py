@@ -28,7 +28,8 @@ from servodyn.hal.feetech.protocol import decode_sign_magnitude, encode_sign_mag
 from servodyn.hal.feetech.table import SIMULATOR_CLOCK_ADDRESS     # past every 1.0 table too (hal/served_clock.py)
 from servodyn.hal.thermal import winding_step
 
-COULOMB_VELOCITY = 0.01    # rad/s: the Coulomb step smoothed by tanh over it
+from .drive import Mechanics
+
 
 
 class Dynamixel1Servo:
@@ -45,7 +46,7 @@ class Dynamixel1Servo:
             self.flash["baud_rate"] = next(code for code, rate in BAUD_CODES.items() if rate == baud)
         motor = model.motor_model
         self.motor = motor
-        self.mechanics = (motor.torque_constant, motor.friction_viscous, motor.friction_coulomb)
+        self.mechanics = Mechanics.of_motor(motor)
         self.thermal = (model.thermal_resistance, model.thermal_time_constant)
         self.temperature = temperature
         self.silent = False
@@ -232,5 +233,4 @@ class Dynamixel1Servo:
         return self.motor.current(self._duty, self.supply_voltage, velocity, self.temperature)
 
     def output_torque(self, current: float, velocity: float) -> float:
-        kt, viscous, coulomb = self.mechanics
-        return current * kt - viscous * velocity - coulomb * math.tanh(velocity / COULOMB_VELOCITY)
+        return self.mechanics.torque(current, velocity)

@@ -26,20 +26,19 @@ range in the middle of the turn (LeRobot: Homing_Offset = position − 2047 at m
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 from servodyn.hal.feetech import protocol
 from servodyn.hal.feetech.protocol import Instruction, StatusBit, decode_sign_magnitude, encode_sign_magnitude
-from servodyn.hal.feetech.table import (BAUD_RATES, CURRENT_UNIT, DUTY_FULL, EEPROM_END, ITEM, ITEMS,
+from servodyn.hal.feetech.table import (POSITION_GAIN, BAUD_RATES, CURRENT_UNIT, DUTY_FULL, EEPROM_END, ITEM, ITEMS,
                                         PROTECTION_TIME_UNIT, SIMULATOR_CLOCK_ADDRESS, STEP, STS3215_C001, TABLE_SIZE,
                                         TICKS_PER_REV,
                                         FeetechSpec, Mode)
 from servodyn.hal.thermal import winding_step
 
-POSITION_GAIN = 0.166      # duty per (P x rad of error): BAM's STS3215 error_gain (oscilloscope)
+from ..dynamixel.drive import Mechanics
+
 SPEED_GAIN = 0.01          # duty per (speed_p x rad/s of error): a model, not a measured gain
-COULOMB_VELOCITY = 0.01    # rad/s: the Coulomb step smoothed by tanh over it
 MULTI_TURN = 0x10          # Phase(18) bit 4: full-range (multi-turn) angle feedback; clear: 0..4095
 FAULT_BITS = {"voltage": StatusBit.VOLTAGE, "input voltage": StatusBit.VOLTAGE, "encoder": StatusBit.ENCODER,
               "motor encoder": StatusBit.ENCODER, "temperature": StatusBit.TEMPERATURE,
@@ -60,7 +59,8 @@ class FeetechServo:
         self.flash["id"] = servo_id
         if baud is not None:
             self.flash["baud_rate"] = BAUD_RATES.index(baud)
-        self.mechanics = (model.motor_kt, model.friction_viscous, model.friction_coulomb)   # kt, viscous, Coulomb
+        self.motor = model.motor
+        self.mechanics = Mechanics.of_motor(self.motor)
         self.thermal = (model.thermal_resistance, model.thermal_time_constant)
         self.temperature = temperature
         self.silent = False
@@ -138,7 +138,7 @@ class FeetechServo:
         r_th, tau_th = self.thermal
         if r_th <= 0 or tau_th <= 0:
             return
-        self.temperature = winding_step(self.temperature, current_squared, dt, self.model.motor_resistance,
+        self.temperature = winding_step(self.temperature, current_squared, dt, self.motor.resistance,
                                         r_th, tau_th)
         self._put("present_temperature", max(0, min(255, round(self.temperature))))
         if self.temperature > self.get("max_temperature_limit"):
@@ -237,7 +237,7 @@ class FeetechServo:
             return POSITION_GAIN * self.get("p_coefficient") * (goal - position)
         if mode == Mode.SPEED:
             goal = self.get("goal_velocity") * STEP
-            feed = self.model.motor_ke * goal / self.supply_voltage
+            feed = self.motor.ke * goal / self.supply_voltage
             return feed + SPEED_GAIN * self.get("speed_p") * (goal - velocity)
         return 0.0
 
@@ -245,13 +245,12 @@ class FeetechServo:
         if not self.torque_enabled:
             self._duty = 0.0
             return 0.0
-        cap = min(self.get("torque_limit"), DUTY_FULL) / DUTY_FULL
+        cap = self.motor.max_duty * min(self.get("torque_limit"), DUTY_FULL) / DUTY_FULL
         if self._protected:
             cap = min(cap, self.get("protective_torque") / 100)
         duty = max(-cap, min(cap, self.demand(position, velocity)))
         self._duty = duty
-        m = self.model
-        amps = (self.supply_voltage * duty - m.motor_ke * velocity) / m.motor_resistance
+        amps = self.motor.current(duty, self.supply_voltage, velocity, self.temperature)
         self._protect(duty, amps, dt)
         return amps if self.torque_enabled else 0.0
 
@@ -268,5 +267,4 @@ class FeetechServo:
             self.set_hardware_error(StatusBit.CURRENT)
 
     def output_torque(self, current: float, velocity: float) -> float:
-        kt, viscous, coulomb = self.mechanics
-        return current * kt - viscous * velocity - coulomb * math.tanh(velocity / COULOMB_VELOCITY)
+        return self.mechanics.torque(current, velocity)
