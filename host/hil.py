@@ -48,9 +48,11 @@ from .loop import tick
 from .loop.native import FirmwareError, parse_report
 from .sim.robot import SimulatedRobot
 
-BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
+BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7"),
+          "f405": ("netduinoplus2", "STM32F405 Cortex-M4F")}
 ROOT = Path(__file__).resolve().parent.parent
-SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
+# the processor clock SysTick counts: the MPS2's 25 MHz; the F405's 168 MHz (QEMU's is fixed there)
+SYSTICK_HZ = {"an386": 25e6, "an500": 25e6, "f405": 168e6}
 
 
 @dataclass
@@ -132,6 +134,10 @@ class FirmwareLink:
         raise FirmwareError("the firmware run took too long (time-out)")
 
 
+# -icount sleep=off takes only every second SysTick of a core that waits in WFI (docs/boards.md)
+ICOUNT_SLEEP = False
+
+
 def _free_ports(n: int) -> list[int]:
     """n distinct free ports (held together while asked for, so no two are the same)."""
     socks = [socket.socket() for _ in range(n)]
@@ -145,15 +151,16 @@ def _free_ports(n: int) -> list[int]:
 
 
 def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "",
-                 sync_port: int | None = None) -> list[str]:
-    """QEMU's command line: UART0 (the bus) on `port`, UART1 (the sync line) on `sync_port`."""
+                 sync_port: int | None = None, sleep: bool = ICOUNT_SLEEP) -> list[str]:
+    """QEMU's command line: the bus UART (MPS2 UART0, F405 USART1: -serial #0) on `port`, the sync
+    line (MPS2 UART1, F405 USART2: -serial #1) on `sync_port`; `sleep`: -icount's sleep option."""
     machine, _ = BOARDS[board]
     semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
     serial = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
     if sync_port is not None:
         serial += ["-serial", f"tcp:127.0.0.1:{sync_port},server=on,wait=on,nodelay=on"]
     return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
-            "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
+            "-icount", f"shift={icount_shift},sleep={'on' if sleep else 'off'}", "-semihosting-config", semihosting,
             *serial, "-kernel", str(elf)]
 
 
@@ -202,15 +209,16 @@ def image(board: str, elf=None) -> Path:
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
-             q0=None) -> tuple[dict, Record, object]:
-    """Run the image against a fresh simulated arm; (report, record, arm)."""
+             q0=None, sleep: bool = ICOUNT_SLEEP) -> tuple[dict, Record, object]:
+    """Run the image against a fresh simulated arm; (report, record, arm). The report's "clock" is
+    the board's clock line (board.h's board_clock_report), when the clock started."""
     elf = image(board, elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
     port, sync_port = _free_ports(2)
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port),
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port, sleep),
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:
@@ -229,6 +237,9 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
         raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): "
                             f"{(out + err).strip()[-300:]}")
     report["exit_code"] = proc.returncode
+    clock = [line for line in (out + "\n" + err).splitlines() if line.startswith("servodyn-board: clock ")]
+    if clock:
+        report["clock"] = {k: int(v) for k, v in (w.split("=", 1) for w in clock[-1].split()[2:])}
     return report, link.record, arm
 
 
@@ -263,7 +274,7 @@ def replay(config_name: str, record: Record) -> dict:
 
 def summarize(report: dict, record: Record, config_name: str, icount_shift: int, board: str) -> dict:
     ns_per_instruction = 2.0 ** icount_shift
-    to_instructions = 1e9 / SYSTICK_HZ / ns_per_instruction
+    to_instructions = 1e9 / SYSTICK_HZ[board] / ns_per_instruction
     counts = report["counts"]
     instructions = {name: {"max": round(c["max"] * to_instructions),
                            "mean": round(c["mean_milli"] / 1000 * to_instructions)}

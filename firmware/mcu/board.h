@@ -43,6 +43,12 @@ void board_tick_begin(void);
 // a tick costs the instructions it executes, and no more, however slow the host is.
 void board_clock_hold(void);
 void board_clock_release(void);
+// The board's own report line, after the application's (start-up calls it when main returns):
+//   servodyn-board: clock ticks=N period=P cpu_hz=F ref_us=T
+// the periods begun, the configured period in clock counts, and the emulated time the clock ran
+// (not held) in microseconds by an independent timer (MPS2: CMSDK timer 0; STM32F405: TIM2).
+// N x P / F s = T us when every period's interrupt is taken (tests/test_f405_clock.py).
+void board_clock_report(void);
 
 // UART0 (CMSDK APB UART, 8N1) at `baud`, received bytes buffered by its interrupt.
 void board_uart_init(uint32_t baud);
