@@ -134,10 +134,6 @@ class FirmwareLink:
         raise FirmwareError("the firmware run took too long (time-out)")
 
 
-# -icount sleep=off takes only every second SysTick of a core that waits in WFI (docs/boards.md)
-ICOUNT_SLEEP = False
-
-
 def _free_ports(n: int) -> list[int]:
     """n distinct free ports (held together while asked for, so no two are the same)."""
     socks = [socket.socket() for _ in range(n)]
@@ -151,16 +147,18 @@ def _free_ports(n: int) -> list[int]:
 
 
 def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "",
-                 sync_port: int | None = None, sleep: bool = ICOUNT_SLEEP) -> list[str]:
+                 sync_port: int | None = None) -> list[str]:
     """QEMU's command line: the bus UART (MPS2 UART0, F405 USART1: -serial #0) on `port`, the sync
-    line (MPS2 UART1, F405 USART2: -serial #1) on `sync_port`; `sleep`: -icount's sleep option."""
+    line (MPS2 UART1, F405 USART2: -serial #1) on `sync_port`. sleep=off: an idle core does not
+    let the emulated clock run in wall time (the images spin rather than WFI between ticks for it:
+    docs/boards.md)."""
     machine, _ = BOARDS[board]
     semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
     serial = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
     if sync_port is not None:
         serial += ["-serial", f"tcp:127.0.0.1:{sync_port},server=on,wait=on,nodelay=on"]
     return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
-            "-icount", f"shift={icount_shift},sleep={'on' if sleep else 'off'}", "-semihosting-config", semihosting,
+            "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
             *serial, "-kernel", str(elf)]
 
 
@@ -209,7 +207,7 @@ def image(board: str, elf=None) -> Path:
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
-             q0=None, sleep: bool = ICOUNT_SLEEP) -> tuple[dict, Record, object]:
+             q0=None) -> tuple[dict, Record, object]:
     """Run the image against a fresh simulated arm; (report, record, arm). The report's "clock" is
     the board's clock line (board.h's board_clock_report), when the clock started."""
     elf = image(board, elf)
@@ -218,7 +216,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
     port, sync_port = _free_ports(2)
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port, sleep),
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port),
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:
