@@ -147,11 +147,12 @@ def _free_ports(n: int) -> list[int]:
 
 
 def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "",
-                 sync_port: int | None = None) -> list[str]:
+                 sync_port: int | None = None, extra: tuple = ()) -> list[str]:
     """QEMU's command line: the bus UART (MPS2 UART0, F405 USART1: -serial #0) on `port`, the sync
     line (MPS2 UART1, F405 USART2: -serial #1) on `sync_port`. sleep=off: an idle core does not
     let the emulated clock run in wall time (the images spin rather than WFI between ticks for it:
-    docs/boards.md)."""
+    docs/boards.md). `extra`: more options (e.g. -d unimp -D FILE: the unmodelled devices' register
+    writes, the F405's pin and clock set-up, tests/test_f405.py)."""
     machine, _ = BOARDS[board]
     semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
     serial = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
@@ -159,7 +160,7 @@ def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str 
         serial += ["-serial", f"tcp:127.0.0.1:{sync_port},server=on,wait=on,nodelay=on"]
     return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
             "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
-            *serial, "-kernel", str(elf)]
+            *serial, *extra, "-kernel", str(elf)]
 
 
 def _connect(proc: subprocess.Popen, port: int, deadline: float) -> socket.socket:
@@ -207,7 +208,7 @@ def image(board: str, elf=None) -> Path:
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
-             q0=None) -> tuple[dict, Record, object]:
+             q0=None, extra: tuple = ()) -> tuple[dict, Record, object]:
     """Run the image against a fresh simulated arm; (report, record, arm). The report's "clock" is
     the board's clock line (board.h's board_clock_report), when the clock started."""
     elf = image(board, elf)
@@ -216,7 +217,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
     port, sync_port = _free_ports(2)
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port),
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port, extra),
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:
