@@ -124,3 +124,21 @@ def test_f405_pin_and_clock_setup_from_the_register_trace(runs):
     packets = SERVOS * SETUP_PACKETS + 1 + 2 * TICKS + 1      # set-up, the first read, read + write a tick, torque off
     assert bsrr[0] == 1 << 24, "the direction pin low (receive) before the bus is enabled"
     assert bsrr[1:] == [1 << 8, 1 << 24] * packets, f"high, then low, around each of the {packets} packets"
+
+
+@pytest.mark.slow
+def test_f405_build_for_silicon_has_no_semihosting(tmp_path):
+    """FW_HIL=0, the image a user flashes: no semihosting call anywhere (a `bkpt` is a HardFault
+    on a board with no debugger attached: the report goes to USART2 instead), no sync line, and
+    the same footprint goals."""
+    out = tmp_path / "fw"
+    build = subprocess.run(["make", "--no-print-directory", "-s", "FW_HIL=0", f"FW_DIR={out}",
+                            str(out / "f405" / "servodyn-fw.elf")], cwd=ROOT, capture_output=True, text=True)
+    assert build.returncode == 0, build.stdout + build.stderr
+    elf = out / "f405" / "servodyn-fw.elf"
+    code = subprocess.run(["arm-none-eabi-objdump", "-d", str(elf)], capture_output=True, text=True).stdout
+    assert "bkpt" not in code, "a semihosting call in the image for silicon"
+    nm = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True).stdout
+    assert "f405_console_write" in nm and "g_host_read" not in nm, "the console on USART2, no sync line"
+    size = footprint(elf)
+    assert size["flash"] <= 64 * 1024 and size["ram"] <= 32 * 1024, size
