@@ -9,8 +9,8 @@ command transaction (its sync write), so the run is deterministic and faster tha
 firmware's SysTick figures are instruction counts: exact and repeatable (not cycles).
 
 The emulated clock must not run while this side is slow to answer, or a reply late in wall time
-(a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose UART1
-is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
+(a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose second
+UART (MPS2 UART1, STM32F405 USART2) is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
 packet or is answered, this side sends on it the bytes read and the bytes sent so far (two
 little-endian uint32); the firmware sleeps in WFI, executing nothing and with no timer to jump to,
 until its reply is there or these counts say that nothing more is coming, and only then counts its
