@@ -142,3 +142,17 @@ def test_f405_build_for_silicon_has_no_semihosting(tmp_path):
     assert "f405_console_write" in nm and "g_host_read" not in nm, "the console on USART2, no sync line"
     size = footprint(elf)
     assert size["flash"] <= 64 * 1024 and size["ram"] <= 32 * 1024, size
+
+
+@pytest.mark.slow
+def test_f405_silent_servo_stops_with_torque_off(images):
+    """Servo 3 stops answering after tick 100: the F405's own reply timeout (20,000 polls, about a
+    millisecond on silicon) trips at the next read, after the sync line says the bus is quiet,
+    and every servo's torque is switched off: fault 10 (firmware/app/fw_app.h), servo 3, tick 101."""
+    def silence(k, arm):
+        if k == 100:
+            arm.inject_fault(3, "silent")
+    report, record, arm = run_qemu("f405", images["f405"], icount_shift=3, args="ticks=300", on_tick=silence)
+    assert report["result"] == "fault" and report["fault"] == "timeout" and report["exit_code"] == 10, report
+    assert report["servo"] == 3 and report["fault_tick"] == 101, report
+    assert record.torque_off and not any(s.torque_enabled for s in arm.servos), "a servo left with torque on"

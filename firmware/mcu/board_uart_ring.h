@@ -4,6 +4,9 @@
 // an image, the board's UART driver (firmware/mcu/board_io.c for MPS2,
 // firmware/boards/stm32f405/board_io.c for the STM32F405), which defines before including it:
 //   SYNC_IRQ_ON(), SYNC_IRQ_OFF()   enable / disable the sync line's receive interrupt (BOARD_HIL)
+//   REPLY_POLLS                      if not the MPS2's 30,000,000 polls
+//   BUS_IRQ_OFF(), BUS_IRQ_ON()      optional (BOARD_HIL): mask the bus's receive interrupt from the
+//                                    end of a write until hil_wait, where the clock is held
 // and calls ring_push(byte) from its bus receive interrupt, sync_byte(byte) from the sync line's.
 #ifndef MCU_BOARD_UART_RING_H
 #define MCU_BOARD_UART_RING_H
@@ -11,7 +14,9 @@
 #include "board.h"
 
 #define RX_SIZE 512u                // a power of two; more than the largest reply of a tick
-#define REPLY_POLLS 30000000u       // polls of the receive buffer before a servo is silent
+#ifndef REPLY_POLLS                 // polls of the receive buffer before a servo is silent (a
+#define REPLY_POLLS 30000000u       // board may set its own before including this file)
+#endif
 
 static volatile uint8_t g_rx[RX_SIZE];
 static volatile uint32_t g_rx_head, g_rx_tail, g_rx_overruns;
@@ -41,7 +46,12 @@ static void sync_byte(uint8_t byte) {
 // The sync line's interrupt is enabled only here, where the clock is held (bus_receive), so its
 // records cost no instructions of a tick; the records are cumulative, so reading them late is
 // reading them all.
+#ifndef BUS_IRQ_OFF
+#define BUS_IRQ_OFF() ((void)0)
+#define BUS_IRQ_ON() ((void)0)
+#endif
 static void hil_wait(size_t want) {
+  BUS_IRQ_ON();
   SYNC_IRQ_ON();
   for (;;) {
     __asm__ volatile("cpsid i" ::: "memory");
@@ -72,6 +82,7 @@ static inline void ring_push(uint8_t byte) {
 // after n bytes were written to the bus
 static inline void ring_sent(size_t n) {
 #ifdef BOARD_HIL
+  BUS_IRQ_OFF();
   g_hil_sent += (uint32_t)n;
 #else
   (void)n;

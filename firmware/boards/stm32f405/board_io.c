@@ -27,9 +27,22 @@
 #define APB1_HZ 42000000u
 #define APB2_HZ 84000000u
 
+// The reply timeout: about 1 ms at 168 MHz (a poll is about 8 cycles), a control period. The
+// replica's largest reply, 106 bytes at 4 Mbps, takes 265 us. (The MPS2's 30,000,000 polls last
+// seconds; there the images run only in QEMU, after the sync line says the bus is quiet.)
+#define REPLY_POLLS 20000u
+
 #ifdef BOARD_HIL
 #define SYNC_IRQ_ON() NVIC_ENABLE(IRQ_USART2)
 #define SYNC_IRQ_OFF() NVIC_DISABLE(IRQ_USART2)
+// QEMU's STM32 USART hands each transmitted byte to the host at once (a synchronous write), so
+// the host's reply can start arriving in the few instructions between the end of a write and the
+// clock's hold: its receive interrupts would then count in the tick, a different number each run
+// (the read section's worst over 300 ticks: 4,687..5,650 instructions in five runs; 4,153..4,188
+// with this). The bus interrupt is taken only in
+// hil_wait, as the sync line's is; its bytes wait in QEMU meanwhile (one byte in DR, no overrun).
+#define BUS_IRQ_OFF() NVIC_DISABLE(IRQ_USART1)
+#define BUS_IRQ_ON() NVIC_ENABLE(IRQ_USART1)
 #endif
 #include "board_uart_ring.h"
 

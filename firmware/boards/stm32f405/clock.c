@@ -25,6 +25,10 @@
 #define PLL_HSI (8u | 168u << 6 | 0u << 16 | 7u << 24)
 #define QEMU_TIM2_HZ 1000000000u       // QEMU 7.2's TIM2-5 count at 1 GHz (stm32f405_soc.c)
 #define TIM2_HZ 84000000u              // silicon: APB1 x 2
+// TIM2 / 1000: 1 us a count under QEMU (84 kHz on silicon). QEMU counts TIM2 even with CEN clear
+// and schedules its overflow: at 1 GHz that was every 4.3 s of emulated time, which the idle core
+// in hil_wait jumped to again and again (-icount sleep=off); at 1 MHz it is 72 minutes away.
+#define REF_PRESCALER 1000u
 
 static int g_emulated;
 
@@ -79,7 +83,7 @@ void board_clock_start(uint32_t period) {
   SYST_RVR = period - 1u;
   SYST_CVR = 0;
   SYST_CSR = SYST_ENABLE | SYST_TICKINT | SYST_CLKSOURCE;
-  TIM2_PSC = 0;
+  TIM2_PSC = REF_PRESCALER - 1u;
   TIM2_ARR = 0xFFFFFFFFu;
   TIM2_EGR = TIM_EGR_UG;
   TIM2_CR1 = TIM_CR1_CEN;
@@ -116,16 +120,23 @@ void board_clock_wait(void) {
 
 void board_tick_begin(void) {}
 
+// Holding the clock while the bus answers is for emulation alone (board.h: the simulated bus
+// answers in no emulated time): on silicon the servos' replies take real time, and SysTick runs on
+// through them, so the build for a board (no BOARD_HIL) leaves it running.
 // QEMU's TIM2 counts on while CEN is clear, so the reference adds up the runs between release
 // and hold itself (a uint32 difference: each run is far shorter than 2^32 counts)
 void board_clock_hold(void) {
+#ifdef BOARD_HIL
   SYST_CSR &= ~SYST_ENABLE;
+#endif
   g_ref_counts += TIM2_CNT - g_ref_mark;
 }
 
 void board_clock_release(void) {
   g_ref_mark = TIM2_CNT;
+#ifdef BOARD_HIL
   SYST_CSR |= SYST_ENABLE;
+#endif
 }
 
 void board_clock_report(void) {
@@ -138,6 +149,6 @@ void board_clock_report(void) {
   board_write(" cpu_hz=");
   board_write_int((long)BOARD_CPU_HZ);
   board_write(" ref_us=");
-  board_write_int((long)(g_ref_counts * 1000000u / (g_emulated ? QEMU_TIM2_HZ : TIM2_HZ)));
+  board_write_int((long)(g_ref_counts * 1000000u * REF_PRESCALER / (g_emulated ? QEMU_TIM2_HZ : TIM2_HZ)));
   board_write("\n");
 }
