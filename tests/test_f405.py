@@ -83,18 +83,22 @@ def test_f405_commands_agree_with_the_host_and_the_mps2_image(runs):
 
 
 @pytest.mark.slow
-def test_f405_worst_tick_matches_the_mps2_image(runs):
+def test_f405_tick_matches_the_mps2_image(runs):
     """Instructions per tick as the budget counts them (SysTick counts at 168 MHz under -icount
     shift=3: 8 ns an instruction; summarize converts with the board's clock): the same application
-    code, so the worst tick is the MPS2 image's within 3 % (the board layers differ by a handful
-    of instructions a byte on the bus: TXE against TXFULL, the direction pin)."""
+    code, so the computation's worst ticks (inverse dynamics, the observer) are the MPS2 image's
+    within 1 % and the mean tick within 1 % (the board layers differ by a handful of instructions
+    a byte on the bus: TXE against TXFULL, the direction pin). The worst of the read section is
+    not compared: on a loaded machine one run in a few has one read up to ~2,300 instructions
+    longer on either board (docs/boards.md), while its mean stays the same."""
     f405 = summarize(*runs["f405"][:2], "replica", 3, "f405")["instructions_per_tick"]
     mps2 = summarize(*runs["an386"][:2], "replica", 3, "an386")["instructions_per_tick"]
-    for section in ("tick", "control_update", "observer"):
-        assert abs(f405[section]["max"] - mps2[section]["max"]) <= 0.03 * mps2[section]["max"], \
+    for section in ("control_update", "observer"):
+        assert abs(f405[section]["max"] - mps2[section]["max"]) <= 0.01 * mps2[section]["max"], \
             (section, f405[section], mps2[section])
-    for section in ("control_update", "observer"):     # pure computation: the board does not enter
-        assert abs(f405[section]["mean"] - mps2[section]["mean"]) <= 0.01 * mps2[section]["mean"], section
+    for section in ("tick", "read", "control_update", "observer"):
+        assert abs(f405[section]["mean"] - mps2[section]["mean"]) <= 0.01 * mps2[section]["mean"], \
+            (section, f405[section], mps2[section])
 
 
 def _writes(trace: str, device: str, offset: int) -> list[int]:

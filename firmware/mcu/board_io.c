@@ -51,6 +51,11 @@
 #define IRQ_UART1_RX 2
 #define SYNC_IRQ_ON() (NVIC_ISER0 = 1u << IRQ_UART1_RX)
 #define SYNC_IRQ_OFF() (NVIC_ICER0 = 1u << IRQ_UART1_RX)
+// the bus's receive interrupt is taken only in hil_wait, where the clock is held: the host's
+// reply can start arriving between the end of a write and the hold, and its interrupts counted
+// in the tick then, a different number each run (board_uart_ring.h)
+#define BUS_IRQ_OFF() (NVIC_ICER0 = 1u << IRQ_UART0_RX)
+#define BUS_IRQ_ON() (NVIC_ISER0 = 1u << IRQ_UART0_RX)
 #endif
 
 // CMSDK APB timer 0: the emulated-time reference of board_clock_report (25 MHz, counts down;

@@ -5,8 +5,10 @@
 // firmware/boards/stm32f405/board_io.c for the STM32F405), which defines before including it:
 //   SYNC_IRQ_ON(), SYNC_IRQ_OFF()   enable / disable the sync line's receive interrupt (BOARD_HIL)
 //   REPLY_POLLS                      if not the MPS2's 30,000,000 polls
-//   BUS_IRQ_OFF(), BUS_IRQ_ON()      optional (BOARD_HIL): mask the bus's receive interrupt from the
-//                                    end of a write until hil_wait, where the clock is held
+//   BUS_IRQ_OFF(), BUS_IRQ_ON()      (BOARD_HIL) mask the bus's receive interrupt from the end of a
+//                                    write until hil_wait, where the clock is held: QEMU passes the
+//                                    written bytes on at once, and the host's reply could otherwise
+//                                    interrupt the instructions between the write and the hold
 // and calls ring_push(byte) from its bus receive interrupt, sync_byte(byte) from the sync line's.
 #ifndef MCU_BOARD_UART_RING_H
 #define MCU_BOARD_UART_RING_H
