@@ -9,8 +9,8 @@ command transaction (its sync write), so the run is deterministic and faster tha
 firmware's SysTick figures are instruction counts: exact and repeatable (not cycles).
 
 The emulated clock must not run while this side is slow to answer, or a reply late in wall time
-(a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose UART1
-is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
+(a loaded machine) reads as a silent servo: the images are hardware-in-the-loop builds whose second
+UART (MPS2 UART1, STM32F405 USART2) is a sync line (a second `-serial` socket). After each chunk read from the firmware that ends a
 packet or is answered, this side sends on it the bytes read and the bytes sent so far (two
 little-endian uint32); the firmware sleeps in WFI, executing nothing and with no timer to jump to,
 until its reply is there or these counts say that nothing more is coming, and only then counts its
@@ -48,9 +48,11 @@ from .loop import tick
 from .loop.native import FirmwareError, parse_report
 from .sim.robot import SimulatedRobot
 
-BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7")}
+BOARDS = {"an386": ("mps2-an386", "Cortex-M4F"), "an500": ("mps2-an500", "Cortex-M7"),
+          "f405": ("netduinoplus2", "STM32F405 Cortex-M4F")}
 ROOT = Path(__file__).resolve().parent.parent
-SYSTICK_HZ = 25e6                 # the MPS2's processor clock, which SysTick counts
+# the processor clock SysTick counts: the MPS2's 25 MHz; the F405's 168 MHz (QEMU's is fixed there)
+SYSTICK_HZ = {"an386": 25e6, "an500": 25e6, "f405": 168e6}
 
 
 @dataclass
@@ -145,8 +147,12 @@ def _free_ports(n: int) -> list[int]:
 
 
 def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str = "",
-                 sync_port: int | None = None) -> list[str]:
-    """QEMU's command line: UART0 (the bus) on `port`, UART1 (the sync line) on `sync_port`."""
+                 sync_port: int | None = None, extra: tuple = ()) -> list[str]:
+    """QEMU's command line: the bus UART (MPS2 UART0, F405 USART1: -serial #0) on `port`, the sync
+    line (MPS2 UART1, F405 USART2: -serial #1) on `sync_port`. sleep=off: an idle core does not
+    let the emulated clock run in wall time (the images spin rather than WFI between ticks for it:
+    docs/boards.md). `extra`: more options (e.g. -d unimp -D FILE: the unmodelled devices' register
+    writes, the F405's pin and clock set-up, tests/test_f405.py)."""
     machine, _ = BOARDS[board]
     semihosting = "enable=on,target=native,arg=servodyn-fw" + "".join(f",arg={a}" for a in args.split())
     serial = ["-serial", f"tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on"]
@@ -154,7 +160,7 @@ def qemu_command(board: str, elf: Path, port: int, icount_shift: int, args: str 
         serial += ["-serial", f"tcp:127.0.0.1:{sync_port},server=on,wait=on,nodelay=on"]
     return ["qemu-system-arm", "-M", machine, "-display", "none", "-monitor", "none",
             "-icount", f"shift={icount_shift},sleep=off", "-semihosting-config", semihosting,
-            *serial, "-kernel", str(elf)]
+            *serial, *extra, "-kernel", str(elf)]
 
 
 def _connect(proc: subprocess.Popen, port: int, deadline: float) -> socket.socket:
@@ -202,15 +208,16 @@ def image(board: str, elf=None) -> Path:
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
              icount_shift: int = 3, args: str = "", on_tick=None, tamper=None, timeout: float = 300.0,
-             q0=None) -> tuple[dict, Record, object]:
-    """Run the image against a fresh simulated arm; (report, record, arm)."""
+             q0=None, extra: tuple = ()) -> tuple[dict, Record, object]:
+    """Run the image against a fresh simulated arm; (report, record, arm). The report's "clock" is
+    the board's clock line (board.h's board_clock_report), when the clock started."""
     elf = image(board, elf)
     if shutil.which("qemu-system-arm") is None:
         raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
     arm = SimulatedRobot(load_config(config), q0=q0).port()     # its one Dynamixel bus
     link = FirmwareLink(arm, on_tick, tamper)
     port, sync_port = _free_ports(2)
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port),
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, args, sync_port, extra),
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:
@@ -229,6 +236,9 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
         raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): "
                             f"{(out + err).strip()[-300:]}")
     report["exit_code"] = proc.returncode
+    clock = [line for line in (out + "\n" + err).splitlines() if line.startswith("servodyn-board: clock ")]
+    if clock:
+        report["clock"] = {k: int(v) for k, v in (w.split("=", 1) for w in clock[-1].split()[2:])}
     return report, link.record, arm
 
 
@@ -263,7 +273,7 @@ def replay(config_name: str, record: Record) -> dict:
 
 def summarize(report: dict, record: Record, config_name: str, icount_shift: int, board: str) -> dict:
     ns_per_instruction = 2.0 ** icount_shift
-    to_instructions = 1e9 / SYSTICK_HZ / ns_per_instruction
+    to_instructions = 1e9 / SYSTICK_HZ[board] / ns_per_instruction
     counts = report["counts"]
     instructions = {name: {"max": round(c["max"] * to_instructions),
                            "mean": round(c["mean_milli"] / 1000 * to_instructions)}

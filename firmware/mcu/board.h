@@ -43,8 +43,15 @@ void board_tick_begin(void);
 // a tick costs the instructions it executes, and no more, however slow the host is.
 void board_clock_hold(void);
 void board_clock_release(void);
+// The board's own report line, after the application's (start-up calls it when main returns):
+//   servodyn-board: clock ticks=N period=P cpu_hz=F ref_us=T
+// the periods begun, the configured period in clock counts, and the emulated time the clock ran
+// (not held) in microseconds by an independent timer (MPS2: CMSDK timer 0; STM32F405: TIM2).
+// N x P / F s = T us when every period's interrupt is taken (tests/test_f405_clock.py).
+void board_clock_report(void);
 
-// UART0 (CMSDK APB UART, 8N1) at `baud`, received bytes buffered by its interrupt.
+// The bus UART (MPS2: CMSDK UART0, 8N1; STM32F405: USART1, half duplex with its direction pin,
+// firmware/boards/stm32f405/board_io.c) at `baud`, received bytes buffered by its interrupt.
 void board_uart_init(uint32_t baud);
 void board_uart_write(const uint8_t* data, size_t n);
 // Take one received byte: 1, or 0 when none has arrived.
@@ -55,9 +62,10 @@ size_t board_uart_take(uint8_t* out, size_t cap);
 size_t board_uart_available(void);
 // Wait until at least `want` bytes are there to take: 1, or 0 when the servos are taken for silent
 // (MPS2: after a fixed number of polls; Linux: a reply timeout, waiting in poll()).
-// A hardware-in-the-loop build (BOARD_HIL, the MPS2 images QEMU runs) first sleeps, executing
-// nothing, until the bytes are there or the simulated bus has said on its sync line (UART1) that it
-// has read everything sent and answered all it will; only then do the polls count. The emulated
+// A hardware-in-the-loop build (BOARD_HIL, the images QEMU runs) first sleeps, executing nothing,
+// until the bytes are there or the simulated bus has said on its sync line (MPS2 UART1, STM32F405
+// USART2) that it has read everything sent and answered all it will; only then do the polls
+// count (firmware/mcu/board_uart_ring.h). The emulated
 // clock cannot run while the host is slow to answer, so a late reply is never a timeout.
 int board_uart_wait(size_t want);
 // Drop whatever has been received and not taken.

@@ -49,21 +49,25 @@
 #define UART1_INTCLEAR (*(volatile uint32_t*)(UART1_BASE + 0x0Cu))
 #define UART1_BAUDDIV (*(volatile uint32_t*)(UART1_BASE + 0x10u))
 #define IRQ_UART1_RX 2
-#define SYNC_RECORD 8u              // the host's record: bytes read, bytes sent (uint32 LE each)
-
-static volatile uint32_t g_hil_sent, g_hil_received;     // bytes written to UART0, arrived on it
-static volatile uint32_t g_host_read, g_host_sent;       // the host's last complete record
-static uint8_t g_sync[SYNC_RECORD];
-static uint32_t g_sync_got;
+#define SYNC_IRQ_ON() (NVIC_ISER0 = 1u << IRQ_UART1_RX)
+#define SYNC_IRQ_OFF() (NVIC_ICER0 = 1u << IRQ_UART1_RX)
+// the bus's receive interrupt is taken only in hil_wait, where the clock is held: the host's
+// reply can start arriving between the end of a write and the hold, and its interrupts counted
+// in the tick then, a different number each run (board_uart_ring.h)
+#define BUS_IRQ_OFF() (NVIC_ICER0 = 1u << IRQ_UART0_RX)
+#define BUS_IRQ_ON() (NVIC_ISER0 = 1u << IRQ_UART0_RX)
 #endif
 
-#define RX_SIZE 512u                // a power of two; more than the largest reply of a tick
+// CMSDK APB timer 0: the emulated-time reference of board_clock_report (25 MHz, counts down;
+// stopped while the control clock is held, so it counts the time the clock ran)
+#define TIMER0_CTRL (*(volatile uint32_t*)0x40000000u)
+#define TIMER0_VALUE (*(volatile uint32_t*)0x40000004u)
+#define TIMER0_RELOAD (*(volatile uint32_t*)0x40000008u)
+
+#include "board_uart_ring.h"
 
 static volatile uint32_t g_ticks;
 static uint32_t g_period;
-
-static volatile uint8_t g_rx[RX_SIZE];
-static volatile uint32_t g_rx_head, g_rx_tail, g_rx_overruns;
 
 void board_systick_isr(void) {
   g_ticks++;
@@ -76,6 +80,10 @@ void board_clock_start(uint32_t period) {
   SYST_RVR = period - 1u;
   SYST_CVR = 0;
   SYST_CSR = SYST_ENABLE | SYST_TICKINT | SYST_CLKSOURCE;
+  TIMER0_CTRL = 0;
+  TIMER0_RELOAD = 0xFFFFFFFFu;
+  TIMER0_VALUE = 0xFFFFFFFFu;
+  TIMER0_CTRL = 1u;
 }
 
 uint32_t board_clock_now(void) {
@@ -91,52 +99,55 @@ uint32_t board_clock_ticks(void) {
   return g_ticks;
 }
 
+// Sleep in WFI until the next SysTick. The hardware-in-the-loop build spins instead: under QEMU's
+// -icount sleep=off (host/hil.py) a core that waits in WFI gets only every second SysTick
+// interrupt, so each tick took two periods of emulated time (docs/boards.md, "Clocks under QEMU";
+// tests/test_f405_clock.py). Spinning costs the host the idle instructions; the tick's own
+// instructions, which the budget counts, are the same.
 void board_clock_wait(void) {
   uint32_t start = g_ticks;
+#ifdef BOARD_HIL
+  while (g_ticks == start) __asm__ volatile("" ::: "memory");
+#else
   while (g_ticks == start) __asm__ volatile("wfi");
+#endif
 }
 
 void board_tick_begin(void) {}
 
 void board_clock_hold(void) {
   SYST_CSR &= ~SYST_ENABLE;
+  TIMER0_CTRL = 0;
 }
 
 void board_clock_release(void) {
+  TIMER0_CTRL = 1u;
   SYST_CSR |= SYST_ENABLE;
+}
+
+void board_clock_report(void) {
+  if (g_period == 0) return;        // the clock never started (a fault in the set-up)
+  board_write("servodyn-board: clock ticks=");
+  board_write_int((long)g_ticks);
+  board_write(" period=");
+  board_write_int((long)g_period);
+  board_write(" cpu_hz=");
+  board_write_int((long)BOARD_CPU_HZ);
+  board_write(" ref_us=");
+  board_write_int((long)((0xFFFFFFFFu - TIMER0_VALUE) / 25u));   // 25 counts a microsecond
+  board_write("\n");
 }
 
 void board_uart0_rx_isr(void) {
   // clear first, then drain: a byte that lands after the last look raises the interrupt again
   UART_INTCLEAR = UART_INT_RX;
-  while (UART_STATE & UART_STATE_RXFULL) {
-    uint8_t byte = (uint8_t)UART_DATA;
-#ifdef BOARD_HIL
-    g_hil_received++;                // kept or lost to an overrun, the host sent it
-#endif
-    uint32_t next = (g_rx_head + 1u) & (RX_SIZE - 1u);
-    if (next == g_rx_tail) {
-      g_rx_overruns++;
-    } else {
-      g_rx[g_rx_head] = byte;
-      g_rx_head = next;
-    }
-  }
+  while (UART_STATE & UART_STATE_RXFULL) ring_push((uint8_t)UART_DATA);
 }
 
 #ifdef BOARD_HIL
 void board_uart1_rx_isr(void) {
   UART1_INTCLEAR = UART_INT_RX;
-  while (UART1_STATE & UART_STATE_RXFULL) {
-    g_sync[g_sync_got++] = (uint8_t)UART1_DATA;
-    if (g_sync_got == SYNC_RECORD) {
-      g_sync_got = 0;
-      g_host_read = (uint32_t)g_sync[0] | (uint32_t)g_sync[1] << 8 | (uint32_t)g_sync[2] << 16 |
-                    (uint32_t)g_sync[3] << 24;
-      g_host_sent = (uint32_t)g_sync[4] | (uint32_t)g_sync[5] << 8 | (uint32_t)g_sync[6] << 16 |
-                    (uint32_t)g_sync[7] << 24;
-    }
-  }
+  while (UART1_STATE & UART_STATE_RXFULL) sync_byte((uint8_t)UART1_DATA);
 }
 
 static void sync_line_init(void) {
@@ -144,26 +155,6 @@ static void sync_line_init(void) {
   UART1_BAUDDIV = UART_BAUDDIV_MIN;
   UART1_CTRL = UART_CTRL_RXEN | UART_CTRL_RXINTEN;
   (void)UART1_DATA;                 // as for UART0: QEMU asks its backend again on a read
-}
-
-// Sleep until `want` bytes are there to take, or the simulated bus is quiet: it has read every
-// byte written to it (so it has seen the whole request) and every byte it sent has arrived (so
-// none is still on its way through QEMU). The check and the WFI are one step with interrupts
-// masked: an interrupt that comes between them leaves WFI at once, then is taken when unmasked.
-// The sync line's interrupt is enabled only here, where the clock is held (bus_receive), so its
-// records cost no instructions of a tick; the records are cumulative, so reading them late is
-// reading them all.
-static void hil_wait(size_t want) {
-  NVIC_ISER0 = 1u << IRQ_UART1_RX;
-  for (;;) {
-    __asm__ volatile("cpsid i" ::: "memory");
-    int done = board_uart_available() >= want ||
-               (g_host_read == g_hil_sent && g_host_sent == g_hil_received);
-    if (!done) __asm__ volatile("dsb\n\twfi" ::: "memory");
-    if (done) NVIC_ICER0 = 1u << IRQ_UART1_RX;
-    __asm__ volatile("cpsie i" ::: "memory");
-    if (done) return;
-  }
 }
 #endif
 
@@ -188,49 +179,5 @@ void board_uart_write(const uint8_t* data, size_t n) {
     }
     UART_DATA = data[k];
   }
-#ifdef BOARD_HIL
-  g_hil_sent += (uint32_t)n;
-#endif
-}
-
-int board_uart_read(uint8_t* byte) {
-  uint32_t tail = g_rx_tail;
-  if (tail == g_rx_head) return 0;
-  *byte = g_rx[tail];
-  g_rx_tail = (tail + 1u) & (RX_SIZE - 1u);
-  return 1;
-}
-
-size_t board_uart_take(uint8_t* out, size_t cap) {
-  uint32_t tail = g_rx_tail, head = g_rx_head;
-  size_t n = 0;
-  while (tail != head && n < cap) {
-    out[n++] = g_rx[tail];
-    tail = (tail + 1u) & (RX_SIZE - 1u);
-  }
-  g_rx_tail = tail;
-  return n;
-}
-
-size_t board_uart_available(void) {
-  return (g_rx_head - g_rx_tail) & (RX_SIZE - 1u);
-}
-
-#define REPLY_POLLS 30000000u       // polls of the receive buffer before a servo is silent
-
-int board_uart_wait(size_t want) {
-#ifdef BOARD_HIL
-  hil_wait(want);                   // the host's reply is all there, or nothing more is coming
-#endif
-  for (uint32_t polls = 0; polls < REPLY_POLLS; polls++)
-    if (board_uart_available() >= want) return 1;
-  return 0;
-}
-
-void board_uart_flush(void) {
-  g_rx_tail = g_rx_head;
-}
-
-uint32_t board_uart_overruns(void) {
-  return g_rx_overruns;
+  ring_sent(n);
 }

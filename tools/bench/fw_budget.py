@@ -46,6 +46,10 @@ MARGIN = 1.3                  # the whole run must fit the budget with this much
 SHIFT = 7
 PERIOD_US = 3000              # the emulated period of a tick (module docstring)
 GOALS = {"instructions": 15000, "flash": 64 * 1024, "ram": 16 * 1024, "stack": 2048}
+F405_RAM = 32 * 1024          # the STM32F405 image's RAM goal (issue 34); flash and stack as above
+# the interrupt handlers each image's worst stack path may add to main's
+ISRS = {"an386": ("board_systick_isr", "board_uart0_rx_isr", "board_uart1_rx_isr"),
+        "f405": ("board_systick_isr", "f405_usart1_isr", "f405_usart2_isr")}
 ROWS = (("read", "fast sync read: send 21 B, parse the 106 B reply"),
         ("trajectory", "trajectory point (and the gain schedule)"),
         ("control_update", "inverse dynamics (RNEA) + PD, every 10th tick"),
@@ -67,9 +71,8 @@ def footprint(elf: Path) -> dict:
 
 
 def stack_path(board: str) -> str:
-    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "stackpath.py"),
-                          "--entry", "main", "--isr", "board_systick_isr", "--isr", "board_uart0_rx_isr",
-                          "--isr", "board_uart1_rx_isr",
+    isrs = [arg for name in ISRS.get(board, ISRS["an386"]) for arg in ("--isr", name)]
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "stackpath.py"), "--entry", "main", *isrs,
                           str(ROOT / "build" / "fw" / board)], capture_output=True, text=True)
     return run.stdout.strip() or run.stderr.strip()
 
@@ -162,6 +165,15 @@ def main(argv=None) -> int:
     if m7 is not None:
         lines.append(f"M7 (an500): flash {m7['flash']:,} B, RAM {m7['ram']:,} B, "
                      f"stack used {m7['stack_used_bytes']:,} B")
+    f405 = results.get("f405")
+    if f405 is not None:
+        worst = f405["instructions_per_tick"]["tick"]["max"]
+        lines.append(f"STM32F405 (netduinoplus2): instructions/tick worst {worst:,} (goal <= {GOALS['instructions']:,}: "
+                     f"{'met' if worst <= GOALS['instructions'] else 'NOT met'}; "
+                     f"{100 * worst / 168000:.1f} % of a 1 ms period at 168 MHz if one instruction were a cycle); "
+                     f"flash {f405['flash']:,} B (<= {GOALS['flash']:,}: {'met' if f405['flash'] <= GOALS['flash'] else 'NOT met'}); "
+                     f"RAM {f405['ram']:,} B (<= {F405_RAM:,}: {'met' if f405['ram'] <= F405_RAM else 'NOT met'}); "
+                     f"stack used {f405['stack_used_bytes']:,} B")
     for board, why in failed.items():
         lines.append(f"{board}: NOT measured: {why}")
     if m4 is not None:
