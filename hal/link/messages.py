@@ -209,9 +209,10 @@ def pack(message) -> tuple[int, bytes]:
             raise LinkError(f"host link: {len(joints)} joints are over a telemetry frame's {MAX_TELEMETRY_JOINT}")
         body = b"".join(_JOINT_TM.pack(*_flatten(j, JOINT_TELEMETRY, saturated)) for j in joints)
         head = _flatten(message, LAYOUTS[t][1], saturated)
-        head[8] = len(joints)
+        names = [name for name, _, _ in LAYOUTS[t][1]]
+        head[names.index("njoint")] = len(joints)
         if saturated[0]:
-            head[7] |= TM_SATURATED
+            head[names.index("flags")] |= TM_SATURATED
         return t, _STRUCTS[t].pack(*head) + body
     if t == KNOTS:
         gains = bool(message.flags & KNOT_GAINS)

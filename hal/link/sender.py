@@ -1,17 +1,28 @@
 """The host's side of the host link's retransmit rule (docs/host-link.md, "Acknowledge and retransmit").
 
-Requests (host -> controller) carry SEQ 0..255, wrapping. At most WINDOW are in flight (sent, not
-answered). The controller executes a request only when its SEQ is the one it expects, once: a
+Requests (host -> controller) carry SEQ 0..255, wrapping. A request is sent only while its SEQ is
+less than WINDOW past the oldest one not answered (answers may come out of order when some are lost:
+the window is of SEQs, so the controller still keeps the result of every request in it). The controller executes a request only when its SEQ is the one it expects, once: a
 retransmitted request it already executed gets its kept result again (firmware/link's
 link_server_accept). Every request is answered: HELLO by HELLO_REPLY, the others by RESULT.
 
 - A request with no answer TIMEOUT s after it was sent: every request in flight is sent again, in
   order (go-back-N: the controller drops what comes after a gap).
 - A RESULT with the link's E_ORDER code is a NAK (a gap: a request was lost); the requests in
-  flight are sent again at once, at most once per TIMEOUT / 4.
-- A request sent 1 + RETRIES times without an answer: the controller is gone (LinkTimeoutError).
+  flight not answered are sent again at once, at most once per ROUND_TRIP.
+- Every frame of the controller carries its ACK, the next SEQ it expects (telemetry, 1 kHz, too): a
+  request below it, unanswered ROUND_TRIP after its sending, was executed and its answer lost: it is
+  sent again alone (the controller answers it again without executing it).
+- RETRIES timeouts in a row with no answer to any request: the controller is gone (LinkTimeoutError;
+  a request is then sent 1 + RETRIES times).
 - HELLO starts a session (the controller takes its SEQ as the next expected) and goes alone: no
   other request is sent while it is in flight.
+
+Flow control: the controller reports its free knot slots (`credits`) in every telemetry frame and
+in RESULTs; `knot_room()` is the last report less the knots sent that the report did not count (those
+in requests at or past its ACK), so the host never sends more knots than fit, and a motion longer
+than the buffer plays as the controller frees slots. A RESULT's credits count only when it answers
+the last request the controller executed (SEQ = ACK - 1): a repeated older one is stale.
 
 The controller's frames are not retransmitted: telemetry is news, a lost one is skipped (its SEQ
 counts the losses), and a lost RESULT is made good by the request's retransmission.
@@ -31,6 +42,8 @@ WINDOW = 8             # requests in flight; the controller keeps as many result
 TIMEOUT = 0.025        # s: at 2 Mbps a full frame takes 1.25 ms each way and the controller
                        # answers within a tick (1 ms): a round trip is under 5 ms; Klipper's floor is 25 ms
 RETRIES = 8            # 9 sendings over 225 ms: over a host watchdog's 100 ms, the run is lost anyway
+ROUND_TRIP = 0.004     # s: a window of requests (8 x 160 bytes, 6.4 ms at most, 20 bytes a command: 0.8 ms)
+                       # and its answers within a 1 ms tick
 
 
 class LinkVersionError(fr.LinkError):
@@ -80,7 +93,12 @@ class Sender:
         self.naks = 0
         self.lost_from_controller = 0         # controller frames missed (gaps in their SEQ)
         self._last_goback = -1e9
+        self._stalls = 0                      # timeouts since the last answer
         self._their_seq = None
+        self._their_ack = None
+        self.credits = None                   # free knot slots, as last reported
+        self._credits_ack = 0                 # the ACK of that report
+        self._knots_sent: deque[tuple[int, int]] = deque()   # (SEQ, knots) of the KNOTS requests
 
     # ---- requests ----------------------------------------------------------------------------
 
@@ -91,6 +109,8 @@ class Sender:
         if type_ >= 0x80:
             raise fr.LinkError(f"host link: {type(message).__name__} is the controller's message, not a request")
         request = Request(self._next, type_, payload, message)
+        if type_ == ms.KNOTS:
+            self._knots_sent.append((request.seq, message.count))
         self._next = (self._next + 1) & 0xFF
         self._queue.append(request)
         self._pump()
@@ -98,9 +118,12 @@ class Sender:
 
     @property
     def idle(self) -> bool:
+        self._pump()
         return not self._flight and not self._queue
 
     def _pump(self) -> None:
+        while self._flight and self._flight[0].answer is not None:
+            self._flight.popleft()            # the window slides past the answered
         while self._queue and len(self._flight) < self.window:
             if any(r.type == ms.HELLO for r in self._flight):
                 return                        # a session starts alone
@@ -121,21 +144,38 @@ class Sender:
     def _go_back(self) -> None:
         self._last_goback = self._clock()
         for request in list(self._flight):
-            self._transmit(request)
+            if request.answer is None:
+                self._transmit(request)
 
     def poll(self) -> None:
-        """Retransmit on a timeout; LinkTimeoutError once a request has had all its sendings."""
+        """Retransmit on a timeout; LinkTimeoutError after RETRIES of them in a row without an answer."""
+        self._pump()
         if not self._flight:
-            self._pump()
             return
-        oldest = self._flight[0]
-        if self._clock() - oldest.sent_at < self.timeout:
+        oldest, now = self._flight[0], self._clock()
+        if self._their_ack is not None:
+            for request in self._flight:        # executed (below the ACK), its answer lost
+                if not 1 <= (self._their_ack - request.seq) & 0xFF <= self.window:
+                    break
+                if request.answer is None and now - request.sent_at >= ROUND_TRIP:
+                    self._transmit(request)
+        if now - oldest.sent_at < self.timeout:
             return
-        if oldest.sendings > self.retries:
-            raise LinkTimeoutError(f"host link: the controller answered none of {oldest.sendings} sendings of "
-                                   f"request {oldest.seq} ({ms.LAYOUTS[oldest.type][0]}) over "
-                                   f"{oldest.sendings * self.timeout * 1000:.0f} ms")
+        if self._stalls >= self.retries:
+            raise LinkTimeoutError(f"host link: the controller answered nothing over {self._stalls + 1} sendings "
+                                   f"of request {oldest.seq} ({ms.LAYOUTS[oldest.type][0]}), "
+                                   f"{(self._stalls + 1) * self.timeout * 1000:.0f} ms")
+        self._stalls += 1
         self._go_back()
+
+    def knot_room(self) -> int:
+        """Knots that may be sent now: the last credits reported less the knots sent since that the
+        report did not count (0 before any report)."""
+        if self.credits is None:
+            return 0
+        while self._knots_sent and 1 <= (self._credits_ack - self._knots_sent[0][0]) & 0xFF <= 128:
+            self._knots_sent.popleft()        # executed before the report: counted in it
+        return max(0, self.credits - sum(count for _, count in self._knots_sent))
 
     # ---- the controller's frames -------------------------------------------------------------
 
@@ -151,11 +191,15 @@ class Sender:
             if self._their_seq is not None:
                 self.lost_from_controller += (f.seq - self._their_seq - 1) & 0xFF
             self._their_seq = f.seq
+            self._their_ack = f.ack
             self.ack = (f.seq + 1) & 0xFF
             try:
                 message = ms.unpack(f.type, f.payload)
             except fr.LinkError:
                 continue                      # a good CRC and a bad shape: a broken controller; skip
+            if isinstance(message, ms.Telemetry) or (
+                    isinstance(message, ms.Result) and message.code != ms.E_ORDER and message.seq == (f.ack - 1) & 0xFF):
+                self.credits, self._credits_ack = message.credits, f.ack
             if isinstance(message, ms.Result):
                 self._on_result(message)
             elif isinstance(message, ms.HelloReply):
@@ -170,16 +214,17 @@ class Sender:
 
     def _complete(self, type_: int, answer, matches) -> None:
         for request in self._flight:
-            if request.type == type_ and matches(request):
+            if request.answer is None and request.type == type_ and matches(request):
                 request.answer = answer
                 self.answers[request.seq] = answer
-                self._flight.remove(request)
-                return
+                self._stalls = 0
+                break
+        self._pump()
 
     def _on_result(self, result) -> None:
         if result.stage == 0 and result.code == ms.E_ORDER:
             self.naks += 1
-            if self._flight and self._clock() - self._last_goback >= self.timeout / 4:
+            if self._flight and self._clock() - self._last_goback >= ROUND_TRIP:
                 self._go_back()
             return
         self._complete(result.type, result, lambda r: r.seq == result.seq)
