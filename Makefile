@@ -109,6 +109,7 @@ include firmware/mcu/rules.mk
 include firmware/app/rules.mk
 include fuzz/rules.mk
 include firmware/posix/rules.mk
+include firmware/link/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain
