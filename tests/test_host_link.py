@@ -91,8 +91,15 @@ def build_link(directory: Path, single: bool) -> ctypes.CDLL:
     c.link_host_expected.restype = ctypes.c_uint8
     c.link_host_robot.argtypes = [ctypes.c_void_p, ctypes.c_uint8, u8p, ctypes.c_size_t, ctypes.c_uint8,
                                   ctypes.c_char_p]
-    for name in ("link_decoder_reset", "link_server_reset"):
+    for name in ("link_decoder_reset", "link_server_reset", "link_ring_pop"):
         getattr(c, name).argtypes = [ctypes.c_void_p]
+    c.link_ring_reset.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_int]
+    c.link_ring_free.argtypes = [ctypes.c_void_p]
+    c.link_ring_free.restype = ctypes.c_uint16
+    c.link_ring_at.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    c.link_ring_at.restype = ctypes.POINTER(ctypes.c_uint32)     # a link_knot, t_us first
+    c.link_host_ring_push.argtypes = [ctypes.c_void_p, u8p, ctypes.c_size_t, ctypes.c_char_p]
+    c.link_host_ring_push.restype = ctypes.c_uint16
     return c
 
 
@@ -333,11 +340,11 @@ class Line:
 
 class Controller:
     """The controller's side, in C: the decoder and the retransmit rule (link_server); executes a
-    request by recording it, answers it, and sends 7 joints' telemetry every tick. KNOTS go into a
-    buffer of `slots` (refused, code -4, past its free slots); once `start` knots came, each tick
-    plays one (a tick that finds it empty before the last knot is starved)."""
+    request by recording it, answers it, and sends 7 joints' telemetry every tick. KNOTS go into the
+    C knot buffer (link_ring) of `slots`, or with no slots are only recorded; once `start` knots came,
+    each tick plays one (a tick that finds it empty before the last knot is starved)."""
 
-    def __init__(self, lib, slots: int = 65535, start: int = 16):
+    def __init__(self, lib, slots: int = 0, start: int = 16):
         self.lib = lib
         self.decoder = ctypes.create_string_buffer(lib.link_host_sizeof(0))
         self.server = ctypes.create_string_buffer(lib.link_host_sizeof(1))
@@ -346,7 +353,8 @@ class Controller:
         self.seq = 0
         self.executed: list[tuple[int, bytes]] = []
         self.slots, self.start = slots, start
-        self.buffer: deque = deque()
+        self.ring = ctypes.create_string_buffer(lib.link_host_sizeof(3))
+        lib.link_ring_reset(self.ring, 7, slots)
         self.played: list[int] = []
         self.full = self.starved = 0
         self.playing = self.last = False
@@ -368,17 +376,17 @@ class Controller:
                 out += self._send(ms.RESULT, reply.raw)
                 continue
             code = 0
-            if type_ == ms.KNOTS:
+            if type_ == ms.KNOTS and self.slots:
+                pushed = ctypes.create_string_buffer(8)
+                self.lib.link_host_ring_push(self.ring, payload, len(payload), pushed)
+                code = ms.unpack(ms.RESULT, pushed.raw).code
+                self.full += code == -4
                 knots = ms.unpack(type_, payload)
-                if knots.count > self.slots - len(self.buffer):
-                    code, self.full = -4, self.full + 1
-                else:
-                    self.buffer.extend(range(knots.first, knots.first + knots.count))
-                    self.last |= bool(knots.flags & ms.KNOT_LAST)
-                    self.playing |= len(self.buffer) >= self.start or self.last
+                self.last |= code == 0 and bool(knots.flags & ms.KNOT_LAST)
+                self.playing |= self.held >= self.start or self.last
             if code == 0:
                 self.executed.append((type_, payload))
-            result = ms.pack(ms.Result(seq=seq, type=type_, code=code, credits=self.slots - len(self.buffer)))[1]
+            result = ms.pack(ms.Result(seq=seq, type=type_, code=code, credits=self.credits))[1]
             self.lib.link_host_done(self.server, result, len(result))
             if type_ == ms.HELLO:
                 hello = ms.unpack(type_, payload)
@@ -387,12 +395,21 @@ class Controller:
                 out += self._send(ms.RESULT, result)
         return bytes(out)
 
+    @property
+    def credits(self) -> int:
+        return self.lib.link_ring_free(self.ring) if self.slots else 0
+
+    @property
+    def held(self) -> int:
+        return self.slots - self.credits
+
     def tick(self) -> bytes:
-        if self.playing and self.buffer:
-            self.played.append(self.buffer.popleft())
+        if self.playing and self.held:
+            self.played.append(self.lib.link_ring_at(self.ring, 0)[0] // 1000)   # its t_us: 1000 x its index
+            self.lib.link_ring_pop(self.ring)
         elif self.playing and not self.last:
             self.starved += 1
-        telemetry = ms.pack(ms.Telemetry(**{**EXAMPLES["telemetry"].__dict__, "credits": self.slots - len(self.buffer)}))
+        telemetry = ms.pack(ms.Telemetry(**{**EXAMPLES["telemetry"].__dict__, "credits": self.credits}))
         return self._send(ms.TELEMETRY, telemetry[1])
 
 
@@ -477,9 +494,9 @@ def test_no_request_is_lost_or_done_twice_over_a_bad_line(lib, corrupt, lose):
 
 
 def test_a_motion_longer_than_the_buffer_streams_without_a_gap(lib):
-    """900 knots, one played a tick, through a buffer of 32 over a line with 1 corrupt byte in 10^4:
-    the host sends knots within the credits the controller reports, so none is refused for want of
-    room, every knot plays once and in order, and no tick after the first finds the buffer empty."""
+    """900 knots, one played a tick, through the C knot buffer of 32 over a line with 1 corrupt byte in
+    10^4: the host sends knots within the credits the controller reports, so none is refused for want
+    of room, every knot plays once and in order, and no tick after the first finds the buffer empty."""
     total, per_frame = 900, 2
     state = {"next": 0}
 

@@ -507,13 +507,77 @@ void link_server_done(link_server* s, const link_result* result) {
   s->expected = (uint8_t)(result->seq + 1);
 }
 
-//---------------------------------- a robot loaded over the link ---------------------------------
+//---------------------------------- the knot buffer ----------------------------------------------
 
 static void verdict(link_result* r, int stage, int code, int index) {
   r->stage = (uint8_t)stage;
   r->code = (int8_t)code;
   r->index = (int16_t)index;
 }
+
+
+void link_ring_reset(link_ring* r, int ndof, int slots) {
+  r->slots = (uint16_t)(slots < 1 ? 1 : slots > SD_MAX_KNOT ? SD_MAX_KNOT : slots);
+  r->head = r->count = 0;
+  r->next = 0;
+  r->last_t_us = 0;
+  r->ndof = (uint8_t)ndof;
+  r->ended = 0;
+}
+
+uint16_t link_ring_free(const link_ring* r) { return (uint16_t)(r->slots - r->count); }
+
+const link_knot* link_ring_at(const link_ring* r, int k) {
+  if (k < 0 || k >= r->count) return NULL;
+  return &r->knot[(r->head + k) % r->slots];
+}
+
+void link_ring_pop(link_ring* r) {
+  if (!r->count) return;
+  r->head = (uint16_t)((r->head + 1) % r->slots);
+  r->count--;
+}
+
+void link_ring_push(link_ring* r, const uint8_t* payload, size_t n, link_result* result) {
+  link_knots m;
+  verdict(result, LINK_STAGE_LINK, LINK_OK, -1);
+  if (link_unpack_knots(payload, n, &m) != LINK_OK || m.ndof != r->ndof) {
+    verdict(result, LINK_STAGE_LINK, LINK_E_PAYLOAD, -1);
+  } else if (r->ended) {
+    verdict(result, LINK_STAGE_LINK, LINK_E_STATE, -1);
+  } else if (m.first != r->next) {
+    verdict(result, LINK_STAGE_LINK, LINK_E_KNOT, (int)(r->next & 0x7FFF));
+  } else if (m.count > link_ring_free(r)) {
+    verdict(result, LINK_STAGE_LINK, LINK_E_FULL, -1);
+  } else {
+    uint32_t t = r->last_t_us;
+    for (int k = 0; k < m.count; k++) {   // every time checked before any knot is taken
+      uint32_t tk = dxl_get_u32(payload + KNOTS_HEAD + (size_t)k * link_knot_bytes(m.ndof, m.flags));
+      if ((r->next > 0 || k > 0) && tk <= t) {
+        verdict(result, LINK_STAGE_LINK, LINK_E_KNOT, (int)((m.first + (uint32_t)k) & 0x7FFF));
+        break;
+      }
+      t = tk;
+    }
+  }
+  if (result->code == LINK_OK) {
+    for (int k = 0; k < m.count; k++) {
+      link_knot* slot = &r->knot[(r->head + r->count) % r->slots];
+      link_knot_at(payload, &m, k, slot);
+      if (!(m.flags & LINK_KNOT_GAINS)) {   // no gains: the controller's own (zero marks none)
+        memset(slot->kp, 0, sizeof slot->kp);
+        memset(slot->kd, 0, sizeof slot->kd);
+      }
+      r->count++;
+      r->last_t_us = slot->t_us;
+    }
+    r->next += m.count;
+    r->ended = (m.flags & LINK_KNOT_LAST) != 0;
+  }
+  result->credits = link_ring_free(r);
+}
+
+//---------------------------------- a robot loaded over the link ---------------------------------
 
 void link_robot_begin(link_robot* r, const link_robot_head* head, link_result* result) {
   memset(r, 0, sizeof *r);
@@ -700,7 +764,15 @@ int link_host_recode(uint8_t type, const uint8_t* p, size_t n, char* text, size_
 }
 
 size_t link_host_sizeof(int what) {
-  return what == 0 ? sizeof(link_decoder) : what == 1 ? sizeof(link_server) : sizeof(link_robot);
+  return what == 0 ? sizeof(link_decoder) : what == 1 ? sizeof(link_server) : what == 2 ? sizeof(link_robot)
+                                                                                        : sizeof(link_ring);
+}
+
+uint16_t link_host_ring_push(link_ring* r, const uint8_t* p, size_t n, uint8_t result[8]) {
+  link_result res = {0, LINK_KNOTS, LINK_STAGE_LINK, LINK_OK, -1, 0};
+  link_ring_push(r, p, n, &res);
+  link_pack_result(result, 8, &res);
+  return res.credits;
 }
 
 int link_host_feed(link_decoder* d, const uint8_t* data, size_t n, size_t* used, uint8_t head[4],

@@ -304,6 +304,29 @@ void link_server_reset(link_server* s);
 int link_server_accept(link_server* s, uint8_t seq, uint8_t type, link_result* reply);
 void link_server_done(link_server* s, const link_result* result);
 
+//---------------------------------- the knot buffer ----------------------------------------------
+// KNOTS go into a ring of `slots` knots (at most SD_MAX_KNOT): a KNOTS message is taken whole or
+// refused, LINK_E_FULL when its knots are more than the free slots, LINK_E_KNOT when its first is
+// not the next index of the motion (index: the index expected) or a time is not after the one
+// before it (index: that knot), LINK_E_PAYLOAD for another ndof or a wrong length, LINK_E_STATE
+// after the motion's last knot. result->credits is then the free slots (every RESULT and telemetry
+// frame reports them: the host's flow control). The playing loop reads the oldest knots and pops
+// each once it is behind the clock.
+
+typedef struct link_ring_ {
+  uint16_t slots, head, count;    // capacity, the oldest knot's slot, knots held
+  uint32_t next;                  // the index the next knot must have
+  uint32_t last_t_us;             // the last knot's time
+  uint8_t ndof, ended;            // ended: the motion's last knot came
+  link_knot knot[SD_MAX_KNOT];
+} link_ring;
+
+void link_ring_reset(link_ring* r, int ndof, int slots);
+void link_ring_push(link_ring* r, const uint8_t* payload, size_t n, link_result* result);
+uint16_t link_ring_free(const link_ring* r);
+const link_knot* link_ring_at(const link_ring* r, int k);   // k-th oldest held, NULL past count
+void link_ring_pop(link_ring* r);                           // the oldest goes
+
 //---------------------------------- a robot loaded over the link ---------------------------------
 // LOAD_ROBOT starts a load (link_robot_begin), LOAD_BODY and LOAD_JOINT fill it, COMMIT checks it
 // (link_robot_commit) with the core's checks: sd_model_setup, then every joint's servo map and
@@ -337,7 +360,9 @@ void link_robot_commit(link_robot* r, uint8_t buses, link_result* result);
 // reals %.17g, in layout order) and pack it again into out (*on bytes). LINK_OK or the unpack's error.
 int link_host_recode(uint8_t type, const uint8_t* p, size_t n, char* text, size_t tcap, uint8_t* out,
                      size_t ocap, size_t* on);
-size_t link_host_sizeof(int what);   // 0 link_decoder, 1 link_server, 2 link_robot
+size_t link_host_sizeof(int what);   // 0 link_decoder, 1 link_server, 2 link_robot, 3 link_ring
+// link_ring_push with its result packed as a RESULT payload (seq 0); returns the credits
+uint16_t link_host_ring_push(link_ring* r, const uint8_t* p, size_t n, uint8_t result[8]);
 // feed until a verdict: *used bytes taken, head = VER SEQ ACK TYPE, a good frame's payload copied
 int link_host_feed(link_decoder* d, const uint8_t* data, size_t n, size_t* used, uint8_t head[4],
                    uint8_t* payload, uint16_t* len);

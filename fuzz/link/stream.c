@@ -6,7 +6,8 @@
 //         it takes has its length within bounds and, framed again with link_frame, decodes to the
 //         same fields and payload; its payload, given to every message's unpack, either is refused
 //         or packs back to the same bytes; a payload taken as a request goes through the controller's
-//         retransmit rule (an execute moves E on by one; a repeat or refusal leaves it).
+//         retransmit rule (an execute moves E on by one; a repeat or refusal leaves it), and into a
+//         knot buffer (7 dofs, 16 slots): taken whole or not at all, credits = its free slots.
 //   odd   the rest is a robot load: records [type][len][payload] applied in turn to one link_robot
 //         (LOAD_ROBOT, LOAD_BODY, LOAD_JOINT, COMMIT), whose commit runs the core's checks on
 //         whatever came: every result is a known stage, and an accepted robot's model was set up.
@@ -17,6 +18,7 @@ static link_decoder g_decoder;
 static link_server g_server;
 static link_robot g_robot;
 static link_knot g_knots[LINK_MAX_PAYLOAD / 16];
+static link_ring g_ring;
 
 // unpack as `type`; when accepted, pack again: the same bytes
 static void check_payload(uint8_t type, const uint8_t* p, size_t n) {
@@ -60,6 +62,7 @@ static void check_payload(uint8_t type, const uint8_t* p, size_t n) {
 static void stream(input* in) {
   link_decoder_reset(&g_decoder);
   link_server_reset(&g_server);
+  link_ring_reset(&g_ring, 7, 16);
   while (in->n) {
     int v = link_decoder_feed(&g_decoder, take(in));
     CHECK(v >= LINK_BAD_VERSION && v <= LINK_FRAME);
@@ -85,6 +88,13 @@ static void stream(input* in) {
           again.len == len && memcmp(again.payload, payload, len) == 0);
 
     for (int t = 0; t < 256; t++) check_payload((uint8_t)t, payload, len);
+
+    link_result pushed;
+    uint16_t held = g_ring.count;
+    link_ring_push(&g_ring, payload, len, &pushed);
+    CHECK(pushed.credits == link_ring_free(&g_ring) && g_ring.count <= g_ring.slots);
+    CHECK(g_ring.count == held || (pushed.code == LINK_OK && g_ring.count > held));
+    if (seq & 1) link_ring_pop(&g_ring);
 
     link_result reply;
     uint8_t before = g_server.expected;

@@ -390,6 +390,75 @@ static void knots_pack_with_and_without_gains(void) {
   EXPECT_INT(link_unpack_knots(p, n, &m2), LINK_E_PAYLOAD, "count 0");
 }
 
+// a KNOTS payload of count knots of 3 dofs from index first, times 10 ms apart (t0 for the first)
+static size_t knots_payload(uint8_t* p, uint32_t first, int count, uint32_t t0, int flags) {
+  static link_knot k[8];
+  for (int i = 0; i < count; i++) {
+    k[i].t_us = t0 + 10000u * (uint32_t)i;
+    for (int d = 0; d < 3; d++) k[i].q[d] = (sd_real)(first + (uint32_t)i) + SD_R(0.25) * (sd_real)d;
+  }
+  link_knots m = {first, 3, (uint8_t)count, (uint8_t)flags};
+  return link_pack_knots(p, LINK_MAX_PAYLOAD, &m, k);
+}
+
+static void knot_ring_takes_whole_messages_in_order_within_its_slots(void) {
+  static link_ring r;
+  uint8_t p[LINK_MAX_PAYLOAD];
+  link_result res;
+  link_ring_reset(&r, 3, 5);
+  link_ring_push(&r, p, knots_payload(p, 0, 4, 0, 0), &res);
+  EXPECT_INT(res.code * 100 + res.credits, 1, "4 knots taken, 1 slot free");
+  link_ring_push(&r, p, knots_payload(p, 4, 2, 40000, 0), &res);
+  EXPECT_INT(res.code * 100 + res.credits, LINK_E_FULL * 100 + 1, "2 more do not fit: refused whole");
+  EXPECT_INT(r.count, 4, "nothing half taken");
+  link_ring_pop(&r);
+  link_ring_pop(&r);
+  link_ring_push(&r, p, knots_payload(p, 4, 2, 40000, 0), &res);
+  EXPECT_INT(res.code * 100 + res.credits, 1, "two played, two taken: across the ring's end");
+  EXPECT_NEAR(link_ring_at(&r, 3)->q[1], 5.25, 0, "the 4th held is knot 5 (q = 5 + 0.25)");
+  EXPECT_INT(link_ring_at(&r, 0)->t_us, 20000, "the oldest held is knot 2");
+  EXPECT_INT(link_ring_at(&r, 4) == NULL, 1, "past the knots held: none");
+  link_ring_push(&r, p, knots_payload(p, 7, 1, 90000, 0), &res);
+  EXPECT_INT(res.code * 1000 + res.index, LINK_E_KNOT * 1000 + 6, "knot 6 was next: refused, naming 6");
+  link_ring_push(&r, p, knots_payload(p, 6, 1, 50000, 0), &res);
+  EXPECT_INT(res.code * 1000 + res.index, LINK_E_KNOT * 1000 + 6, "a time not after the last: refused");
+  link_ring_pop(&r);
+  link_ring_push(&r, p, knots_payload(p, 6, 1, 60000, LINK_KNOT_LAST), &res);
+  EXPECT_INT(res.code, LINK_OK, "the motion's last knot");
+  link_ring_pop(&r);
+  link_ring_push(&r, p, knots_payload(p, 7, 1, 70000, 0), &res);
+  EXPECT_INT(res.code, LINK_E_STATE, "nothing after the last knot");
+  link_ring_reset(&r, 2, 5);
+  link_ring_push(&r, p, knots_payload(p, 0, 1, 0, 0), &res);
+  EXPECT_INT(res.code, LINK_E_PAYLOAD, "3 dofs a knot for a robot of 2");
+}
+
+// a motion 100 times the ring, topped up as it plays (one knot a tick): every knot once, in order
+static void knot_ring_streams_a_motion_longer_than_itself(void) {
+  static link_ring r;
+  uint8_t p[LINK_MAX_PAYLOAD];
+  link_result res;
+  link_ring_reset(&r, 3, 8);
+  uint32_t sent = 0, played = 0, wrong = 0, refused = 0;
+  for (int tick = 0; tick < 1000 && played < 800; tick++) {
+    while (sent < 800 && link_ring_free(&r) >= 3) {
+      int count = sent + 3 <= 800 ? 3 : (int)(800 - sent);
+      link_ring_push(&r, p, knots_payload(p, sent, count, 10000u * sent, sent + (uint32_t)count == 800 ? LINK_KNOT_LAST : 0), &res);
+      refused += res.code != LINK_OK;
+      sent += (uint32_t)count;
+    }
+    const link_knot* k = link_ring_at(&r, 0);
+    if (k) {
+      wrong += k->t_us != 10000u * played;
+      link_ring_pop(&r);
+      played++;
+    }
+  }
+  EXPECT_INT(played, 800, "800 knots through 8 slots");
+  EXPECT_INT(wrong + refused, 0, "each in order, none refused");
+  EXPECT_INT(r.ended, 1, "the last knot marked the end");
+}
+
 //---------------------------------- the retransmit rule ------------------------------------------
 
 static void server_executes_once_repeats_and_refuses(void) {
@@ -547,6 +616,9 @@ const sdt_test sdt_link_tests[] = {
   {"messages_round_trip", messages_round_trip},
   {"telemetry_is_fixed_point", telemetry_is_fixed_point},
   {"knots_pack_with_and_without_gains", knots_pack_with_and_without_gains},
+  {"knot_ring_takes_whole_messages_in_order_within_its_slots",
+   knot_ring_takes_whole_messages_in_order_within_its_slots},
+  {"knot_ring_streams_a_motion_longer_than_itself", knot_ring_streams_a_motion_longer_than_itself},
   {"server_executes_once_repeats_and_refuses", server_executes_once_repeats_and_refuses},
   {"a_robot_is_checked_by_the_cores_checks", a_robot_is_checked_by_the_cores_checks},
   {0, 0},
