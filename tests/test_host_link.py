@@ -215,18 +215,10 @@ def _stream(rng: random.Random, nframes: int) -> tuple[bytes, list[bytes]]:
 
 
 def _c_feed(lib, data: bytes) -> list[tuple]:
+    """The C decoder's verdicts on data, from a fresh decoder: (FRAME, seq, type, payload) or (verdict,)."""
     decoder = ctypes.create_string_buffer(lib.link_host_sizeof(0))
     lib.link_decoder_reset(decoder)
-    head, payload = ctypes.create_string_buffer(4), ctypes.create_string_buffer(fr.MAX_PAYLOAD)
-    length, used = ctypes.c_uint16(0), ctypes.c_size_t(0)
-    out, at = [], 0
-    while at < len(data):
-        v = lib.link_host_feed(decoder, data[at:], len(data) - at, ctypes.byref(used), head, payload,
-                               ctypes.byref(length))
-        at += used.value
-        if v:
-            out.append((v, head.raw[1], head.raw[3], payload.raw[:length.value]) if v == 1 else (v,))
-    return out
+    return list(_c_feed_into(lib, decoder, data))
 
 
 def _py_feed(data: bytes, pieces: int = 7) -> list[tuple]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import astuple, dataclass, field, make_dataclass
+from dataclasses import dataclass, field, make_dataclass
 
 from .frame import MAX_PAYLOAD, OVERHEAD, LinkError
 
@@ -278,8 +278,3 @@ def telemetry_wire_bytes(njoint: int) -> int:
 def line_share(njoint: int, rate_hz: float, baud: float, bits_per_byte: int = 10) -> float:
     """The share of a UART's line (8N1: 10 bits a byte) that telemetry at rate_hz takes."""
     return telemetry_wire_bytes(njoint) * bits_per_byte * rate_hz / baud
-
-
-def values(message) -> tuple:
-    """A message's fields as a flat tuple (for comparisons)."""
-    return astuple(message)
