@@ -111,6 +111,7 @@ include firmware/app/rules.mk
 include fuzz/rules.mk
 include firmware/posix/rules.mk
 include firmware/boards/stm32f405/rules.mk
+include firmware/link/rules.mk
 
 # the cross build needs the toolchain first; toolchain is quick when it is installed
 $(MCU_OBJ): | toolchain

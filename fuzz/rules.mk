@@ -18,7 +18,10 @@ FUZZ_DXL := $(patsubst fuzz/dynamixel/%.c,build/fuzz/dxl_%,$(wildcard fuzz/dynam
 # the CAN codec, once per precision: build/fuzz/can_codec (double), build/fuzz/can32_codec (float,
 # -DSD_SINGLE as the firmware builds it); both start from fuzz/can/corpus/codec
 FUZZ_CAN := build/fuzz/can_codec build/fuzz/can32_codec
-FUZZ_TARGETS := $(FUZZ_DXL) $(FUZZ_CAN)
+# the host link, once per precision: build/fuzz/link_stream (double), build/fuzz/link32_stream
+# (float); both start from fuzz/link/corpus/stream
+FUZZ_LINK := build/fuzz/link_stream build/fuzz/link32_stream
+FUZZ_TARGETS := $(FUZZ_DXL) $(FUZZ_CAN) $(FUZZ_LINK)
 
 build/fuzz/.cc:
 	@mkdir -p $(@D)
@@ -39,6 +42,19 @@ build/fuzz/can32_codec: $(FUZZ_CAN_DEPS)
 	@echo "   clang -fsanitize=fuzzer,address,undefined -DSD_SINGLE $@"
 	@$$(cat build/fuzz/.cc) $(FUZZ_CFLAGS) -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion -Ihal/can/c -o $@ \
 	  fuzz/can/codec.c hal/can/c/canmotor.c
+
+FUZZ_LINK_SRC := fuzz/link/stream.c firmware/link/link.c hal/dynamixel/c/dxl.c $(CORE_C)
+FUZZ_LINK_DEPS := $(FUZZ_LINK_SRC) fuzz/check.h firmware/link/link.h hal/dynamixel/c/dxl.h $(CORE_H) | build/fuzz/.cc
+FUZZ_LINK_CFLAGS := $(FUZZ_CFLAGS) -ffp-contract=off -Ifirmware/link -Ifirmware/core/include -Ihal/dynamixel/c
+
+build/fuzz/link_stream: $(FUZZ_LINK_DEPS)
+	@echo "   clang -fsanitize=fuzzer,address,undefined $@"
+	@$$(cat build/fuzz/.cc) $(FUZZ_LINK_CFLAGS) -o $@ $(FUZZ_LINK_SRC) -lm
+
+build/fuzz/link32_stream: $(FUZZ_LINK_DEPS)
+	@echo "   clang -fsanitize=fuzzer,address,undefined -DSD_SINGLE $@"
+	@$$(cat build/fuzz/.cc) $(FUZZ_LINK_CFLAGS) -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion -o $@ \
+	  $(FUZZ_LINK_SRC) -lm
 
 .PHONY: fuzz test-fuzz
 fuzz: $(FUZZ_TARGETS)

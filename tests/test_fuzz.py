@@ -13,7 +13,7 @@ from servodyn.hal.can import frames
 from servodyn.hal.can.motors import MOTORS
 
 ROOT = Path(__file__).resolve().parent.parent
-FAMILIES = ("dynamixel", "can")
+FAMILIES = ("dynamixel", "can", "link")
 
 
 def _seeds(family):
@@ -32,7 +32,7 @@ def test_seed_corpora_are_what_seeds_py_builds(family):
         present = {p.name: p.read_bytes() for p in folder.iterdir()}
         assert present == files, (f"fuzz/{family}/corpus/{target} differs from what seeds.py builds: "
                                   f"run python fuzz/{family}/seeds.py")
-    minimum = {"dynamixel": 40, "can": 50}[family]
+    minimum = {"dynamixel": 40, "can": 50, "link": 15}[family]
     assert sum(len(f) for f in expected.values()) >= minimum, f"every reference frame seeds a {family} target"
 
 

@@ -75,6 +75,7 @@ static const struct {
   {"test_trajectory.c", sdt_trajectory_tests},
   {"test_control.c", sdt_control_tests},
   {"test_dxl.c", sdt_dxl_tests},
+  {"test_link.c", sdt_link_tests},
 };
 
 int main(int argc, char** argv) {

@@ -23,6 +23,7 @@ extern const sdt_test sdt_integrate_tests[];
 extern const sdt_test sdt_trajectory_tests[];
 extern const sdt_test sdt_control_tests[];
 extern const sdt_test sdt_dxl_tests[];      // the firmware's Dynamixel codec (hal/dynamixel/c)
+extern const sdt_test sdt_link_tests[];     // the host link (firmware/link)
 
 // Describe the case under test (printf-style); failures print it. Cleared before each test.
 void sdt_context(const char* fmt, ...) __attribute__((format(printf, 1, 2)));

@@ -3,14 +3,15 @@
 #   build/c-double/test_core   sd_real = double, as in the host and the simulation
 #   build/c-float/test_core    sd_real = float, as on the microcontroller (-DSD_SINGLE)
 #
-# with the tests of the firmware's Dynamixel codec (hal/dynamixel/c, test_dxl.c) in both.
+# with the tests of the firmware's Dynamixel codec (hal/dynamixel/c, test_dxl.c) and of the host
+# link (firmware/link, test_link.c) in both.
 
 CC ?= cc
 CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core/include \
-  -Itests/c -Ihal/dynamixel/c
+  -Itests/c -Ihal/dynamixel/c -Ifirmware/link
 CTEST_FLOAT_CFLAGS := -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion
-CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c
-CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h
+CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c firmware/link/link.c
+CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h firmware/link/link.h
 
 build/c-double/test_core: $(CTEST_DEPS)
 	@mkdir -p $(@D)
