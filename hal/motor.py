@@ -122,7 +122,7 @@ class MotorModel:
         another supply V, R = k_t·V / τ_stall(V) and k_e = V / ω₀(V) from the data sheet's rows
         (ServoSpec.stall_torque_at, no_load_speed_at), so that the envelope at V is the data sheet's:
         stall torque τ_stall(V), no-load speed ω₀(V), the line between them."""
-        kt = spec.stall_torque / spec.stall_current
+        kt = spec.datasheet_torque_constant
         if voltage is None or voltage == spec.nominal_voltage:
             r, ke = spec.nominal_voltage / spec.stall_current, spec.nominal_voltage / spec.no_load_speed
         else:

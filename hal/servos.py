@@ -45,9 +45,16 @@ class ServoSpec:
     supply_range: tuple[float, float] | None = None
 
     @property
-    def torque_constant(self) -> float:
-        """Default N m per A at the horn: stall torque / stall current (calibrate per joint)."""
+    def datasheet_torque_constant(self) -> float:
+        """N m per A at the horn the data sheet implies: stall torque / stall current (gear losses at
+        stall included); what the validator judges against (hal.motor.MotorModel.from_datasheet)."""
         return self.stall_torque / self.stall_current
+
+    @property
+    def torque_constant(self) -> float:
+        """Default N m per A at the horn, what converts a current the servo reads into torque: the
+        data sheet's (calibrate per joint), or an identified motor's where the servo's entry says so."""
+        return self.datasheet_torque_constant
 
     @property
     def no_load_speed(self) -> float:

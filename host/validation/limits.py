@@ -77,7 +77,11 @@ class Limits:
         return cls(lower=arr(j.position_limits[0] for j in joints), upper=arr(j.position_limits[1] for j in joints),
                    speed=np.minimum(arr(j.velocity_limit for j in joints), no_load / gear),
                    stall_torque=arr(m.stall_torque(voltage) for m in motors), no_load_speed=no_load, gear=gear,
-                   torque_constant=arr(j.torque_constant for j in joints), current=arr(j.current_limit for j in joints),
+                   # judged in the data sheet's world, as the envelope: a servo whose torque constant is an
+                   # identified motor's (a Feetech's) is counted in the data sheet's, its configured scale kept
+                   torque_constant=arr(j.torque_constant * s.datasheet_torque_constant / s.torque_constant
+                                       for j, s in zip(joints, servos)),
+                   current=arr(j.current_limit for j in joints),
                    no_load_current=arr(s.no_load_current for s in servos),
                    resistance=arr(s.winding_resistance for s in servos),
                    thermal_resistance=arr(j.thermal_resistance for j in joints),

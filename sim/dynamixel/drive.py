@@ -115,7 +115,7 @@ class Mechanics:
 
     @classmethod
     def of(cls, model: DynamixelSpec, **overrides: float) -> Mechanics:
-        return cls(model.stall_torque / model.stall_current, **overrides)
+        return cls(model.datasheet_torque_constant, **overrides)
 
     @classmethod
     def of_motor(cls, motor) -> Mechanics:
