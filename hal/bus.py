@@ -129,6 +129,8 @@ class BusStats:
 
 # ---------------------------------------------------------------------------- the bus
 
+BITS_PER_BYTE = 10        # a serial line's byte on the wire, 8N1: start, 8 data, stop
+
 # what the OS says of a port that is gone (unplugged, or the simulator serving it ended)
 _GONE = frozenset({errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF})
 try:

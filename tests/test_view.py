@@ -390,3 +390,13 @@ def test_a_source_clip_whose_frame_time_would_fill_the_memory_is_one_line(tmp_pa
                           str(clip), "--port", "0"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2, f"exit {res.returncode}: {res.stderr}"
     assert res.stderr.count("\n") == 1 and "Frame Time" in res.stderr, res.stderr
+
+
+def test_the_so101_view_plays_its_own_motion():
+    """`servodyn view --config so101` with no --motion plays the configuration's motion, its pick
+    (6 s at its 2.5 ms period: 2401 samples), not the forehand its model lacks the dofs for."""
+    v = open_view("so101", http_port=0, say=quiet)
+    try:
+        assert v.model.name == "so101" and len(v.timeline.t) == 2401 and v.timeline.t[-1] == pytest.approx(6.0)
+    finally:
+        v.close()

@@ -23,13 +23,11 @@ input voltage, overheating or overload set is a ServoHardwareError naming it.
 
 from __future__ import annotations
 
-import os
-import select
 import time
 
 import numpy as np
 
-from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
+from ..bus import JointCommand, JointState, ServoBus
 from ..errors import ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
 from ..port_access import claim_port, open_failure
 from ..ports import is_pseudo_terminal
@@ -40,8 +38,8 @@ from .spec1 import BITS_PER_BYTE, sequential
 from .table1 import (CURRENT_UNIT, CURRENT_ZERO, GOAL_TORQUE_MAX, LOAD_FULL, PRESENT, SIGN_BIT, VOLTAGE_UNIT,
                      item, present_length, speed_rad)
 from ..feetech.protocol import decode_sign_magnitude, encode_sign_magnitude
+from ..feetech.wire import StatusWire
 
-PACKET_TIMEOUT = 0.05        # s beyond the wire time a reply may take
 POSITION_GAIN = 32           # P Gain(28) on MX, Compliance Slope(28, 29) on AX, while driven by position
 
 
@@ -54,13 +52,13 @@ def dynamixel_bus(config, bus=None, **options):
     return DynamixelBus(config, bus, **options)
 
 
-class Dynamixel1Bus(ServoBus):
+class Dynamixel1Bus(StatusWire, ServoBus):
     kind = "dynamixel"
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  reply_timeout: float | None = None, realtime: bool = True, **kwargs):
         """retries: tries after the first before a read fails; reply_timeout: s to wait for a reply
-        (None: its wire time plus PACKET_TIMEOUT); realtime: an adapter whose latency timer stays
+        (None: its wire time plus hal.feetech.wire's PACKET_TIMEOUT); realtime: an adapter whose latency timer stays
         above 1 ms is refused at open (False: bring-up commands)."""
         kwargs.pop("watchdog", None)          # 1.0 servos have no Bus Watchdog
         super().__init__(config, bus, **kwargs)
@@ -175,38 +173,10 @@ class Dynamixel1Bus(ServoBus):
         raise ServoTimeoutError(joint.dof, joint.id, self.packets.getTxRxResult(result))
 
     # ---------------------------------------------------------------- the tick's wire
-    def _send(self, frame: bytes) -> None:
-        try:
-            self.port.ser.reset_input_buffer()
-            os.write(self._fd, frame)
-        except PORT_ERRORS as err:
-            raise self._gone(err) from None
-
-    def _receive(self, ids, nbytes: int) -> dict[int, Packet]:
-        got: dict[int, Packet] = {}
-        deadline = time.monotonic() + max(self.reply_timeout or 0.0, nbytes * BITS_PER_BYTE / self.bus.baud
-                                          + PACKET_TIMEOUT)
-        self._reader.expire()
-        while len(got) < len(ids):
-            left = deadline - time.monotonic()
-            if left <= 0:
-                break
-            try:
-                if not select.select([self._fd], [], [], left)[0]:
-                    break
-                data = os.read(self._fd, 4096)
-            except PORT_ERRORS as err:
-                raise self._gone(err) from None
-            for event in self._reader.feed(data):
-                if isinstance(event, Packet) and event.id in ids and event.id not in got:
-                    got[event.id] = event
-        return got
-
-    def _gone(self, err: Exception) -> ServoOperationError:
-        reason = port_gone(err)
-        self.lost = self.lost or reason
-        return ServoOperationError(f"bus '{self.bus.name}': the port {self.port_name} "
-                                   f"{'is gone' if reason else 'failed'} ({reason or err})")
+    @property
+    def serial(self):
+        """The SDK port's pyserial object (StatusWire clears its input before a request)."""
+        return self.port.ser
 
     def _read_once(self) -> dict[int, Packet]:
         if not self.sequential:

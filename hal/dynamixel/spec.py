@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 from ..backend import Backend
+from ..bus import BITS_PER_BYTE
 from ..servos import RPM
 from . import instructions
 from ..motor import drive_motor
@@ -17,7 +18,6 @@ from .units import current_unit
 from . import spec1
 from .table1 import SERVOS1, is_protocol1
 
-BITS_PER_BYTE = 10      # on the wire: start, 8 data, stop
 
 
 def wire_seconds(nbytes: int, baud: int) -> float:

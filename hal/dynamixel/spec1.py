@@ -9,11 +9,12 @@ position loop)."""
 
 from __future__ import annotations
 
+from ..bus import BITS_PER_BYTE
+
 from . import protocol1
 from .table1 import (BAUD_RATES, CURRENT_UNIT, GOAL_TORQUE_MAX, SERVOS1, Dynamixel1Spec, is_protocol1,
                      present_length, speed_rad)
 
-BITS_PER_BYTE = 10
 
 
 def check_joint(checker, servo, bus) -> None:

@@ -27,16 +27,16 @@ import time
 
 import numpy as np
 
-from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus, port_gone
+from ..bus import PORT_ERRORS, JointCommand, JointState, ServoBus
 from ..errors import BusStallError, ServoHardwareError, ServoInitializationError, ServoOperationError, ServoTimeoutError
 from ..port_access import claim_port, open_failure
 from ..ports import is_pseudo_terminal
 from . import protocol
 from .protocol import Instruction, Packet, PacketReader, decode_sign_magnitude, encode_sign_magnitude, status_faults
 from .spec import BITS_PER_BYTE, joint_duty
+from .wire import StatusWire
 from .table import CURRENT_UNIT, DUTY_FULL, ITEM, PRESENT_ADDRESS, PRESENT_LENGTH, STEP, VOLTAGE_UNIT, Mode
 
-PACKET_TIMEOUT = 0.05     # s beyond the wire time a reply may take (the SDK's LATENCY_TIMER, 50 ms)
 GOAL = ITEM["goal_time"]
 FAULT_BITS = 0x2F         # the status bits that are faults (voltage, encoder, temperature, current, overload)
 
@@ -50,13 +50,13 @@ def decode_present(params: bytes) -> tuple[int, int, int, int, int, int, int]:
             params[65 - PRESENT_ADDRESS], decode_sign_magnitude(raw(69), 15))
 
 
-class FeetechBus(ServoBus):
+class FeetechBus(StatusWire, ServoBus):
     kind = "feetech"
 
     def __init__(self, config, bus=None, *, port: str | None = None, retries: int = 2,
                  reply_timeout: float | None = None, realtime: bool = True, **kwargs):
         """retries: tries after the first before a read fails; reply_timeout: s to wait for a reply
-        (None: its wire time plus PACKET_TIMEOUT); realtime: an adapter whose latency timer stays
+        (None: its wire time plus wire.PACKET_TIMEOUT); realtime: an adapter whose latency timer stays
         above 1 ms is refused at open (False: bring-up commands)."""
         super().__init__(config, bus, **kwargs)
         self.port_name = port or self.bus.port
@@ -102,37 +102,6 @@ class FeetechBus(ServoBus):
     def _close(self) -> None:
         self.serial.close()
 
-    def _timeout(self, nbytes: int) -> float:
-        wire = nbytes * BITS_PER_BYTE / self.bus.baud
-        return max(self.reply_timeout or 0.0, wire + PACKET_TIMEOUT)
-
-    def _send(self, frame: bytes) -> None:
-        try:
-            self.serial.reset_input_buffer()
-            os.write(self._fd, frame)
-        except PORT_ERRORS as err:
-            raise self._gone(err) from None
-
-    def _receive(self, ids: list[int], nbytes: int) -> dict[int, Packet]:
-        """The status packets of `ids` that arrive within the reply's timeout (the first of each)."""
-        got: dict[int, Packet] = {}
-        deadline = time.monotonic() + self._timeout(nbytes)
-        self._reader.expire()
-        while len(got) < len(ids):
-            left = deadline - time.monotonic()
-            if left <= 0:
-                break
-            try:
-                if not select.select([self._fd], [], [], left)[0]:
-                    break
-                data = os.read(self._fd, 4096)
-            except PORT_ERRORS as err:
-                raise self._gone(err) from None
-            for event in self._reader.feed(data):
-                if isinstance(event, Packet) and event.id in ids and event.id not in got:
-                    got[event.id] = event
-        return got
-
     def _drain(self, quiet: float) -> int:
         """After a failed read, the bytes that still arrive dropped until the line has been quiet for
         `quiet` s (at most 4 x): a reply after its time-out is never taken for the retry's."""
@@ -150,12 +119,6 @@ class FeetechBus(ServoBus):
         """One instruction to one servo and its status packet (None if it did not answer)."""
         self._send(frame)
         return self._receive([servo_id], len(frame) + 6 + reply_params).get(servo_id)
-
-    def _gone(self, err: Exception) -> ServoOperationError:
-        reason = port_gone(err)
-        self.lost = self.lost or reason
-        return ServoOperationError(f"bus '{self.bus.name}': the port {self.port_name} "
-                                   f"{'is gone' if reason else 'failed'} ({reason or err})")
 
     # ---------------------------------------------------------------- registers
     def _check_servo(self, joint) -> None:

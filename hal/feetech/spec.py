@@ -6,11 +6,12 @@ PWM), its torque turned into a duty through the servo's motor model (FeetechSpec
 
 from __future__ import annotations
 
+from ..bus import BITS_PER_BYTE
+
 from ..backend import Backend
 from . import protocol
 from .table import BAUD_RATES, DEFAULT_BAUD, DUTY_FULL, PRESENT_ADDRESS, PRESENT_LENGTH, SERVOS, STEP
 
-BITS_PER_BYTE = 10      # on the wire: start, 8 data, stop
 STATUS_OVERHEAD = 6     # FF FF ID LEN ERR .. CHK
 
 
