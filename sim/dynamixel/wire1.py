@@ -10,67 +10,23 @@ told: once a tick."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 from servodyn.hal.dynamixel import protocol1
 from servodyn.hal.dynamixel.protocol1 import Instruction, Packet, PacketReader
 from servodyn.hal.dynamixel.table1 import PRESENT_LENGTH
-from servodyn.hal.feetech.table import SIMULATOR_CLOCKS
 
 from ..faults import WireFault
+from ..feetech.wire import StatusWire
 from .servo1 import Dynamixel1Servo
 
 
-class TimedReader(PacketReader):
-    """The HAL's reader with a receiver's byte timeout (None: none)."""
-    byte_timeout: float | None = None
+class Dynamixel1Wire(StatusWire):
+    device = "Dynamixel servo"
 
-
-class Dynamixel1Wire:
     def __init__(self, servos: Sequence[Dynamixel1Servo]):
-        self.servos = list(servos)
-        self.reader = TimedReader()
-        self.line_speed: int | None = None
-        self.on_command: Callable[[], None] | None = None
-        self.wire_clock = time.monotonic
-        self._heard_at: float | None = None
+        super().__init__(servos)
         self._commanded: set[int] = set()
-        self._clock = "none"
-
-    @property
-    def served_clock(self) -> str:
-        return self._clock
-
-    @served_clock.setter
-    def served_clock(self, mode: str) -> None:
-        self._clock = mode
-        answer = next((code for code, name in SIMULATOR_CLOCKS.items() if name == mode), 0)
-        for servo in self.servos:
-            servo.clock_answer = answer
-
-    def servo(self, servo_id: int) -> Dynamixel1Servo:
-        for servo in self.servos:
-            if servo.id == servo_id:
-                return servo
-        raise KeyError(f"no Dynamixel servo with id {servo_id}")
-
-    def tick(self) -> None:
-        """1.0 servos keep no clock servodyn reads (no Bus Watchdog)."""
-
-    def _hearing(self) -> list[Dynamixel1Servo]:
-        return [s for s in self.servos if self.line_speed is None or s.baud == self.line_speed]
-
-    def handle(self, data: bytes) -> bytes:
-        now = self.wire_clock()
-        timeout = self.reader.byte_timeout
-        if timeout is not None and self._heard_at is not None and now - self._heard_at > timeout and self.reader.pending:
-            self.reader.expire()
-        self._heard_at = now
-        reply = bytearray()
-        for event in self.reader.feed(data):
-            if isinstance(event, Packet):
-                reply += self._dispatch(event)
-        return bytes(reply)
 
     def _dispatch(self, packet: Packet) -> bytes:
         hearing = [s for s in self._hearing() if not s.silent]

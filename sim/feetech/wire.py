@@ -29,13 +29,17 @@ class TimedReader(PacketReader):
     byte_timeout: float | None = None
 
 
-class FeetechWire:
-    def __init__(self, servos: Sequence[FeetechServo], clock: Callable[[], float] | None = None):
+class StatusWire:
+    """The servos of one bus with Protocol 1.0 framing (Feetech STS, Dynamixel 1.0) answering the
+    host's bytes: the baud gate, the receiver's byte timeout, the simulator's clock each servo
+    serves; a subclass dispatches each packet (`_dispatch`) and names its servos (`device`)."""
+    device = "servo"
+
+    def __init__(self, servos: Sequence):
         self.servos = list(servos)
         self.reader = TimedReader()
         self.line_speed: int | None = None     # the host's bytes' speed (None: every servo hears them)
-        self.on_command: Callable[[], None] | None = None    # told after each SYNC WRITE (lock-step)
-        self.staggered = True          # replies of different IDs to a broadcast PING come in turn
+        self.on_command: Callable[[], None] | None = None    # told once a tick's goals are in (lock-step)
         self.wire_clock = time.monotonic
         self._heard_at: float | None = None
         self._clock = "none"
@@ -51,16 +55,16 @@ class FeetechWire:
         for servo in self.servos:
             servo.clock_answer = answer
 
-    def servo(self, servo_id: int) -> FeetechServo:
+    def servo(self, servo_id: int):
         for servo in self.servos:
             if servo.id == servo_id:
                 return servo
-        raise KeyError(f"no Feetech servo with id {servo_id}")
+        raise KeyError(f"no {self.device} with id {servo_id}")
 
     def tick(self) -> None:
-        """The servos keep no clock of their own (no bus watchdog on an STS)."""
+        """The servos keep no clock servodyn reads (no bus watchdog on an STS or a 1.0 servo)."""
 
-    def _hearing(self) -> list[FeetechServo]:
+    def _hearing(self) -> list:
         return [s for s in self.servos if self.line_speed is None or s.baud == self.line_speed]
 
     def handle(self, data: bytes) -> bytes:
@@ -75,6 +79,17 @@ class FeetechWire:
             if isinstance(event, Packet):
                 reply += self._dispatch(event)
         return bytes(reply)
+
+    def _dispatch(self, packet: Packet) -> bytes:
+        raise NotImplementedError
+
+
+class FeetechWire(StatusWire):
+    device = "Feetech servo"
+
+    def __init__(self, servos: Sequence[FeetechServo]):
+        super().__init__(servos)
+        self.staggered = True          # replies of different IDs to a broadcast PING come in turn
 
     def _dispatch(self, packet: Packet) -> bytes:
         hearing = self._hearing()
