@@ -402,6 +402,23 @@ class BringUp(ABC):
     del _guarded
 
 
+def serial_rates(text: str | None, scan_order, known, family: str) -> tuple[int, ...]:
+    """--baud on a serial bus: "all" or None (`scan_order`, every rate of `known`) or a comma list of
+    rates, each one of `known` (a `family` rate); BadRequest in one line."""
+    if text in (None, "all"):
+        return tuple(scan_order)
+    rates = []
+    for part in text.split(","):
+        try:
+            rate = int(part.strip())
+        except ValueError:
+            raise BadRequest(f"--baud: {part!r} is not a rate (all, or some of {', '.join(map(str, known))})") from None
+        if rate not in known:
+            raise BadRequest(f"--baud: {rate} is not a {family} rate ({', '.join(map(str, known))})")
+        rates.append(rate)
+    return tuple(dict.fromkeys(rates))
+
+
 def bringup_class(kind: str) -> type[BringUp]:
     """The bring-up of a bus kind (its Backend's `bringup`), imported on first use; BadRequest for
     a kind without one."""

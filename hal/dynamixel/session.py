@@ -8,7 +8,7 @@ operations of hal.dynamixel.bringup on a `Link`. Found by name: `Dynamixel.bring
 
 from __future__ import annotations
 
-from ..bringup import BadRequest, BringUp, MonitorRow, Outcome, Scan
+from ..bringup import BadRequest, BringUp, MonitorRow, Outcome, Scan, serial_rates
 from ..errors import ServoError
 from ..ports import PTY_REPLY_TIMEOUT, is_pseudo_terminal
 from . import bringup as dxl
@@ -39,19 +39,7 @@ class DynamixelBringUp(BringUp):
     @classmethod
     def scan_rates(cls, text, spec=None) -> tuple[int, ...]:
         """"all" (every rate, the factory's first, then the fastest) or a comma list of rates."""
-        if text in (None, "all"):
-            return dxl.SCAN_RATES
-        rates = []
-        for part in text.split(","):
-            try:
-                rate = int(part.strip())
-            except ValueError:
-                raise BadRequest(f"--baud: {part!r} is not a rate (all, or some of "
-                                 f"{', '.join(map(str, BAUD_RATES))})") from None
-            if rate not in BAUD_RATES:
-                raise BadRequest(f"--baud: {rate} is not a Dynamixel X rate ({', '.join(map(str, BAUD_RATES))})")
-            rates.append(rate)
-        return tuple(dict.fromkeys(rates))
+        return serial_rates(text, dxl.SCAN_RATES, BAUD_RATES, "Dynamixel X")
 
     def _open(self) -> None:
         # a simulated bus (`servodyn sim`) under load answers far later than a servo (hal.ports)

@@ -8,7 +8,7 @@ operations of hal.feetech.bringup on a `Link`. Found by name: `Feetech.bringup`.
 
 from __future__ import annotations
 
-from ..bringup import BadRequest, BringUp, MonitorRow, Outcome, Scan
+from ..bringup import BringUp, MonitorRow, Outcome, Scan, serial_rates
 from ..errors import ServoError
 from ..ports import PTY_REPLY_TIMEOUT, is_pseudo_terminal
 from . import bringup as sts
@@ -33,19 +33,7 @@ class FeetechBringUp(BringUp):
     @classmethod
     def scan_rates(cls, text, spec=None) -> tuple[int, ...]:
         """"all" (every STS rate, 1 Mbps first) or a comma list of rates."""
-        if text in (None, "all"):
-            return sts.SCAN_RATES
-        rates = []
-        for part in text.split(","):
-            try:
-                rate = int(part.strip())
-            except ValueError:
-                raise BadRequest(f"--baud: {part!r} is not a rate (all, or some of "
-                                 f"{', '.join(map(str, BAUD_RATES))})") from None
-            if rate not in BAUD_RATES:
-                raise BadRequest(f"--baud: {rate} is not a Feetech STS rate ({', '.join(map(str, BAUD_RATES))})")
-            rates.append(rate)
-        return tuple(dict.fromkeys(rates))
+        return serial_rates(text, sts.SCAN_RATES, BAUD_RATES, "Feetech STS")
 
     def _open(self) -> None:
         # a simulated bus (`servodyn sim`) under load answers far later than a servo (hal.ports)
