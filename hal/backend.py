@@ -39,6 +39,10 @@ class Backend:
     device_key = "servo"                       # what a [[joint]] calls its device's model
     bus_keys: frozenset[str] = frozenset()     # [bus] keys of this backend's own
     torque_through_pwm: bool = False           # drives servos without current control by a PWM duty
+    # LeRobot's calibration file describes this bus's joints as the host reads them (homing offsets,
+    # ranges, drive modes): `calibrate --from-lerobot` imports it (on LeRobot's Dynamixel buses the
+    # drive mode lives in the servo, which servodyn's setup clears)
+    lerobot_calibration: bool = False
 
     bus: str = ""                              # "module:class" of its ServoBus
     bringup: str = ""                          # "module:class" of its bring-up (hal.bringup.BringUp), if any

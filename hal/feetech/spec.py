@@ -27,6 +27,7 @@ class Feetech(Backend):
     kind = "feetech"
     bus = "servodyn.hal.feetech.backend:FeetechBus"
     bringup = "servodyn.hal.feetech.session:FeetechBringUp"
+    lerobot_calibration = True
     servos = SERVOS
     bauds = BAUD_RATES
     default_baud = DEFAULT_BAUD

@@ -13,6 +13,7 @@ import sys
 from collections.abc import Callable
 from contextlib import ExitStack
 
+from ...hal.backend import backend
 from ...hal.bringup import BadRequest, PortLost, config_and_ports, open_limp
 from ...hal.config import load_config
 from ...hal.config_patch import ConfigPatch
@@ -170,7 +171,7 @@ def from_lerobot(config_name: str, calibration: str, joints: list[str] | None, c
         if entry is None:
             raise BadRequest(f"{calibration}: no motor '{joint.dof}' for joint '{joint.dof}' of '{config.name}'")
         name = f"{calibration}: '{joint.dof}'"
-        if config.buses[joint.bus].kind != "feetech":
+        if not backend(config.buses[joint.bus].kind).lerobot_calibration:
             raise BadRequest(f"joint '{joint.dof}' is on a {config.buses[joint.bus].kind} bus: --from-lerobot reads "
                              "LeRobot's Feetech calibrations (on its Dynamixel buses the drive mode is written into "
                              "the servo, which servodyn's setup clears); calibrate it with servodyn calibrate")
