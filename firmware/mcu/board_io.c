@@ -65,52 +65,15 @@
 #define TIMER0_RELOAD (*(volatile uint32_t*)0x40000008u)
 
 #include "board_uart_ring.h"
+#include "board_systick.h"
 
-static volatile uint32_t g_ticks;
-static uint32_t g_period;
-
-void board_systick_isr(void) {
-  g_ticks++;
-}
 
 void board_clock_start(uint32_t period) {
-  g_period = period;
-  g_ticks = 0;
-  SYST_CSR = 0;
-  SYST_RVR = period - 1u;
-  SYST_CVR = 0;
-  SYST_CSR = SYST_ENABLE | SYST_TICKINT | SYST_CLKSOURCE;
+  systick_start(period);
   TIMER0_CTRL = 0;
   TIMER0_RELOAD = 0xFFFFFFFFu;
   TIMER0_VALUE = 0xFFFFFFFFu;
   TIMER0_CTRL = 1u;
-}
-
-uint32_t board_clock_now(void) {
-  uint32_t ticks, value;
-  do {                               // a period boundary between the two reads: read again
-    ticks = g_ticks;
-    value = SYST_CVR;
-  } while (ticks != g_ticks);
-  return ticks * g_period + (g_period - 1u - value);
-}
-
-uint32_t board_clock_ticks(void) {
-  return g_ticks;
-}
-
-// Sleep in WFI until the next SysTick. The hardware-in-the-loop build spins instead: under QEMU's
-// -icount sleep=off (host/hil.py) a core that waits in WFI gets only every second SysTick
-// interrupt, so each tick took two periods of emulated time (docs/boards.md, "Clocks under QEMU";
-// tests/test_f405_clock.py). Spinning costs the host the idle instructions; the tick's own
-// instructions, which the budget counts, are the same.
-void board_clock_wait(void) {
-  uint32_t start = g_ticks;
-#ifdef BOARD_HIL
-  while (g_ticks == start) __asm__ volatile("" ::: "memory");
-#else
-  while (g_ticks == start) __asm__ volatile("wfi");
-#endif
 }
 
 void board_tick_begin(void) {}

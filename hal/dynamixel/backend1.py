@@ -255,17 +255,6 @@ class Dynamixel1Bus(StatusWire, ServoBus):
                                 0 if joint.servo.torque_mode else int(ticks))
             self.write_item(joint, "torque_enable", int(on))
 
-    def _stop(self) -> bool:
-        ok = True
-        for joint in self.joints:
-            try:
-                self.write_item(joint, "torque_enable", 0)
-            except ServoOperationError:
-                return False
-            except (ServoTimeoutError, ServoHardwareError):
-                ok = False
-        return ok
-
     def _write(self, command: JointCommand) -> None:
         if self._last is None:
             raise ServoOperationError("write before the first read_state: the PD needs a measured state")

@@ -19,7 +19,10 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from ..feetech.protocol import BROADCAST_ID, HEADER, Packet, PacketError, PacketReader, checksum, decode, frame
+# the framing, and the PING, READ, WRITE and SYNC WRITE packets, are Feetech's: the same bytes, codes
+# included (its instruction set is 1.0's with SYNC READ and RESTART added)
+from ..feetech.protocol import (BROADCAST_ID, HEADER, Packet, PacketError, PacketReader, checksum, decode, frame, ping,
+                                read, sync_write, write)
 
 MAX_ID = 0xFD               # 0..253 address a servo; 0xFE is broadcast
 STATUS_OVERHEAD = 6         # FF FF ID LEN ERR .. CHK
@@ -62,28 +65,6 @@ HARDWARE_FAULTS = {"input voltage": ErrorBit.INPUT_VOLTAGE, "overheating": Error
 def error_faults(error: int) -> tuple[str, ...]:
     """The names of the bits set in an error byte ("input voltage", "overload", ...)."""
     return tuple(name for name, bit in ERROR_NAMES.items() if error & bit)
-
-
-def ping(servo_id: int) -> bytes:
-    return frame(servo_id, Instruction.PING)
-
-
-def read(servo_id: int, address: int, length: int) -> bytes:
-    return frame(servo_id, Instruction.READ, bytes((address, length)))
-
-
-def write(servo_id: int, address: int, data: bytes) -> bytes:
-    return frame(servo_id, Instruction.WRITE, bytes((address,)) + bytes(data))
-
-
-def sync_write(address: int, length: int, data_by_id) -> bytes:
-    """FF FF FE LEN 83 ADDR L ID1 D1.. ID2 D2.. CHK (LEN = (L+1)·N + 4): no servo answers."""
-    params = bytearray((address, length))
-    for servo_id, data in dict(data_by_id).items():
-        if len(data) != length:
-            raise PacketError(f"sync write: servo {servo_id}'s data is {len(data)} bytes, not {length}")
-        params += bytes((servo_id,)) + bytes(data)
-    return frame(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
 
 
 def bulk_read(entries) -> bytes:

@@ -163,17 +163,6 @@ class FeetechBus(StatusWire, ServoBus):
                 self.write_item(joint, "goal_time", 0)
             self.write_item(joint, "torque_enable", int(on))
 
-    def _stop(self) -> bool:
-        ok = True
-        for joint in self.joints:
-            try:
-                self.write_item(joint, "torque_enable", 0)
-            except ServoOperationError:
-                return False
-            except (ServoTimeoutError, ServoHardwareError):
-                ok = False
-        return ok
-
     def _read(self) -> JointState:
         nbytes = len(self._read_frame) + len(self.ids) * (6 + PRESENT_LENGTH)
         got: dict[int, Packet] = {}

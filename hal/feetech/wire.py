@@ -1,8 +1,9 @@
 """The tick's wire of a bus with Protocol 1.0 framing (a Feetech STS bus, a Dynamixel 1.0 bus): a
 frame sent on a clean line, the status packets of the servos asked collected until each has
-answered once or the reply's time-out, and a port that fails named in one line. The bus that mixes
-this in opens `serial` (pyserial), `_fd` (its descriptor) and `_reader` (a PacketReader), and has
-ServoBus's `bus`, `port_name`, `reply_timeout` and `lost`."""
+answered once or the reply's time-out, a port that fails named in one line, and the safe stop
+(torque off servo by servo). The bus that mixes this in opens `serial` (pyserial), `_fd` (its
+descriptor) and `_reader` (a PacketReader), has ServoBus's `bus`, `joints`, `port_name`,
+`reply_timeout` and `lost`, and writes a servo's item by `write_item(joint, name, value)`."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import select
 import time
 
 from ..bus import BITS_PER_BYTE, PORT_ERRORS, port_gone
-from ..errors import ServoOperationError
+from ..errors import ServoHardwareError, ServoOperationError, ServoTimeoutError
 from .protocol import Packet
 
 PACKET_TIMEOUT = 0.05     # s beyond the wire time a reply may take (the SDK's LATENCY_TIMER, 50 ms)
@@ -55,3 +56,16 @@ class StatusWire:
         self.lost = self.lost or reason
         return ServoOperationError(f"bus '{self.bus.name}': the port {self.port_name} "
                                    f"{'is gone' if reason else 'failed'} ({reason or err})")
+
+    def _stop(self) -> bool:
+        """Torque off on every servo that answers; True if all did. A port that fails ends it at
+        once: no servo can be told."""
+        ok = True
+        for joint in self.joints:
+            try:
+                self.write_item(joint, "torque_enable", 0)
+            except ServoOperationError:
+                return False
+            except (ServoTimeoutError, ServoHardwareError):
+                ok = False
+        return ok

@@ -67,55 +67,19 @@ int f405_clock_init(void) {
 // The same as the MPS2 boards' (firmware/mcu/board_io.c) at BOARD_CPU_HZ = 168 MHz: 168,000
 // counts a 1 ms period, within SysTick's 24 bits up to 99 ms.
 
-static volatile uint32_t g_ticks;
-static uint32_t g_period;
+#include "board_systick.h"
+
 static uint32_t g_ref_mark;            // TIM2 at the last release
 static uint64_t g_ref_counts;          // TIM2 counts while the clock ran
 
-void board_systick_isr(void) {
-  g_ticks++;
-}
-
 void board_clock_start(uint32_t period) {
-  g_period = period;
-  g_ticks = 0;
-  SYST_CSR = 0;
-  SYST_RVR = period - 1u;
-  SYST_CVR = 0;
-  SYST_CSR = SYST_ENABLE | SYST_TICKINT | SYST_CLKSOURCE;
+  systick_start(period);
   TIM2_PSC = REF_PRESCALER - 1u;
   TIM2_ARR = 0xFFFFFFFFu;
   TIM2_EGR = TIM_EGR_UG;
   TIM2_CR1 = TIM_CR1_CEN;
   g_ref_counts = 0;
   g_ref_mark = TIM2_CNT;
-}
-
-uint32_t board_clock_now(void) {
-  uint32_t ticks, value;
-  do {                               // a period boundary between the two reads: read again
-    ticks = g_ticks;
-    value = SYST_CVR;
-  } while (ticks != g_ticks);
-  return ticks * g_period + (g_period - 1u - value);
-}
-
-uint32_t board_clock_ticks(void) {
-  return g_ticks;
-}
-
-// Sleep in WFI until the next SysTick. The hardware-in-the-loop build spins instead: under QEMU's
-// -icount sleep=off (host/hil.py) a core that waits in WFI gets only every second SysTick
-// interrupt, so each tick took two periods of emulated time (docs/boards.md, "Clocks under QEMU";
-// tests/test_f405_clock.py). Spinning costs the host the idle instructions; the tick's own
-// instructions, which the budget counts, are the same.
-void board_clock_wait(void) {
-  uint32_t start = g_ticks;
-#ifdef BOARD_HIL
-  while (g_ticks == start) __asm__ volatile("" ::: "memory");
-#else
-  while (g_ticks == start) __asm__ volatile("wfi");
-#endif
 }
 
 void board_tick_begin(void) {}

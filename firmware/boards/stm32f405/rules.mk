@@ -10,7 +10,7 @@ F405_SRC := $(filter-out firmware/mcu/%,$(FW_SRC)) $(wildcard $(F405_DIR)/*.c)
 F405_OBJ := $(patsubst %.c,$(FW_DIR)/f405/%.o,$(F405_SRC))
 F405_CFLAGS := $(FW_ARCH_an386) $(FW_CFLAGS) -DBOARD_CPU_HZ=168000000u -I$(F405_DIR)
 
-$(FW_DIR)/f405/%.o: %.c $(FW_DEPS) $(wildcard $(F405_DIR)/*.h) firmware/mcu/board_uart_ring.h $(F405_DIR)/rules.mk
+$(FW_DIR)/f405/%.o: %.c $(FW_DEPS) $(wildcard $(F405_DIR)/*.h) firmware/mcu/board_uart_ring.h firmware/mcu/board_systick.h $(F405_DIR)/rules.mk
 	@mkdir -p $(@D)
 	@$(MCU_CC) $(F405_CFLAGS) -c -o $@ $<
 
