@@ -57,6 +57,10 @@ def prepare(t, q, tau, cutoff_hz: float = FILTER_HZ, decimated_hz: float = DECIM
     if not 0 < cutoff_hz < 0.5 * rate:
         raise SignalError(f"{origin}: a {cutoff_hz:g} Hz cut-off needs more than {2 * cutoff_hz:g} samples per "
                           f"second, the log has {rate:.4g}")
+    if cutoff_hz * (t[-1] - t[0]) < 1.0:
+        # the filter's state has nothing to settle on (a cut-off of 1e-300 Hz made its design singular)
+        raise SignalError(f"{origin}: a {cutoff_hz:g} Hz cut-off is a period longer than the log's "
+                          f"{t[-1] - t[0]:.3g} s: give a cut-off of {1 / (t[-1] - t[0]):.3g} Hz or more")
     sos = butter(FILTER_ORDER, cutoff_hz, fs=rate, output="sos")
     qf = sosfiltfilt(sos, q, axis=0)
     tauf = sosfiltfilt(sos, tau, axis=0)
