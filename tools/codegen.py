@@ -174,7 +174,7 @@ def generate(config: RobotConfig, motion_name: str = DEFAULT_MOTION) -> dict[str
 """
     int_fields = {"nbody", "ndof", "free_root", "body_parent", "body_dofnum", "body_dofadr", "body_ball",
                   "nq", "body_qadr", "body_ident"}
-    source = _HEADER.format(config=config.name) + f"""#include "fw_app.h"
+    source = _HEADER.format(config=config.name) + f"""#include "fw_plan.h"
 
 const sd_model fw_model = {{
 {_fields(fields, list(fields), int_fields)}}};

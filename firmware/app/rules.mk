@@ -23,7 +23,8 @@ FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conve
   -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
   -fcallgraph-info=su -DSD_SINGLE $(if $(filter 1,$(FW_HIL)),-DBOARD_HIL) -include $(FW_GEN)/servodyn_gen.h \
   -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
-FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(wildcard firmware/app/*.c) \
+FW_APP_C := firmware/app/fw_main.c firmware/app/fw_step.c     # the compiled-in robot's application
+FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(FW_APP_C) \
   hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
 FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/c/*.h) \
   $(FW_GEN)/servodyn_gen.h firmware/app/rules.mk

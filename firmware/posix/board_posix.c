@@ -251,22 +251,22 @@ uint32_t board_uart_overruns(void) {
 
 //---------------------------------- the per-tick log --------------------------------------------
 // One record a tick, native doubles: tick, start (s on the monotonic clock from the start), wall
-// and CPU time of its work (s), then q_d, q, qd, tau, current (FW_NJOINT each).
+// and CPU time of its work (s), then q_d, q, qd, tau, current (njoint each).
 // servodyn.tools.native reads it.
 
-void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd, const sd_real* tau,
-                    const sd_real* current) {
+void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q, const sd_real* qd,
+                    const sd_real* tau, const sd_real* current) {
   if (!g_log) return;
   enum { HEAD = 4 };
-  double row[HEAD + 5 * FW_NJOINT];
+  double row[HEAD + 5 * SD_MAX_DOF];
   row[0] = (double)tick;
   row[1] = (double)(g_tick_began - start_ns()) * 1e-9;
   row[2] = (double)(mono_ns() - g_tick_began) * 1e-9;
   row[3] = (double)(cpu_ns() - g_cpu_at_tick) * 1e-9;
   const sd_real* parts[5] = {q_d, q, qd, tau, current};
   for (int p = 0; p < 5; p++)
-    for (int i = 0; i < FW_NJOINT; i++) row[HEAD + p * FW_NJOINT + i] = (double)parts[p][i];
-  fwrite(row, sizeof row, 1, g_log);
+    for (int i = 0; i < njoint; i++) row[HEAD + p * njoint + i] = (double)parts[p][i];
+  fwrite(row, sizeof(double), (size_t)(HEAD + 5 * njoint), g_log);
 }
 
 //---------------------------------- main --------------------------------------------------------

@@ -9,7 +9,8 @@ FW_NATIVE_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloa
   -ffp-contract=fast -fno-math-errno -DSD_SINGLE -DBOARD_CPU_HZ=1000000000u -DFW_TOLERATE_OVERRUN=1 \
   -include $(FW_GEN)/servodyn_gen.h -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app \
   -Ihal/dynamixel/c -I$(FW_GEN)
-FW_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
+FW_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c firmware/app/fw_step.c hal/dynamixel/c/dxl.c \
+  $(FW_GEN)/servodyn_gen.c
 
 # fw_main.c's main() becomes fw_app_main(): the board's main() opens the port first
 $(FW_NATIVE): $(FW_NATIVE_SRC) firmware/app/fw_main.c $(FW_DEPS) firmware/posix/rules.mk
