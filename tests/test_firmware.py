@@ -102,7 +102,7 @@ def test_codegen_writes_the_python_observers_constants():
 def test_register_addresses_come_from_the_control_table():
     """Every Dynamixel register the firmware names is generated from hal/dynamixel/control_table.py:
     the header defines each at the table's address, and fw_main.c writes no number of its own."""
-    header = generate(load_config("replica"))["servodyn_gen.h"]
+    header = generate(load_config("replica"))["fw_dynamixel.h"]
     for name, item in (("RETURN_DELAY", "return_delay_time"), ("OPERATING_MODE", "operating_mode"),
                        ("TORQUE_ENABLE", "torque_enable"), ("BUS_WATCHDOG", "bus_watchdog")):
         assert f"#define FW_ADDR_{name} {ITEMS[item].address}\n" in header, f"{name} at the table's address"

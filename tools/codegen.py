@@ -163,12 +163,7 @@ def generate(config: RobotConfig, motion_name: str = DEFAULT_MOTION) -> dict[str
 #define FW_NGAIN_HOME {len(home_gains.t)}
 #define FW_NGAIN_SWING {len(swing_gains.t)}
 
-// the Dynamixel registers the firmware sets at boot (servodyn.hal.dynamixel.control_table)
-#define FW_ADDR_RETURN_DELAY {ADDR_RETURN_DELAY}
-#define FW_ADDR_OPERATING_MODE {ADDR_OPERATING_MODE}
-#define FW_ADDR_TORQUE_ENABLE {ADDR_TORQUE_ENABLE}
-#define FW_ADDR_BUS_WATCHDOG {ADDR_BUS_WATCHDOG}
-#define FW_MODE_CURRENT {int(OperatingMode.CURRENT)}
+#include "fw_dynamixel.h"
 
 #endif  // SERVODYN_GEN_H
 """
@@ -225,7 +220,30 @@ const fw_plan fw_plan_ = {{
   .contact_arm_ticks = {max(1, math.ceil(observer.arm_time / period - 1e-9))},
 }};
 """
-    return {"servodyn_gen.h": header, "servodyn_gen.c": source}
+    return {"servodyn_gen.h": header, "servodyn_gen.c": source, "fw_dynamixel.h": dynamixel_registers(config.name)}
+
+
+def dynamixel_registers(config_name: str) -> str:
+    """fw_dynamixel.h: the Dynamixel X registers and values the firmware uses, from
+    servodyn.hal.dynamixel.control_table (both applications: the compiled-in robot's and the one
+    loaded over the host link, which has no other generated file)."""
+    return _HEADER.format(config=config_name) + f"""#ifndef FW_DYNAMIXEL_H
+#define FW_DYNAMIXEL_H
+
+// the Dynamixel registers the firmware sets at boot (servodyn.hal.dynamixel.control_table)
+#define FW_ADDR_RETURN_DELAY {ADDR_RETURN_DELAY}
+#define FW_ADDR_OPERATING_MODE {ADDR_OPERATING_MODE}
+#define FW_ADDR_TORQUE_ENABLE {ADDR_TORQUE_ENABLE}
+#define FW_ADDR_BUS_WATCHDOG {ADDR_BUS_WATCHDOG}
+#define FW_MODE_CURRENT {int(OperatingMode.CURRENT)}
+// the fast sync read (Present Current .. Position), the command (Goal Current), the Bus Watchdog
+#define FW_ADDR_PRESENT {ADDR_PRESENT}
+#define FW_PRESENT_LENGTH {PRESENT_LENGTH}
+#define FW_ADDR_GOAL_CURRENT {ADDR_GOAL_CURRENT}
+#define FW_BUS_WATCHDOG_UNITS {watchdog_units(BUS_WATCHDOG)}
+
+#endif  // FW_DYNAMIXEL_H
+"""
 
 
 def write(config_name: str, out: Path, motion: str = DEFAULT_MOTION) -> list[Path]:

@@ -7,6 +7,7 @@
 
 #include <stdint.h>
 
+#include "dxl.h"
 #include "servodyn.h"
 
 // One joint's servo: register units <-> joint SI units (hal/dynamixel/units.py's conventions):
@@ -103,6 +104,31 @@ int fw_step_control(fw_step* s, const sd_real* q_d, const sd_real* qd_d, const s
 // The guards on the tick's state and torque, then torque -> s->goal: 0 or a fault code
 // (s->fault_servo, fault_value set); *limited |= 1 when a command was clamped.
 int fw_step_finish(fw_step* s, const sd_real* q_d, const sd_real* q, const sd_real* qd, int* limited);
+
+// The Dynamixel bus (fw_bus.c): every function but the writes waits for its replies; 0 or a fault
+// code with fault_servo set (the servo's id, -1 none).
+#define FW_TX_MAX (10 + 5 * SD_MAX_DOF + 16)   // bytes of the largest instruction packet
+typedef struct fw_bus_ {
+  const fw_servo* servo;
+  int n;
+  uint8_t ids[SD_MAX_DOF];
+  int fault_servo;
+  int16_t current_units[SD_MAX_DOF];   // the last read's Present Current, servo units
+  dxl_reader reader;
+  size_t rx_got;                       // bytes of the last reply taken
+  uint8_t tx[FW_TX_MAX];
+  uint8_t read_packet[FW_TX_MAX];      // the fast sync read, built once
+  size_t read_len;
+} fw_bus;
+
+void fw_bus_init(fw_bus* b, const fw_servo* servo, int n);
+// Check each servo's model number, set it up (Return Delay 0, current mode, Bus Watchdog), Goal
+// Current 0 and torque on.
+int fw_bus_setup(fw_bus* b);
+// Every servo's state in joint units.
+int fw_bus_read(fw_bus* b, sd_real* q, sd_real* qd, sd_real* current);
+void fw_bus_write_goals(fw_bus* b, const int16_t* goal);
+void fw_bus_torque_off(fw_bus* b);
 
 // Each tick's figures, after its write: the native loop's board logs them (weak: none by default).
 void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q, const sd_real* qd,

@@ -33,7 +33,6 @@
 #ifndef FW_TOLERATE_OVERRUN
 #define FW_TOLERATE_OVERRUN 0          // 1: fall behind up to the plan's overrun tolerance (a host OS)
 #endif
-#define FW_TX_MAX 160                  // bytes of the largest instruction packet
 
 // where a tick's time goes: the fast sync read (send, parse), the plan's point, the controller
 // step on ticks with and without inverse dynamics, the observer, torque -> current, the sync write
@@ -51,12 +50,7 @@ typedef struct fw_stats_ {
 typedef struct fw_state_ {
   fw_step step;                      // the controller step (fw_step.c): observer, controller, guards
   fw_guards guards;
-  dxl_reader reader;
-  uint8_t ids[FW_NJOINT];
-  uint8_t tx[FW_TX_MAX];
-  size_t read_len;             // the fast sync read packet, built once
-  size_t rx_got;               // bytes of the last reply taken
-  uint8_t read_packet[FW_TX_MAX];
+  fw_bus bus;                         // the Dynamixel bus (fw_bus.c)
   sd_real q[FW_NJOINT], qd[FW_NJOINT], current[FW_NJOINT];
   sd_real q_d[FW_NJOINT], qd_d[FW_NJOINT], qdd_d[FW_NJOINT];
   sd_real q_home[FW_NJOINT];
@@ -80,150 +74,6 @@ static void fault(int code, int servo) {
   g.fault = code;
   g.fault_servo = servo;
   g.fault_tick = g.tick;
-}
-
-//---------------------------------- bus ---------------------------------------------------------
-
-static void bus_send(const uint8_t* packet, size_t n) {
-  board_uart_flush();               // a late reply to an earlier packet is stale now
-  dxl_reader_reset(&g.reader);
-  board_uart_write(packet, n);
-}
-
-// Wait, the clock held, until `want` bytes have arrived or the servos are taken for silent;
-// then parse what came with the clock running (its cost is the tick's, the waiting is not).
-// Returns DXL_PACKET, a negative dxl_feed_ code, or 0 on a timeout. g.rx_got counts the bytes.
-static int bus_receive(size_t want) {
-  g.rx_got = 0;
-  for (;;) {
-    board_clock_hold();
-    int came = board_uart_wait(want - g.rx_got);
-    board_clock_release();
-    uint8_t chunk[128];
-    size_t n;
-    while ((n = board_uart_take(chunk, sizeof chunk)) > 0) {
-      size_t used;
-      int status = dxl_reader_feed_bytes(&g.reader, chunk, n, &used);
-      g.rx_got += used;
-      if (status != DXL_MORE) return status;
-    }
-    if (!came) return 0;
-    want = g.rx_got + 1;          // stuffing made the packet longer: wait for one more byte
-  }
-}
-
-// One status packet from servo `id` (after a ping, read or write); 0 or a fault code.
-static int bus_status(uint8_t id) {
-  int status = bus_receive(11);    // the shortest status packet: no parameters
-  if (status == 0) return FW_FAULT_TIMEOUT;
-  if (status != DXL_PACKET || g.reader.id != id || g.reader.instruction != DXL_STATUS)
-    return FW_FAULT_CORRUPT;
-  if (g.reader.error) return FW_FAULT_STATUS;
-  return FW_OK;
-}
-
-static int bus_write_bytes(uint8_t id, uint16_t address, const uint8_t* data, uint16_t size) {
-  size_t n = dxl_write(g.tx, sizeof g.tx, id, address, data, size);
-  bus_send(g.tx, n);
-  return bus_status(id);
-}
-
-static int bus_write(uint8_t id, uint16_t address, uint8_t value) {
-  return bus_write_bytes(id, address, &value, 1);
-}
-
-static void torque_off_all(void) {
-  uint8_t zeros[FW_NJOINT] = {0};
-  size_t n = dxl_sync_write(g.tx, sizeof g.tx, FW_ADDR_TORQUE_ENABLE, 1, g.ids, FW_NJOINT, zeros);
-  board_uart_write(g.tx, n);        // a sync write is never answered: nothing to wait for
-}
-
-// the length of a fast sync read reply (never stuffed): header, id, length, instruction, then per
-// servo error, id, data and a CRC (the last servo's is the packet's)
-static size_t fast_reply_length(void) {
-  return 4 + 1 + 2 + 1 + (size_t)FW_NJOINT * (1u + 1u + fw_plan_.read_size + 2u);
-}
-
-// Read every servo's state into g.q, g.qd, g.current; 0 or a fault code (g.fault_servo set).
-static int read_state(void) {
-  bus_send(g.read_packet, g.read_len);
-  int status = bus_receive(fast_reply_length());
-  if (status == 0) {        // the reply stopped short: name the first servo whose block is missing
-    long body = (long)g.rx_got - 8;
-    int k = body < 0 ? 0 : (int)(body / (long)(1 + 1 + fw_plan_.read_size + 2));
-    g.fault_servo = g.ids[k < FW_NJOINT ? k : FW_NJOINT - 1];
-    return FW_FAULT_TIMEOUT;
-  }
-  dxl_block blocks[FW_NJOINT];
-  int good = status == DXL_PACKET
-                 ? dxl_fast_reply_split(&g.reader, fw_plan_.read_size, g.ids, FW_NJOINT, blocks)
-                 : -1;
-  if (good != FW_NJOINT) {  // a bad CRC names no servo; a bad block names its own
-    g.fault_servo = good < 0 ? -1 : g.ids[good];
-    return FW_FAULT_CORRUPT;
-  }
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    if (blocks[i].error) {
-      g.fault_servo = s->id;
-      return FW_FAULT_STATUS;
-    }
-    const uint8_t* p = blocks[i].data;
-    sd_real current_units = (sd_real)dxl_get_i16(p);
-    sd_real velocity_units = (sd_real)dxl_get_i32(p + 2);
-    sd_real position_ticks = (sd_real)dxl_get_i32(p + 6);
-    sd_real to_joint = s->direction / s->gear_ratio;     // direction is +-1: its own inverse
-    g.q[i] = (position_ticks * s->rad_per_tick - s->zero_offset) * to_joint;
-    g.qd[i] = velocity_units * s->radps_per_unit * to_joint;
-    g.current[i] = s->direction * current_units * s->amp_per_unit;
-  }
-  return FW_OK;
-}
-
-static void write_goals(void) {
-  uint8_t data[2 * FW_NJOINT];
-  for (int i = 0; i < FW_NJOINT; i++) dxl_put_u16(data + 2 * i, (uint16_t)g.step.goal[i]);
-  size_t n = dxl_sync_write(g.tx, sizeof g.tx, fw_plan_.goal_address, 2, g.ids, FW_NJOINT, data);
-  board_uart_write(g.tx, n);
-}
-
-//---------------------------------- set-up ------------------------------------------------------
-
-static int setup_servo(int i) {
-  const fw_servo* s = &fw_servos[i];
-  size_t n = dxl_ping(g.tx, sizeof g.tx, s->id);
-  bus_send(g.tx, n);
-  int err = bus_status(s->id);
-  if (err == FW_OK && (g.reader.nparam < 3 || dxl_get_u16(g.reader.param) != s->model_number))
-    err = FW_FAULT_SETUP;
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_TORQUE_ENABLE, 0);    // EEPROM needs torque off
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_RETURN_DELAY, 0);
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_OPERATING_MODE, FW_MODE_CURRENT);
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_BUS_WATCHDOG, 0);     // clear a tripped one
-  return err;
-}
-
-static int setup(void) {
-  for (int i = 0; i < FW_NJOINT; i++) {
-    int err = setup_servo(i);
-    if (err) {
-      g.fault_servo = fw_servos[i].id;
-      return err;
-    }
-  }
-  // Goal Current 0 before torque on: a servo powers up with Goal Current at its Current Limit,
-  // which torque on would apply at once, for as long as the set-up of the other servos lasts
-  const uint8_t zero_current[2] = {0, 0};
-  for (int i = 0; i < FW_NJOINT; i++) {
-    int err = bus_write_bytes(fw_servos[i].id, fw_plan_.goal_address, zero_current, 2);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_TORQUE_ENABLE, 1);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_BUS_WATCHDOG, fw_plan_.watchdog_units);
-    if (err) {
-      g.fault_servo = fw_servos[i].id;
-      return err;
-    }
-  }
-  return FW_OK;
 }
 
 //---------------------------------- the plan ----------------------------------------------------
@@ -269,9 +119,9 @@ static void account(int section, uint32_t counts) {
 // one control period; phase_tick counts from the start of the phase (homing or swing)
 static void tick(int swing, long phase_tick) {
   uint32_t c0 = board_clock_now();
-  int err = read_state();
+  int err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
   if (err) {
-    fault(err, g.fault_servo);
+    fault(err, g.bus.fault_servo);
     return;
   }
   if (g.tick == g.nan_at) g.q[0] = g.q[0] * (sd_real)__builtin_nanf("");
@@ -302,7 +152,7 @@ static void tick(int swing, long phase_tick) {
   g.nlimited += limited;
   uint32_t c4 = board_clock_now();
 
-  write_goals();
+  fw_bus_write_goals(&g.bus, g.step.goal);
   uint32_t c5 = board_clock_now();
   account(SEC_READ, c1 - c0);
   account(SEC_WRITE, c5 - c4);
@@ -419,9 +269,7 @@ int main(void) {
                fw_plan_.friction_speed);
   g.step.control.mode = SD_MODE_FEEDFORWARD_PD;
   g.step.control.update_ticks = fw_plan_.update_ticks;
-  for (int i = 0; i < FW_NJOINT; i++) g.ids[i] = fw_servos[i].id;
-  g.read_len = dxl_fast_sync_read(g.read_packet, sizeof g.read_packet, fw_plan_.read_address,
-                                  fw_plan_.read_size, g.ids, FW_NJOINT);
+  fw_bus_init(&g.bus, fw_servos, FW_NJOINT);
   g.period = period_us > 0 ? (uint32_t)((uint64_t)period_us * BOARD_CPU_HZ / 1000000u)
                            : (uint32_t)(fw_plan_.small_time_step * (sd_real)BOARD_CPU_HZ + SD_R(0.5));
 
@@ -430,10 +278,10 @@ int main(void) {
   sd_real tolerance = tolerance_us >= 0 ? (sd_real)tolerance_us * SD_R(1e-6) : fw_plan_.overrun_tolerance;
   g.lost_limit = FW_TOLERATE_OVERRUN ? (long)(tolerance * (sd_real)BOARD_CPU_HZ / (sd_real)g.period) : 0;
   board_uart_init(fw_plan_.baud);
-  int err = sd_observer_check(&fw_model, &g.step.oconfig) == SD_OBSERVER_OK ? setup() : FW_FAULT_SETUP;
-  if (err == FW_OK) err = read_state();
+  int err = sd_observer_check(&fw_model, &g.step.oconfig) == SD_OBSERVER_OK ? fw_bus_setup(&g.bus) : FW_FAULT_SETUP;
+  if (err == FW_OK) err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
   if (err) {
-    fault(err, g.fault_servo);
+    fault(err, g.bus.fault_servo);
   } else {
     for (int i = 0; i < FW_NJOINT; i++) g.q_home[i] = g.q[i];
     fw_step_start(&g.step, g.q, g.qd);
@@ -441,7 +289,7 @@ int main(void) {
     run_phase(0, fw_plan_.home_ticks);
     if (!g.fault) run_phase(1, fw_plan_.swing_ticks);
   }
-  torque_off_all();
+  fw_bus_torque_off(&g.bus);
   report();
   return g.fault;
 }

@@ -13,7 +13,7 @@
 FW_CONFIG ?= replica
 FW_DIR := build/fw
 FW_GEN := $(FW_DIR)/gen
-FW_GEN_FILES := $(FW_GEN)/servodyn_gen.c $(FW_GEN)/servodyn_gen.h
+FW_GEN_FILES := $(FW_GEN)/servodyn_gen.c $(FW_GEN)/servodyn_gen.h $(FW_GEN)/fw_dynamixel.h
 FW_BOARDS := an386 an500
 FW_ARCH_an386 := -mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -mthumb
 FW_ARCH_an500 := -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard -mthumb
@@ -23,11 +23,11 @@ FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conve
   -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
   -fcallgraph-info=su -DSD_SINGLE $(if $(filter 1,$(FW_HIL)),-DBOARD_HIL) -include $(FW_GEN)/servodyn_gen.h \
   -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
-FW_APP_C := firmware/app/fw_main.c firmware/app/fw_step.c     # the compiled-in robot's application
+FW_APP_C := firmware/app/fw_main.c firmware/app/fw_step.c firmware/app/fw_bus.c    # the compiled-in robot's application
 FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(FW_APP_C) \
   hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
 FW_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h hal/dynamixel/c/*.h) \
-  $(FW_GEN)/servodyn_gen.h firmware/app/rules.mk
+  $(FW_GEN)/servodyn_gen.h $(FW_GEN)/fw_dynamixel.h firmware/app/rules.mk
 FW_ELFS := $(foreach b,$(FW_BOARDS),$(FW_DIR)/$(b)/servodyn-fw.elf)
 FW_CODEGEN_DEPS := $(STAMP) $(wildcard tools/codegen.py host/control/*.py host/model/*.py \
   host/model/builtin/*.toml host/control/motions/*.toml hal/config.py hal/dynamixel/control_table.py \
