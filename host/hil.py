@@ -242,9 +242,10 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     return report, link.record, arm
 
 
-def replay(config_name: str, record: Record) -> dict:
+def replay(config_name: str, record: Record, segments=None) -> dict:
     """The firmware's algorithm in the host's double precision, fed the measured state the firmware
-    saw: the desired positions and the Goal Current of every tick."""
+    saw: the desired positions and the Goal Current of every tick. segments(q_start): the run's
+    segments (default: the generated firmware's plan, plan_run's homing and the built-in motion)."""
     config = load_config(config_name)
     model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
@@ -257,7 +258,9 @@ def replay(config_name: str, record: Record) -> dict:
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
     goals, q_d, phase = [], [], []
     n = 0
-    for segment in plan_run(model, swing, q_meas[0], sensors=joint_sensors(config)):
+    if segments is None:
+        segments = lambda q_start: plan_run(model, swing, q_start, sensors=joint_sensors(config))
+    for segment in segments(q_meas[0]):
         controller.reset()
         for k in range(len(segment.traj.t)):
             if n + 1 >= len(reads):

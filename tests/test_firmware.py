@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from servodyn.hal.dynamixel.control_table import ITEMS, OperatingMode
-from servodyn.tools.codegen import generate, model_fields
+from servodyn.model.layout import model_fields
+from servodyn.tools.codegen import generate
 from servodyn.hal.config import load_config
 from servodyn.hal.contact_spec import Push
 from servodyn.hil import default_elf, run_qemu, summarize

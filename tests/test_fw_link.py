@@ -1,0 +1,217 @@
+"""The general firmware application (firmware/app/fw_link.c) as a Linux process: it boots with no
+robot; the host loads the replica over the host link (a pseudo-terminal), streams the forehand's
+knots within the controller's credits and commands the run, against the simulated Dynamixel bus on
+another pseudo-terminal, lock-stepped (the plant advances one period per Goal Current write), so
+every command is deterministic: each equals the host's double-precision controller's from the same
+measured state within one servo unit (hil.replay, the agreement oracle of the generated firmware).
+Then the silent-host watchdog, a robot the core's checks refuse, and a frame of another version."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tty
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servodyn.control.schedule import Segment, homing
+from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
+from servodyn.hal.config import load_config
+from servodyn.hal.link import frame as fr
+from servodyn.hal.link import messages as ms
+from servodyn.hil import FirmwareLink, replay
+from servodyn.loop.link_load import plan
+from servodyn.loop.link_session import ControllerRefused, LinkSession
+from servodyn.sim.robot import SimulatedRobot
+from servodyn.sim.transport.pty import PtyServer
+
+ROOT = Path(__file__).resolve().parent.parent
+EXE = ROOT / "build" / "fw" / "native" / "servodyn-fw-link"
+HOME_TICKS = round(HOME_DURATION / SMALL_TIME_STEP) + 1
+
+
+@pytest.fixture(scope="module")
+def exe():
+    build = subprocess.run(["make", "--no-print-directory", "-s", str(EXE.relative_to(ROOT))], cwd=ROOT,
+                           capture_output=True, text=True)
+    assert build.returncode == 0, f"the build failed:\n{build.stdout}\n{build.stderr}"
+    return EXE
+
+
+class Controller:
+    """The native link application against a fresh simulated replica whose every bus exchange is
+    recorded; the host link on a pseudo-terminal."""
+
+    def __init__(self, exe, config="replica"):
+        self.config = load_config(config)
+        self.arm = SimulatedRobot(self.config, small_time_step=SMALL_TIME_STEP).port()
+        self.bus = FirmwareLink(self.arm)
+        self.server = PtyServer(self.arm, "lockstep")
+        self.server.start()
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        baud = next(iter(self.config.buses.values())).baud     # the bus's rate is the board's, not the link's
+        self.proc = subprocess.Popen([str(exe), self.server.path, f"link={os.ttyname(self.slave)}", "reply_ms=1000",
+                                      f"baud={baud}"],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.link = LinkSession(self.master)
+
+    def close(self):
+        if self.proc.returncode is not None:
+            return "", ""
+        self.proc.terminate()
+        out, err = self.proc.communicate(timeout=10)
+        self.server._drain()
+        self.server.stop()
+        os.close(self.master)
+        os.close(self.slave)
+        return out, err
+
+
+@pytest.fixture
+def controller(exe):
+    c = Controller(exe)
+    yield c
+    c.close()
+
+
+def play_until(c: Controller, p, done, timeout: float = 300.0):
+    """Pump the link and stream the knots until done(telemetry) or the timeout (s of wall time)."""
+    import time
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        c.link.pump(0.005)
+        c.link.stream(p)
+        if c.link.last is not None and done(c.link.last):
+            return c.link.last
+        assert c.proc.poll() is None, f"the controller stopped: {c.proc.communicate()}"
+    raise AssertionError(f"not done within {timeout} s: {c.link.last}")
+
+
+def test_hello_answers_with_the_compiled_sizes(controller):
+    reply = controller.link.hello(0x1234)
+    assert (reply.nonce, reply.link_version, reply.real_bytes) == (0x1234, fr.VERSION, 4), "float build, version 1"
+    assert (reply.max_body, reply.max_dof, reply.knot_slots) == (16, 16, 64), "FW_LINK_SIZES of firmware/posix/rules.mk"
+    assert reply.board.rstrip("\0") == "posix" and reply.buses == 1 << ms.BUSES["dynamixel"]
+    assert ms.STATES[reply.state] == "idle", "it boots with no robot"
+
+
+def test_the_forehand_streamed_over_the_link_is_the_host_controllers(controller):
+    """The replica loaded, the forehand's 75 knots streamed through the 64-slot ring, home then
+    play: every Goal Current within 1 unit of the host's double controller on the same measured
+    state (homing with the joints' gains, then the motion with the knots' gains, which are the
+    host's schedule), no tick starved, the motion done, then torque off."""
+    c = controller
+    p = plan(c.config, host_timeout_ms=60000)      # lock-step runs faster than the wall clock
+    assert len(p.knots) > 64, "longer than the controller's ring: it streams"
+    c.link.hello()
+    assert c.link.load(p.messages).code == 0
+    c.link.stream(p)
+    c.link.command("home", p.home_ms)
+    c.link.command("play")
+    starved = []
+
+    def done(t):
+        starved.append(t.flags & ms.TM_STARVED)
+        return t.flags & ms.TM_DONE or ms.STATES[t.state] in ("fault", "torque_off")
+    last = play_until(c, p, done)
+    assert last.fault == 0 and last.flags & ms.TM_DONE, f"the motion played to its end: {last}"
+    assert not any(starved), "the ring never ran dry"
+    c.link.command("torque_off")
+    c.close()
+    record = c.bus.record
+    nswing = len(p.swing.t)
+    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], HOME_DURATION, SMALL_TIME_STEP), p.hold_gains),
+                           Segment("motion", p.swing, p.swing_gains))
+    twin = replay("replica", record, segments)
+    n = len(twin["goals"])
+    assert n == HOME_TICKS + nswing, f"the replay covers homing and the motion ({n} ticks)"
+    assert len(record.goals) >= n
+    diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
+    assert diff.max() <= 1, f"goals differ by up to {diff.max()} units from the host's controller"
+    assert record.torque_off and all(not s.torque_enabled for s in c.arm.servos), "torque off on every servo"
+
+
+def test_a_silent_host_holds_at_once_and_switches_torque_off(controller):
+    """The host keeps the controller alive through homing, then falls silent once the motion
+    plays: the controller holds from the tick its 100 ms timeout ends (HOST_SILENT, state holding,
+    the desired pose frozen) and switches torque off reaction_time (1 s) later, on every servo."""
+    import time
+    c = controller
+    p = plan(c.config, host_timeout_ms=100)
+    c.link.hello()
+    c.link.load(p.messages)
+    c.link.stream(p)
+    c.link.command("home", p.home_ms)
+    c.link.command("play")                     # telemetry every tick: HELLO's default
+    deadline, alive = time.monotonic() + 120, None
+    while c.link.last is None or ms.STATES[c.link.last.state] != "playing":
+        assert time.monotonic() < deadline and c.link.last.fault == 0, c.link.last
+        if alive is None or alive.answer is not None:
+            alive = c.link.sender.send(ms.Command(command=ms.COMMANDS["keepalive"], arg=0))
+        c.link.pump(0.002)
+    c.link.wait(alive)
+    sent_at = c.link.last.tick                 # the host's last frame reached the controller at or after it
+    sendings = c.link.sender.sendings
+    while ms.STATES[c.link.last.state] not in ("torque_off", "fault"):
+        assert time.monotonic() < deadline, c.link.last
+        c.link.pump(0.005)                     # reads; nothing in flight, so nothing is sent
+    assert c.link.sender.sendings == sendings, "the host was silent"
+    assert c.link.last.fault == 0, c.link.last
+    tm = {t.tick: t for t in c.link.telemetry}
+    silent = sorted(k for k, t in tm.items() if t.flags & ms.TM_HOST_SILENT)
+    assert silent, "the controller noticed the silence"
+    first = silent[0]
+    assert 100 <= first - sent_at <= 400, f"held {first - sent_at} ticks after the host's last frame (timeout 100)"
+    assert tm[first].state == ms.STATES.index("holding") and tm[first - 1].state == ms.STATES.index("playing"), \
+        "playing until the timeout's tick, holding from it"
+    held = [tm[k] for k in silent if tm[k].state == ms.STATES.index("holding")]
+    assert len({tuple(j.q_d for j in t.joints) for t in held}) == 1, "the desired pose frozen while holding"
+    off = min(k for k, t in tm.items() if t.state == ms.STATES.index("torque_off"))
+    reaction = round(c.config.guards.reaction_time / SMALL_TIME_STEP)
+    assert abs((off - first) - reaction) <= 1, f"torque off {off - first} ticks after holding (reaction {reaction})"
+    c.close()
+    assert c.bus.record.torque_off and all(not s.torque_enabled for s in c.arm.servos), "torque off on every servo"
+
+
+def test_a_robot_the_core_refuses_is_refused_with_the_reason(controller):
+    """A body without mass: COMMIT refused by sd_model_setup on the controller (stage model, code
+    -6 SD_ERR_MASS, body 2), in one line; the controller stays idle and takes the good robot after."""
+    c = controller
+    p = plan(c.config)
+    bodies = [m for m in p.messages if isinstance(m, ms.Body)]
+    heavy = [m if m is not bodies[2] else ms.Body(**{**m.__dict__, "mass": 0.0}) for m in p.messages]
+    c.link.hello()
+    with pytest.raises(ControllerRefused) as refused:
+        c.link.load(heavy)
+    assert str(refused.value) == "the controller refused the robot: model check code -6, body 2"
+    home = c.link.command("home", 100, check=False)
+    assert (home.stage, home.code) == (0, -3), "no robot: HOME refused, not now"
+    assert c.link.load(p.messages).code == 0, "the good robot loads after"
+
+
+def test_a_frame_of_another_version_is_answered_with_its_code(controller):
+    """A COMMAND framed as version 2: the controller answers RESULT code -11 for its SEQ and TYPE,
+    in its own version 1 (which the host's decoder reads)."""
+    import time
+    c = controller
+    c.link.hello()
+    os.write(c.master, fr.encode(9, 0, ms.COMMAND, ms.pack(ms.Command(command=0, arg=0))[1], version=2))
+    decoder, deadline, answer = fr.Decoder(), time.monotonic() + 5, None
+    while answer is None and time.monotonic() < deadline:
+        try:
+            data = os.read(c.master, 4096)
+        except BlockingIOError:
+            time.sleep(0.005)
+            continue
+        for f in decoder.feed(data):
+            if f.verdict == fr.FRAME and f.type == ms.RESULT:
+                result = ms.unpack(ms.RESULT, f.payload)
+                if result.seq == 9:
+                    answer = result
+    assert answer is not None, "answered"
+    assert (answer.type, answer.stage, answer.code) == (ms.COMMAND, 0, -11), answer
