@@ -215,3 +215,54 @@ def test_a_frame_of_another_version_is_answered_with_its_code(controller):
                     answer = result
     assert answer is not None, "answered"
     assert (answer.type, answer.stage, answer.code) == (ms.COMMAND, 0, -11), answer
+
+
+def wait_state(c: Controller, *states: str, timeout: float = 60.0):
+    import time
+    deadline = time.monotonic() + timeout
+    while c.link.last is None or ms.STATES[c.link.last.state] not in states:
+        assert time.monotonic() < deadline, f"not {states} within {timeout} s: {c.link.last}"
+        c.link.pump(0.005)
+    return c.link.last
+
+
+def torque_off_seen(c: Controller, but=(), timeout: float = 5.0) -> bool:
+    """Every servo (but those in `but`) has torque off, once the bus's bytes in flight are served."""
+    import time
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if all(not s.torque_enabled for s in c.arm.servos if s.id not in but):
+            return True
+        c.link.pump(0.01)
+    return False
+
+
+def test_commands_and_a_fault_cleared(controller):
+    """PLAY before HOME is refused (not now); TORQUE_OFF while homing switches every servo off; a
+    servo that stops answering while homing is fault 10 (timeout) naming its joint, torque off;
+    CLEAR_FAULT returns to loaded, and HOME sets the bus up again and homes."""
+    c = controller
+    p = plan(c.config, host_timeout_ms=60000)
+    c.link.hello()
+    c.link.load(p.messages)
+    c.link.stream(p)
+    c.link.pump(0.05)
+    play = c.link.command("play", check=False)
+    assert (play.stage, play.code) == (0, -3), "PLAY before HOME: not now"
+    c.link.command("home", p.home_ms)
+    wait_state(c, "homing")
+    c.link.command("torque_off")
+    wait_state(c, "torque_off")
+    assert torque_off_seen(c), "torque off on every servo"
+    c.link.command("home", p.home_ms)
+    wait_state(c, "homing")
+    c.server.inject_fault(5, "silent")
+    t = wait_state(c, "fault")
+    joint = [j.id for j in c.config.joints].index(5)
+    assert (t.fault, t.fault_joint) == (10, joint), f"timeout, servo 5's joint: {t}"
+    assert torque_off_seen(c, but=(5,)), "torque off on every servo that answers"
+    c.server.clear_faults()
+    c.link.command("clear_fault")
+    assert ms.STATES[wait_state(c, "loaded").state] == "loaded" and c.link.last.fault == 0
+    c.link.command("home", p.home_ms)
+    assert ms.STATES[wait_state(c, "homing").state] == "homing", "homing again after the fault"

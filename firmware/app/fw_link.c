@@ -215,8 +215,8 @@ static int command(const link_command* c) {
       return LINK_OK;
     case LINK_CMD_HOME:
       return command_home(c->arg);
-    case LINK_CMD_PLAY:
-      if (!g.ring.count) return LINK_E_STATE;
+    case LINK_CMD_PLAY:                    // from the motion's first knot, once homed there
+      if (!g.ring.count || g.ring.next - g.ring.count != 0) return LINK_E_STATE;
       if (g.state == LINK_HOMING) {
         g.play_after_home = 1;
       } else if (g.state == LINK_HOLDING && g.silent_hold_ticks < 0 && g.stop_ticks < 0) {
