@@ -31,9 +31,11 @@ class LinkSession:
         self.sender = Sender(self._write, clock)
         self.telemetry: list = []
         self.streamed = 0                 # knots sent so far
+        self.bytes_in = self.bytes_out = 0
         self._knot_requests: list = []
 
     def _write(self, data: bytes) -> None:
+        self.bytes_out += len(data)
         view = memoryview(data)
         while view:
             try:
@@ -52,6 +54,7 @@ class LinkSession:
                 break
             if not data:
                 break
+            self.bytes_in += len(data)
             self.telemetry.extend(m for m in self.sender.receive(data) if isinstance(m, ms.Telemetry))
             ready, _, _ = select.select([self.fd], [], [], 0)
         self.sender.poll()
