@@ -21,7 +21,9 @@
 // sets STARVED: the motion's clock waits for the host. Past the last knot it holds it (DONE).
 //
 // Command line (the board's, for tests): ticks=N (stop after N ticks: torque off, the report line),
-// baud=N (the Dynamixel bus, default 1000000).
+// once=1 (stop when torque goes off after a run: a fault, STOP, TORQUE_OFF, the watchdog), baud=N
+// (the Dynamixel bus, default 1000000). The report line's worst_work: the clock counts of the worst
+// tick that began with torque on, the link's work included (instructions under QEMU's -icount).
 #include <string.h>
 
 #include "board.h"
@@ -67,7 +69,12 @@ typedef struct fw_link_app_ {
   sd_real q[SD_MAX_DOF], qd[SD_MAX_DOF], current[SD_MAX_DOF];
   sd_real q_d[SD_MAX_DOF], qd_d[SD_MAX_DOF], qdd_d[SD_MAX_DOF];
   sd_real q_from[SD_MAX_DOF], q_hold[SD_MAX_DOF];
-  uint32_t work, work_max;             // clock counts of the last tick's work, the worst
+  uint32_t work, work_max;             // clock counts of the last tick's work; the worst of a tick
+                                       // that began with torque on (homing, playing, holding)
+  uint32_t link_max, control_max;      // of those ticks, the worst link work (requests, telemetry)
+                                       // and the worst control work (bus, step)
+  int once;                            // once=1: stop when torque goes off after a run (tests)
+  int ran;                             // torque has been on
   long missed;
   long scheduled;                      // the clock period the next tick belongs to
   long stop_after;
@@ -525,10 +532,12 @@ static void report(void) {
   board_write("servodyn-fw: ");
   board_write(g.fault ? "fault " : "done ");
   board_write(fw_fault_name(g.fault));
-  const char* keys[] = {"code", "joint", "ticks", "state", "missed", "worst_work", "frames_in", "frames_bad",
-                        "bytes_in", "bytes_out", "frames_dropped"};
-  long values[] = {g.fault, g.fault_joint, g.tick, g.state, g.missed, (long)g.work_max, (long)g.frames_in,
-                   (long)g.frames_bad, (long)g.bytes_in, (long)g.bytes_out, (long)g.frames_dropped};
+  const char* keys[] = {"code", "joint", "ticks", "state", "missed", "worst_work", "worst_link", "worst_control",
+                        "frames_in", "frames_bad", "bytes_in", "bytes_out", "frames_dropped", "stack"};
+  long values[] = {g.fault, g.fault_joint, g.tick, g.state, g.missed, (long)g.work_max, (long)g.link_max,
+                   (long)g.control_max, (long)g.frames_in,
+                   (long)g.frames_bad, (long)g.bytes_in, (long)g.bytes_out, (long)g.frames_dropped,
+                   (long)board_stack_used()};
   for (unsigned k = 0; k < sizeof values / sizeof values[0]; k++) {
     board_write(" ");
     board_write(keys[k]);
@@ -543,6 +552,7 @@ int main(void) {
   char line[128] = {0};
   board_cmdline(line, sizeof line - 1);
   g.stop_after = arg_value(line, "ticks=", -1);
+  g.once = arg_value(line, "once=", 0) != 0;
   g.state = LINK_IDLE;
   g.fault_joint = -1;
   g.stop_ticks = g.silent_hold_ticks = -1;
@@ -556,14 +566,24 @@ int main(void) {
   while (g.stop_after < 0 || g.tick < g.stop_after) {
     board_tick_begin();
     uint32_t c0 = board_clock_now();
+    int was_running = g.torque;
     g.flags = 0;
     poll_link();
     watchdog();
+    uint32_t c1 = board_clock_now();
     if (g.torque) control_tick();
+    uint32_t c2 = board_clock_now();
     telemetry();
-    g.work = board_clock_now() - c0;
-    if (g.work > g.work_max) g.work_max = g.work;
+    uint32_t c3 = board_clock_now();
+    g.work = c3 - c0;
+    if (was_running) {
+      if (g.work > g.work_max) g.work_max = g.work;
+      if ((c1 - c0) + (c3 - c2) > g.link_max) g.link_max = (c1 - c0) + (c3 - c2);
+      if (c2 - c1 > g.control_max) g.control_max = c2 - c1;
+    }
+    g.ran |= g.torque;
     g.tick++;
+    if (g.once && g.ran && !g.torque) break;
     // the next period: at once when this tick ran past it (counted; a microcontroller faults)
     g.scheduled++;
     long behind = (long)(int32_t)(board_clock_ticks() - (uint32_t)g.scheduled);

@@ -185,12 +185,6 @@ static void wait_for_period(void) {
   board_tick_begin();
 }
 
-// where a board records each tick (the native loop's log); none on a microcontroller
-__attribute__((weak)) void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q,
-                                          const sd_real* qd, const sd_real* tau, const sd_real* current) {
-  (void)tick, (void)njoint, (void)q_d, (void)q, (void)qd, (void)tau, (void)current;
-}
-
 static long run_phase(int swing, long nticks) {
   sd_control_reset(&g.step.cstate);
   for (long k = 0; k < nticks && !g.fault; k++) {

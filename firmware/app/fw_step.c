@@ -165,3 +165,9 @@ int fw_step_finish(fw_step* s, const sd_real* q_d, const sd_real* q, const sd_re
   *limited |= (s->cstate.status & SD_STATUS_LIMITED) != 0;
   return FW_OK;
 }
+
+// where a board records each tick (the native loop's log); none on a microcontroller
+__attribute__((weak)) void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q,
+                                          const sd_real* qd, const sd_real* tau, const sd_real* current) {
+  (void)tick, (void)njoint, (void)q_d, (void)q, (void)qd, (void)tau, (void)current;
+}

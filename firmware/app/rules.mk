@@ -56,3 +56,26 @@ $(foreach b,$(FW_BOARDS),$(patsubst %.c,$(FW_DIR)/$(b)/%.o,$(FW_SRC))): | toolch
 
 .PHONY: fw
 fw: $(FW_ELFS)
+
+# The general application (fw_link.c, the host link on UART2: -serial #2) for mps2-an386, sized for
+# a microcontroller: build/fw/an386-link/servodyn-fw-link.elf
+FW_LINK_MCU_SIZES := -DSD_MAX_BODY=8 -DSD_MAX_DOF=8 -DSD_MAX_KNOT=32
+FW_LINK_ELF := $(FW_DIR)/an386-link/servodyn-fw-link.elf
+FW_LINK_CFLAGS := $(filter-out -include $(FW_GEN)/servodyn_gen.h,$(FW_CFLAGS)) $(FW_LINK_MCU_SIZES) \
+  -DFW_LINK_BOARD='"mps2-an386"' -Ifirmware/link
+FW_LINK_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c firmware/app/fw_link.c \
+  firmware/app/fw_step.c firmware/app/fw_bus.c firmware/link/link.c hal/dynamixel/c/dxl.c
+FW_LINK_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h firmware/link/*.h hal/dynamixel/c/*.h) \
+  $(FW_GEN)/fw_dynamixel.h firmware/app/rules.mk
+
+$(FW_DIR)/an386-link/%.o: %.c $(FW_LINK_DEPS) | toolchain
+	@mkdir -p $(@D)
+	@$(MCU_CC) $(FW_ARCH_an386) $(FW_LINK_CFLAGS) -c -o $@ $<
+
+$(FW_LINK_ELF): $(patsubst %.c,$(FW_DIR)/an386-link/%.o,$(FW_LINK_SRC)) firmware/mcu/mps2.ld
+	@echo "   arm-none-eabi-gcc $@ (mps2-an386, float, -O2, the host link's application)"
+	@$(MCU_CC) $(FW_ARCH_an386) -nostartfiles --specs=nosys.specs -Wl,--gc-sections \
+	  -Wl,--defsym=STACK_SIZE=$(FW_STACK) -Wl,-T,firmware/mcu/mps2.ld \
+	  -Wl,-Map,$(FW_DIR)/an386-link/servodyn-fw-link.map -o $@ $(filter %.o,$^) -lm
+
+fw: $(FW_LINK_ELF)
