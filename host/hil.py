@@ -244,7 +244,7 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
 
 def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "replica",
                   icount_shift: int = 3, telemetry_every: int = 10, host_timeout_ms: int = 60000,
-                  timeout: float = 600.0) -> tuple[dict, Record, object, object]:
+                  timeout: float = 600.0, args: str = "") -> tuple[dict, Record, object, object]:
     """The general application's image (fw_link.c; the host link on -serial #2) under QEMU against a
     fresh simulated arm: the host loads `config`, streams its motion's knots, homes and plays, then
     switches torque off, which ends the run (once=1). (report, record, session, plan): the report's
@@ -262,7 +262,7 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
     port, sync_port, link_port = _free_ports(3)
     baud = next(iter(loaded.buses.values())).baud
     extra = ("-serial", f"tcp:127.0.0.1:{link_port},server=on,wait=on,nodelay=on")
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, f"once=1 baud={baud}", sync_port, extra),
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, f"once=1 baud={baud} {args}", sync_port, extra),
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     try:

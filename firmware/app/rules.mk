@@ -63,7 +63,7 @@ FW_LINK_MCU_SIZES := -DSD_MAX_BODY=8 -DSD_MAX_DOF=8 -DSD_MAX_KNOT=32
 FW_LINK_ELF := $(FW_DIR)/an386-link/servodyn-fw-link.elf
 FW_LINK_CFLAGS := $(filter-out -include $(FW_GEN)/servodyn_gen.h,$(FW_CFLAGS)) $(FW_LINK_MCU_SIZES) \
   -DFW_LINK_BOARD='"mps2-an386"' -Ifirmware/link
-FW_LINK_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c firmware/app/fw_link.c \
+FW_LINK_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c firmware/mcu/board_link.c firmware/app/fw_link.c \
   firmware/app/fw_step.c firmware/app/fw_bus.c firmware/link/link.c hal/dynamixel/c/dxl.c
 FW_LINK_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h firmware/link/*.h hal/dynamixel/c/*.h) \
   $(FW_GEN)/fw_dynamixel.h firmware/app/rules.mk
