@@ -240,7 +240,8 @@ def torque_off_seen(c: Controller, but=(), timeout: float = 5.0) -> bool:
 def test_commands_and_a_fault_cleared(controller):
     """PLAY before HOME is refused (not now); TORQUE_OFF while homing switches every servo off; a
     servo that stops answering while homing is fault 10 (timeout) naming its joint, torque off;
-    CLEAR_FAULT returns to loaded, and HOME sets the bus up again and homes."""
+    CLEAR_FAULT returns to loaded, and HOME sets the bus up again and homes; STOP holds for the
+    safety table's reaction_time (1 s), then switches torque off."""
     c = controller
     p = plan(c.config, host_timeout_ms=60000)
     c.link.hello()
@@ -266,6 +267,13 @@ def test_commands_and_a_fault_cleared(controller):
     assert ms.STATES[wait_state(c, "loaded").state] == "loaded" and c.link.last.fault == 0
     c.link.command("home", p.home_ms)
     assert ms.STATES[wait_state(c, "homing").state] == "homing", "homing again after the fault"
+    c.link.command("stop")                     # the replica's reaction: hold, then torque off
+    held = wait_state(c, "holding", "torque_off")
+    off = wait_state(c, "torque_off")
+    reaction = round(c.config.guards.reaction_time / SMALL_TIME_STEP)
+    assert ms.STATES[held.state] == "holding" and abs(off.tick - held.tick - reaction) <= 2, \
+        f"STOP held {off.tick - held.tick} ticks before torque off (reaction {reaction})"
+    assert torque_off_seen(c), "torque off on every servo after STOP"
 
 
 @pytest.mark.slow
