@@ -22,7 +22,10 @@ from servodyn.hal.config import load_config
 from servodyn.hal.link import frame as fr
 from servodyn.hal.link import messages as ms
 from servodyn.hil import FirmwareLink, replay
+from servodyn.hal.dynamixel.units import ServoMap
+from servodyn.loop import summarize
 from servodyn.loop.link_load import plan
+from servodyn.loop.link_log import telemetry_log
 from servodyn.loop.link_session import ControllerRefused, LinkSession
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
@@ -134,6 +137,17 @@ def test_the_forehand_streamed_over_the_link_is_the_host_controllers(controller)
     diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
     assert diff.max() <= 1, f"goals differ by up to {diff.max()} units from the host's controller"
     assert record.torque_off and all(not s.torque_enabled for s in c.arm.servos), "torque off on every servo"
+    # the run's log from the telemetry, summarized as the Python loop's
+    log = telemetry_log(c.config, c.link.telemetry)
+    assert len(log.t) == nswing and log.t[-1] == pytest.approx((nswing - 1) * SMALL_TIME_STEP), "the motion's ticks"
+    units = ServoMap.from_joints(c.config.joints)
+    measured = np.array([units.from_ticks(r[:, 2]) for r in record.reads[1 + HOME_TICKS:1 + HOME_TICKS + nswing]])
+    assert np.abs(np.array(log.q) - measured).max() <= 2.0 ** -13 + 1e-6, \
+        "q logged is q read, to half telemetry's 2^-12 rad (and the controller's float)"
+    assert np.abs(np.array(log.q_d) - p.swing.q).max() <= 2.0 ** -13 + 1e-5, \
+        "q_d logged is the host's plan (to half 2^-12 rad, and the float knots)"
+    summary = summarize(log, nswing, SMALL_TIME_STEP, False)
+    assert summary["completed"] and summary["tracking_max_rad"] <= np.radians(5), summary
 
 
 def test_a_silent_host_holds_at_once_and_switches_torque_off(controller):

@@ -430,6 +430,9 @@ static int play_point(int update) {
     at_rest(k0->q);
     if (g.ring.ended) g.done = 1;
     else g.flags |= LINK_TM_STARVED;
+    if (update && k0->kp[0] != 0) {        // its gains, as a schedule holds its last knot's
+      for (int i = 0; i < g.njoint; i++) g.step.control.kp[i] = k0->kp[i], g.step.control.kd[i] = k0->kd[i];
+    }
     return 1;
   }
   sd_real t0 = (sd_real)(k0->t_us - g.play_t0_us) * SD_R(1e-6);
@@ -468,6 +471,14 @@ static void control_tick(void) {
     fault(err, g.bus.fault_servo);
     return;
   }
+  if (g.state == LINK_HOMING && g.phase_tick >= g.home_ticks) {   // homed: this tick plays or holds
+    if (g.play_after_home) {
+      start_play();
+    } else {
+      at_rest(link_ring_at(&g.ring, 0)->q);
+      hold_here();
+    }
+  }
   int update = g.phase_tick % g.step.control.update_ticks == 0;
   if (g.state == LINK_HOMING) {
     home_point(g.phase_tick, link_ring_at(&g.ring, 0)->q);
@@ -491,14 +502,6 @@ static void control_tick(void) {
   fw_bus_write_goals(&g.bus, g.step.goal);
   fw_record_tick(g.tick, g.njoint, g.q_d, g.q, g.qd, g.step.tau, g.current);
   g.phase_tick++;
-  if (g.state == LINK_HOMING && g.phase_tick >= g.home_ticks) {
-    if (g.play_after_home) {
-      start_play();
-    } else {
-      at_rest(link_ring_at(&g.ring, 0)->q);
-      hold_here();
-    }
-  }
   if (g.stop_ticks >= 0 && g.stop_ticks-- == 0) torque_off(LINK_TORQUE_OFF);
 }
 

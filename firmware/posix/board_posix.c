@@ -14,7 +14,8 @@
 // record per tick (fw_record_tick) for the host tools. link=PATH: the host link's line (fw_link.c,
 // build/fw/native/servodyn-fw-link), a pseudo-terminal (set raw) or a socket; in lock-step a tick
 // that did not use the bus waits for the host's bytes up to one period of real time, so an idle
-// controller does not spin.
+// controller does not spin, and a frame waits for room on the line (up to 1 s) rather than being
+// dropped, so the host gets every tick's telemetry; in real time a full line drops the frame.
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
@@ -280,11 +281,11 @@ int board_link_write(const uint8_t* data, size_t n) {
       sent += (size_t)w;
     } else if (w < 0 && errno == EINTR) {
       continue;
-    } else if (sent == 0) {
-      return 0;                  // full: the frame is dropped whole
-    } else {                     // begun: finish it, or the host loses this frame and the next
-      struct pollfd p = {g_link_fd, POLLOUT, 0};
-      if (poll(&p, 1, 10) <= 0) return 0;
+    } else if (sent == 0 && g_realtime) {
+      return 0;                  // full: the frame is dropped whole (real time waits for no host)
+    } else {                     // begun: finish it, or the host loses this frame and the next;
+      struct pollfd p = {g_link_fd, POLLOUT, 0};    // lock-step waits for the host, as for the bus
+      if (poll(&p, 1, g_realtime ? 10 : 1000) <= 0) return 0;
     }
   }
   return 1;
