@@ -28,6 +28,7 @@ import shutil
 import socket
 import struct
 import subprocess
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +45,10 @@ from .hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_re
 from .hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
 from .hal.dynamixel.instructions import parse_sync_write
 from .hal.dynamixel.units import ServoMap
+from .hal.link import messages as ms
 from .loop import tick
+from .loop.link_load import plan as link_plan
+from .loop.link_session import LinkSession
 from .loop.native import FirmwareError, parse_report
 from .sim.robot import SimulatedRobot
 
@@ -249,11 +253,6 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
     fresh simulated arm: the host loads `config`, streams its motion's knots, homes and plays, then
     switches torque off, which ends the run (once=1). (report, record, session, plan): the report's
     worst_work is the worst tick with torque on in clock counts, the link's work included."""
-    import os
-    import threading
-    from .loop.link_load import plan as link_plan
-    from .loop.link_session import LinkSession
-    from .hal.link import messages as ms
     elf = Path(elf) if elf else ROOT / "build" / "fw" / f"{board}-link" / "servodyn-fw-link.elf"
     elf = image(board, elf)
     loaded = load_config(config)

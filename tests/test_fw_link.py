@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import time
 import tty
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from servodyn.control.timing import HOME_DURATION, SMALL_TIME_STEP
 from servodyn.hal.config import load_config
 from servodyn.hal.link import frame as fr
 from servodyn.hal.link import messages as ms
-from servodyn.hil import FirmwareLink, replay
+from servodyn.hil import SYSTICK_HZ, FirmwareLink, replay, run_qemu_link
 from servodyn.hal.dynamixel.units import ServoMap
 from servodyn.loop import summarize
 from servodyn.loop.link_load import plan
@@ -84,7 +85,6 @@ def controller(exe):
 
 def play_until(c: Controller, p, done, timeout: float = 300.0):
     """Pump the link and stream the knots until done(telemetry) or the timeout (s of wall time)."""
-    import time
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         c.link.pump(0.005)
@@ -154,7 +154,6 @@ def test_a_silent_host_holds_at_once_and_switches_torque_off(controller):
     """The host keeps the controller alive through homing, then falls silent once the motion
     plays: the controller holds from the tick its 100 ms timeout ends (HOST_SILENT, state holding,
     the desired pose frozen) and switches torque off reaction_time (1 s) later, on every servo."""
-    import time
     c = controller
     p = plan(c.config, host_timeout_ms=100)
     c.link.hello()
@@ -211,7 +210,6 @@ def test_a_robot_the_core_refuses_is_refused_with_the_reason(controller):
 def test_a_frame_of_another_version_is_answered_with_its_code(controller):
     """A COMMAND framed as version 2: the controller answers RESULT code -11 for its SEQ and TYPE,
     in its own version 1 (which the host's decoder reads)."""
-    import time
     c = controller
     c.link.hello()
     os.write(c.master, fr.encode(9, 0, ms.COMMAND, ms.pack(ms.Command(command=0, arg=0))[1], version=2))
@@ -232,7 +230,6 @@ def test_a_frame_of_another_version_is_answered_with_its_code(controller):
 
 
 def wait_state(c: Controller, *states: str, timeout: float = 60.0):
-    import time
     deadline = time.monotonic() + timeout
     while c.link.last is None or ms.STATES[c.link.last.state] not in states:
         assert time.monotonic() < deadline, f"not {states} within {timeout} s: {c.link.last}"
@@ -242,7 +239,6 @@ def wait_state(c: Controller, *states: str, timeout: float = 60.0):
 
 def torque_off_seen(c: Controller, but=(), timeout: float = 5.0) -> bool:
     """Every servo (but those in `but`) has torque off, once the bus's bytes in flight are served."""
-    import time
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if all(not s.torque_enabled for s in c.arm.servos if s.id not in but):
@@ -297,7 +293,6 @@ def test_the_link_application_under_qemu():
     double controller; the worst tick's instructions reported as the budget bench measures them
     (-icount shift 7, a 3 ms emulated period: 0.3125 instructions a SysTick count at 25 MHz), the
     link's work included, and the stack under the image's 4 KB."""
-    from servodyn.hil import SYSTICK_HZ, run_qemu_link
     build = subprocess.run(["make", "--no-print-directory", "-s", "build/fw/an386-link/servodyn-fw-link.elf"],
                            cwd=ROOT, capture_output=True, text=True)
     assert build.returncode == 0, build.stderr
