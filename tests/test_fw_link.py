@@ -286,6 +286,24 @@ def test_commands_and_a_fault_cleared(controller):
     assert torque_off_seen(c), "torque off on every servo after STOP"
 
 
+def test_the_m4f_link_image_fits_the_boards_budget():
+    """The Cortex-M4F image of the general application (8 bodies, 8 dofs, 32 knots) within the
+    STM32F405 goals of issue 34: flash (text + data) <= 64 KB, RAM (data + bss, its 4 KB stack
+    included) <= 32 KB; no heap, no stdio, no double arithmetic."""
+    elf = ROOT / "build" / "fw" / "an386-link" / "servodyn-fw-link.elf"
+    build = subprocess.run(["make", "--no-print-directory", "-s", str(elf.relative_to(ROOT))], cwd=ROOT,
+                           capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr
+    size = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True)
+    text, data, bss = (int(v) for v in size.stdout.splitlines()[1].split()[:3])
+    assert text + data <= 64 * 1024, f"flash {text + data} B over 64 KB"
+    assert data + bss <= 32 * 1024, f"RAM {data + bss} B over 32 KB"
+    nm = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True).stdout
+    names = {line.split()[-1] for line in nm.splitlines() if line.strip()}
+    assert not names & {"malloc", "_sbrk", "printf", "puts", "__aeabi_dadd", "__aeabi_dmul", "__aeabi_f2d"}, \
+        "no heap, no stdio, no double arithmetic"
+
+
 @pytest.mark.slow
 def test_the_link_application_under_qemu():
     """The same run on the Cortex-M4F image (build/fw/an386-link, sized 8 bodies, 8 dofs, 32 knots)
