@@ -126,10 +126,12 @@ class LinkPlan:
         return out
 
 
-def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_TIMEOUT_MS) -> LinkPlan:
-    """The load messages of `config` and the knots of `motion_name` on its played clock."""
+def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_TIMEOUT_MS,
+         time_scale: float | None = None) -> LinkPlan:
+    """The load messages of `config` and the knots of `motion_name` (a built-in motion or a keyframe
+    file) on its played clock, `time_scale` times slower than keyframed (None: the configuration's)."""
     model, period = config.model, config.control_period
-    scale = config.time_scale_for(motion_name)
+    scale = config.time_scale_for(motion_name) if time_scale is None else time_scale
     motion = load_motion(motion_name, model)
     swing = motion.sample(period, time_scale=scale)
     _, swing_gains = plan_gains(model, swing, joint_sensors(config))
