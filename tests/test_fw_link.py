@@ -24,12 +24,14 @@ from servodyn.hal.link import frame as fr
 from servodyn.hal.link import messages as ms
 from servodyn.hil import SYSTICK_HZ, FirmwareLink, replay, run_qemu_link
 from servodyn.hal.dynamixel.units import ServoMap
-from servodyn.loop import summarize
+from servodyn.loop import RunLog, summarize
 from servodyn.loop.link_load import plan
 from servodyn.loop.link_log import telemetry_log
 from servodyn.loop.link_session import ControllerRefused, LinkSession
 from servodyn.sim.robot import SimulatedRobot
 from servodyn.sim.transport.pty import PtyServer
+from helpers import run_cli
+from runs import run_swing
 
 ROOT = Path(__file__).resolve().parent.parent
 EXE = ROOT / "build" / "fw" / "native" / "servodyn-fw-link"
@@ -327,3 +329,32 @@ def test_the_link_application_under_qemu():
     worst = {k: round(report[k] * per_count) for k in ("worst_work", "worst_link", "worst_control", "mean_control")}
     print(f"worst tick instructions: {worst}, stack {report['stack']} bytes")
     assert 0 < report["stack"] < 4096 and worst["worst_work"] > 0
+
+
+@pytest.mark.slow
+def test_swing_controller_native_has_the_python_loops_summary(exe, tmp_path):
+    """`servodyn swing --controller native`: the simulator in its process, the general application
+    on its pseudo-terminal, loaded and streamed over the host link; the summary from its telemetry
+    with the Python loop's keys, the forehand completed within the Python loop's tracking bound,
+    torque off on every servo, the log of every tick of the motion."""
+    summary = run_swing(out=tmp_path, controller="native")
+    nswing = len(plan(load_config("replica")).swing.t)
+    assert summary["completed"] and summary["loop"] == "native-link", summary.get("error")
+    assert summary["ticks"] == nswing and summary["tracking_max_rad"] <= np.radians(5), summary
+    one = RunLog(("a",))
+    one.add(0.0, [0.0], type("S", (), {"q": np.zeros(1), "qd": np.zeros(1), "current": np.zeros(1)})(),
+            [0.0], 1e-4, 0.0, 1e-4, 1e-4)
+    keys = set(summarize(one, 1, SMALL_TIME_STEP, False)) | {"motion", "mode", "time_scale", "validated", "bus",
+                                                              "loop", "torque_off", "link"}
+    assert keys <= set(summary), f"missing: {keys - set(summary)}"
+    assert all(summary["torque_off"]) and summary["exit_code"] == 0
+    assert summary["link"]["lost_from_controller"] == 0, "lock-step: every telemetry frame arrives"
+    assert (tmp_path / "swing_log.csv").read_text().count("\n") == 1 + nswing
+
+
+def test_swing_controller_native_refuses_what_it_cannot_drive(tmp_path):
+    """A CAN arm: one line, exit 2, before anything moves."""
+    result = run_cli("swing", "--config", "replica_can", "--controller", "native", "--out", tmp_path / "out")
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--controller native drives Dynamixel buses" in lines[0], result.stderr
