@@ -58,7 +58,13 @@ def _play(session: LinkSession, p, proc, timeout: float) -> None:
         if t is not None and (t.flags & ms.TM_DONE or ms.STATES[t.state] in ("fault", "torque_off")):
             return
         if proc.poll() is not None:
-            raise FirmwareError(f"the native controller stopped (exit {proc.returncode}): "
+            session.pump(0.05)                 # its last frames
+            t = session.last
+            if t is not None and t.flags & ms.TM_HOST_SILENT:
+                raise FirmwareError(f"the native controller held, then switched torque off at tick {t.tick}: this "
+                                    f"host fell silent on the host link for over {p.messages[0].host_timeout_ms} ms")
+            state = f"{ms.STATES[t.state]}, flags {t.flags}, tick {t.tick}" if t is not None else "no telemetry"
+            raise FirmwareError(f"the native controller stopped (exit {proc.returncode}; {state}): "
                                 f"{proc.stderr.read().strip()[-300:]}")
         if now > deadline:
             raise FirmwareError(f"the native controller's run did not end within {timeout:g} s")
