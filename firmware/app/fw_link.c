@@ -22,7 +22,9 @@
 //
 // Command line (the board's, for tests): ticks=N (stop after N ticks: torque off, the report line),
 // once=1 (stop when torque goes off after a run: a fault, STOP, TORQUE_OFF, the watchdog),
-// period_us=N (the clock's period instead of the robot's, the robot's own dt kept), baud=N
+// period_us=N (the clock's period instead of the robot's, the robot's own dt kept), tolerance_us=N
+// (a host OS: how far the loop may fall behind before the overrun fault, default none: the host
+// passes its OVERRUN_TOLERANCE), baud=N
 // (the Dynamixel bus, default 1000000). The report line's worst_work: the clock counts of the worst
 // tick that began with torque on, the link's work included (instructions under QEMU's -icount).
 #include <string.h>
@@ -78,6 +80,7 @@ typedef struct fw_link_app_ {
   uint64_t control_sum;                // control work of every running tick, for the mean
   long running_ticks;
   int once;                            // once=1: stop when torque goes off after a run (tests)
+  long tolerance_us;                   // how far a host OS may fall behind (FW_TOLERATE_OVERRUN)
   long clock_period_us;                // period_us=N: the clock's period, not the robot's (measuring
                                        // under QEMU with a slow -icount clock); 0: the robot's
   int ran;                             // torque has been on
@@ -567,6 +570,7 @@ int main(void) {
   g.stop_after = arg_value(line, "ticks=", -1);
   g.once = arg_value(line, "once=", 0) != 0;
   g.clock_period_us = arg_value(line, "period_us=", 0);
+  g.tolerance_us = arg_value(line, "tolerance_us=", 0);
   g.state = LINK_IDLE;
   g.fault_joint = -1;
   g.stop_ticks = g.silent_hold_ticks = -1;
@@ -605,7 +609,10 @@ int main(void) {
     long behind = (long)(int32_t)(board_clock_ticks() - (uint32_t)g.scheduled);
     if (behind > 0) {              // a tick that set the bus up (HOME) may take longer: not a miss
       if (was_running) g.missed++;
-      if (!FW_TOLERATE_OVERRUN && was_running && g.torque) fault(FW_FAULT_OVERRUN, -1);
+      // a microcontroller's tick is deterministic: any overrun is a fault; a host OS may preempt the
+      // loop, so there it may fall behind by up to the tolerance (tolerance_us=, fw_main.c's rule)
+      long limit = FW_TOLERATE_OVERRUN ? g.tolerance_us / (long)g.period_us : 0;
+      if (was_running && g.torque && behind > limit) fault(FW_FAULT_OVERRUN, -1);
       g.scheduled = (long)board_clock_ticks();
     } else if (behind < 0) {
       board_clock_wait();

@@ -12,10 +12,13 @@ import os
 import subprocess
 import time
 import tty
+from contextlib import nullcontext
 from pathlib import Path
 
+from ..control.timing import OVERRUN_TOLERANCE
 from ..errors import ExitCode
 from ..hal.link import messages as ms
+from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from . import summarize, write_summary
 from .link_load import HOST_TIMEOUT_MS, plan
 from .link_log import telemetry_log
@@ -83,7 +86,8 @@ def link_swing(server, port: str, run, out: Path, exe: Path | None = None) -> di
     os.set_blocking(master, False)
     command = [str(exe), port, f"link={os.ttyname(slave)}", f"baud={baud}", "once=1"]
     if run.realtime:
-        command.append("realtime")
+        tolerance = run.options.overrun_tolerance
+        command += ["realtime", f"tolerance_us={round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6)}"]
     if server is not None:
         command.append(f"reply_ms={round(server.buses[next(iter(server.buses))]['reply_timeout'] * 1e3)}")
     say(f"native controller on {port} over the host link ({'real time' if run.realtime else 'lock-step'}) ...")
@@ -97,7 +101,9 @@ def link_swing(server, port: str, run, out: Path, exe: Path | None = None) -> di
         session.stream(p)
         session.command("home", round(run.options.home_duration * 1e3))
         session.command("play")
-        _play(session, p, proc, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
+        with collector_paused(), realtime_priority(LOOP_PRIORITY) if run.realtime else nullcontext():
+            # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
+            _play(session, p, proc, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
         last = session.last
         if last.fault:
             error = (f"native controller: fault {ms_fault(last.fault)} (code {last.fault})"
