@@ -28,6 +28,7 @@ import shutil
 import socket
 import struct
 import subprocess
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +45,10 @@ from .hal.dynamixel import Instruction, PacketError, decode_frame, split_fast_re
 from .hal.dynamixel.control_table import ADDR_GOAL_CURRENT, ADDR_TORQUE_ENABLE, PRESENT_LENGTH
 from .hal.dynamixel.instructions import parse_sync_write
 from .hal.dynamixel.units import ServoMap
+from .hal.link import messages as ms
 from .loop import tick
+from .loop.link_load import plan as link_plan
+from .loop.link_session import LinkSession
 from .loop.native import FirmwareError, parse_report
 from .sim.robot import SimulatedRobot
 
@@ -242,9 +246,65 @@ def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "repli
     return report, link.record, arm
 
 
-def replay(config_name: str, record: Record) -> dict:
+def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "replica",
+                  icount_shift: int = 3, telemetry_every: int = 10, host_timeout_ms: int = 60000,
+                  timeout: float = 600.0, args: str = "") -> tuple[dict, Record, object, object]:
+    """The general application's image (fw_link.c; the host link on -serial #2) under QEMU against a
+    fresh simulated arm: the host loads `config`, streams its motion's knots, homes and plays, then
+    switches torque off, which ends the run (once=1). (report, record, session, plan): the report's
+    worst_work is the worst tick with torque on in clock counts, the link's work included."""
+    elf = Path(elf) if elf else ROOT / "build" / "fw" / f"{board}-link" / "servodyn-fw-link.elf"
+    elf = image(board, elf)
+    loaded = load_config(config)
+    arm = SimulatedRobot(loaded).port()
+    bus = FirmwareLink(arm)
+    port, sync_port, link_port = _free_ports(3)
+    baud = next(iter(loaded.buses.values())).baud
+    extra = ("-serial", f"tcp:127.0.0.1:{link_port},server=on,wait=on,nodelay=on")
+    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, f"once=1 baud={baud} {args}", sync_port, extra),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + timeout
+    try:
+        sock, sync, host = (_connect(proc, p, deadline) for p in (port, sync_port, link_port))
+        serving = threading.Thread(target=bus.serve, args=(sock, deadline, sync), daemon=True)
+        serving.start()
+        host.setblocking(False)
+        session = LinkSession(host.fileno())
+        session.sender.timeout = 1.0        # emulated, lock-stepped ticks are slower than the wall clock's
+        p = link_plan(loaded, host_timeout_ms=host_timeout_ms)
+        session.hello()
+        session.command("telemetry", telemetry_every)
+        session.load(p.messages)
+        session.stream(p)
+        session.command("home", p.home_ms)
+        session.command("play")
+        while session.last is None or not (session.last.flags & ms.TM_DONE or session.last.fault):
+            if time.monotonic() > deadline:
+                raise FirmwareError(f"the run did not end within {timeout:g} s: {session.last}")
+            session.pump(0.005)
+            session.stream(p)
+        session.command("torque_off")
+        serving.join(max(1.0, deadline - time.monotonic()))
+        out, err = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
+        for s in (sock, sync, host):
+            s.close()
+    except subprocess.TimeoutExpired:
+        raise FirmwareError("QEMU did not exit after the firmware's run") from None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    report = parse_report(out + "\n" + err)
+    if "result" not in report:
+        raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): {(out + err).strip()[-300:]}")
+    report["exit_code"] = proc.returncode
+    return report, bus.record, session, p
+
+
+def replay(config_name: str, record: Record, segments=None) -> dict:
     """The firmware's algorithm in the host's double precision, fed the measured state the firmware
-    saw: the desired positions and the Goal Current of every tick."""
+    saw: the desired positions and the Goal Current of every tick. segments(q_start): the run's
+    segments (default: the generated firmware's plan, plan_run's homing and the built-in motion)."""
     config = load_config(config_name)
     model, units = config.model, ServoMap.from_joints(config.joints)
     limit = [j.current_limit for j in config.joints]
@@ -257,7 +317,9 @@ def replay(config_name: str, record: Record) -> dict:
     qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
     goals, q_d, phase = [], [], []
     n = 0
-    for segment in plan_run(model, swing, q_meas[0], sensors=joint_sensors(config)):
+    if segments is None:
+        segments = lambda q_start: plan_run(model, swing, q_start, sensors=joint_sensors(config))
+    for segment in segments(q_meas[0]):
         controller.reset()
         for k in range(len(segment.traj.t)):
             if n + 1 >= len(reads):

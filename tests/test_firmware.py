@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from servodyn.hal.dynamixel.control_table import ITEMS, OperatingMode
-from servodyn.tools.codegen import generate, model_fields
+from servodyn.model.layout import model_fields
+from servodyn.tools.codegen import generate
 from servodyn.hal.config import load_config
 from servodyn.hal.contact_spec import Push
 from servodyn.hil import default_elf, run_qemu, summarize
@@ -102,7 +103,7 @@ def test_codegen_writes_the_python_observers_constants():
 def test_register_addresses_come_from_the_control_table():
     """Every Dynamixel register the firmware names is generated from hal/dynamixel/control_table.py:
     the header defines each at the table's address, and fw_main.c writes no number of its own."""
-    header = generate(load_config("replica"))["servodyn_gen.h"]
+    header = generate(load_config("replica"))["fw_dynamixel.h"]
     for name, item in (("RETURN_DELAY", "return_delay_time"), ("OPERATING_MODE", "operating_mode"),
                        ("TORQUE_ENABLE", "torque_enable"), ("BUS_WATCHDOG", "bus_watchdog")):
         assert f"#define FW_ADDR_{name} {ITEMS[item].address}\n" in header, f"{name} at the table's address"

@@ -532,33 +532,11 @@ def test_a_silent_controller_times_out(lib):
 
 
 def replica_messages() -> list:
-    """The replica's model (the host's set-up sd_model, servodyn codegen's reading of it) and servos
-    as LOAD_ROBOT, LOAD_BODY and LOAD_JOINT messages."""
+    """The replica's model (the host's set-up sd_model, servodyn.model.layout's reading of it), servos,
+    gains and safety table as LOAD_ROBOT, LOAD_BODY and LOAD_JOINT messages (servodyn.loop.link_load)."""
     from servodyn.hal.config import load_config
-    from servodyn.tools.codegen import model_fields
-    config = load_config("replica")
-    f = model_fields(config.model)
-    nb, nd = int(f["nbody"]), int(f["ndof"])
-    out = [ms.RobotHead(nbody=nb, ndof=nd, mode=1, contact=1, contact_debounce=3, update_ticks=10,
-                        host_timeout_ms=100, period_us=1000, gravity=tuple(f["gravity"]), friction_speed=0.05,
-                        stall_time=0.1, stall_speed=0.05, stall_share=0.95, contact_arm_time=0.2, reaction_time=1.0)]
-    for i in range(nb):
-        out.append(ms.Body(index=i, parent=int(f["body_parent"][i]), dofnum=int(f["body_dofnum"][i]),
-                           ball=int(f["body_ball"][i]), pos=tuple(f["body_pos"][i]), rot=tuple(f["body_rot"][i]),
-                           mass=float(f["body_mass"][i]), com=tuple(f["body_com"][i]),
-                           inertia=tuple(f["body_inertia"][i])))
-    for k, j in enumerate(config.joints):
-        out.append(ms.Joint(index=k, bus=ms.BUSES["dynamixel"], id=j.id, model_number=j.servo.model_number,
-                            dof_rot=tuple(f["dof_rot"][k]), armature=float(f["dof_armature"][k]),
-                            direction=j.direction, zero_offset=j.zero_offset, gear_ratio=j.gear_ratio,
-                            rad_per_tick=2 * math.pi / j.servo.ticks_per_rev,
-                            radps_per_unit=2 * math.pi / 60 * j.servo.velocity_unit, effort_per_unit=0.00269,
-                            nm_per_effort=j.torque_constant * j.gear_ratio, effort_limit=j.current_limit,
-                            q_min=float(j.position_limits[0]), q_max=float(j.position_limits[1]),
-                            qd_max=j.velocity_limit, tau_max=0.0, kp=5.0, kd=0.1, error_lowpass=0.2,
-                            following_error=config.guards.following_error[k], observer_gain=50.0,
-                            observer_lowpass=30.0, contact_threshold=config.guards.contact_threshold[k]))
-    return out
+    from servodyn.loop.link_load import plan
+    return plan(load_config("replica")).messages
 
 
 def load(lib, messages, buses=1 << ms.BUSES["dynamixel"]) -> ms.Result:

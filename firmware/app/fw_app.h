@@ -1,12 +1,14 @@
-// fw_app.h: the firmware's control application: types of the generated constant data
-// (servodyn_gen.c, written by `servodyn codegen`) and the fault codes the host reads.
+// fw_app.h: the firmware's control application, whatever gives it its robot: a servo's units and
+// limits, the guards, the fault codes the host reads, and the controller step (fw_step.c) that both
+// applications run: fw_main.c (a robot and motion compiled in by `servodyn codegen`, fw_plan.h) and
+// fw_link.c (a robot and motion loaded over the host link, firmware/link).
 #ifndef FW_APP_H
 #define FW_APP_H
 
 #include <stdint.h>
 
+#include "dxl.h"
 #include "servodyn.h"
-#include "servodyn_gen.h"
 
 // One joint's servo: register units <-> joint SI units (hal/dynamixel/units.py's conventions):
 //   horn angle = direction * gear_ratio * q + zero_offset,  position ticks = horn / rad_per_tick
@@ -33,40 +35,6 @@ typedef struct fw_servo_ {
   sd_real contact_threshold;  // N m: |residual| above it, contact_debounce ticks in a row, is a contact
 } fw_servo;
 
-// A gain schedule: knots at times t (s from the start of its phase), linear in between.
-typedef struct fw_gains_ {
-  int n;
-  sd_real t[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME];
-  sd_real kp[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
-  sd_real kd[FW_NGAIN_SWING > FW_NGAIN_HOME ? FW_NGAIN_SWING : FW_NGAIN_HOME][FW_NJOINT];
-  sd_real error_lowpass[FW_NJOINT];   // the low-pass of the errors the gains act on (sd_control.h)
-} fw_gains;
-
-typedef struct fw_plan_ {
-  sd_real small_time_step;    // s: the control period, one SysTick
-  int update_ticks;           // control periods per inverse dynamics (time_step)
-  long home_ticks;            // periods of the minimum-jerk move to the swing's start
-  long swing_ticks;           // periods of the swing
-  uint32_t baud;              // the configured bus rate (QEMU's UART does not model it)
-  uint8_t watchdog_units;     // Bus Watchdog (98), 20 ms units
-  uint16_t read_address, read_size;   // the fast sync read: Present Current .. Position
-  uint16_t goal_address;      // Goal Current
-  sd_real overrun_tolerance;  // s the plan may fall behind the clock on a host OS (native loop)
-  sd_real friction_speed;     // rad/s: the compensated Coulomb friction's smoothing
-  long stall_ticks;           // periods at the torque limit without moving that are a stall
-  sd_real stall_speed;        // rad/s: slower than this a joint "does not move"
-  sd_real stall_share;        // of the joint's torque limit: "at its limit"
-  int contact;                // 1: the observer watches for contact ([safety] contact)
-  int contact_debounce;       // ticks in a row over a threshold that are a contact
-  long contact_arm_ticks;     // ticks after the observer's start (homing's first) before one counts
-} fw_plan;
-
-extern const sd_model fw_model;
-extern const sd_trajectory fw_swing;
-extern const fw_servo fw_servos[FW_NJOINT];
-extern const fw_gains fw_home_gains, fw_swing_gains;
-extern const fw_plan fw_plan_;
-
 // Fault codes: the firmware's exit status under QEMU and the code in its report line.
 enum fw_fault_ {
   FW_OK = 0,
@@ -85,8 +53,85 @@ enum fw_fault_ {
 
 const char* fw_fault_name(int code);
 
+// The guards' constants beyond each servo's own (host/loop/safety.py's table, contact's rule).
+typedef struct fw_guards_ {
+  long stall_ticks;           // periods at the torque limit without moving that are a stall
+  sd_real stall_speed;        // rad/s: slower than this a joint "does not move"
+  sd_real stall_share;        // of the joint's torque limit: "at its limit"
+  int contact;                // 1: the observer watches for contact ([safety] contact)
+  int contact_debounce;       // ticks in a row over a threshold that are a contact
+  long contact_arm_ticks;     // ticks after the observer's start before one counts
+} fw_guards;
+
+// The controller step of one tick on the measured q, qd and current (fw_step.c): the momentum
+// observer, the core's controller (feed-forward, PD, friction; sd_control_step), then the guards
+// (range, following error, stall, contact) and joint torque -> servo command, clamped.
+typedef struct fw_step_ {
+  const sd_model* model;
+  const fw_servo* servo;      // njoint servos, model dof order
+  const fw_guards* guards;
+  int njoint;
+  sd_data data;
+  sd_control_config control;
+  sd_control_state cstate;
+  sd_observer_config oconfig;
+  sd_observer_state observer;
+  sd_real tau_measured[SD_MAX_DOF];  // N m at the joint: nm_per_amp x the measured current
+  int over[SD_MAX_DOF];              // ticks in a row each joint's |residual| is over its threshold
+  long pressed[SD_MAX_DOF];          // ticks each joint has been at its torque limit without moving
+  sd_real tau[SD_MAX_DOF];           // the step's joint torque
+  int16_t goal[SD_MAX_DOF];          // the step's command, servo units
+  int fault_servo;                   // the servo a fault names (its id), -1 none
+  int contact_servo;                 // a contact's: the last joint over its threshold (its servo id)
+  sd_real fault_value;               // a guard's: the following error (rad), the stalled torque or
+                                     // the contact's |residual| (N m)
+} fw_step;
+
+// Set up the step for a robot: the controller's friction and the observer's constants from the
+// servos, the observer's period dt (the caller sets control.mode, update_ticks and the gains, and
+// checks the observer's constants with sd_observer_check).
+void fw_step_init(fw_step* s, const sd_model* model, const fw_servo* servo, int njoint, const fw_guards* guards,
+                  sd_real dt, sd_real friction_speed);
+// A desired position outside a joint's range is clamped to it, at rest (limiting): 1 when one was.
+int fw_step_clamp_plan(const fw_step* s, sd_real* q_d, sd_real* qd_d, sd_real* qdd_d);
+// Start the observer at the measured state (r = 0), the guards' counts at zero.
+void fw_step_start(fw_step* s, const sd_real* q, const sd_real* qd);
+// The observer's sample of this tick.
+void fw_step_observe(fw_step* s, const sd_real* q, const sd_real* qd, const sd_real* current);
+// The controller's torque into s->tau: 0, or FW_FAULT_NONFINITE / FW_FAULT_OVERFLOW.
+int fw_step_control(fw_step* s, const sd_real* q_d, const sd_real* qd_d, const sd_real* qdd_d, const sd_real* q,
+                    const sd_real* qd);
+// The guards on the tick's state and torque, then torque -> s->goal: 0 or a fault code
+// (s->fault_servo, fault_value set); *limited |= 1 when a command was clamped.
+int fw_step_finish(fw_step* s, const sd_real* q_d, const sd_real* q, const sd_real* qd, int* limited);
+
+// The Dynamixel bus (fw_bus.c): every function but the writes waits for its replies; 0 or a fault
+// code with fault_servo set (the servo's id, -1 none).
+#define FW_TX_MAX (10 + 5 * SD_MAX_DOF + 16)   // bytes of the largest instruction packet
+typedef struct fw_bus_ {
+  const fw_servo* servo;
+  int n;
+  uint8_t ids[SD_MAX_DOF];
+  int fault_servo;
+  int16_t current_units[SD_MAX_DOF];   // the last read's Present Current, servo units
+  dxl_reader reader;
+  size_t rx_got;                       // bytes of the last reply taken
+  uint8_t tx[FW_TX_MAX];
+  uint8_t read_packet[FW_TX_MAX];      // the fast sync read, built once
+  size_t read_len;
+} fw_bus;
+
+void fw_bus_init(fw_bus* b, const fw_servo* servo, int n);
+// Check each servo's model number, set it up (Return Delay 0, current mode, Bus Watchdog), Goal
+// Current 0 and torque on.
+int fw_bus_setup(fw_bus* b);
+// Every servo's state in joint units.
+int fw_bus_read(fw_bus* b, sd_real* q, sd_real* qd, sd_real* current);
+void fw_bus_write_goals(fw_bus* b, const int16_t* goal);
+void fw_bus_torque_off(fw_bus* b);
+
 // Each tick's figures, after its write: the native loop's board logs them (weak: none by default).
-void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd, const sd_real* tau,
-                    const sd_real* current);
+void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q, const sd_real* qd,
+                    const sd_real* tau, const sd_real* current);
 
 #endif  // FW_APP_H

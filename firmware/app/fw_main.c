@@ -28,13 +28,11 @@
 
 #include "board.h"
 #include "dxl.h"
-#include "fw_app.h"
+#include "fw_plan.h"
 
-#define FW_RANGE_MARGIN SD_R(0.35)     // rad beyond a joint's range that is taken for a fault
 #ifndef FW_TOLERATE_OVERRUN
 #define FW_TOLERATE_OVERRUN 0          // 1: fall behind up to the plan's overrun tolerance (a host OS)
 #endif
-#define FW_TX_MAX 160                  // bytes of the largest instruction packet
 
 // where a tick's time goes: the fast sync read (send, parse), the plan's point, the controller
 // step on ticks with and without inverse dynamics, the observer, torque -> current, the sync write
@@ -50,25 +48,12 @@ typedef struct fw_stats_ {
 } fw_stats;
 
 typedef struct fw_state_ {
-  sd_data data;
-  sd_control_config control;
-  sd_control_state cstate;
-  sd_observer_config oconfig;
-  sd_observer_state observer;
-  sd_real tau_measured[FW_NJOINT];   // N m at the joint: nm_per_amp x the measured current
-  int over[FW_NJOINT];               // ticks in a row each joint's |residual| is over its threshold
-  int contact_servo;                 // the link's: the last joint over its threshold at a contact
-  dxl_reader reader;
-  uint8_t ids[FW_NJOINT];
-  uint8_t tx[FW_TX_MAX];
-  size_t read_len;             // the fast sync read packet, built once
-  size_t rx_got;               // bytes of the last reply taken
-  uint8_t read_packet[FW_TX_MAX];
+  fw_step step;                      // the controller step (fw_step.c): observer, controller, guards
+  fw_guards guards;
+  fw_bus bus;                         // the Dynamixel bus (fw_bus.c)
   sd_real q[FW_NJOINT], qd[FW_NJOINT], current[FW_NJOINT];
   sd_real q_d[FW_NJOINT], qd_d[FW_NJOINT], qdd_d[FW_NJOINT];
   sd_real q_home[FW_NJOINT];
-  sd_real tau[FW_NJOINT];
-  int16_t goal[FW_NJOINT];
   long tick;                   // ticks since the clock started
   long nlimited;               // ticks with a clamped command
   long missed;                 // ticks whose work ran past their period's end
@@ -77,9 +62,6 @@ typedef struct fw_state_ {
   long scheduled;              // the clock period the current tick belongs to (-1: none yet)
   int fault, fault_servo;
   long fault_tick;
-  sd_real fault_value;         // a guard's: the following error (rad), the stalled torque or the
-                               // contact's |residual| (N m)
-  long pressed[FW_NJOINT];     // ticks each joint has been at its torque limit without moving
   uint32_t period;             // clock counts per tick
   long nan_at, huge_at, stop_after;
   fw_stats stats;
@@ -87,173 +69,11 @@ typedef struct fw_state_ {
 
 static fw_state g;
 
-const char* fw_fault_name(int code) {
-  switch (code) {
-    case FW_OK: return "none";
-    case FW_FAULT_TIMEOUT: return "timeout";
-    case FW_FAULT_STATUS: return "status";
-    case FW_FAULT_CORRUPT: return "corrupt";
-    case FW_FAULT_NONFINITE: return "nonfinite";
-    case FW_FAULT_OVERRUN: return "overrun";
-    case FW_FAULT_RANGE: return "range";
-    case FW_FAULT_SETUP: return "setup";
-    case FW_FAULT_OVERFLOW: return "overflow";
-    case FW_FAULT_CONTACT: return "contact";
-    case FW_FAULT_FOLLOWING_ERROR: return "following_error";
-    case FW_FAULT_STALL: return "stall";
-    default: return "unknown";
-  }
-}
-
 static void fault(int code, int servo) {
   if (g.fault) return;
   g.fault = code;
   g.fault_servo = servo;
   g.fault_tick = g.tick;
-}
-
-//---------------------------------- bus ---------------------------------------------------------
-
-static void bus_send(const uint8_t* packet, size_t n) {
-  board_uart_flush();               // a late reply to an earlier packet is stale now
-  dxl_reader_reset(&g.reader);
-  board_uart_write(packet, n);
-}
-
-// Wait, the clock held, until `want` bytes have arrived or the servos are taken for silent;
-// then parse what came with the clock running (its cost is the tick's, the waiting is not).
-// Returns DXL_PACKET, a negative dxl_feed_ code, or 0 on a timeout. g.rx_got counts the bytes.
-static int bus_receive(size_t want) {
-  g.rx_got = 0;
-  for (;;) {
-    board_clock_hold();
-    int came = board_uart_wait(want - g.rx_got);
-    board_clock_release();
-    uint8_t chunk[128];
-    size_t n;
-    while ((n = board_uart_take(chunk, sizeof chunk)) > 0) {
-      size_t used;
-      int status = dxl_reader_feed_bytes(&g.reader, chunk, n, &used);
-      g.rx_got += used;
-      if (status != DXL_MORE) return status;
-    }
-    if (!came) return 0;
-    want = g.rx_got + 1;          // stuffing made the packet longer: wait for one more byte
-  }
-}
-
-// One status packet from servo `id` (after a ping, read or write); 0 or a fault code.
-static int bus_status(uint8_t id) {
-  int status = bus_receive(11);    // the shortest status packet: no parameters
-  if (status == 0) return FW_FAULT_TIMEOUT;
-  if (status != DXL_PACKET || g.reader.id != id || g.reader.instruction != DXL_STATUS)
-    return FW_FAULT_CORRUPT;
-  if (g.reader.error) return FW_FAULT_STATUS;
-  return FW_OK;
-}
-
-static int bus_write_bytes(uint8_t id, uint16_t address, const uint8_t* data, uint16_t size) {
-  size_t n = dxl_write(g.tx, sizeof g.tx, id, address, data, size);
-  bus_send(g.tx, n);
-  return bus_status(id);
-}
-
-static int bus_write(uint8_t id, uint16_t address, uint8_t value) {
-  return bus_write_bytes(id, address, &value, 1);
-}
-
-static void torque_off_all(void) {
-  uint8_t zeros[FW_NJOINT] = {0};
-  size_t n = dxl_sync_write(g.tx, sizeof g.tx, FW_ADDR_TORQUE_ENABLE, 1, g.ids, FW_NJOINT, zeros);
-  board_uart_write(g.tx, n);        // a sync write is never answered: nothing to wait for
-}
-
-// the length of a fast sync read reply (never stuffed): header, id, length, instruction, then per
-// servo error, id, data and a CRC (the last servo's is the packet's)
-static size_t fast_reply_length(void) {
-  return 4 + 1 + 2 + 1 + (size_t)FW_NJOINT * (1u + 1u + fw_plan_.read_size + 2u);
-}
-
-// Read every servo's state into g.q, g.qd, g.current; 0 or a fault code (g.fault_servo set).
-static int read_state(void) {
-  bus_send(g.read_packet, g.read_len);
-  int status = bus_receive(fast_reply_length());
-  if (status == 0) {        // the reply stopped short: name the first servo whose block is missing
-    long body = (long)g.rx_got - 8;
-    int k = body < 0 ? 0 : (int)(body / (long)(1 + 1 + fw_plan_.read_size + 2));
-    g.fault_servo = g.ids[k < FW_NJOINT ? k : FW_NJOINT - 1];
-    return FW_FAULT_TIMEOUT;
-  }
-  dxl_block blocks[FW_NJOINT];
-  int good = status == DXL_PACKET
-                 ? dxl_fast_reply_split(&g.reader, fw_plan_.read_size, g.ids, FW_NJOINT, blocks)
-                 : -1;
-  if (good != FW_NJOINT) {  // a bad CRC names no servo; a bad block names its own
-    g.fault_servo = good < 0 ? -1 : g.ids[good];
-    return FW_FAULT_CORRUPT;
-  }
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    if (blocks[i].error) {
-      g.fault_servo = s->id;
-      return FW_FAULT_STATUS;
-    }
-    const uint8_t* p = blocks[i].data;
-    sd_real current_units = (sd_real)dxl_get_i16(p);
-    sd_real velocity_units = (sd_real)dxl_get_i32(p + 2);
-    sd_real position_ticks = (sd_real)dxl_get_i32(p + 6);
-    sd_real to_joint = s->direction / s->gear_ratio;     // direction is +-1: its own inverse
-    g.q[i] = (position_ticks * s->rad_per_tick - s->zero_offset) * to_joint;
-    g.qd[i] = velocity_units * s->radps_per_unit * to_joint;
-    g.current[i] = s->direction * current_units * s->amp_per_unit;
-  }
-  return FW_OK;
-}
-
-static void write_goals(void) {
-  uint8_t data[2 * FW_NJOINT];
-  for (int i = 0; i < FW_NJOINT; i++) dxl_put_u16(data + 2 * i, (uint16_t)g.goal[i]);
-  size_t n = dxl_sync_write(g.tx, sizeof g.tx, fw_plan_.goal_address, 2, g.ids, FW_NJOINT, data);
-  board_uart_write(g.tx, n);
-}
-
-//---------------------------------- set-up ------------------------------------------------------
-
-static int setup_servo(int i) {
-  const fw_servo* s = &fw_servos[i];
-  size_t n = dxl_ping(g.tx, sizeof g.tx, s->id);
-  bus_send(g.tx, n);
-  int err = bus_status(s->id);
-  if (err == FW_OK && (g.reader.nparam < 3 || dxl_get_u16(g.reader.param) != s->model_number))
-    err = FW_FAULT_SETUP;
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_TORQUE_ENABLE, 0);    // EEPROM needs torque off
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_RETURN_DELAY, 0);
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_OPERATING_MODE, FW_MODE_CURRENT);
-  if (err == FW_OK) err = bus_write(s->id, FW_ADDR_BUS_WATCHDOG, 0);     // clear a tripped one
-  return err;
-}
-
-static int setup(void) {
-  for (int i = 0; i < FW_NJOINT; i++) {
-    int err = setup_servo(i);
-    if (err) {
-      g.fault_servo = fw_servos[i].id;
-      return err;
-    }
-  }
-  // Goal Current 0 before torque on: a servo powers up with Goal Current at its Current Limit,
-  // which torque on would apply at once, for as long as the set-up of the other servos lasts
-  const uint8_t zero_current[2] = {0, 0};
-  for (int i = 0; i < FW_NJOINT; i++) {
-    int err = bus_write_bytes(fw_servos[i].id, fw_plan_.goal_address, zero_current, 2);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_TORQUE_ENABLE, 1);
-    if (err == FW_OK) err = bus_write(fw_servos[i].id, FW_ADDR_BUS_WATCHDOG, fw_plan_.watchdog_units);
-    if (err) {
-      g.fault_servo = fw_servos[i].id;
-      return err;
-    }
-  }
-  return FW_OK;
 }
 
 //---------------------------------- the plan ----------------------------------------------------
@@ -281,111 +101,10 @@ static void schedule_gains(const fw_gains* s, sd_real t) {
   sd_real w = (t - s->t[k]) / (s->t[k + 1] - s->t[k]);
   w = w < 0 ? 0 : (w > 1 ? SD_R(1.0) : w);
   for (int i = 0; i < FW_NJOINT; i++) {
-    g.control.kp[i] = s->kp[k][i] + w * (s->kp[k + 1][i] - s->kp[k][i]);
-    g.control.kd[i] = s->kd[k][i] + w * (s->kd[k + 1][i] - s->kd[k][i]);
-    g.control.error_lowpass[i] = s->error_lowpass[i];
+    g.step.control.kp[i] = s->kp[k][i] + w * (s->kp[k + 1][i] - s->kp[k][i]);
+    g.step.control.kd[i] = s->kd[k][i] + w * (s->kd[k + 1][i] - s->kd[k][i]);
+    g.step.control.error_lowpass[i] = s->error_lowpass[i];
   }
-}
-
-// joint limits: a desired position outside the range is clamped to it (limiting)
-static int clamp_plan(void) {
-  int limited = 0;
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    if (g.q_d[i] < s->q_min || g.q_d[i] > s->q_max) {
-      g.q_d[i] = g.q_d[i] < s->q_min ? s->q_min : s->q_max;
-      g.qd_d[i] = g.qdd_d[i] = 0;
-      limited = 1;
-    }
-  }
-  return limited;
-}
-
-// a measured joint far outside its range is a sensor or mechanical fault, not a command
-static int check_range(void) {
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    if (!(g.q[i] > s->q_min - FW_RANGE_MARGIN && g.q[i] < s->q_max + FW_RANGE_MARGIN)) {
-      g.fault_servo = s->id;
-      return FW_FAULT_RANGE;
-    }
-  }
-  return FW_OK;
-}
-
-// the guards (host/loop/safety.py's, on the same table): a joint further from its command than its
-// following-error limit; a joint commanded at its torque limit that does not move, stall_ticks long
-static int check_guards(void) {
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    sd_real error = g.q_d[i] - g.q[i];
-    if (error > s->following_error || error < -s->following_error) {
-      g.fault_servo = s->id;
-      g.fault_value = error < 0 ? -error : error;
-      return FW_FAULT_FOLLOWING_ERROR;
-    }
-    sd_real limit = fw_plan_.stall_share * s->current_limit * s->nm_per_amp;
-    int pressed = (g.tau[i] >= limit || g.tau[i] <= -limit) &&
-                  g.qd[i] < fw_plan_.stall_speed && g.qd[i] > -fw_plan_.stall_speed;
-    g.pressed[i] = pressed ? g.pressed[i] + 1 : 0;
-    if (g.pressed[i] >= fw_plan_.stall_ticks) {
-      g.fault_servo = s->id;
-      g.fault_value = g.tau[i] < 0 ? -g.tau[i] : g.tau[i];
-      return FW_FAULT_STALL;
-    }
-  }
-  return FW_OK;
-}
-
-// Start the observer at the measured state (r = 0; its exponentials taken), at the read that
-// begins homing: outside the ticks, so the first tick pays one sample as every other does.
-static void observer_start(void) {
-  sd_observer_reset(&fw_model, &g.data, &g.oconfig, &g.observer, g.q, g.qd);
-  for (int i = 0; i < FW_NJOINT; i++) g.over[i] = 0;
-}
-
-// The observer's sample of this tick (stepped as ContactObserver.update is), and its contact rule: joint i is over when |rf_i| > its threshold;
-// a contact once any joint has been over contact_debounce ticks in a row and the observer has run
-// contact_arm_ticks ticks. The first such joint is the fault's servo; the last joint over its
-// threshold names the link (a contact's force reaches only the joints between the base and it).
-static void observe(void) {
-  for (int i = 0; i < FW_NJOINT; i++) g.tau_measured[i] = fw_servos[i].nm_per_amp * g.current[i];
-  sd_observer_step(&fw_model, &g.data, &g.oconfig, &g.observer, g.q, g.qd, g.tau_measured);
-}
-
-static int check_contact(void) {
-  if (!fw_plan_.contact) return FW_OK;
-  int found = -1, last = -1;
-  for (int i = 0; i < FW_NJOINT; i++) {
-    sd_real r = g.observer.rf[i];
-    int over = r > fw_servos[i].contact_threshold || r < -fw_servos[i].contact_threshold;
-    g.over[i] = over ? g.over[i] + 1 : 0;
-    if (over) last = i;
-    if (found < 0 && g.over[i] >= fw_plan_.contact_debounce) found = i;
-  }
-  // ContactObserver's clock: t - t0 = the samples stepped since the reset (its tick) periods
-  if (found < 0 || g.observer.tick < fw_plan_.contact_arm_ticks) return FW_OK;
-  sd_real r = g.observer.rf[found];
-  g.fault_servo = fw_servos[found].id;
-  g.fault_value = r < 0 ? -r : r;
-  g.contact_servo = fw_servos[last].id;
-  return FW_FAULT_CONTACT;
-}
-
-// joint torque -> Goal Current units, clamped at each servo's current limit (limiting)
-static int output(void) {
-  int limited = 0;
-  for (int i = 0; i < FW_NJOINT; i++) {
-    const fw_servo* s = &fw_servos[i];
-    sd_real amps = g.tau[i] / s->nm_per_amp;
-    if (amps > s->current_limit || amps < -s->current_limit) {
-      amps = amps > 0 ? s->current_limit : -s->current_limit;
-      limited = 1;
-    }
-    sd_real units = s->direction * amps / s->amp_per_unit;
-    g.goal[i] = (int16_t)(units < 0 ? units - SD_R(0.5) : units + SD_R(0.5));
-  }
-  return limited;
 }
 
 //---------------------------------- the loop ----------------------------------------------------
@@ -400,9 +119,9 @@ static void account(int section, uint32_t counts) {
 // one control period; phase_tick counts from the start of the phase (homing or swing)
 static void tick(int swing, long phase_tick) {
   uint32_t c0 = board_clock_now();
-  int err = read_state();
+  int err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
   if (err) {
-    fault(err, g.fault_servo);
+    fault(err, g.bus.fault_servo);
     return;
   }
   if (g.tick == g.nan_at) g.q[0] = g.q[0] * (sd_real)__builtin_nanf("");
@@ -417,32 +136,23 @@ static void tick(int swing, long phase_tick) {
   }
   int update = phase_tick % fw_plan_.update_ticks == 0;
   if (update) schedule_gains(swing ? &fw_swing_gains : &fw_home_gains, t);
-  int limited = clamp_plan();
+  int limited = fw_step_clamp_plan(&g.step, g.q_d, g.qd_d, g.qdd_d);
   uint32_t c2 = board_clock_now();
 
-  observe();
+  fw_step_observe(&g.step, g.q, g.qd, g.current);
   uint32_t c2o = board_clock_now();
 
-  sd_control_step(&fw_model, &g.data, &g.control, &g.cstate, g.q_d, g.qd_d, g.qdd_d, g.q, g.qd,
-                  g.tau);
+  err = fw_step_control(&g.step, g.q_d, g.qd_d, g.qdd_d, g.q, g.qd);
   uint32_t c3 = board_clock_now();
-  if (g.cstate.status & (SD_STATUS_NONFINITE | SD_STATUS_OVERFLOW)) {
-    fault(g.cstate.status & SD_STATUS_NONFINITE ? FW_FAULT_NONFINITE : FW_FAULT_OVERFLOW, -1);
-    return;
-  }
-  err = check_range();
-  if (err == FW_OK) err = check_guards();
-  if (err == FW_OK) err = check_contact();
+  if (err == FW_OK) err = fw_step_finish(&g.step, g.q_d, g.q, g.qd, &limited);
   if (err) {
-    fault(err, g.fault_servo);
+    fault(err, g.step.fault_servo);
     return;
   }
-  limited |= output();
-  limited |= (g.cstate.status & SD_STATUS_LIMITED) != 0;
   g.nlimited += limited;
   uint32_t c4 = board_clock_now();
 
-  write_goals();
+  fw_bus_write_goals(&g.bus, g.step.goal);
   uint32_t c5 = board_clock_now();
   account(SEC_READ, c1 - c0);
   account(SEC_WRITE, c5 - c4);
@@ -451,7 +161,7 @@ static void tick(int swing, long phase_tick) {
   account(update ? SEC_CONTROL_UPDATE : SEC_CONTROL, c3 - c2o);
   account(SEC_OUTPUT, c4 - c3);
   account(SEC_TICK, c5 - c0);
-  fw_record_tick(g.tick, g.q_d, g.q, g.qd, g.tau, g.current);
+  fw_record_tick(g.tick, FW_NJOINT, g.q_d, g.q, g.qd, g.step.tau, g.current);
   // periods begun since this tick's own: it ran past its deadline, and the plan is that far behind
   long behind = (long)(int32_t)(board_clock_ticks() - (uint32_t)g.scheduled);
   if (behind > 0) {
@@ -475,14 +185,8 @@ static void wait_for_period(void) {
   board_tick_begin();
 }
 
-// where a board records each tick (the native loop's log); none on a microcontroller
-__attribute__((weak)) void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd,
-                                          const sd_real* tau, const sd_real* current) {
-  (void)tick, (void)q_d, (void)q, (void)qd, (void)tau, (void)current;
-}
-
 static long run_phase(int swing, long nticks) {
-  sd_control_reset(&g.cstate);
+  sd_control_reset(&g.step.cstate);
   for (long k = 0; k < nticks && !g.fault; k++) {
     if (g.stop_after >= 0 && g.tick >= g.stop_after) break;
     wait_for_period();
@@ -508,8 +212,8 @@ static void report(void) {
   say_kv("code", g.fault);
   say_kv("servo", g.fault_servo);
   say_kv("fault_tick", g.fault ? g.fault_tick : -1);
-  say_kv("value_micro", (long)(g.fault_value * SD_R(1e6)));   // a guard's value: rad or N m
-  say_kv("link_servo", g.fault == FW_FAULT_CONTACT ? g.contact_servo : -1);
+  say_kv("value_micro", (long)(g.step.fault_value * SD_R(1e6)));   // a guard's value: rad or N m
+  say_kv("link_servo", g.fault == FW_FAULT_CONTACT ? g.step.contact_servo : -1);
   say_kv("ticks", g.tick);
   say_kv("limited", g.nlimited);
   say_kv("missed", g.missed);
@@ -551,22 +255,15 @@ int main(void) {
   g.fault_servo = -1;
   g.scheduled = -1;
 
-  g.control.mode = SD_MODE_FEEDFORWARD_PD;
-  g.control.update_ticks = fw_plan_.update_ticks;
-  g.control.friction_speed = fw_plan_.friction_speed;
-  g.oconfig.dt = fw_plan_.small_time_step;
-  g.oconfig.friction_speed = fw_plan_.friction_speed;
-  for (int i = 0; i < FW_NJOINT; i++) {
-    g.ids[i] = fw_servos[i].id;
-    g.control.friction_coulomb[i] = fw_servos[i].friction_coulomb;
-    g.control.friction_viscous[i] = fw_servos[i].friction_viscous;
-    g.oconfig.gain[i] = fw_servos[i].observer_gain;
-    g.oconfig.lowpass[i] = fw_servos[i].observer_lowpass;
-    g.oconfig.friction_coulomb[i] = fw_servos[i].friction_coulomb;
-    g.oconfig.friction_viscous[i] = fw_servos[i].friction_viscous;
-  }
-  g.read_len = dxl_fast_sync_read(g.read_packet, sizeof g.read_packet, fw_plan_.read_address,
-                                  fw_plan_.read_size, g.ids, FW_NJOINT);
+  g.guards = (fw_guards){.stall_ticks = fw_plan_.stall_ticks, .stall_speed = fw_plan_.stall_speed,
+                         .stall_share = fw_plan_.stall_share, .contact = fw_plan_.contact,
+                         .contact_debounce = fw_plan_.contact_debounce,
+                         .contact_arm_ticks = fw_plan_.contact_arm_ticks};
+  fw_step_init(&g.step, &fw_model, fw_servos, FW_NJOINT, &g.guards, fw_plan_.small_time_step,
+               fw_plan_.friction_speed);
+  g.step.control.mode = SD_MODE_FEEDFORWARD_PD;
+  g.step.control.update_ticks = fw_plan_.update_ticks;
+  fw_bus_init(&g.bus, fw_servos, FW_NJOINT);
   g.period = period_us > 0 ? (uint32_t)((uint64_t)period_us * BOARD_CPU_HZ / 1000000u)
                            : (uint32_t)(fw_plan_.small_time_step * (sd_real)BOARD_CPU_HZ + SD_R(0.5));
 
@@ -575,18 +272,18 @@ int main(void) {
   sd_real tolerance = tolerance_us >= 0 ? (sd_real)tolerance_us * SD_R(1e-6) : fw_plan_.overrun_tolerance;
   g.lost_limit = FW_TOLERATE_OVERRUN ? (long)(tolerance * (sd_real)BOARD_CPU_HZ / (sd_real)g.period) : 0;
   board_uart_init(fw_plan_.baud);
-  int err = sd_observer_check(&fw_model, &g.oconfig) == SD_OBSERVER_OK ? setup() : FW_FAULT_SETUP;
-  if (err == FW_OK) err = read_state();
+  int err = sd_observer_check(&fw_model, &g.step.oconfig) == SD_OBSERVER_OK ? fw_bus_setup(&g.bus) : FW_FAULT_SETUP;
+  if (err == FW_OK) err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
   if (err) {
-    fault(err, g.fault_servo);
+    fault(err, g.bus.fault_servo);
   } else {
     for (int i = 0; i < FW_NJOINT; i++) g.q_home[i] = g.q[i];
-    observer_start();
+    fw_step_start(&g.step, g.q, g.qd);
     board_clock_start(g.period);
     run_phase(0, fw_plan_.home_ticks);
     if (!g.fault) run_phase(1, fw_plan_.swing_ticks);
   }
-  torque_off_all();
+  fw_bus_torque_off(&g.bus);
   report();
   return g.fault;
 }

@@ -155,16 +155,23 @@ void sd_trajectory_eval(const sd_trajectory* tr, sd_real t, sd_real* q, sd_real*
     }
   }
 
+  sd_trajectory_segment(nd, knot_t[lo], knot_t[hi], tr->knot_q[lo], tr->knot_qd[lo], tr->knot_qdd[lo],
+                        tr->knot_q[hi], tr->knot_qd[hi], tr->knot_qdd[hi], t, q, qd, qdd);
+}
+
+void sd_trajectory_segment(int nd, sd_real t0, sd_real t1, const sd_real* q0, const sd_real* qd0,
+                           const sd_real* qdd0, const sd_real* q1, const sd_real* qd1, const sd_real* qdd1,
+                           sd_real t, sd_real* q, sd_real* qd, sd_real* qdd) {
   // normalized time s in [0, 1): d/dt = (1/h) d/ds
-  sd_real h = knot_t[hi] - knot_t[lo];
+  sd_real h = t1 - t0;
   sd_real inv_h = SD_R(1) / h;
-  sd_real s = (t - knot_t[lo]) * inv_h;
+  sd_real s = (t - t0) * inv_h;
   for (int j = 0; j < nd; j++) {
     // end data in s: positions, slopes V = v h, accelerations A = a h^2
-    sd_real p0 = tr->knot_q[lo][j], p1 = tr->knot_q[hi][j];
+    sd_real p0 = q0[j], p1 = q1[j];
     sd_real d = p1 - p0;
-    sd_real v0 = tr->knot_qd[lo][j] * h, v1 = tr->knot_qd[hi][j] * h;
-    sd_real a0 = tr->knot_qdd[lo][j] * h * h, a1 = tr->knot_qdd[hi][j] * h * h;
+    sd_real v0 = qd0[j] * h, v1 = qd1[j] * h;
+    sd_real a0 = qdd0[j] * h * h, a1 = qdd1[j] * h * h;
 
     // e0, e1: wanted end accelerations minus those of the cubic Hermite H
     sd_real e0 = a0 - (SD_R(6) * d - SD_R(4) * v0 - SD_R(2) * v1);

@@ -73,4 +73,15 @@ void board_uart_flush(void);
 // Bytes lost because the receive buffer was full.
 uint32_t board_uart_overruns(void);
 
+//---------------------------------- the host link's line (fw_link.c) ---------------------------
+// The second byte stream, to the host (docs/host-link.md, "The line"). Linux: a pseudo-terminal or
+// any character device or socket named on the command line (link=PATH); a microcontroller: a
+// USART (to come).
+void board_link_init(void);
+// Send a frame's bytes. A line with no room for them drops the frame (telemetry is news; the host
+// sends a request again): 1 sent, 0 dropped.
+int board_link_write(const uint8_t* data, size_t n);
+// Take up to cap received bytes into out; how many (0: none waiting).
+size_t board_link_take(uint8_t* out, size_t cap);
+
 #endif  // MCU_BOARD_H

@@ -14,7 +14,7 @@ MCU_CFLAGS := $(MCU_ARCH) -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion 
   -DSD_SINGLE -DSD_MAX_BODY=16 -DSD_MAX_DOF=24 -DSD_MAX_KNOT=32 -Ifirmware/core/include -Ifirmware/mcu -Ihal/can/c
 MCU_LDFLAGS := $(MCU_ARCH) -nostartfiles --specs=nosys.specs -Wl,--gc-sections \
   -Wl,-T,firmware/mcu/mps2.ld -Wl,-Map,$(MCU_DIR)/servodyn-mcu.map
-MCU_SRC := $(CORE_C) $(wildcard firmware/mcu/*.c) hal/can/c/canmotor.c
+MCU_SRC := $(CORE_C) $(filter-out firmware/mcu/board_link.c,$(wildcard firmware/mcu/*.c)) hal/can/c/canmotor.c
 MCU_OBJ := $(patsubst %.c,$(MCU_DIR)/%.o,$(MCU_SRC))
 
 $(MCU_DIR)/%.o: %.c $(CORE_H) $(wildcard firmware/mcu/*.h) hal/can/c/canmotor.h firmware/mcu/rules.mk

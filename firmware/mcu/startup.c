@@ -88,6 +88,7 @@ static void mcu_fault(void) {
 void board_systick_isr(void) __attribute__((weak, alias("mcu_fault")));
 void board_uart0_rx_isr(void) __attribute__((weak, alias("mcu_fault")));
 void board_uart1_rx_isr(void) __attribute__((weak, alias("mcu_fault")));   // the HIL sync line
+void board_uart2_rx_isr(void) __attribute__((weak, alias("mcu_fault")));   // the host link (fw_link.c)
 // a program without the control clock (the core's check, main.c) has no clock to report
 static void no_report(void) {}
 void board_clock_report(void) __attribute__((weak, alias("no_report")));
@@ -112,5 +113,7 @@ static void (*const g_vectors[16 + 32])(void) = {
   board_uart0_rx_isr,    // IRQ 0: UART0 receive
   mcu_fault,             // IRQ 1: UART0 transmit
   board_uart1_rx_isr,    // IRQ 2: UART1 receive (board_io.c's, in a hardware-in-the-loop build)
-  [19 ... 47] = mcu_fault,
+  mcu_fault,             // IRQ 3: UART1 transmit
+  board_uart2_rx_isr,    // IRQ 4: UART2 receive (the host link's line)
+  [21 ... 47] = mcu_fault,
 };

@@ -9,9 +9,13 @@
 //   console  standard output; the exit status is the fault code
 //   priority SCHED_FIFO and mlockall in real time when the process may, one line when it may not
 //
-// Command line: servodyn-fw PORT [realtime] [log=FILE] [reply_ms=N] [period_us=N] [nan_at=K]
-// [ticks=N]; the last three are the application's (fw_main.c). log=FILE: one binary record per
-// tick (fw_record_tick) for the host tools.
+// Command line: servodyn-fw PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH] [period_us=N]
+// [nan_at=K] [ticks=N]; the last three are the application's (fw_main.c). log=FILE: one binary
+// record per tick (fw_record_tick) for the host tools. link=PATH: the host link's line (fw_link.c,
+// build/fw/native/servodyn-fw-link), a pseudo-terminal (set raw) or a socket; in lock-step a tick
+// that did not use the bus waits for the host's bytes up to one period of real time, so an idle
+// controller does not spin, and a frame waits for room on the line (up to 1 s) rather than being
+// dropped, so the host gets every tick's telemetry; in real time a full line drops the frame.
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
@@ -37,6 +41,8 @@ static int g_fd = -1;
 static int g_realtime;
 static long g_reply_ms = 250;    // a pseudo-terminal on a loaded machine can hold bytes ~140 ms
 static FILE* g_log;
+static int g_link_fd = -1;
+static int g_bus_used;           // the bus was written since the last wait (lock-step)
 
 // the clock, in ns (BOARD_CPU_HZ is 1e9 in this build)
 static struct timespec g_start;
@@ -125,6 +131,11 @@ void board_clock_wait(void) {
     while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &at, NULL) == EINTR) {
     }
   } else {
+    if (!g_bus_used && g_link_fd >= 0) {     // idle: wait for the host, not for the bus
+      struct pollfd p = {g_link_fd, POLLIN, 0};
+      poll(&p, 1, (int)((g_period_ns + 999999u) / 1000000u));
+    }
+    g_bus_used = 0;
     uint64_t now = elapsed();
     uint64_t next = (now / g_period_ns + 1u) * g_period_ns;
     g_skipped += next - now;
@@ -191,6 +202,7 @@ void board_uart_init(uint32_t baud) {
 }
 
 void board_uart_write(const uint8_t* data, size_t n) {
+  g_bus_used = 1;
   while (n > 0) {
     ssize_t w = write(g_fd, data, n);
     if (w < 0) {
@@ -249,24 +261,60 @@ uint32_t board_uart_overruns(void) {
   return 0;                      // the kernel buffers what the loop has not taken
 }
 
+//---------------------------------- the host link's line ---------------------------------------
+
+void board_link_init(void) {
+  struct termios tio;
+  if (g_link_fd < 0 || tcgetattr(g_link_fd, &tio) != 0) return;   // a socket: nothing to set
+  cfmakeraw(&tio);
+  tio.c_cc[VMIN] = 0;
+  tio.c_cc[VTIME] = 0;
+  tcsetattr(g_link_fd, TCSANOW, &tio);
+}
+
+int board_link_write(const uint8_t* data, size_t n) {
+  if (g_link_fd < 0) return 0;
+  size_t sent = 0;
+  while (sent < n) {
+    ssize_t w = write(g_link_fd, data + sent, n - sent);
+    if (w > 0) {
+      sent += (size_t)w;
+    } else if (w < 0 && errno == EINTR) {
+      continue;
+    } else if (sent == 0 && g_realtime) {
+      return 0;                  // full: the frame is dropped whole (real time waits for no host)
+    } else {                     // begun: finish it, or the host loses this frame and the next;
+      struct pollfd p = {g_link_fd, POLLOUT, 0};    // lock-step waits for the host, as for the bus
+      if (poll(&p, 1, g_realtime ? 10 : 1000) <= 0) return 0;
+    }
+  }
+  return 1;
+}
+
+size_t board_link_take(uint8_t* out, size_t cap) {
+  if (g_link_fd < 0) return 0;
+  ssize_t r = read(g_link_fd, out, cap);
+  return r > 0 ? (size_t)r : 0;
+}
+
 //---------------------------------- the per-tick log --------------------------------------------
 // One record a tick, native doubles: tick, start (s on the monotonic clock from the start), wall
-// and CPU time of its work (s), then q_d, q, qd, tau, current (FW_NJOINT each).
+// and CPU time of its work (s), then q_d, q, qd, tau, current (njoint each).
 // servodyn.tools.native reads it.
 
-void fw_record_tick(long tick, const sd_real* q_d, const sd_real* q, const sd_real* qd, const sd_real* tau,
-                    const sd_real* current) {
+void fw_record_tick(long tick, int njoint, const sd_real* q_d, const sd_real* q, const sd_real* qd,
+                    const sd_real* tau, const sd_real* current) {
   if (!g_log) return;
   enum { HEAD = 4 };
-  double row[HEAD + 5 * FW_NJOINT];
+  double row[HEAD + 5 * SD_MAX_DOF];
   row[0] = (double)tick;
   row[1] = (double)(g_tick_began - start_ns()) * 1e-9;
   row[2] = (double)(mono_ns() - g_tick_began) * 1e-9;
   row[3] = (double)(cpu_ns() - g_cpu_at_tick) * 1e-9;
   const sd_real* parts[5] = {q_d, q, qd, tau, current};
   for (int p = 0; p < 5; p++)
-    for (int i = 0; i < FW_NJOINT; i++) row[HEAD + p * FW_NJOINT + i] = (double)parts[p][i];
-  fwrite(row, sizeof row, 1, g_log);
+    for (int i = 0; i < njoint; i++) row[HEAD + p * njoint + i] = (double)parts[p][i];
+  fwrite(row, sizeof(double), (size_t)(HEAD + 5 * njoint), g_log);
 }
 
 //---------------------------------- main --------------------------------------------------------
@@ -282,7 +330,8 @@ static void realtime_setup(void) {
 
 int main(int argc, char** argv) {
   if (argc < 2 || argv[1][0] == '-') {
-    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [period_us=N] [nan_at=K] [ticks=N]\n",
+    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH] [period_us=N] [nan_at=K] "
+            "[ticks=N]\n",
             argv[0]);
     return 2;
   }
@@ -294,6 +343,12 @@ int main(int argc, char** argv) {
       g_log = fopen(argv[k] + 4, "wb");
       if (!g_log) {
         fprintf(stderr, "servodyn-fw: cannot write %s (%s)\n", argv[k] + 4, strerror(errno));
+        return 2;
+      }
+    } else if (strncmp(argv[k], "link=", 5) == 0) {
+      g_link_fd = open(argv[k] + 5, O_RDWR | O_NOCTTY | O_NONBLOCK);
+      if (g_link_fd < 0) {
+        fprintf(stderr, "servodyn-fw: the host link %s: cannot open (%s)\n", argv[k] + 5, strerror(errno));
         return 2;
       }
     } else if (strncmp(argv[k], "reply_ms=", 9) == 0) {

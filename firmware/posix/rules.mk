@@ -9,7 +9,8 @@ FW_NATIVE_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloa
   -ffp-contract=fast -fno-math-errno -DSD_SINGLE -DBOARD_CPU_HZ=1000000000u -DFW_TOLERATE_OVERRUN=1 \
   -include $(FW_GEN)/servodyn_gen.h -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app \
   -Ihal/dynamixel/c -I$(FW_GEN)
-FW_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
+FW_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c firmware/app/fw_step.c firmware/app/fw_bus.c hal/dynamixel/c/dxl.c \
+  $(FW_GEN)/servodyn_gen.c
 
 # fw_main.c's main() becomes fw_app_main(): the board's main() opens the port first
 $(FW_NATIVE): $(FW_NATIVE_SRC) firmware/app/fw_main.c $(FW_DEPS) firmware/posix/rules.mk
@@ -19,3 +20,24 @@ $(FW_NATIVE): $(FW_NATIVE_SRC) firmware/app/fw_main.c $(FW_DEPS) firmware/posix/
 	@$(CC) $(FW_NATIVE_CFLAGS) -o $@ $(FW_NATIVE_SRC) $(@D)/fw_main.o -lm
 
 fw: $(FW_NATIVE)
+
+# The general application (fw_link.c): no generated robot, the host loads one over the host link
+# (link=PATH) up to the compiled sizes below; the same step, bus code, core and codec.
+#   build/fw/native/servodyn-fw-link PORT link=PATH [realtime] [ticks=N] [baud=N]
+FW_LINK_NATIVE := $(FW_DIR)/native/servodyn-fw-link
+FW_LINK_SIZES := -DSD_MAX_BODY=16 -DSD_MAX_DOF=16 -DSD_MAX_KNOT=64
+FW_LINK_NATIVE_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
+  -ffp-contract=fast -fno-math-errno -DSD_SINGLE $(FW_LINK_SIZES) -DBOARD_CPU_HZ=1000000000u \
+  -DFW_TOLERATE_OVERRUN=1 -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ifirmware/link \
+  -Ihal/dynamixel/c -I$(FW_GEN)
+FW_LINK_NATIVE_SRC := $(CORE_C) firmware/posix/board_posix.c firmware/app/fw_step.c firmware/app/fw_bus.c \
+  firmware/link/link.c hal/dynamixel/c/dxl.c
+
+$(FW_LINK_NATIVE): $(FW_LINK_NATIVE_SRC) firmware/app/fw_link.c $(CORE_H) firmware/app/fw_app.h firmware/mcu/board.h \
+                   firmware/link/link.h hal/dynamixel/c/dxl.h $(FW_GEN)/fw_dynamixel.h firmware/posix/rules.mk
+	@echo "   cc $@ (Linux, float, -O2, the host link's application)"
+	@mkdir -p $(@D)
+	@$(CC) $(FW_LINK_NATIVE_CFLAGS) -Dmain=fw_app_main -c -o $(@D)/fw_link.o firmware/app/fw_link.c
+	@$(CC) $(FW_LINK_NATIVE_CFLAGS) -o $@ $(FW_LINK_NATIVE_SRC) $(@D)/fw_link.o -lm
+
+fw: $(FW_LINK_NATIVE)

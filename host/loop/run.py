@@ -45,6 +45,7 @@ from ..hal.served_clock import served_clock
 from ..validation import MotionRefused, judge
 from . import Interrupted, Overrun, RunLog, follow, summarize, write_summary
 from .native import check_native, native_swing
+from .native_link import check_link, link_swing
 from .contact import contact_observer
 from .reaction import plan_reaction
 from .safety import ContactStop, Guards, SafetyStop, stop_reason
@@ -74,7 +75,8 @@ class RunOptions:
     ("silent", the default), raises Hardware Error Status bits ("overload", ... or the bits as an
     int), any other fault of SimulatedRobot.inject_fault, or "nan_motion" (the motion's position
     of that joint becomes NaN from then on). native: the firmware's loop as a Linux process plays
-    it instead of the Python loop. home_duration: s of the homing move. overrun_tolerance: s the
+    it instead of the Python loop. controller: "python" (the Python loop) or "native" (the general
+    firmware application as a Linux process, over the host link: loop.native_link). home_duration: s of the homing move. overrun_tolerance: s the
     real-time loop may fall behind before it stops (None: OVERRUN_TOLERANCE). hold: s to hold the
     pose the arm is in under the controller instead of the motion. dry_run: read the arm with
     torque off and log the planned homing with the torques the controller would send, sending none.
@@ -86,6 +88,7 @@ class RunOptions:
     realtime: bool = False
     force: bool = False
     native: bool = False
+    controller: str = "python"
     port: str | tuple | list | None = None
     fault_at: tuple | None = None
     home_duration: float = HOME_DURATION
@@ -157,6 +160,12 @@ class Run:
             if o.hold is not None or o.dry_run:
                 raise RunError("--hold and --dry-run run in the Python loop, not with --native")
             check_native(self.config, self.motion, self.scale, o.mode, o.fault_at)
+        if o.controller not in ("python", "native"):
+            raise RunError(f"a controller is python or native, not {o.controller!r}")
+        if o.controller == "native":
+            if o.hold is not None or o.dry_run or o.native:
+                raise RunError("--hold, --dry-run and --native run without --controller native")
+            check_link(self.config, self.motion, o.mode, o.fault_at)
         self.realtime, self.paced = o.realtime, None
         if not self.simulated and not o.realtime and any(not is_pseudo_terminal(p) for p in self.ports.values()):
             # lock-step means "as fast as the bus answers": on real servos that would play the motion
@@ -242,6 +251,8 @@ class Run:
             server, per_bus = self._buses()
             if self.options.native:
                 return native_swing(server, per_bus[next(iter(self.config.buses))]["port"], self, out)
+            if self.options.controller == "native":
+                return link_swing(server, per_bus[next(iter(self.config.buses))]["port"], self, out)
             return self._play(server, per_bus, out)
 
     def _play(self, server, per_bus: dict, out: Path) -> dict:

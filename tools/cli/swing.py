@@ -54,6 +54,10 @@ def add_arguments(p) -> None:
                    help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
+    p.add_argument("--controller", choices=("python", "native"), default="python",
+                   help="who runs the control loop: python (default) or native, the general firmware application "
+                        "as a Linux process, loaded and streamed over the host link (build/fw/native/servodyn-fw-link, "
+                        "`make fw`), e.g. servodyn swing --controller native")
     p.add_argument("--yes", action="store_true",
                    help="on a real port, move without asking (the homing distances are still printed)")
     p.add_argument("--hold", type=number(0, MAX_PLAYED_DURATION, "s, the longest a swing plays", above=True),
@@ -83,7 +87,8 @@ def add_arguments(p) -> None:
 def play(args, observer=None) -> dict:
     """The swing the options ask for: its summary."""
     options = RunOptions(motion=args.motion, time_scale=args.time_scale, feedforward=not args.no_feedforward,
-                         realtime=args.realtime, force=args.force, native=args.native, port=args.port,
+                         realtime=args.realtime, force=args.force, native=args.native, controller=args.controller,
+                         port=args.port,
                          overrun_tolerance=None if args.overrun_tolerance is None else args.overrun_tolerance * 1e-3,
                          hold=args.hold, dry_run=args.dry_run, contacts=tuple(args.contact),
                          obstacles=tuple(args.obstacle))

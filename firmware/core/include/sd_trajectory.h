@@ -62,6 +62,14 @@ int sd_trajectory_setup(sd_trajectory* tr, int* bad_knot, int* bad_dof);
 void sd_trajectory_eval(const sd_trajectory* tr, sd_real t, sd_real* q, sd_real* qd,
                         sd_real* qdd);
 
+// One segment's quintic, the one sd_trajectory_eval plays between two keyframes: through
+// (t0, q0, qd0, qdd0) and (t1, q1, qd1, qdd1), ndof dofs each, t0 < t1, evaluated at t (in
+// [t0, t1]; any of q, qd, qdd may be NULL). A controller fed keyframes one at a time (the host
+// link's knots) plays them through this.
+void sd_trajectory_segment(int ndof, sd_real t0, sd_real t1, const sd_real* q0, const sd_real* qd0,
+                           const sd_real* qdd0, const sd_real* q1, const sd_real* qd1, const sd_real* qdd1,
+                           sd_real t, sd_real* q, sd_real* qd, sd_real* qdd);
+
 // A short static description of an sd_trajectory_setup() error code.
 const char* sd_trajectory_strerror(int code);
 

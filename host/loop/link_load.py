@@ -1,0 +1,154 @@
+"""What the host sends a controller over the host link (docs/host-link.md): a robot configuration as
+its load messages (LOAD_ROBOT, one LOAD_BODY a body, one LOAD_JOINT a dof), and a motion as its
+knots.
+
+The numbers are the ones `servodyn codegen` compiles into the generated firmware, from the same
+functions: the set-up sd_model (servodyn.model.layout), each joint's servo map and safety values
+(`servo_table`, which codegen writes as fw_servo rows), the loop's timing and guards, and the contact
+observer's constants (servodyn.loop.contact). The motion: its keyframes on the played clock (times x
+scale, rates / scale, accelerations / scale^2) and, between them, a knot at every knot of the
+motion's gain schedule, each with the gains there. A quintic through two points of a quintic, with
+its rates and accelerations, is that quintic: the extra knots leave the played curve as it was, and
+the gains, linear between knots on the controller, are the host's schedule exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import ControlConfig
+from ..control.controller import FRICTION_SPEED
+from ..control.motion import DEFAULT_MOTION, load_motion
+from ..control.schedule import GainSchedule, plan_gains
+from ..control.timing import HOME_DURATION
+from ..errors import InputError
+from ..hal.backend import joint_sensors
+from ..hal.dynamixel.units import ServoMap
+from ..hal.link import messages as ms
+from ..hal.safety import STALL_SPEED_RAD_S, STALL_TORQUE_SHARE
+from ..model.layout import model_fields
+from .contact import contact_observer
+
+HOST_TIMEOUT_MS = 100      # host silent this long: the controller holds (docs/host-link.md's watchdog)
+MODE_FEEDFORWARD_PD = 1    # sd_control_mode_
+
+
+def servo_table(config) -> list[dict]:
+    """Each joint's servo (model dof order) in the firmware's fw_servo fields: its id, units, range,
+    friction, following-error limit and the contact observer's constants."""
+    units = ServoMap.from_joints(config.joints)
+    observer = contact_observer(config)
+    rows = []
+    for k, j in enumerate(config.joints):
+        rows.append({
+            "id": j.id, "model_number": j.servo.model_number, "direction": float(j.direction),
+            "zero_offset": float(j.zero_offset), "gear_ratio": float(j.gear_ratio),
+            "rad_per_tick": 2 * math.pi / j.servo.ticks_per_rev,
+            "radps_per_unit": 2 * math.pi / 60 * j.servo.velocity_unit,
+            "amp_per_unit": float(units.current_unit[k]), "nm_per_amp": j.torque_constant * j.gear_ratio,
+            "current_limit": float(j.current_limit), "q_min": float(j.position_limits[0]),
+            "q_max": float(j.position_limits[1]), "qd_max": float(j.velocity_limit),
+            "friction_coulomb": float(j.friction_coulomb), "friction_viscous": float(j.friction_viscous),
+            "following_error": float(config.guards.following_error[k]),
+            "observer_gain": float(observer.gain[k]), "observer_lowpass": float(observer.lowpass[k]),
+            "contact_threshold": float(observer.thresholds[k])})
+    return rows
+
+
+def _check(config) -> None:
+    model = config.model
+    if model.free_root or any(b.ball for b in model.bodies):
+        raise InputError(f"host link: the controller drives hinge joints only; '{config.model_ref}' has a free root "
+                         "or ball joints")
+    kinds = {bus.kind for bus in config.buses.values()}
+    if kinds != {"dynamixel"}:
+        raise InputError(f"host link: the controller's application drives Dynamixel buses; '{config.name}' has "
+                         f"{', '.join(sorted(kinds))}")
+
+
+def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TIMEOUT_MS) -> list:
+    """LOAD_ROBOT, then LOAD_BODY for every body and LOAD_JOINT for every dof of `config`, with the
+    joints' gains kp, kd (N m/rad, N m s/rad: what homing and holding use) and error low-pass."""
+    _check(config)
+    f = model_fields(config.model)
+    nb, nd = int(f["nbody"]), int(f["ndof"])
+    period = config.control_period
+    observer = contact_observer(config)
+    safety = config.guards
+    out = [ms.RobotHead(
+        nbody=nb, ndof=nd, free_root=0, mode=MODE_FEEDFORWARD_PD, contact=int(safety.contact),
+        contact_debounce=observer.debounce, reaction=ms.REACTIONS.index(safety.reaction),
+        update_ticks=ControlConfig(small_time_step=period).update_ticks, host_timeout_ms=host_timeout_ms,
+        period_us=round(period * 1e6), gravity=tuple(f["gravity"]), friction_speed=FRICTION_SPEED,
+        stall_time=safety.stall_time, stall_speed=STALL_SPEED_RAD_S, stall_share=STALL_TORQUE_SHARE,
+        contact_arm_time=observer.arm_time, reaction_time=safety.reaction_time)]
+    for i in range(nb):
+        out.append(ms.Body(index=i, parent=int(f["body_parent"][i]), dofnum=int(f["body_dofnum"][i]),
+                           ball=int(f["body_ball"][i]), pos=tuple(f["body_pos"][i]), rot=tuple(f["body_rot"][i]),
+                           mass=float(f["body_mass"][i]), com=tuple(f["body_com"][i]),
+                           inertia=tuple(f["body_inertia"][i])))
+    for k, s in enumerate(servo_table(config)):
+        out.append(ms.Joint(
+            index=k, bus=ms.BUSES["dynamixel"], id=s["id"], model_number=s["model_number"],
+            dof_rot=tuple(f["dof_rot"][k]), armature=float(f["dof_armature"][k]), direction=s["direction"],
+            zero_offset=s["zero_offset"], gear_ratio=s["gear_ratio"], rad_per_tick=s["rad_per_tick"],
+            radps_per_unit=s["radps_per_unit"], effort_per_unit=s["amp_per_unit"], nm_per_effort=s["nm_per_amp"],
+            effort_limit=s["current_limit"], q_min=s["q_min"], q_max=s["q_max"], qd_max=s["qd_max"], tau_max=0.0,
+            friction_coulomb=s["friction_coulomb"], friction_viscous=s["friction_viscous"], kp=float(kp[k]),
+            kd=float(kd[k]), error_lowpass=float(error_lowpass[k]), following_error=s["following_error"],
+            observer_gain=s["observer_gain"], observer_lowpass=s["observer_lowpass"],
+            contact_threshold=s["contact_threshold"]))
+    return out
+
+
+@dataclass
+class LinkPlan:
+    """A configuration and a motion as the host link carries them, and the host's own plan of the
+    same run (what the controller's commands are checked against)."""
+    messages: list             # the load messages
+    knots: list                # ms.Knot, the motion's, with gains
+    home_ms: int               # COMMAND home's duration
+    swing: object              # the motion sampled every control period (control.trajectory.Trajectory)
+    swing_gains: GainSchedule  # the motion's gain schedule (the knots carry it)
+    hold_gains: GainSchedule   # the joints' own gains (homing, holding), constant
+
+    def knot_messages(self, start: int, count: int) -> list:
+        """KNOTS messages of knots start .. start + count - 1, as many in each as a frame holds."""
+        ndof = len(self.knots[0].q)
+        per = max(1, (ms.MAX_PAYLOAD - ms.SIZES[ms.KNOTS]) // ms.knot_bytes(ndof, True))
+        out = []
+        for first in range(start, start + count, per):
+            items = self.knots[first:min(first + per, start + count)]
+            out.append(ms.knots(first, items, last=first + len(items) == len(self.knots)))
+        return out
+
+
+def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_TIMEOUT_MS,
+         time_scale: float | None = None) -> LinkPlan:
+    """The load messages of `config` and the knots of `motion_name` (a built-in motion or a keyframe
+    file) on its played clock, `time_scale` times slower than keyframed (None: the configuration's)."""
+    model, period = config.model, config.control_period
+    scale = config.time_scale_for(motion_name) if time_scale is None else time_scale
+    motion = load_motion(motion_name, model)
+    swing = motion.sample(period, time_scale=scale)
+    _, swing_gains = plan_gains(model, swing, joint_sensors(config))
+    end = (motion.t[-1] - motion.t[0]) * scale
+    times = np.union1d((motion.t - motion.t[0]) * scale, swing_gains.t[swing_gains.t < end])
+    t_us = np.unique(np.round(times * 1e6).astype(np.int64))
+    t = t_us * 1e-6
+    q, qd, qdd = motion.at(motion.t[0] + t / scale)
+    qd, qdd = qd / scale, qdd / scale**2
+    knots = []
+    for k, tk in enumerate(t):
+        kp, kd = swing_gains.at(tk)
+        knots.append(ms.Knot(t_us=int(t_us[k]), q=tuple(q[k]), qd=tuple(qd[k]), qdd=tuple(qdd[k]), kp=tuple(kp),
+                             kd=tuple(kd)))
+    lowpass = swing_gains.error_lowpass if swing_gains.error_lowpass is not None else np.zeros(model.nv)
+    kp0, kd0 = swing_gains.at(0.0)        # the joints' own: the gains at the motion's start, where it holds
+    hold = GainSchedule(t=np.array([0.0, 1.0]), kp=np.array([kp0, kp0]), kd=np.array([kd0, kd0]),
+                        error_lowpass=lowpass)
+    return LinkPlan(messages=robot_messages(config, kp0, kd0, lowpass, host_timeout_ms), knots=knots,
+                    home_ms=round(HOME_DURATION * 1e3), swing=swing, swing_gains=swing_gains, hold_gains=hold)
