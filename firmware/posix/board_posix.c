@@ -328,9 +328,34 @@ static void realtime_setup(void) {
     fprintf(stderr, "servodyn-fw: mlockall not allowed (%s): pages may fault in the loop\n", strerror(errno));
 }
 
+// link=pty: the host link on a new pseudo-terminal, as a board's USB serial port appears: its path
+// on standard error ("servodyn-fw-link: the host link is on /dev/pts/N"), for `servodyn swing
+// --controller /dev/pts/N`. This process holds the terminal's side open too, so a host that closes
+// it and opens it again finds the controller as it left it (idle, or its watchdog run out).
+static int open_link_pty(void) {
+  int fd = posix_openpt(O_RDWR | O_NOCTTY | O_NONBLOCK);
+  if (fd < 0 || grantpt(fd) != 0 || unlockpt(fd) != 0) {
+    fprintf(stderr, "servodyn-fw: the host link: no pseudo-terminal (%s)\n", strerror(errno));
+    return -1;
+  }
+  const char* path = ptsname(fd);
+  int held = path ? open(path, O_RDWR | O_NOCTTY) : -1;
+  struct termios tio;
+  if (held < 0 || tcgetattr(held, &tio) != 0) {
+    fprintf(stderr, "servodyn-fw: the host link: cannot open %s (%s)\n", path ? path : "?", strerror(errno));
+    return -1;
+  }
+  cfmakeraw(&tio);
+  tcsetattr(held, TCSANOW, &tio);
+  g_link_fd = fd;
+  fprintf(stderr, "servodyn-fw-link: the host link is on %s\n", path);
+  fflush(stderr);
+  return 0;
+}
+
 int main(int argc, char** argv) {
   if (argc < 2 || argv[1][0] == '-') {
-    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH] [period_us=N] [nan_at=K] "
+    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH|pty] [period_us=N] [nan_at=K] "
             "[ticks=N]\n",
             argv[0]);
     return 2;
@@ -345,6 +370,8 @@ int main(int argc, char** argv) {
         fprintf(stderr, "servodyn-fw: cannot write %s (%s)\n", argv[k] + 4, strerror(errno));
         return 2;
       }
+    } else if (strcmp(argv[k], "link=pty") == 0) {
+      if (open_link_pty() != 0) return 2;
     } else if (strncmp(argv[k], "link=", 5) == 0) {
       g_link_fd = open(argv[k] + 5, O_RDWR | O_NOCTTY | O_NONBLOCK);
       if (g_link_fd < 0) {

@@ -20,13 +20,14 @@ from .log import RunLog
 
 
 def telemetry_log(config, telemetry) -> RunLog:
-    """The motion's ticks of `telemetry` (every tick's, in order) as a RunLog of `config`'s joints.
-    InputError when a tick of the motion is missing (telemetry decimated, or frames lost)."""
+    """The motion's ticks of `telemetry` (every tick's, in order) as a RunLog of `config`'s joints
+    (none when the motion never began: a fault while homing). InputError when a tick of the motion
+    is missing (telemetry decimated, or frames lost)."""
     playing = ms.STATES.index("playing")
     period = config.control_period
     start = next((t.tick for t in telemetry if t.state == playing), None)
     if start is None:
-        raise InputError("host link: no telemetry of the motion playing")
+        return RunLog(tuple(config.model.dof_names))
     rows = [t for t in telemetry if t.tick >= start]
     end = next((k for k, t in enumerate(rows) if t.flags & ms.TM_DONE), len(rows) - 1)
     rows = rows[:end + 1]

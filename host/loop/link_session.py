@@ -18,6 +18,9 @@ from ..hal.link.sender import Sender
 from .link_load import LinkPlan
 
 
+SLOW_COMMAND = 3.0        # s a command that sets the bus up (HOME) may take before the controller is taken for gone
+
+
 class ControllerRefused(InputError):
     """The controller refused a request (a robot its checks refuse, a command its state refuses)."""
 
@@ -91,7 +94,18 @@ class LinkSession:
         return requests[-1].answer
 
     def command(self, name: str, arg: int = 0, check: bool = True):
-        result = self.request(ms.Command(command=ms.COMMANDS[name], arg=arg))
+        """One command, answered. HOME sets the bus up before it answers (every servo written and
+        read, each within the controller's reply timeout): the host waits up to SLOW_COMMAND for it,
+        retransmitting at the same pace, where a lost answer would otherwise end the session."""
+        if name == "home":
+            timeout = self.sender.timeout
+            self.sender.timeout = max(timeout, SLOW_COMMAND / self.sender.retries)
+            try:
+                result = self.request(ms.Command(command=ms.COMMANDS[name], arg=arg), timeout=SLOW_COMMAND + 1)
+            finally:
+                self.sender.timeout = timeout
+        else:
+            result = self.request(ms.Command(command=ms.COMMANDS[name], arg=arg))
         if check and result.code != 0:
             raise ControllerRefused(f"the controller refused {name}: {ms.reason(result)}")
         return result

@@ -8,43 +8,54 @@ only), any Dynamixel configuration and keyframed motion plays.
 
 from __future__ import annotations
 
-import os
-import subprocess
 import time
-import tty
 from contextlib import nullcontext
 from pathlib import Path
 
 from ..control.timing import OVERRUN_TOLERANCE
-from ..errors import ExitCode
+from ..errors import ExitCode, ServodynError
 from ..hal.link import messages as ms
 from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from . import summarize, write_summary
 from .link_load import HOST_TIMEOUT_MS, plan
 from .link_log import telemetry_log
-from .link_session import LinkSession
-from .native import FirmwareError
+from .link_session import ControllerRefused, LinkSession
+from ..sim.robot import SimulatedRobot
+from .link_controllers import NativeController, PortController
+from .native import FirmwareError, parse_report
+from .qemu import QemuController
 
-ROOT = Path(__file__).resolve().parents[2]
-NATIVE_LINK = ROOT / "build" / "fw" / "native" / "servodyn-fw-link"
+QUIET = ("servodyn-fw: ", "servodyn-board: ", "qemu-system-arm: -serial")   # the report, QEMU's socket set-up
+QEMU_ANSWER_TIMEOUT = 1.0      # s: emulated, lock-stepped ticks are slower than the wall clock's
 LOCKSTEP_TIMEOUT_MS = 60000    # lock-step runs as fast as the bus answers: the watchdog counts its ticks
 KEEPALIVE = 0.02               # s between two frames of the host when it has nothing else to send
 STOP_TIMEOUT = 10.0            # s the controller has to end after torque off
 
 
-def check_link(config, motion: str, mode: str, fault_at) -> None:
-    """FirmwareError unless the general application can play this run."""
-    if any(bus.kind != "dynamixel" for bus in config.buses.values()):
-        raise FirmwareError(f"--controller native drives Dynamixel buses; '{config.name}' has "
-                            f"{', '.join(sorted({b.kind for b in config.buses.values()}))}")
+class Declined(ServodynError):
+    """The person at the arm said no before it moved."""
+    exit_code = 1
+
+
+def check_link(config, choice, motion: str, mode: str, fault_at, contacts=()) -> None:
+    """FirmwareError unless the general application that `choice` names can play this run."""
+    kinds = sorted({b.kind for b in config.buses.values()})
+    if kinds != ["dynamixel"]:
+        raise FirmwareError(f"--controller {choice} drives Dynamixel buses; '{config.name}' has {', '.join(kinds)}")
+    if choice.kind == "qemu" and len(config.buses) > 1:
+        raise FirmwareError(f"--controller {choice}: the board's image drives one Dynamixel bus; '{config.name}' "
+                            f"has {len(config.buses)}")
     if str(motion).lower().endswith(".csv"):
-        raise FirmwareError("--controller native streams a motion's keyframes: give a built-in motion or a keyframe "
-                            f"file, not a sampled trajectory ({motion})")
+        raise FirmwareError(f"--controller {choice} streams a motion's keyframes: give a built-in motion or a "
+                            f"keyframe file, not a sampled trajectory ({motion})")
     if mode != "feedforward_pd" or fault_at is not None:
-        raise FirmwareError("--controller native runs feed-forward + PD and injects no fault")
+        raise FirmwareError(f"--controller {choice} runs feed-forward + PD and injects no fault")
+    if contacts:
+        raise FirmwareError(f"--controller {choice}: --contact's pushes are timed by the Python loop; the simulated "
+                            "plant's --obstacle works on every controller")
 
 
-def _play(session: LinkSession, p, proc, timeout: float) -> None:
+def _play(session: LinkSession, p, controller, timeout: float) -> None:
     deadline = time.monotonic() + timeout
     last_sent = time.monotonic()
     while True:
@@ -60,85 +71,110 @@ def _play(session: LinkSession, p, proc, timeout: float) -> None:
         t = session.last
         if t is not None and (t.flags & ms.TM_DONE or ms.STATES[t.state] in ("fault", "torque_off")):
             return
-        if proc.poll() is not None:
+        if controller.poll() is not None:
             session.pump(0.05)                 # its last frames
             t = session.last
             if t is not None and t.flags & ms.TM_HOST_SILENT:
-                raise FirmwareError(f"the native controller held, then switched torque off at tick {t.tick}: this "
-                                    f"host fell silent on the host link for over {p.messages[0].host_timeout_ms} ms")
+                raise FirmwareError(f"the {controller.name} controller held, then switched torque off at tick "
+                                    f"{t.tick}: this host fell silent on the host link for over "
+                                    f"{p.messages[0].host_timeout_ms} ms")
             state = f"{ms.STATES[t.state]}, flags {t.flags}, tick {t.tick}" if t is not None else "no telemetry"
-            raise FirmwareError(f"the native controller stopped (exit {proc.returncode}; {state}): "
-                                f"{proc.stderr.read().strip()[-300:]}")
+            raise FirmwareError(f"the {controller.name} controller stopped (exit {controller.poll()}; {state}): "
+                                f"{controller.finish(STOP_TIMEOUT).strip()[-300:]}")
         if now > deadline:
-            raise FirmwareError(f"the native controller's run did not end within {timeout:g} s")
+            raise FirmwareError(f"the {controller.name} controller's run did not end within {timeout:g} s")
 
 
-def link_swing(server, port: str, run, out: Path, exe: Path | None = None) -> dict:
-    """The run played by the general application on `port` (the Python loop's summary keys)."""
-    config, say = run.config, run.say
-    exe = Path(exe) if exe else NATIVE_LINK
-    if not exe.is_file():
-        raise FirmwareError(f"no native controller at {exe} (build it with `make fw`)")
-    p = plan(config, run.motion, HOST_TIMEOUT_MS if run.realtime else LOCKSTEP_TIMEOUT_MS, time_scale=run.scale)
+def start_controller(choice, server, bus_port: str | None, run):
+    """The controller `choice` names (link_controllers.parse_controller) for this run, started."""
+    config = run.config
     baud = next(iter(config.buses.values())).baud
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    os.set_blocking(master, False)
-    command = [str(exe), port, f"link={os.ttyname(slave)}", f"baud={baud}", "once=1"]
-    if run.realtime:
+    if choice.kind == "native":
         tolerance = run.options.overrun_tolerance
-        command += ["realtime", f"tolerance_us={round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6)}"]
-    if server is not None:
-        command.append(f"reply_ms={round(server.buses[next(iter(server.buses))]['reply_timeout'] * 1e3)}")
-    say(f"native controller on {port} over the host link ({'real time' if run.realtime else 'lock-step'}) ...")
-    proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    session = LinkSession(master)
+        reply_ms = (round(server.buses[next(iter(server.buses))]["reply_timeout"] * 1e3)
+                    if server is not None else None)
+        return NativeController(bus_port, baud, realtime=run.realtime,
+                                tolerance_us=round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6),
+                                reply_ms=reply_ms)
+    if choice.kind == "qemu":
+        arm = SimulatedRobot(config, obstacles=run.options.obstacles).port()
+        return QemuController(choice.board, arm, baud)
+    return PortController(choice.path)
+
+
+def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
+    """The run played by the general application that `choice` names (the Python loop's summary keys)."""
+    config, say = run.config, run.say
+    realtime = run.realtime and choice.kind != "qemu"
+    p = plan(config, run.motion, HOST_TIMEOUT_MS if realtime else LOCKSTEP_TIMEOUT_MS, time_scale=run.scale)
+    where = {"native": f"the native controller on {bus_port}", "qemu": f"the controller under QEMU ({choice})",
+             "port": f"the controller on {choice.path}"}[choice.kind]
+    say(f"{where} over the host link ({'real time' if realtime else 'lock-step'}) ...")
+    controller = None
     error = None
+    sim = None
     try:
+        controller = start_controller(choice, server, bus_port, run)
+        session = LinkSession(controller.fd)
+        if choice.kind == "qemu":
+            session.sender.timeout = QEMU_ANSWER_TIMEOUT
         session.hello()
         session.load(p.messages)
         session.stream(p)
+        if run.confirm is not None and choice.kind == "port" or (choice.kind == "native" and server is None):
+            say(f"{where} will switch torque on, home the arm to the start pose of {run.verdict.path.name} "
+                f"over {run.options.home_duration:g} s and play it")
+            if run.confirm is not None and not run.confirm("torque on and move the arm?"):
+                raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
         session.command("home", round(run.options.home_duration * 1e3))
-        session.command("play")
-        with collector_paused(), realtime_priority(LOOP_PRIORITY) if run.realtime else nullcontext():
-            # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
-            _play(session, p, proc, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
+        del session.telemetry[:]       # what came before HOME's answer is an earlier state (a board stays on)
+        played = session.command("play", check=False)
+        if played.code != 0:           # refused: a fault while homing says why, else the refusal does
+            session.pump(0.05)
+            if session.last is None or not session.last.fault:
+                raise ControllerRefused(f"the controller refused play: {ms.reason(played)}")
+        else:
+            with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
+                # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
+                _play(session, p, controller, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
         last = session.last
         if last.fault:
-            error = (f"native controller: fault {ms_fault(last.fault)} (code {last.fault})"
+            error = (f"{choice} controller: fault {ms_fault(last.fault)} (code {last.fault})"
                      + (f", joint {config.model.dof_names[last.fault_joint]}" if last.fault_joint < 255 else ""))
         elif ms.STATES[last.state] == "torque_off":
-            error = "native controller: torque off before the motion's end (the host link fell silent)"
+            error = f"{choice} controller: torque off before the motion's end (the host link fell silent)"
         if ms.STATES[last.state] not in ("fault", "torque_off"):
             session.command("torque_off")
-        proc.wait(timeout=STOP_TIMEOUT)
+        notes = controller.finish(STOP_TIMEOUT)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        os.close(master)
-        os.close(slave)
+        if controller is not None:
+            controller.close()
         sim = server.status() if server is not None else None
         if server is not None:
             server.stop()
-    for note in (line for line in proc.stderr.read().splitlines() if line.strip()):
+    report = parse_report(notes)
+    for note in (line for line in notes.splitlines() if line.strip() and not line.startswith(QUIET)):
         say(note)
     log = telemetry_log(config, session.telemetry)
-    summary = summarize(log, len(run.swing.t), config.control_period, run.realtime, error)
+    summary = summarize(log, len(run.swing.t), config.control_period, realtime, error)
     summary.update(motion=run.verdict.path.name, mode=run.options.mode, time_scale=run.scale,
-                   validated=run.verdict.passed, loop="native-link", cpu=run.cpu,
+                   validated=run.verdict.passed, loop="native-link" if choice.kind == "native" else str(choice),
+                   controller=str(choice), cpu=run.cpu,
                    bus={"reads": len(log.t), "writes": len(log.t), "reads_retried": 0,
                         "limited_ticks": sum(1 for t in session.telemetry if t.flags & ms.TM_LIMITED)},
                    link={"bytes_in": session.bytes_in, "bytes_out": session.bytes_out,
                          "retransmissions": session.sender.retransmissions,
                          "lost_from_controller": session.sender.lost_from_controller},
+                   controller_report={k: v for k, v in report.items() if k != "counts"},
                    exit_code=(session.last.fault or 2) if error else 0)
     summary["stop_reason"] = "completed" if error is None and summary["completed"] else (
         ms_fault(session.last.fault) if session.last.fault else "incomplete")
     if sim is not None:
         summary["sim_time_at_stop_s"] = None
         summary["torque_off"] = sim["torque_off"]
+    elif choice.kind == "qemu":
+        summary["torque_off"] = controller.record.torque_off
+    run.record = getattr(controller, "record", None)       # what crossed a simulated bus (qemu)
     if error:
         say(f"{error} — torque off on every servo")
     log.write_csv(out / "swing_log.csv")

@@ -45,7 +45,8 @@ from ..hal.served_clock import served_clock
 from ..validation import MotionRefused, judge
 from . import Interrupted, Overrun, RunLog, follow, summarize, write_summary
 from .native import check_native, native_swing
-from .native_link import check_link, link_swing
+from .link_controllers import parse_controller
+from .native_link import Declined, check_link, link_swing
 from .contact import contact_observer
 from .reaction import plan_reaction
 from .safety import ContactStop, Guards, SafetyStop, stop_reason
@@ -56,11 +57,6 @@ STALE = ("summary.json", "swing_tracking.png")     # a previous run's results, r
 
 class RunError(InputError):
     """A run's options that cannot be played (a hold of no length, --hold with --native)."""
-
-
-class Declined(ServodynError):
-    """The person at the arm said no before it moved."""
-    exit_code = 1
 
 
 @dataclass(frozen=True)
@@ -160,13 +156,17 @@ class Run:
             if o.hold is not None or o.dry_run:
                 raise RunError("--hold and --dry-run run in the Python loop, not with --native")
             check_native(self.config, self.motion, self.scale, o.mode, o.fault_at)
-        if o.controller not in ("python", "native"):
-            raise RunError(f"a controller is python or native, not {o.controller!r}")
-        if o.controller == "native":
+        self.controller = parse_controller(o.controller)
+        if self.controller.kind != "python":
             if o.hold is not None or o.dry_run or o.native:
-                raise RunError("--hold, --dry-run and --native run without --controller native")
-            check_link(self.config, self.motion, o.mode, o.fault_at)
+                raise RunError(f"--hold, --dry-run and --native run without --controller {self.controller}")
+            check_link(self.config, self.controller, self.motion, o.mode, o.fault_at, o.contacts)
         self.realtime, self.paced = o.realtime, None
+        if self.controller.kind == "qemu" and o.realtime:
+            raise RunError(f"--controller {self.controller} runs in lock-step with the simulated arm: QEMU's "
+                           "emulated clock is not the wall clock (drop --realtime)")
+        if self.controller.kind == "port":
+            self.realtime = True      # a board keeps its own period on its own clock
         if not self.simulated and not o.realtime and any(not is_pseudo_terminal(p) for p in self.ports.values()):
             # lock-step means "as fast as the bus answers": on real servos that would play the motion
             # faster than it was validated for, so a real bus always keeps the period on the wall clock
@@ -245,14 +245,17 @@ class Run:
         # tty work that carries their bytes share one CPU for the run (hal.realtime.one_cpu); the
         # CAN buses are simulated in this process, with no tty between them and the loop
         self._match_clock()
+        if self.controller.kind in ("qemu", "port"):      # the simulated arm is QEMU's; a board's buses are its own
+            self.cpu = None
+            return link_swing(self.controller, None, None, self, out)
         with ExitStack() as placed:
             on_pty = self.simulated and all(b.kind == "dynamixel" for b in self.config.buses.values())
             self.cpu = placed.enter_context(one_cpu(say=self.say)) if self.realtime and on_pty else None
             server, per_bus = self._buses()
             if self.options.native:
                 return native_swing(server, per_bus[next(iter(self.config.buses))]["port"], self, out)
-            if self.options.controller == "native":
-                return link_swing(server, per_bus[next(iter(self.config.buses))]["port"], self, out)
+            if self.controller.kind == "native":
+                return link_swing(self.controller, server, per_bus[next(iter(self.config.buses))]["port"], self, out)
             return self._play(server, per_bus, out)
 
     def _play(self, server, per_bus: dict, out: Path) -> dict:

@@ -54,10 +54,13 @@ def add_arguments(p) -> None:
                    help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
                    help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
-    p.add_argument("--controller", choices=("python", "native"), default="python",
-                   help="who runs the control loop: python (default) or native, the general firmware application "
-                        "as a Linux process, loaded and streamed over the host link (build/fw/native/servodyn-fw-link, "
-                        "`make fw`), e.g. servodyn swing --controller native")
+    p.add_argument("--controller", default="python", metavar="python|native|qemu:BOARD|PORT",
+                   help="who runs the control loop: python (default, this process); native, the general firmware "
+                        "application as a Linux process (build/fw/native/servodyn-fw-link, `make fw`); qemu:an386 "
+                        "or qemu:f405, its image for the board under QEMU against the simulated arm (lock-step); "
+                        "PORT, a board running it on that serial port (its own buses: it asks before it moves "
+                        "unless --yes). The host validates the motion, loads the robot and streams the motion over "
+                        "the host link (docs/host-link.md), e.g. servodyn swing --controller qemu:f405")
     p.add_argument("--yes", action="store_true",
                    help="on a real port, move without asking (the homing distances are still printed)")
     p.add_argument("--hold", type=number(0, MAX_PLAYED_DURATION, "s, the longest a swing plays", above=True),
