@@ -52,7 +52,7 @@ class Motion:
 
     @property
     def path(self) -> MotionPath:
-        return MotionPath(self.name, self.duration, self.at)
+        return MotionPath(self.name, self.duration, self.at, breaks=self.t - self.t[0])
 
     def sample(self, dt: float, time_scale: float = 1.0) -> Trajectory:
         """The motion every dt seconds; time_scale > 1 plays it slower (MotionPath.at_scale)."""

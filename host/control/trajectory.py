@@ -16,7 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,10 +48,13 @@ class Trajectory:
 @dataclass(frozen=True)
 class MotionPath:
     """A motion on its own clock: `evaluate(t)` gives q, qd, qdd at times t (s, from 0 to
-    `duration`; an array of times gives arrays with a leading axis)."""
+    `duration`; an array of times gives arrays with a leading axis). `breaks`: where its quintic
+    pieces meet (keyframes, a CSV's samples), when it is made of them: a controller given q, qd
+    and qdd there plays the same curve (servodyn.loop.link_load's knots)."""
     name: str
     duration: float                                   # s, as written (time scale 1)
     evaluate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    breaks: np.ndarray | None = field(default=None, compare=False)
 
     def at_scale(self, scale: float = 1.0, dt: float = SMALL_TIME_STEP) -> Trajectory:
         """The motion played `scale` times slower, sampled every dt of the played clock from 0 to
@@ -87,7 +90,7 @@ class MotionPath:
 
         def evaluate(times):
             return poly(times), velocity(times), acceleration(times)
-        return cls(name, float(t[-1]), evaluate)
+        return cls(name, float(t[-1]), evaluate, breaks=t)
 
 
 def spline_derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

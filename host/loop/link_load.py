@@ -21,9 +21,10 @@ import numpy as np
 
 from ..control import ControlConfig
 from ..control.controller import FRICTION_SPEED
-from ..control.motion import DEFAULT_MOTION, load_motion
+from ..control.motion import DEFAULT_MOTION, motion_path
 from ..control.schedule import GainSchedule, plan_gains
 from ..control.timing import HOME_DURATION
+from ..control.trajectory import MotionPath, Trajectory
 from ..errors import InputError
 from ..hal.backend import joint_sensors
 from ..hal.dynamixel.units import ServoMap
@@ -34,6 +35,8 @@ from .contact import contact_observer
 
 HOST_TIMEOUT_MS = 100      # host silent this long: the controller holds (docs/host-link.md's watchdog)
 MODE_FEEDFORWARD_PD = 1    # sd_control_mode_
+KNOT_SPACING = 0.01        # s: a densely sampled motion streams a knot about this often ...
+KNOT_TOLERANCE = 1e-4      # rad: ... where the quintic through fewer knots is the motion within this
 
 
 def servo_table(config) -> list[dict]:
@@ -126,21 +129,45 @@ class LinkPlan:
         return out
 
 
+def knot_times(path, scale: float, period: float) -> np.ndarray:
+    """Where the motion's knots fall on the played clock (s): its breaks (keyframes, a CSV's rows),
+    but no two closer than KNOT_SPACING where the quintic through the fewer breaks is the motion
+    within KNOT_TOLERANCE (a CSV sampled densely streams a knot every few periods, not every one).
+    InputError for a motion with no breaks (one sampled by another law)."""
+    if path.breaks is None or len(path.breaks) < 2:
+        raise InputError(f"host link: '{path.name}' is no keyframed or sampled motion: the controller plays "
+                         "quintic pieces between knots")
+    breaks = np.asarray(path.breaks, dtype=float)
+    step = int(max(1, np.floor(KNOT_SPACING / max(np.min(np.diff(breaks)) * scale, period))))
+    check = np.arange(0.0, path.duration, period / scale)
+    q_file = path.evaluate(check)[0]
+    while step > 1:
+        kept = np.unique(np.r_[breaks[::step], breaks[-1]])
+        q, qd, qdd = path.evaluate(kept)
+        thinned = MotionPath.of_trajectory(path.name, Trajectory(t=kept, q=q, qd=qd, qdd=qdd, derived=False))
+        if np.max(np.abs(thinned.evaluate(check)[0] - q_file), initial=0.0) <= KNOT_TOLERANCE:
+            return kept * scale
+        step //= 2
+    return breaks * scale
+
+
 def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_TIMEOUT_MS,
          time_scale: float | None = None) -> LinkPlan:
-    """The load messages of `config` and the knots of `motion_name` (a built-in motion or a keyframe
-    file) on its played clock, `time_scale` times slower than keyframed (None: the configuration's)."""
+    """The load messages of `config` and the knots of `motion_name` (a built-in motion, a keyframe
+    file or a trajectory CSV) on its played clock, `time_scale` times slower than written (None:
+    the configuration's). `swing` is what the controller plays: the quintic through the knots."""
     model, period = config.model, config.control_period
     scale = config.time_scale_for(motion_name) if time_scale is None else time_scale
-    motion = load_motion(motion_name, model)
-    swing = motion.sample(period, time_scale=scale)
-    _, swing_gains = plan_gains(model, swing, joint_sensors(config))
-    end = (motion.t[-1] - motion.t[0]) * scale
-    times = np.union1d((motion.t - motion.t[0]) * scale, swing_gains.t[swing_gains.t < end])
+    path = motion_path(motion_name, model)
+    end = path.duration * scale
+    _, swing_gains = plan_gains(model, path.at_scale(scale, period), joint_sensors(config))
+    times = np.union1d(knot_times(path, scale, period), swing_gains.t[swing_gains.t < end])
     t_us = np.unique(np.round(times * 1e6).astype(np.int64))
     t = t_us * 1e-6
-    q, qd, qdd = motion.at(motion.t[0] + t / scale)
+    q, qd, qdd = path.evaluate(np.minimum(t / scale, path.duration))
     qd, qdd = qd / scale, qdd / scale**2
+    swing = MotionPath.of_trajectory(path.name, Trajectory(t=t, q=q, qd=qd, qdd=qdd, derived=False)).at_scale(
+        1.0, period)
     knots = []
     for k, tk in enumerate(t):
         kp, kd = swing_gains.at(tk)

@@ -27,6 +27,7 @@ from .qemu import QemuController
 
 QUIET = ("servodyn-fw: ", "servodyn-board: ", "qemu-system-arm: -serial")   # the report, QEMU's socket set-up
 QEMU_ANSWER_TIMEOUT = 1.0      # s: emulated, lock-stepped ticks are slower than the wall clock's
+LOCKSTEP_ANSWER_TIMEOUT = 0.25  # s between retransmissions in lock-step: 2.25 s of silence ends the run
 LOCKSTEP_TIMEOUT_MS = 60000    # lock-step runs as fast as the bus answers: the watchdog counts its ticks
 KEEPALIVE = 0.02               # s between two frames of the host when it has nothing else to send
 STOP_TIMEOUT = 10.0            # s the controller has to end after torque off
@@ -45,9 +46,6 @@ def check_link(config, choice, motion: str, mode: str, fault_at, contacts=()) ->
     if choice.kind == "qemu" and len(config.buses) > 1:
         raise FirmwareError(f"--controller {choice}: the board's image drives one Dynamixel bus; '{config.name}' "
                             f"has {len(config.buses)}")
-    if str(motion).lower().endswith(".csv"):
-        raise FirmwareError(f"--controller {choice} streams a motion's keyframes: give a built-in motion or a "
-                            f"keyframe file, not a sampled trajectory ({motion})")
     if mode != "feedforward_pd" or fault_at is not None:
         raise FirmwareError(f"--controller {choice} runs feed-forward + PD and injects no fault")
     if contacts:
@@ -111,13 +109,13 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
              "port": f"the controller on {choice.path}"}[choice.kind]
     say(f"{where} over the host link ({'real time' if realtime else 'lock-step'}) ...")
     controller = None
-    error = None
+    error, code = None, 0
     sim = None
     try:
         controller = start_controller(choice, server, bus_port, run)
         session = LinkSession(controller.fd)
-        if choice.kind == "qemu":
-            session.sender.timeout = QEMU_ANSWER_TIMEOUT
+        if not realtime:    # the controller keeps pace with a simulator that a busy machine may hold back
+            session.sender.timeout = QEMU_ANSWER_TIMEOUT if choice.kind == "qemu" else LOCKSTEP_ANSWER_TIMEOUT
         session.hello()
         session.load(p.messages)
         session.stream(p)
@@ -134,17 +132,26 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
             if session.last is None or not session.last.fault:
                 raise ControllerRefused(f"the controller refused play: {ms.reason(played)}")
         else:
-            with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
-                # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
-                _play(session, p, controller, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
+            try:
+                with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
+                    # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
+                    _play(session, p, controller, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
+            except ServodynError as err:      # the link or the controller lost mid-motion: its log is kept
+                error, code = f"{choice} controller: {err}", int(getattr(err, "exit_code", ExitCode.BAD_INPUT))
         last = session.last
-        if last.fault:
-            error = (f"{choice} controller: fault {ms_fault(last.fault)} (code {last.fault})"
-                     + (f", joint {config.model.dof_names[last.fault_joint]}" if last.fault_joint < 255 else ""))
+        if error is not None:
+            pass
+        elif last.fault:
+            error, code = (f"{choice} controller: fault {ms_fault(last.fault)} (code {last.fault})"
+                           + (f", joint {config.model.dof_names[last.fault_joint]}" if last.fault_joint < 255
+                              else "")), last.fault
         elif ms.STATES[last.state] == "torque_off":
-            error = f"{choice} controller: torque off before the motion's end (the host link fell silent)"
-        if ms.STATES[last.state] not in ("fault", "torque_off"):
-            session.command("torque_off")
+            error, code = f"{choice} controller: torque off before the motion's end (the host link fell silent)", 2
+        if error is None or last is not None and ms.STATES[last.state] not in ("fault", "torque_off"):
+            try:
+                session.command("torque_off")
+            except ServodynError:
+                pass                   # a controller that no longer answers switches off on its watchdog
         notes = controller.finish(STOP_TIMEOUT)
     finally:
         if controller is not None:
@@ -166,9 +173,9 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
                          "retransmissions": session.sender.retransmissions,
                          "lost_from_controller": session.sender.lost_from_controller},
                    controller_report={k: v for k, v in report.items() if k != "counts"},
-                   exit_code=(session.last.fault or 2) if error else 0)
+                   exit_code=code if error else 0)
     summary["stop_reason"] = "completed" if error is None and summary["completed"] else (
-        ms_fault(session.last.fault) if session.last.fault else "incomplete")
+        ms_fault(code) if error else "incomplete")
     if sim is not None:
         summary["sim_time_at_stop_s"] = None
         summary["torque_off"] = sim["torque_off"]
