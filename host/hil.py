@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from .control import ControlConfig, Controller
 from .control.motion import DEFAULT_MOTION, load_motion
 from .control.timing import HOME_DURATION
-from .control.schedule import plan_run
+from .control.schedule import Segment, homing, plan_run
 from .hal.backend import joint_sensors
 from .hal.config import load_config
 from .hal.dynamixel.units import ServoMap
@@ -26,10 +27,13 @@ from .hal.link import messages as ms
 from .loop import tick
 from .loop.link_load import plan as link_plan
 from .loop.link_session import LinkSession
+from .loop.link_controllers import NativeController
 from .loop.native import FirmwareError, parse_report
-from .loop.qemu import (BOARDS, ROOT, SYSTICK_HZ, FirmwareLink, Record, connect, free_ports,
+from .loop.native_link import LOCKSTEP_TIMEOUT_MS, STOP_TIMEOUT, drive
+from .loop.qemu import (BOARDS, ROOT, SYSTICK_HZ, FirmwareLink, QemuController, Record, connect, free_ports,
                         default_elf, image, qemu_command)
 from .sim.robot import SimulatedRobot
+from .sim.transport.pty import PtyServer
 
 
 def run_qemu(board: str = "an386", elf: Path | None = None, config: str = "replica",
@@ -121,6 +125,57 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
         raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): {(out + err).strip()[-300:]}")
     report["exit_code"] = proc.returncode
     return report, bus.record, session, p
+
+
+@dataclass
+class LinkRun:
+    """A motion played by the general application over the host link against a simulated arm whose
+    every bus exchange is recorded (run_link)."""
+    session: object            # servodyn.loop.link_session.LinkSession: its telemetry
+    plan: object               # servodyn.loop.link_load.LinkPlan: what was loaded and streamed
+    record: Record             # what crossed the bus
+    error: str | None          # None: the motion played to its end
+    report: dict               # the controller's report line (worst tick, stack, ...)
+
+
+def run_link(kind: str = "native", config: str = "replica", motion: str | None = None,
+             time_scale: float | None = None, board: str = "an386") -> LinkRun:
+    """`config`'s `motion` (default its own) played in lock-step by the general application: kind
+    "native" (the Linux process, the simulated bus on a pseudo-terminal) or "qemu" (BOARD's image)."""
+    loaded = load_config(config)
+    p = link_plan(loaded, motion or loaded.swing_motion, LOCKSTEP_TIMEOUT_MS, time_scale=time_scale)
+    baud = next(iter(loaded.buses.values())).baud
+    arm = SimulatedRobot(loaded).port()
+    server = None
+    if kind == "native":
+        bus = FirmwareLink(arm)
+        server = PtyServer(arm, "lockstep")
+        server.start()
+        controller, record = NativeController(server.path, baud, realtime=False, reply_ms=1000), bus.record
+    else:
+        controller = QemuController(board, arm, baud)
+        record = controller.record
+    try:
+        session, error, _ = drive(controller, p, p.home_ms, realtime=False, qemu=kind == "qemu")
+        output = controller.finish(STOP_TIMEOUT)
+    finally:
+        controller.close()
+        if server is not None:
+            server.stop()
+    return LinkRun(session, p, record, error, parse_report(output))
+
+
+def link_agreement(config_name: str, run: LinkRun) -> dict:
+    """How far each command of `run` is from the host's double-precision controller fed the same
+    measured state (replay over the plan's homing and motion): max_units, ticks compared."""
+    p = run.plan
+    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], p.home_ms * 1e-3, p.period), p.hold_gains),
+                           Segment("motion", p.swing, p.swing_gains))
+    twin = replay(config_name, run.record, segments)
+    n = min(len(twin["goals"]), len(run.record.goals))      # a run that stopped early: its commands
+    diff = np.abs(np.array(run.record.goals[:n]) - twin["goals"][:n]) if n else np.zeros((0, 1))
+    return {"max_units": int(diff.max()) if diff.size else None, "ticks": n,
+            "motion_ticks": int((twin["phase"][:n] == "swing").sum())}
 
 
 def replay(config_name: str, record: Record, segments=None) -> dict:

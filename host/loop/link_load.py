@@ -117,6 +117,8 @@ class LinkPlan:
     swing: object              # the motion sampled every control period (control.trajectory.Trajectory)
     swing_gains: GainSchedule  # the motion's gain schedule (the knots carry it)
     hold_gains: GainSchedule   # the joints' own gains (homing, holding), constant
+    period: float              # s, the control period
+    dof_names: tuple           # the joints, in the model's dof order
 
     def knot_messages(self, start: int, count: int) -> list:
         """KNOTS messages of knots start .. start + count - 1, as many in each as a frame holds."""
@@ -178,4 +180,5 @@ def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_
     hold = GainSchedule(t=np.array([0.0, 1.0]), kp=np.array([kp0, kp0]), kd=np.array([kd0, kd0]),
                         error_lowpass=lowpass)
     return LinkPlan(messages=robot_messages(config, kp0, kd0, lowpass, host_timeout_ms), knots=knots,
-                    home_ms=round(HOME_DURATION * 1e3), swing=swing, swing_gains=swing_gains, hold_gains=hold)
+                    home_ms=round(HOME_DURATION * 1e3), swing=swing, swing_gains=swing_gains, hold_gains=hold,
+                    period=period, dof_names=tuple(model.dof_names))

@@ -100,6 +100,48 @@ def start_controller(choice, server, bus_port: str | None, run):
     return PortController(choice.path)
 
 
+def drive(controller, p, home_ms: int, realtime: bool, before_home=None, qemu: bool = False):
+    """Play plan `p` on a started controller: hello, load, stream, HOME (before_home() first, which
+    may raise), PLAY, keep the link fed to the motion's end, torque off. (session, error, exit
+    code): error is None for a motion played to its end, else one line (a fault, a link lost)."""
+    name = controller.name
+    error, code = None, 0
+    session = LinkSession(controller.fd)
+    if not realtime:    # the controller keeps pace with a simulator that a busy machine may hold back
+        session.sender.timeout = QEMU_ANSWER_TIMEOUT if qemu else LOCKSTEP_ANSWER_TIMEOUT
+    session.hello()
+    session.load(p.messages)
+    session.stream(p)
+    if before_home is not None:
+        before_home()
+    session.command("home", home_ms)
+    del session.telemetry[:]       # what came before HOME's answer is an earlier state (a board stays on)
+    played = session.command("play", check=False)
+    if played.code != 0:           # refused: a fault while homing says why, else the refusal does
+        session.pump(0.05)
+        if session.last is None or not session.last.fault:
+            raise ControllerRefused(f"the controller refused play: {ms.reason(played)}")
+    else:
+        try:
+            with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
+                # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
+                _play(session, p, controller, timeout=600.0 + 10 * len(p.swing.t) * p.period)
+        except ServodynError as err:      # the link or the controller lost mid-motion: its log is kept
+            error, code = f"{name} controller: {err}", int(getattr(err, "exit_code", ExitCode.BAD_INPUT))
+    last = session.last
+    if error is None and last.fault:
+        joint = f", joint {p.dof_names[last.fault_joint]}" if last.fault_joint < 255 else ""
+        error, code = f"{name} controller: fault {ms_fault(last.fault)} (code {last.fault}){joint}", last.fault
+    elif error is None and ms.STATES[last.state] == "torque_off":
+        error, code = f"{name} controller: torque off before the motion's end (the host link fell silent)", 2
+    if error is None or last is not None and ms.STATES[last.state] not in ("fault", "torque_off"):
+        try:
+            session.command("torque_off")
+        except ServodynError:
+            pass                   # a controller that no longer answers switches off on its watchdog
+    return session, error, code
+
+
 def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
     """The run played by the general application that `choice` names (the Python loop's summary keys)."""
     config, say = run.config, run.say
@@ -109,49 +151,17 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
              "port": f"the controller on {choice.path}"}[choice.kind]
     say(f"{where} over the host link ({'real time' if realtime else 'lock-step'}) ...")
     controller = None
-    error, code = None, 0
     sim = None
     try:
         controller = start_controller(choice, server, bus_port, run)
-        session = LinkSession(controller.fd)
-        if not realtime:    # the controller keeps pace with a simulator that a busy machine may hold back
-            session.sender.timeout = QEMU_ANSWER_TIMEOUT if choice.kind == "qemu" else LOCKSTEP_ANSWER_TIMEOUT
-        session.hello()
-        session.load(p.messages)
-        session.stream(p)
-        if run.confirm is not None and choice.kind == "port" or (choice.kind == "native" and server is None):
-            say(f"{where} will switch torque on, home the arm to the start pose of {run.verdict.path.name} "
-                f"over {run.options.home_duration:g} s and play it")
-            if run.confirm is not None and not run.confirm("torque on and move the arm?"):
-                raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
-        session.command("home", round(run.options.home_duration * 1e3))
-        del session.telemetry[:]       # what came before HOME's answer is an earlier state (a board stays on)
-        played = session.command("play", check=False)
-        if played.code != 0:           # refused: a fault while homing says why, else the refusal does
-            session.pump(0.05)
-            if session.last is None or not session.last.fault:
-                raise ControllerRefused(f"the controller refused play: {ms.reason(played)}")
-        else:
-            try:
-                with collector_paused(), realtime_priority(LOOP_PRIORITY) if realtime else nullcontext():
-                    # the host keeps the controller's watchdog fed: in real time at the Python loop's priority
-                    _play(session, p, controller, timeout=600.0 + 10 * len(p.swing.t) * config.control_period)
-            except ServodynError as err:      # the link or the controller lost mid-motion: its log is kept
-                error, code = f"{choice} controller: {err}", int(getattr(err, "exit_code", ExitCode.BAD_INPUT))
-        last = session.last
-        if error is not None:
-            pass
-        elif last.fault:
-            error, code = (f"{choice} controller: fault {ms_fault(last.fault)} (code {last.fault})"
-                           + (f", joint {config.model.dof_names[last.fault_joint]}" if last.fault_joint < 255
-                              else "")), last.fault
-        elif ms.STATES[last.state] == "torque_off":
-            error, code = f"{choice} controller: torque off before the motion's end (the host link fell silent)", 2
-        if error is None or last is not None and ms.STATES[last.state] not in ("fault", "torque_off"):
-            try:
-                session.command("torque_off")
-            except ServodynError:
-                pass                   # a controller that no longer answers switches off on its watchdog
+        def before_home():
+            if choice.kind == "port" or (choice.kind == "native" and server is None):     # a real arm
+                say(f"{where} will switch torque on, home the arm to the start pose of {run.verdict.path.name} "
+                    f"over {run.options.home_duration:g} s and play it")
+                if run.confirm is not None and not run.confirm("torque on and move the arm?"):
+                    raise Declined("nothing moved: the move was not confirmed (--yes skips the question)")
+        session, error, code = drive(controller, p, round(run.options.home_duration * 1e3), realtime, before_home,
+                                     qemu=choice.kind == "qemu")
         notes = controller.finish(STOP_TIMEOUT)
     finally:
         if controller is not None:
