@@ -16,22 +16,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import ControlConfig, Controller
 from .control.motion import DEFAULT_MOTION, load_motion
 from .control.timing import HOME_DURATION
-from .control.schedule import Segment, homing, plan_run
-from .hal.backend import joint_sensors
 from .hal.config import load_config
-from .hal.dynamixel.units import ServoMap
 from .hal.link import messages as ms
-from .loop import tick
 from .loop.link_load import plan as link_plan
 from .loop.link_session import LinkSession
+from .loop.agreement import agreement, replay
 from .loop.link_controllers import NativeController
 from .loop.native import FirmwareError, parse_report
 from .loop.native_link import LOCKSTEP_TIMEOUT_MS, STOP_TIMEOUT, drive
 from .loop.qemu import (BOARDS, ROOT, SYSTICK_HZ, FirmwareLink, QemuController, Record, connect, free_ports,
-                        default_elf, image, qemu_command)
+                        default_elf, image, qemu_command, to_instructions)
 from .sim.robot import SimulatedRobot
 from .sim.transport.pty import PtyServer
 
@@ -166,56 +162,14 @@ def run_link(kind: str = "native", config: str = "replica", motion: str | None =
 
 
 def link_agreement(config_name: str, run: LinkRun) -> dict:
-    """How far each command of `run` is from the host's double-precision controller fed the same
-    measured state (replay over the plan's homing and motion): max_units, ticks compared."""
-    p = run.plan
-    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], p.home_ms * 1e-3, p.period), p.hold_gains),
-                           Segment("motion", p.swing, p.swing_gains))
-    twin = replay(config_name, run.record, segments)
-    n = min(len(twin["goals"]), len(run.record.goals))      # a run that stopped early: its commands
-    diff = np.abs(np.array(run.record.goals[:n]) - twin["goals"][:n]) if n else np.zeros((0, 1))
-    return {"max_units": int(diff.max()) if diff.size else None, "ticks": n,
-            "motion_ticks": int((twin["phase"][:n] == "swing").sum())}
-
-
-def replay(config_name: str, record: Record, segments=None) -> dict:
-    """The firmware's algorithm in the host's double precision, fed the measured state the firmware
-    saw: the desired positions and the Goal Current of every tick. segments(q_start): the run's
-    segments (default: the generated firmware's plan, plan_run's homing and the built-in motion)."""
-    config = load_config(config_name)
-    model, units = config.model, ServoMap.from_joints(config.joints)
-    limit = [j.current_limit for j in config.joints]
-    swing = load_motion(DEFAULT_MOTION, model).sample(config.control_period,
-                                                     time_scale=config.time_scale_for(DEFAULT_MOTION))
-    controller = Controller(model, ControlConfig(mode="feedforward_pd", small_time_step=config.control_period,
-                                                 **config.friction))
-    reads = record.reads
-    q_meas = [units.from_ticks(r[:, 2]) for r in reads]
-    qd_meas = [units.from_velocity_units(r[:, 1]) for r in reads]
-    goals, q_d, phase = [], [], []
-    n = 0
-    if segments is None:
-        segments = lambda q_start: plan_run(model, swing, q_start, sensors=joint_sensors(config))
-    for segment in segments(q_meas[0]):
-        controller.reset()
-        for k in range(len(segment.traj.t)):
-            if n + 1 >= len(reads):
-                break
-            tau = tick(controller, segment, k, q_meas[n + 1], qd_meas[n + 1])
-            goals.append(units.goal_current_units(tau, limit)[0])
-            q_d.append(segment.traj.q[k])
-            phase.append("swing" if segment.name == "motion" else segment.name)
-            n += 1
-    return {"goals": np.array(goals), "q_d": np.array(q_d), "phase": np.array(phase),
-            "q": np.array(q_meas[1:1 + len(goals)])}
+    """run's commands against the host's double controller (servodyn.loop.agreement)."""
+    return agreement(config_name, run.plan, run.record)
 
 
 def summarize(report: dict, record: Record, config_name: str, icount_shift: int, board: str) -> dict:
-    ns_per_instruction = 2.0 ** icount_shift
-    to_instructions = 1e9 / SYSTICK_HZ[board] / ns_per_instruction
     counts = report["counts"]
-    instructions = {name: {"max": round(c["max"] * to_instructions),
-                           "mean": round(c["mean_milli"] / 1000 * to_instructions)}
+    instructions = {name: {"max": round(to_instructions(c["max"], board, icount_shift)),
+                           "mean": round(to_instructions(c["mean_milli"] / 1000, board, icount_shift))}
                     for name, c in counts.items() if c.get("n")}
     twin = replay(config_name, record)
     n = min(len(record.goals), len(twin["goals"]))

@@ -21,6 +21,7 @@ from .link_load import HOST_TIMEOUT_MS, plan
 from .link_log import telemetry_log
 from .link_session import ControllerRefused, LinkSession
 from ..sim.robot import SimulatedRobot
+from .agreement import agreement
 from .link_controllers import NativeController, PortController
 from .native import FirmwareError, parse_report
 from .qemu import QemuController
@@ -191,6 +192,8 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
         summary["torque_off"] = sim["torque_off"]
     elif choice.kind == "qemu":
         summary["torque_off"] = controller.record.torque_off
+        # what crossed the simulated bus: each command against the host's double controller
+        summary["agreement"] = agreement(config, p, controller.record)
     run.record = getattr(controller, "record", None)       # what crossed a simulated bus (qemu)
     if error:
         say(f"{error} — torque off on every servo")

@@ -198,6 +198,9 @@ def image(board: str, elf=None) -> Path:
     return elf
 
 
+QEMU_ICOUNT_SHIFT = 3      # a controller under QEMU: 2^3 ns an instruction, 125 MIPS, a fast Cortex-M4
+
+
 def link_image(board: str) -> Path:
     """The general application's image for `board` (build/fw/BOARD-link, `make fw`), checked."""
     return image(board, ROOT / "build" / "fw" / f"{board}-link" / "servodyn-fw-link.elf")
@@ -209,7 +212,8 @@ class QemuController:
     host link on `-serial #2`, a socket whose descriptor is `fd`. args: the image's semihosting
     arguments (once=1 baud=N are added)."""
 
-    def __init__(self, board: str, arm, baud: int, icount_shift: int = 3, args: str = "", timeout: float = 600.0,
+    def __init__(self, board: str, arm, baud: int, icount_shift: int = QEMU_ICOUNT_SHIFT, args: str = "",
+                 timeout: float = 600.0,
                  on_tick=None):
         elf = link_image(board)
         if shutil.which("qemu-system-arm") is None:
@@ -258,3 +262,8 @@ class QemuController:
             self.proc.wait()
         for s in self.sockets:
             s.close()
+
+
+def to_instructions(counts: float, board: str, icount_shift: int) -> float:
+    """SysTick clock counts under `-icount shift=N` as instructions (2^N ns each): exact, not cycles."""
+    return counts * 1e9 / SYSTICK_HZ[board] / 2.0 ** icount_shift

@@ -53,7 +53,7 @@ def add_arguments(p) -> None:
     p.add_argument("--verbose", action="store_true",
                    help="when the validator refuses the motion, list every violation (not only the first)")
     p.add_argument("--native", action="store_true",
-                   help="the firmware's loop as a Linux process plays it (build/fw/native, `make fw`)")
+                   help="the firmware's loop as a Linux process plays it: --controller native")
     p.add_argument("--controller", default="python", metavar="python|native|qemu:BOARD|PORT",
                    help="who runs the control loop: python (default, this process); native, the general firmware "
                         "application as a Linux process (build/fw/native/servodyn-fw-link, `make fw`); qemu:an386 "
@@ -90,7 +90,8 @@ def add_arguments(p) -> None:
 def play(args, observer=None) -> dict:
     """The swing the options ask for: its summary."""
     options = RunOptions(motion=args.motion, time_scale=args.time_scale, feedforward=not args.no_feedforward,
-                         realtime=args.realtime, force=args.force, native=args.native, controller=args.controller,
+                         realtime=args.realtime, force=args.force,
+                         controller="native" if args.native else args.controller,
                          port=args.port,
                          overrun_tolerance=None if args.overrun_tolerance is None else args.overrun_tolerance * 1e-3,
                          hold=args.hold, dry_run=args.dry_run, contacts=tuple(args.contact),
