@@ -61,7 +61,8 @@ def servo_table(config) -> list[dict]:
     return rows
 
 
-def _check(config) -> None:
+def check_config(config) -> None:
+    """InputError unless the general application can drive `config`."""
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
         raise InputError(f"host link: the controller drives hinge joints only; '{config.model_ref}' has a free root "
@@ -75,7 +76,7 @@ def _check(config) -> None:
 def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TIMEOUT_MS) -> list:
     """LOAD_ROBOT, then LOAD_BODY for every body and LOAD_JOINT for every dof of `config`, with the
     joints' gains kp, kd (N m/rad, N m s/rad: what homing and holding use) and error low-pass."""
-    _check(config)
+    check_config(config)
     f = model_fields(config.model)
     nb, nd = int(f["nbody"]), int(f["ndof"])
     period = config.control_period
