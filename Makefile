@@ -69,6 +69,7 @@ bench: venv
 	@$(VENV)/bin/python -m servodyn.tools.bench.mocap
 	@$(MAKE) --no-print-directory fw
 	@$(VENV)/bin/python -m servodyn.tools.bench.fw_budget
+	@$(VENV)/bin/python -m servodyn.tools.bench.controllers
 
 soak: venv fw
 	@echo "== fault-injection soak"
