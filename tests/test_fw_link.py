@@ -357,4 +357,4 @@ def test_swing_controller_native_refuses_what_it_cannot_drive(tmp_path):
     result = run_cli("swing", "--config", "replica_can", "--controller", "native", "--out", tmp_path / "out")
     assert result.returncode == 2, result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "--controller native drives Dynamixel buses" in lines[0], result.stderr
+    assert len(lines) == 1 and lines[0].startswith("servodyn: error: --controller native: ") and "drives Dynamixel buses" in lines[0], result.stderr

@@ -27,6 +27,7 @@ from ..control.timing import HOME_DURATION
 from ..control.trajectory import MotionPath, Trajectory
 from ..errors import InputError
 from ..hal.backend import joint_sensors
+from ..hal.dynamixel.pwm import pwm_driven
 from ..hal.dynamixel.units import ServoMap
 from ..hal.link import messages as ms
 from ..hal.safety import STALL_SPEED_RAD_S, STALL_TORQUE_SHARE
@@ -62,7 +63,8 @@ def servo_table(config) -> list[dict]:
 
 
 def check_config(config) -> None:
-    """InputError unless the general application can drive `config`."""
+    """InputError unless the general application can drive `config`: hinge joints on Dynamixel
+    Protocol 2.0 buses, every servo in Current Control Mode (fw_bus.c writes Goal Current)."""
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
         raise InputError(f"host link: the controller drives hinge joints only; '{config.model_ref}' has a free root "
@@ -71,6 +73,14 @@ def check_config(config) -> None:
     if kinds != {"dynamixel"}:
         raise InputError(f"host link: the controller's application drives Dynamixel buses; '{config.name}' has "
                          f"{', '.join(sorted(kinds))}")
+    old = sorted(name for name, bus in config.buses.items() if bus.protocol != 2.0)
+    if old:
+        raise InputError(f"host link: the controller speaks Dynamixel Protocol 2.0; '{config.name}' has bus "
+                         f"'{old[0]}' on Protocol {config.buses[old[0]].protocol:.1f}")
+    pwm = [j.dof for j in config.joints if pwm_driven(j)]
+    if pwm:
+        raise InputError(f"host link: the controller drives servos by Goal Current; '{config.name}' drives {pwm[0]} "
+                         "through PWM (its servo has no current control)")
 
 
 def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TIMEOUT_MS) -> list:

@@ -13,11 +13,11 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from ..control.timing import OVERRUN_TOLERANCE
-from ..errors import ExitCode, ServodynError
+from ..errors import ExitCode, InputError, ServodynError
 from ..hal.link import messages as ms
 from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from . import summarize, write_summary
-from .link_load import HOST_TIMEOUT_MS, plan
+from .link_load import HOST_TIMEOUT_MS, check_config, plan
 from .link_log import telemetry_log
 from .link_session import ControllerRefused, LinkSession
 from ..sim.robot import SimulatedRobot
@@ -41,9 +41,10 @@ class Declined(ServodynError):
 
 def check_link(config, choice, motion: str, mode: str, fault_at, contacts=()) -> None:
     """FirmwareError unless the general application that `choice` names can play this run."""
-    kinds = sorted({b.kind for b in config.buses.values()})
-    if kinds != ["dynamixel"]:
-        raise FirmwareError(f"--controller {choice} drives Dynamixel buses; '{config.name}' has {', '.join(kinds)}")
+    try:
+        check_config(config)
+    except InputError as err:
+        raise FirmwareError(f"--controller {choice}: {str(err).removeprefix('host link: ')}") from None
     if choice.kind == "qemu" and len(config.buses) > 1:
         raise FirmwareError(f"--controller {choice}: the board's image drives one Dynamixel bus; '{config.name}' "
                             f"has {len(config.buses)}")
