@@ -20,7 +20,7 @@ from servodyn.control.motion import motion_path
 from servodyn.control.trajectory import read_trajectory_csv
 from servodyn.hil import link_agreement, run_link
 from servodyn.loop.link_controllers import ControllerChoice, ControllerError, parse_controller
-from servodyn.loop.link_load import KNOT_SPACING, KNOT_TOLERANCE, plan
+from servodyn.loop.link_load import KNOT_SPACING, KNOT_TOLERANCE, MIN_KNOT_GAP, plan
 from servodyn.hal.config import load_config
 from helpers import PTY, run_cli, sim_process
 
@@ -137,3 +137,46 @@ def test_a_board_on_a_serial_port(built, tmp_path):
         finally:
             proc.kill()
             proc.wait()
+
+
+CLIP = Path("/usr/share/assimp/models/BVH/01_01.bvh")
+needs_clip = pytest.mark.skipif(not CLIP.exists(), reason="assimp-testmodels not installed (make test installs it)")
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """Four seconds of CMU 01_01 retargeted onto the replica, at 1.1 x the time scale validate
+    --fit finds for it (the retarget report's)."""
+    folder = tmp_path_factory.mktemp("clip")
+    result = run_cli("retarget", CLIP, "--config", "replica", "--time", "4:8", "-o", folder / "clip.csv",
+                     "--report", folder)
+    assert result.returncode in (0, 1), result.stderr
+    report = json.loads((folder / "report.json").read_text())
+    return folder / "clip.csv", 1.1 * report["validate"]["fit_time_scale"]
+
+
+@needs_clip
+def test_knots_are_a_period_apart_at_least(clip):
+    """The clip's rows (every 39 ms played) and the gain schedule's knots: where two would fall
+    within MIN_KNOT_GAP, the gain knot goes — a quintic over a millisecond or less is ill-conditioned
+    in single precision (it spiked the feed-forward until the contact guard stopped the run)."""
+    path, scale = clip
+    config = load_config("replica")
+    p = plan(config, str(path), time_scale=scale)
+    gaps = np.diff([k.t_us for k in p.knots])
+    assert gaps.min() >= MIN_KNOT_GAP * 1e6, f"knots {gaps.min()} µs apart"
+    assert np.allclose(p.swing_gains.t * 1e6, [k.t_us for k in p.knots], rtol=0, atol=1e-3), \
+        "the host's schedule is the knots' gains, linear between them, as the controller's"
+
+
+@needs_clip
+def test_a_retargeted_clip_on_the_native_controller_is_the_host_controllers(built, clip):
+    """The clip's 23 s through the Linux process, lock-stepped: it plays to its end and every Goal
+    Current is within 1 unit of the host's double controller (the motion's clock past 16 s in
+    single precision lost a microsecond; each segment's clock is now whole microseconds)."""
+    path, scale = clip
+    run = run_link("native", "replica", str(path), scale)
+    assert run.error is None, run.error
+    agreement = link_agreement("replica", run)
+    assert agreement["motion_ticks"] == len(run.plan.swing.t) > 20_000, agreement
+    assert agreement["max_units"] <= 1, agreement

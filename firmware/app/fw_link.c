@@ -431,6 +431,8 @@ static int play_point(int update) {
   const link_knot* k1 = link_ring_at(&g.ring, 1);
   if (!k1) {                               // the last knot: done, or the host is late
     at_rest(k0->q);
+    if (g.ring.ended && !g.done)           // the motion's last tick: its end as written (moving or not)
+      for (int i = 0; i < g.njoint; i++) g.qd_d[i] = k0->qd[i], g.qdd_d[i] = k0->qdd[i];
     if (g.ring.ended) g.done = 1;
     else g.flags |= LINK_TM_STARVED;
     if (update && k0->kp[0] != 0) {        // its gains, as a schedule holds its last knot's
@@ -438,9 +440,11 @@ static int play_point(int update) {
     }
     return 1;
   }
-  sd_real t0 = (sd_real)(k0->t_us - g.play_t0_us) * SD_R(1e-6);
-  sd_real t1 = (sd_real)(k1->t_us - g.play_t0_us) * SD_R(1e-6);
-  sd_real t = (sd_real)g.phase_tick * g.dt;
+  // the segment's own clock, from its first knot, in whole microseconds: exact however long the
+  // motion (the motion's clock in single precision would lose a microsecond past 16 s)
+  sd_real t0 = 0;
+  sd_real t1 = (sd_real)(k1->t_us - k0->t_us) * SD_R(1e-6);
+  sd_real t = (sd_real)(t_us - k0->t_us) * SD_R(1e-6);
   sd_trajectory_segment(g.njoint, t0, t1, k0->q, k0->qd, k0->qdd, k1->q, k1->qd, k1->qdd, t, g.q_d, g.qd_d,
                         g.qdd_d);
   if (update && k0->kp[0] != 0) {

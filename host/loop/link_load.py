@@ -38,6 +38,7 @@ HOST_TIMEOUT_MS = 100      # host silent this long: the controller holds (docs/h
 MODE_FEEDFORWARD_PD = 1    # sd_control_mode_
 KNOT_SPACING = 0.01        # s: a densely sampled motion streams a knot about this often ...
 KNOT_TOLERANCE = 1e-4      # rad: ... where the quintic through fewer knots is the motion within this
+MIN_KNOT_GAP = 0.005       # s: no gain knot closer than this to a keyframe or a row
 
 
 def servo_table(config) -> list[dict]:
@@ -174,19 +175,25 @@ def plan(config, motion_name: str = DEFAULT_MOTION, host_timeout_ms: int = HOST_
     path = motion_path(motion_name, model)
     end = path.duration * scale
     _, swing_gains = plan_gains(model, path.at_scale(scale, period), joint_sensors(config))
-    times = np.union1d(knot_times(path, scale, period), swing_gains.t[swing_gains.t < end])
+    breaks = knot_times(path, scale, period)
+    gain_knots = swing_gains.t[swing_gains.t < end]
+    # a gain knot within MIN_KNOT_GAP of a break goes (the gains are linear between the knots that
+    # stay): the quintic of a short segment in single precision amplifies the knots' rounding by
+    # 1/h^2 (a 1 ms segment, 2 rad rounded to 2.4e-7: 3 rad/s^2 of acceleration, a servo unit or more)
+    near = np.abs(gain_knots[:, None] - breaks[None, :]).min(axis=1) < MIN_KNOT_GAP if len(gain_knots) else []
+    times = np.union1d(breaks, gain_knots[~np.asarray(near, dtype=bool)] if len(gain_knots) else gain_knots)
     t_us = np.unique(np.round(times * 1e6).astype(np.int64))
     t = t_us * 1e-6
     q, qd, qdd = path.evaluate(np.minimum(t / scale, path.duration))
     qd, qdd = qd / scale, qdd / scale**2
     swing = MotionPath.of_trajectory(path.name, Trajectory(t=t, q=q, qd=qd, qdd=qdd, derived=False)).at_scale(
         1.0, period)
-    knots = []
-    for k, tk in enumerate(t):
-        kp, kd = swing_gains.at(tk)
-        knots.append(ms.Knot(t_us=int(t_us[k]), q=tuple(q[k]), qd=tuple(qd[k]), qdd=tuple(qdd[k]), kp=tuple(kp),
-                             kd=tuple(kd)))
+    kp, kd = (np.array(g) for g in zip(*(swing_gains.at(tk) for tk in t)))
+    knots = [ms.Knot(t_us=int(t_us[k]), q=tuple(q[k]), qd=tuple(qd[k]), qdd=tuple(qdd[k]), kp=tuple(kp[k]),
+                     kd=tuple(kd[k])) for k in range(len(t))]
     lowpass = swing_gains.error_lowpass if swing_gains.error_lowpass is not None else np.zeros(model.nv)
+    # the schedule the controller plays: the knots' gains, linear between them
+    swing_gains = GainSchedule(t=t, kp=kp, kd=kd, error_lowpass=swing_gains.error_lowpass)
     kp0, kd0 = swing_gains.at(0.0)        # the joints' own: the gains at the motion's start, where it holds
     hold = GainSchedule(t=np.array([0.0, 1.0]), kp=np.array([kp0, kp0]), kd=np.array([kd0, kd0]),
                         error_lowpass=lowpass)
