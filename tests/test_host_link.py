@@ -71,7 +71,8 @@ def build_link(directory: Path, single: bool) -> ctypes.CDLL:
     lib = directory / ("liblink32.so" if single else "liblink.so")
     command = [cc, "-shared", "-fPIC", "-O2", "-std=c11", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
                "-DLINK_TEXT", *(["-DSD_SINGLE"] if single else []), f"-I{ROOT / 'firmware' / 'link'}",
-               f"-I{ROOT / 'firmware' / 'core' / 'include'}", f"-I{ROOT / 'hal' / 'dynamixel' / 'c'}", "-o", str(lib),
+               f"-I{ROOT / 'firmware' / 'core' / 'include'}", f"-I{ROOT / 'hal' / 'dynamixel' / 'c'}",
+               f"-I{ROOT / 'hal' / 'can' / 'c'}", "-o", str(lib),
                *map(str, SOURCES), "-lm"]
     done = subprocess.run(command, capture_output=True, text=True)
     assert done.returncode == 0, f"the link did not build: {done.stderr[-2000:]}"

@@ -3,7 +3,10 @@
 loads the configuration and streams the motion's knots over the host link (a pseudo-terminal),
 commands home and play, and builds the Python loop's log and summary from the telemetry
 (servodyn.loop.link_log). Unlike `--native` (the generated firmware: the replica and the forehand
-only), any Dynamixel configuration and keyframed motion plays.
+only), any configuration on a Dynamixel bus, a CAN bus or one of each, and any keyframed motion,
+plays: the Dynamixel bus on its serial port (the process's PORT), the CAN bus through an SLCAN
+adapter on a tty (can=PATH: a CANable's /dev/ttyACM0, or the simulator's, which serves one for
+this controller).
 """
 
 from __future__ import annotations
@@ -34,9 +37,10 @@ STOP_TIMEOUT = 10.0            # s the controller has to end after torque off
 
 def check_link(config, motion: str, mode: str, fault_at) -> None:
     """FirmwareError unless the general application can play this run."""
-    if any(bus.kind != "dynamixel" for bus in config.buses.values()):
-        raise FirmwareError(f"--controller native drives Dynamixel buses; '{config.name}' has "
-                            f"{', '.join(sorted({b.kind for b in config.buses.values()}))}")
+    kinds = [bus.kind for bus in config.buses.values()]
+    if any(kind not in ("dynamixel", "can") for kind in kinds) or kinds.count("dynamixel") > 1 or kinds.count("can") > 1:
+        raise FirmwareError(f"--controller native drives a Dynamixel bus, a CAN bus or one of each; '{config.name}' "
+                            f"has {', '.join(kinds)}")
     if str(motion).lower().endswith(".csv"):
         raise FirmwareError("--controller native streams a motion's keyframes: give a built-in motion or a keyframe "
                             f"file, not a sampled trajectory ({motion})")
@@ -73,24 +77,43 @@ def _play(session: LinkSession, p, proc, timeout: float) -> None:
             raise FirmwareError(f"the native controller's run did not end within {timeout:g} s")
 
 
-def link_swing(server, port: str, run, out: Path, exe: Path | None = None) -> dict:
-    """The run played by the general application on `port` (the Python loop's summary keys)."""
+def bus_arguments(config, buses: dict) -> list[str]:
+    """The process's bus arguments: the Dynamixel bus's port and baud, the CAN bus's SLCAN tty and
+    bit rate, the longest reply time a simulated bus asks for; `buses`: each bus's options (the run's)."""
+    out = []
+    for name, bus in config.buses.items():
+        port = buses[name]["port"]
+        if bus.kind == "can":
+            if not str(port).startswith("/dev/"):
+                raise FirmwareError(f"--controller native reaches a CAN bus through an SLCAN adapter on a tty "
+                                    f"(/dev/ttyACM0, ...); bus '{name}' is on {port}")
+            out += [f"can={port}", f"can_bitrate={bus.baud}"]
+        else:
+            out = [port, *out, f"baud={bus.baud}"]
+    replies = [options["reply_timeout"] for options in buses.values() if "reply_timeout" in options]
+    if replies:
+        out.append(f"reply_ms={round(max(replies) * 1e3)}")
+    return out
+
+
+def link_swing(server, buses: dict, run, out: Path, exe: Path | None = None) -> dict:
+    """The run played by the general application on the run's buses (`buses`: each bus's options,
+    its port first; the Python loop's summary keys)."""
     config, say = run.config, run.say
     exe = Path(exe) if exe else NATIVE_LINK
     if not exe.is_file():
         raise FirmwareError(f"no native controller at {exe} (build it with `make fw`)")
     p = plan(config, run.motion, HOST_TIMEOUT_MS if run.realtime else LOCKSTEP_TIMEOUT_MS, time_scale=run.scale)
-    baud = next(iter(config.buses.values())).baud
+    arguments = bus_arguments(config, buses)
     master, slave = os.openpty()
     tty.setraw(slave)
     os.set_blocking(master, False)
-    command = [str(exe), port, f"link={os.ttyname(slave)}", f"baud={baud}", "once=1"]
+    command = [str(exe), *arguments, f"link={os.ttyname(slave)}", "once=1"]
     if run.realtime:
         tolerance = run.options.overrun_tolerance
         command += ["realtime", f"tolerance_us={round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6)}"]
-    if server is not None:
-        command.append(f"reply_ms={round(server.buses[next(iter(server.buses))]['reply_timeout'] * 1e3)}")
-    say(f"native controller on {port} over the host link ({'real time' if run.realtime else 'lock-step'}) ...")
+    ports = ", ".join(buses[name]["port"] for name in config.buses)
+    say(f"native controller on {ports} over the host link ({'real time' if run.realtime else 'lock-step'}) ...")
     proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     session = LinkSession(master)

@@ -8,10 +8,10 @@
 
 CC ?= cc
 CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core/include \
-  -Itests/c -Ihal/dynamixel/c -Ifirmware/link
+  -Itests/c -Ihal/dynamixel/c -Ihal/can/c -Ifirmware/link
 CTEST_FLOAT_CFLAGS := -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion
 CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c firmware/link/link.c
-CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h firmware/link/link.h
+CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h hal/can/c/canmotor.h firmware/link/link.h
 
 build/c-double/test_core: $(CTEST_DEPS)
 	@mkdir -p $(@D)
