@@ -201,8 +201,9 @@ int fw_can_write(fw_can* c, const sd_real* tau, int16_t* goal, int* limited) {
 
 void fw_can_torque_off(fw_can* c) {
   c->torque_on = 0;
-  drain();
-  for (int k = 0; k < c->n; k++) c->pending[k] = 0;
+  // the answers still owed first (the last command's), so that each motor's next answer is its
+  // answer to "exit": when they are all in, every motor has left motor mode
+  collect(c, 0);
   if (special_all(c, CM_EXIT) == FW_OK) collect(c, 0);
   for (int k = 0; k < c->n; k++) c->pending[k] = 0;
 }

@@ -33,6 +33,7 @@ NATIVE_LINK = ROOT / "build" / "fw" / "native" / "servodyn-fw-link"
 LOCKSTEP_TIMEOUT_MS = 60000    # lock-step runs as fast as the bus answers: the watchdog counts its ticks
 KEEPALIVE = 0.02               # s between two frames of the host when it has nothing else to send
 STOP_TIMEOUT = 10.0            # s the controller has to end after torque off
+SERVED_PATIENCE = 2.0          # s the simulator has to serve the controller's last bytes (its torque off)
 
 
 def check_link(config, motion: str, mode: str, fault_at) -> None:
@@ -142,7 +143,7 @@ def link_swing(server, buses: dict, run, out: Path, exe: Path | None = None) -> 
             proc.wait()
         os.close(master)
         os.close(slave)
-        sim = server.status() if server is not None else None
+        sim = served_status(server) if server is not None else None
         if server is not None:
             server.stop()
     for note in (line for line in proc.stderr.read().splitlines() if line.strip()):
@@ -168,6 +169,18 @@ def link_swing(server, buses: dict, run, out: Path, exe: Path | None = None) -> 
     run.log = log
     write_summary(out, summary)
     return summary
+
+
+def served_status(server, patience: float = SERVED_PATIENCE) -> dict:
+    """The simulator's status once it has served the controller's last bytes: the torque-off
+    packet and frames the controller sent before it ended are read by the simulator's threads a
+    moment later (every device off, or `patience` s)."""
+    deadline = time.monotonic() + patience
+    status = server.status()
+    while not all(status["torque_off"]) and time.monotonic() < deadline:
+        time.sleep(0.01)
+        status = server.status()
+    return status
 
 
 def ms_fault(code: int) -> str:
