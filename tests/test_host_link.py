@@ -532,12 +532,13 @@ def test_a_silent_controller_times_out(lib):
 # ---------------------------------- a robot over the link ---------------------------------------
 
 
-def replica_messages() -> list:
-    """The replica's model (the host's set-up sd_model, servodyn.model.layout's reading of it), servos,
-    gains and safety table as LOAD_ROBOT, LOAD_BODY and LOAD_JOINT messages (servodyn.loop.link_load)."""
+def replica_messages(config: str = "replica") -> list:
+    """The replica's (or another configuration's) model (the host's set-up sd_model,
+    servodyn.model.layout's reading of it), servos, gains and safety table as LOAD_ROBOT, LOAD_BODY
+    and LOAD_JOINT messages (servodyn.loop.link_load)."""
     from servodyn.hal.config import load_config
     from servodyn.loop.link_load import plan
-    return plan(load_config("replica")).messages
+    return plan(load_config(config)).messages
 
 
 def load(lib, messages, buses=1 << ms.BUSES["dynamixel"]) -> ms.Result:
