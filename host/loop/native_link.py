@@ -26,6 +26,7 @@ from . import summarize, write_summary
 from .link_load import HOST_TIMEOUT_MS, plan
 from .link_log import telemetry_log
 from .link_session import LinkSession
+from .log import RunLog
 from .native import FirmwareError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -148,7 +149,9 @@ def link_swing(server, buses: dict, run, out: Path, exe: Path | None = None) -> 
             server.stop()
     for note in (line for line in proc.stderr.read().splitlines() if line.strip()):
         say(note)
-    log = telemetry_log(config, session.telemetry)
+    playing = any(ms.STATES[t.state] == "playing" for t in session.telemetry)
+    # a run that stopped before the motion (a fault while homing) has an empty log and says why
+    log = telemetry_log(config, session.telemetry) if playing or error is None else RunLog(tuple(config.model.dof_names))
     summary = summarize(log, len(run.swing.t), config.control_period, run.realtime, error)
     summary.update(motion=run.verdict.path.name, mode=run.options.mode, time_scale=run.scale,
                    validated=run.verdict.passed, loop="native-link", cpu=run.cpu,
