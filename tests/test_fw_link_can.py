@@ -69,7 +69,7 @@ class Arm:
     pseudo-terminal (a Dynamixel bus recorded by hil.FirmwareLink, a CAN bus as an SLCAN adapter
     recorded by CanRecord), the host link on another."""
 
-    def __init__(self, exe, config: str):
+    def __init__(self, exe, config: str, *arguments: str):
         self.config = load_config(config)
         self.robot = SimulatedRobot(self.config)
         self.servers, self.dxl, self.can, buses = [], None, None, {}
@@ -87,7 +87,8 @@ class Arm:
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
-        self.proc = subprocess.Popen([str(exe), *bus_arguments(self.config, buses), f"link={os.ttyname(self.slave)}"],
+        self.proc = subprocess.Popen([str(exe), *bus_arguments(self.config, buses), f"link={os.ttyname(self.slave)}",
+                                      *arguments],
                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True)
         self.link = LinkSession(self.master)
