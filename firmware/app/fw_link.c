@@ -159,8 +159,18 @@ static int buses_setup(int* joint) {
   return err;
 }
 
-// Every joint's state, both buses: the Dynamixel servos' into their joints, the CAN motors' too
+// Every joint's state, both buses. The CAN motors' answers first: when they are all in, the
+// motors have taken the last tick's frames, so the Dynamixel read that follows sees whatever those
+// frames started (a lock-stepped simulator advances its plant once both buses had their commands)
 static int buses_read(int* joint) {
+  if (g.can.n) {
+    int err = fw_can_read(&g.can, g.q, g.qd, g.current);
+    if (err) {
+      *joint = g.can.fault_joint;
+      return err;
+    }
+    for (int k = 0; k < g.can.n; k++) g.effort[g.can.motor[k].joint] = g.can.effort[g.can.motor[k].joint];
+  }
   if (g.ndxl) {
     sd_real q[SD_MAX_DOF], qd[SD_MAX_DOF], current[SD_MAX_DOF];
     int err = fw_bus_read(&g.bus, q, qd, current);
@@ -172,14 +182,6 @@ static int buses_read(int* joint) {
       int i = g.dxl_joint[k];
       g.q[i] = q[k], g.qd[i] = qd[k], g.current[i] = current[k], g.effort[i] = g.bus.current_units[k];
     }
-  }
-  if (g.can.n) {
-    int err = fw_can_read(&g.can, g.q, g.qd, g.current);
-    if (err) {
-      *joint = g.can.fault_joint;
-      return err;
-    }
-    for (int k = 0; k < g.can.n; k++) g.effort[g.can.motor[k].joint] = g.can.effort[g.can.motor[k].joint];
   }
   return FW_OK;
 }
