@@ -29,8 +29,9 @@
 // (a host OS: how far the loop may fall behind before the overrun fault, default none: the host
 // passes its OVERRUN_TOLERANCE), baud=N
 // (the Dynamixel bus, default 1000000), can_bitrate=N (the CAN bus, default 1000000; the board's
-// CAN controller, if it has one, is opened at boot and HELLO_REPLY says so). The report line's worst_work: the clock counts of the worst
-// tick that began with torque on, the link's work included (instructions under QEMU's -icount).
+// CAN controller, if it has one, is opened at boot and HELLO_REPLY says so). The report line's
+// worst_work: the clock counts of the worst tick that began with torque on, the link's work
+// included (instructions under QEMU's -icount).
 #include <string.h>
 
 #include "board.h"

@@ -66,18 +66,26 @@ def servo_table(config) -> list[dict]:
     return rows
 
 
+def buses_refused(config) -> str | None:
+    """Why the controller's application cannot drive `config`'s buses, in words (None: it can)."""
+    kinds = [bus.kind for bus in config.buses.values()]
+    if any(kind not in ("dynamixel", "can") for kind in kinds) or kinds.count("dynamixel") > 1 or kinds.count("can") > 1:
+        return f"a Dynamixel bus, a CAN bus or one of each; '{config.name}' has {', '.join(kinds)}"
+    return None
+
+
 def _check(config) -> None:
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
         raise InputError(f"host link: the controller drives hinge joints only; '{config.model_ref}' has a free root "
                          "or ball joints")
-    kinds = [bus.kind for bus in config.buses.values()]
-    if any(kind not in ("dynamixel", "can") for kind in kinds) or kinds.count("dynamixel") > 1 or kinds.count("can") > 1:
-        raise InputError(f"host link: the controller's application drives a Dynamixel bus, a CAN bus or one of each; "
-                         f"'{config.name}' has {', '.join(kinds)}")
+    why = buses_refused(config)
+    if why:
+        raise InputError(f"host link: the controller's application drives {why}")
     wide = [j.dof for j in config.joints if config.buses[j.bus].kind == "can" and j.id > 0xFF]
     if wide:
-        raise InputError(f"host link: a CAN motor's command id is one byte on the link; joint '{wide[0]}' has a wider id")
+        raise InputError(f"host link: a CAN motor's command id is one byte on the link; joint '{wide[0]}' has "
+                         "a wider one")
 
 
 def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TIMEOUT_MS) -> list:

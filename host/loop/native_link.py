@@ -23,7 +23,7 @@ from ..errors import ExitCode
 from ..hal.link import messages as ms
 from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from . import summarize, write_summary
-from .link_load import HOST_TIMEOUT_MS, plan
+from .link_load import HOST_TIMEOUT_MS, buses_refused, plan
 from .link_log import telemetry_log
 from .link_session import LinkSession
 from .log import RunLog
@@ -39,10 +39,9 @@ SERVED_PATIENCE = 2.0          # s the simulator has to serve the controller's l
 
 def check_link(config, motion: str, mode: str, fault_at) -> None:
     """FirmwareError unless the general application can play this run."""
-    kinds = [bus.kind for bus in config.buses.values()]
-    if any(kind not in ("dynamixel", "can") for kind in kinds) or kinds.count("dynamixel") > 1 or kinds.count("can") > 1:
-        raise FirmwareError(f"--controller native drives a Dynamixel bus, a CAN bus or one of each; '{config.name}' "
-                            f"has {', '.join(kinds)}")
+    why = buses_refused(config)
+    if why:
+        raise FirmwareError(f"--controller native drives {why}")
     if str(motion).lower().endswith(".csv"):
         raise FirmwareError("--controller native streams a motion's keyframes: give a built-in motion or a keyframe "
                             f"file, not a sampled trajectory ({motion})")
@@ -151,7 +150,8 @@ def link_swing(server, buses: dict, run, out: Path, exe: Path | None = None) -> 
         say(note)
     playing = any(ms.STATES[t.state] == "playing" for t in session.telemetry)
     # a run that stopped before the motion (a fault while homing) has an empty log and says why
-    log = telemetry_log(config, session.telemetry) if playing or error is None else RunLog(tuple(config.model.dof_names))
+    log = telemetry_log(config, session.telemetry) if playing or error is None else \
+        RunLog(tuple(config.model.dof_names))
     summary = summarize(log, len(run.swing.t), config.control_period, run.realtime, error)
     summary.update(motion=run.verdict.path.name, mode=run.options.mode, time_scale=run.scale,
                    validated=run.verdict.passed, loop="native-link", cpu=run.cpu,
