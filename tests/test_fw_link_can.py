@@ -23,7 +23,7 @@ from servodyn.control import ControlConfig, Controller
 from servodyn.control.schedule import Segment, homing
 from servodyn.control.timing import HOME_DURATION
 from servodyn.hal.can import frames
-from servodyn.hal.can.dialects import DIALECTS
+from servodyn.hal.can.dialects import DIALECTS, REG_TIMEOUT
 from servodyn.hal.config import load_config
 from servodyn.hal.dynamixel.units import ServoMap
 from servodyn.hal.link import messages as ms
@@ -285,6 +285,28 @@ def test_a_silent_motor_is_a_timeout_fault_naming_its_joint(arm):
     while any(d.torque_enabled for d in a.robot.drives if d.can_id != 3) and time.monotonic() < deadline:
         a.link.pump(0.01)
     assert not any(d.torque_enabled for d in a.robot.drives if d.can_id != 3), "the others out of motor mode"
+
+
+@pytest.mark.parametrize("arm", ["replica_can"], indirect=True)
+def test_a_damiao_motor_set_up_otherwise_is_refused_naming_its_joint(arm):
+    """HOME checks each Damiao motor's registers as the host's backend does: motor 5 with TMAX 12
+    N m where the configuration says 10 is fault 16 (setup) naming its joint (the forearm
+    pronation), before any motor enters motor mode; the motors checked before it have their CAN
+    timeout written (2,000 x 50 us = 0.1 s: a controller that stops leaves them limp)."""
+    a = arm
+    motor = next(iter(a.robot.networks.values())).motor(5)
+    assert motor.ranges.t_max == 10.0
+    motor.ranges = dataclasses.replace(motor.ranges, t_max=12.0)
+    p = plan(a.config, host_timeout_ms=60000)
+    a.link.hello()
+    a.link.load(p.messages)
+    a.link.stream(p)
+    a.link.command("home", p.home_ms)
+    t = play(a, p, lambda t: ms.STATES[t.state] == "fault", timeout=60)
+    assert (t.fault, a.config.model.dof_names[t.fault_joint]) == (16, "r_forearm_pronation"), t
+    assert not any(d.torque_enabled for d in a.robot.drives), "no motor entered motor mode"
+    timeouts = [d.registers[REG_TIMEOUT] for d in a.robot.drives]
+    assert timeouts[:4] == [2000] * 4 and timeouts[4:] == [0] * 3, timeouts
 
 
 @pytest.mark.slow

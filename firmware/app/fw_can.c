@@ -4,6 +4,8 @@
 // id it names (hal/can/dialects.py: mit and CubeMars byte 0, Damiao byte 0's low nibble).
 #include "fw_can.h"
 
+#include <string.h>
+
 #include "board.h"
 
 // a board without a CAN controller (the MPS2 images): no CAN bus
@@ -23,6 +25,13 @@ __attribute__((weak)) int board_can_wait(void) { return 0; }
 
 #define DAMIAO_DISABLED 0x0
 #define DAMIAO_ENABLED 0x1
+// Damiao's registers (hal/can/dialects.py's REG_*, the vendor's numbers) and the CAN timeout the
+// host's backend gives a motor (hal/can/backend.py's MOTOR_CAN_TIMEOUT, in 50 us units)
+#define DAMIAO_REG_TIMEOUT 9
+#define DAMIAO_REG_CTRL_MODE 10
+#define DAMIAO_REG_PMAX 21                 // then VMAX 22, TMAX 23: float32
+#define DAMIAO_MIT_MODE 1
+#define DAMIAO_TIMEOUT_UNITS 2000u         // 0.1 s: a controller that stops leaves the motor limp
 
 void fw_can_init(fw_can* c, const fw_servo* servo) {
   c->servo = servo;
@@ -146,6 +155,58 @@ static int special_all(fw_can* c, uint8_t code) {
   return FW_OK;
 }
 
+// One register transaction with Damiao motor k (hal/can/link.py's register): the frame on 0x7FF,
+// its echo on the motor's reply id naming its CAN ID, the command and the register; other frames
+// are dropped. 0 (*value: the echo's), or FW_FAULT_TIMEOUT.
+static int reg(fw_can* c, int k, uint8_t cmd, uint8_t rid, uint32_t value, uint32_t* out) {
+  const fw_can_motor* m = &c->motor[k];
+  cm_register g = {.can_id = m->id, .cmd = cmd, .rid = rid, .value = value};
+  uint8_t d[8], len;
+  cm_pack_register(&g, d);
+  if (!board_can_send(CM_DAMIAO_REGISTER_ID, d, 8)) return fault_at(c, k, FW_FAULT_TIMEOUT);
+  for (;;) {
+    uint16_t id;
+    if (!board_can_take(&id, d, &len)) {
+      board_clock_hold();
+      int came = board_can_wait();
+      board_clock_release();
+      if (!came) return fault_at(c, k, FW_FAULT_TIMEOUT);
+      continue;
+    }
+    if (id == m->reply_id && len == 8 && cm_unpack_register(d, len, &g) == CM_OK && g.can_id == m->id &&
+        g.cmd == cmd && g.rid == rid) {
+      *out = g.value;
+      return FW_OK;
+    }
+  }
+}
+
+// a range register against the configuration's (hal/can/dialects.py's range_matches: float32 aside)
+static int range_matches(uint32_t bits, cm_real want) {
+  float got;
+  memcpy(&got, &bits, 4);
+  cm_real diff = (cm_real)got - want, scale = (cm_real)got < 0 ? -(cm_real)got : (cm_real)got;
+  return (diff < 0 ? -diff : diff) <= CM_R(1e-4) * (scale > 1 ? scale : CM_R(1.0));
+}
+
+// A Damiao motor as hal/can/backend.py opens it: in MIT mode (in any other it ignores MIT frames
+// without a word), PMAX / VMAX / TMAX the configuration's ranges (else every frame is scaled
+// wrong), and its CAN timeout written. FW_FAULT_SETUP names the joint of one that is not so.
+static int check_damiao(fw_can* c, int k) {
+  const cm_ranges* r = &c->motor[k].ranges;
+  const cm_real want[3] = {r->p_max, r->v_max, r->t_max};
+  uint32_t v = 0;
+  int err = reg(c, k, CM_REG_READ, DAMIAO_REG_CTRL_MODE, 0, &v);
+  if (err) return err;
+  if (v != DAMIAO_MIT_MODE) return fault_at(c, k, FW_FAULT_SETUP);
+  for (int i = 0; i < 3; i++) {
+    err = reg(c, k, CM_REG_READ, (uint8_t)(DAMIAO_REG_PMAX + i), 0, &v);
+    if (err) return err;
+    if (!range_matches(v, want[i])) return fault_at(c, k, FW_FAULT_SETUP);
+  }
+  return reg(c, k, CM_REG_WRITE, DAMIAO_REG_TIMEOUT, DAMIAO_TIMEOUT_UNITS, &v);
+}
+
 //---------------------------------- the bus ----------------------------------------------------
 
 int fw_can_setup(fw_can* c) {
@@ -153,7 +214,10 @@ int fw_can_setup(fw_can* c) {
   c->fault_joint = -1;
   for (int k = 0; k < c->n; k++) c->pending[k] = 0;
   drain();                                             // late answers of an earlier run
-  int err = special_all(c, CM_EXIT);
+  int err = FW_OK;
+  for (int k = 0; k < c->n && err == FW_OK; k++)
+    if (c->motor[k].dialect == FW_CAN_DAMIAO) err = check_damiao(c, k);
+  if (err == FW_OK) err = special_all(c, CM_EXIT);
   if (err == FW_OK) err = collect(c, 1);
   // the answers to "enter" may carry the state before the frame (the mit firmware answers first):
   // a disabled status there is no fault (torque is not on until every motor answered)

@@ -44,7 +44,10 @@ typedef struct fw_can_ {
 void fw_can_init(fw_can* c, const fw_servo* servo);
 // Motor of joint `joint`: its ids, dialect and MIT ranges (p_max, v_max, t_max, kp_max, kd_max).
 void fw_can_add(fw_can* c, int joint, uint16_t id, uint16_t reply_id, uint8_t dialect, const sd_real* range);
-// "exit motor mode" to every motor (each must answer), then "enter motor mode": torque on.
+// Each Damiao motor checked as the host's backend checks it (MIT mode, its PMAX / VMAX / TMAX the
+// configuration's; FW_FAULT_SETUP if not) and its CAN timeout written (0.1 s: a controller that
+// stops leaves it limp); then "exit motor mode" to every motor (each must answer), then "enter
+// motor mode": torque on.
 int fw_can_setup(fw_can* c);
 // Every motor's state in joint units (q, qd; current: joint torque / nm_per_amp) into the arrays
 // of joints, by joint index: 0, or a fault code with fault_joint set.

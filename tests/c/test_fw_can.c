@@ -22,6 +22,7 @@ typedef struct {
   uint16_t id, reply_id;
   uint8_t dialect, status, enabled, silent;
   cm_ranges ranges;
+  uint32_t mode, timeout;              // Damiao's CTRL_MODE and TIMEOUT registers
   cm_real p, v, t;                     // the state it reports
 } tmotor;
 static tmotor g_motor[4];
@@ -55,10 +56,34 @@ static void answer(tmotor* m) {
 
 int board_can_open(uint32_t bitrate) { return bitrate == 1000000; }
 
+// a Damiao register frame: the echo of a read (CTRL_MODE, PMAX/VMAX/TMAX as float32) or a write
+static void registers(const uint8_t* data) {
+  cm_register g;
+  if (cm_unpack_register(data, 8, &g) != CM_OK) return;
+  for (int k = 0; k < g_nmotor; k++) {
+    tmotor* m = &g_motor[k];
+    if (m->dialect != FW_CAN_DAMIAO || m->id != g.can_id || m->silent) continue;
+    if (g.cmd == CM_REG_WRITE && g.rid == 9) m->timeout = g.value;
+    if (g.cmd == CM_REG_READ) {
+      float range = g.rid == 21 ? (float)m->ranges.p_max : g.rid == 22 ? (float)m->ranges.v_max
+                                                                        : (float)m->ranges.t_max;
+      if (g.rid == 10) g.value = m->mode;
+      else memcpy(&g.value, &range, 4);
+    }
+    uint8_t out[8];
+    cm_pack_register(&g, out);
+    queue(m->reply_id, out, 8);
+  }
+}
+
 int board_can_send(uint16_t id, const uint8_t* data, uint8_t len) {
   if (g_nsent < MAX_FRAMES) {
     g_sent[g_nsent].id = id, g_sent[g_nsent].len = len;
     memcpy(g_sent[g_nsent++].data, data, len);
+  }
+  if (id == CM_DAMIAO_REGISTER_ID && len == 8) {
+    registers(data);
+    return 1;
   }
   for (int k = 0; k < g_nmotor; k++) {
     tmotor* m = &g_motor[k];
@@ -99,7 +124,7 @@ static void arm(fw_can* c) {
     g_servo[i].can = i % 2 == 1;
   }
   g_servo[1].direction = -1, g_servo[1].gear_ratio = 2, g_servo[1].zero_offset = SD_R(0.5);
-  g_motor[0] = (tmotor){.id = 2, .reply_id = 0x12, .dialect = FW_CAN_DAMIAO, .ranges = DM4340};
+  g_motor[0] = (tmotor){.id = 2, .reply_id = 0x12, .dialect = FW_CAN_DAMIAO, .ranges = DM4340, .mode = 1};
   g_motor[1] = (tmotor){.id = 4, .reply_id = 0, .dialect = FW_CAN_MIT, .ranges = DM4340};
   g_nmotor = 2;
   fw_can_init(c, g_servo);
@@ -112,11 +137,25 @@ static void setup_exits_then_enters_every_motor(void) {
   static fw_can c;
   arm(&c);
   EXPECT_INT(fw_can_setup(&c), FW_OK, "both motors answer exit, then enter");
-  EXPECT_INT(g_nsent, 4, "one exit and one enter frame a motor");
-  EXPECT_INT(cm_special(g_sent[0].data, 8) * 1000 + g_sent[0].id, CM_EXIT * 1000 + 2, "exit to motor 2 first");
-  EXPECT_INT(cm_special(g_sent[1].data, 8) * 1000 + g_sent[1].id, CM_EXIT * 1000 + 4, "then to motor 4");
-  EXPECT_INT(cm_special(g_sent[2].data, 8) + cm_special(g_sent[3].data, 8), 2 * CM_ENTER, "then enter, both");
+  EXPECT_INT(g_nsent, 5 + 4, "the Damiao motor's 5 register frames, then one exit and one enter frame a motor");
+  int regs = 0;
+  for (int k = 0; k < 5; k++) regs += g_sent[k].id == CM_DAMIAO_REGISTER_ID;
+  EXPECT_INT(regs * 100000 + g_motor[0].timeout, 5 * 100000 + 2000, "CTRL_MODE, PMAX, VMAX, TMAX read; TIMEOUT 0.1 s");
+  EXPECT_INT(cm_special(g_sent[5].data, 8) * 1000 + g_sent[5].id, CM_EXIT * 1000 + 2, "exit to motor 2 first");
+  EXPECT_INT(cm_special(g_sent[6].data, 8) * 1000 + g_sent[6].id, CM_EXIT * 1000 + 4, "then to motor 4");
+  EXPECT_INT(cm_special(g_sent[7].data, 8) + cm_special(g_sent[8].data, 8), 2 * CM_ENTER, "then enter, both");
   EXPECT_INT(c.torque_on * 10 + g_motor[0].enabled + g_motor[1].enabled, 12, "torque on, both in motor mode");
+
+  arm(&c);
+  g_motor[0].mode = 2;                             // position-velocity: MIT frames ignored
+  EXPECT_INT(fw_can_setup(&c) * 10 + c.fault_joint, FW_FAULT_SETUP * 10 + 1, "not in MIT mode: set-up fault, its joint");
+  EXPECT_INT(g_motor[0].enabled + g_motor[1].enabled, 0, "before any motor enters motor mode");
+  arm(&c);
+  g_motor[0].ranges.t_max = CM_R(10.0);
+  EXPECT_INT(fw_can_setup(&c) * 10 + c.fault_joint, FW_FAULT_SETUP * 10 + 1, "TMAX 10 where 28 is configured");
+  arm(&c);
+  g_motor[0].silent = 1;
+  EXPECT_INT(fw_can_setup(&c) * 10 + c.fault_joint, FW_FAULT_TIMEOUT * 10 + 1, "no register echo: a timeout");
 }
 
 static void a_tick_reads_joint_units_and_writes_torque_codes(void) {
