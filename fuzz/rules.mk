@@ -44,8 +44,8 @@ build/fuzz/can32_codec: $(FUZZ_CAN_DEPS)
 	  fuzz/can/codec.c hal/can/c/canmotor.c
 
 FUZZ_LINK_SRC := fuzz/link/stream.c firmware/link/link.c hal/dynamixel/c/dxl.c $(CORE_C)
-FUZZ_LINK_DEPS := $(FUZZ_LINK_SRC) fuzz/check.h firmware/link/link.h hal/dynamixel/c/dxl.h $(CORE_H) | build/fuzz/.cc
-FUZZ_LINK_CFLAGS := $(FUZZ_CFLAGS) -ffp-contract=off -Ifirmware/link -Ifirmware/core/include -Ihal/dynamixel/c
+FUZZ_LINK_DEPS := $(FUZZ_LINK_SRC) fuzz/check.h firmware/link/link.h hal/dynamixel/c/dxl.h hal/can/c/canmotor.h $(CORE_H) | build/fuzz/.cc
+FUZZ_LINK_CFLAGS := $(FUZZ_CFLAGS) -ffp-contract=off -Ifirmware/link -Ifirmware/core/include -Ihal/dynamixel/c -Ihal/can/c
 
 build/fuzz/link_stream: $(FUZZ_LINK_DEPS)
 	@echo "   clang -fsanitize=fuzzer,address,undefined $@"

@@ -147,7 +147,8 @@ def run_link(kind: str = "native", config: str = "replica", motion: str | None =
         bus = FirmwareLink(arm)
         server = PtyServer(arm, "lockstep")
         server.start()
-        controller, record = NativeController(server.path, baud, realtime=False, reply_ms=1000), bus.record
+        controller = NativeController([server.path, f"baud={baud}", "reply_ms=1000"], realtime=False)
+        record = bus.record
     else:
         controller = QemuController(board, arm, baud)
         record = controller.record

@@ -101,7 +101,7 @@ def test_hello_answers_with_the_compiled_sizes(controller):
     reply = controller.link.hello(0x1234)
     assert (reply.nonce, reply.link_version, reply.real_bytes) == (0x1234, fr.VERSION, 4), "float build, version 1"
     assert (reply.max_body, reply.max_dof, reply.knot_slots) == (16, 16, 64), "FW_LINK_SIZES of firmware/posix/rules.mk"
-    assert reply.board.rstrip("\0") == "posix" and reply.buses == 1 << ms.BUSES["dynamixel"]
+    assert reply.board.rstrip("\0") == "posix" and reply.buses == 1 << ms.BUSES["dynamixel"], "no can=PATH: no CAN bus"
     assert ms.STATES[reply.state] == "idle", "it boots with no robot"
 
 
@@ -353,8 +353,11 @@ def test_swing_controller_native_has_the_python_loops_summary(exe, tmp_path):
 
 
 def test_swing_controller_native_refuses_what_it_cannot_drive(tmp_path):
-    """A CAN arm: one line, exit 2, before anything moves."""
-    result = run_cli("swing", "--config", "replica_can", "--controller", "native", "--out", tmp_path / "out")
+    """A Feetech arm (the SO-101, at a time scale its validation passes): one line, exit 2, before
+    anything moves."""
+    result = run_cli("swing", "--config", "so101", "--controller", "native", "--time-scale", "1.5", "--out",
+                     tmp_path / "out")
     assert result.returncode == 2, result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("servodyn: error: --controller native: ") and "drives Dynamixel buses" in lines[0], result.stderr
+    assert len(lines) == 1 and "--controller native: the controller's application drives a Dynamixel bus, a CAN " \
+        "bus or one of each" in lines[0], result.stderr

@@ -71,7 +71,8 @@ def build_link(directory: Path, single: bool) -> ctypes.CDLL:
     lib = directory / ("liblink32.so" if single else "liblink.so")
     command = [cc, "-shared", "-fPIC", "-O2", "-std=c11", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
                "-DLINK_TEXT", *(["-DSD_SINGLE"] if single else []), f"-I{ROOT / 'firmware' / 'link'}",
-               f"-I{ROOT / 'firmware' / 'core' / 'include'}", f"-I{ROOT / 'hal' / 'dynamixel' / 'c'}", "-o", str(lib),
+               f"-I{ROOT / 'firmware' / 'core' / 'include'}", f"-I{ROOT / 'hal' / 'dynamixel' / 'c'}",
+               f"-I{ROOT / 'hal' / 'can' / 'c'}", "-o", str(lib),
                *map(str, SOURCES), "-lm"]
     done = subprocess.run(command, capture_output=True, text=True)
     assert done.returncode == 0, f"the link did not build: {done.stderr[-2000:]}"
@@ -531,12 +532,13 @@ def test_a_silent_controller_times_out(lib):
 # ---------------------------------- a robot over the link ---------------------------------------
 
 
-def replica_messages() -> list:
-    """The replica's model (the host's set-up sd_model, servodyn.model.layout's reading of it), servos,
-    gains and safety table as LOAD_ROBOT, LOAD_BODY and LOAD_JOINT messages (servodyn.loop.link_load)."""
+def replica_messages(config: str = "replica") -> list:
+    """The replica's (or another configuration's) model (the host's set-up sd_model,
+    servodyn.model.layout's reading of it), servos, gains and safety table as LOAD_ROBOT, LOAD_BODY
+    and LOAD_JOINT messages (servodyn.loop.link_load)."""
     from servodyn.hal.config import load_config
     from servodyn.loop.link_load import plan
-    return plan(load_config("replica")).messages
+    return plan(load_config(config)).messages
 
 
 def load(lib, messages, buses=1 << ms.BUSES["dynamixel"]) -> ms.Result:

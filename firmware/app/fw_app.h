@@ -15,6 +15,7 @@
 //   joint torque = nm_per_amp * motor current,  Goal Current = direction * current / amp_per_unit
 typedef struct fw_servo_ {
   uint8_t id;
+  uint8_t can;                // 1: a CAN motor (fw_can.h converts its torque; the unit scales unused)
   uint16_t model_number;
   sd_real direction;          // +1 / -1
   sd_real zero_offset;        // rad, horn angle at q = 0
@@ -82,6 +83,7 @@ typedef struct fw_step_ {
   sd_real tau[SD_MAX_DOF];           // the step's joint torque
   int16_t goal[SD_MAX_DOF];          // the step's command, servo units
   int fault_servo;                   // the servo a fault names (its id), -1 none
+  int fault_joint;                   // and its joint (model dof order), -1 none
   int contact_servo;                 // a contact's: the last joint over its threshold (its servo id)
   sd_real fault_value;               // a guard's: the following error (rad), the stalled torque or
                                      // the contact's |residual| (N m)
@@ -101,8 +103,9 @@ void fw_step_observe(fw_step* s, const sd_real* q, const sd_real* qd, const sd_r
 // The controller's torque into s->tau: 0, or FW_FAULT_NONFINITE / FW_FAULT_OVERFLOW.
 int fw_step_control(fw_step* s, const sd_real* q_d, const sd_real* qd_d, const sd_real* qdd_d, const sd_real* q,
                     const sd_real* qd);
-// The guards on the tick's state and torque, then torque -> s->goal: 0 or a fault code
-// (s->fault_servo, fault_value set); *limited |= 1 when a command was clamped.
+// The guards on the tick's state and torque, then torque -> s->goal for the Dynamixel servos (a
+// CAN motor's goal is its bus's, fw_can_write): 0 or a fault code (s->fault_servo, fault_joint,
+// fault_value set); *limited |= 1 when a command was clamped.
 int fw_step_finish(fw_step* s, const sd_real* q_d, const sd_real* q, const sd_real* qd, int* limited);
 
 // The Dynamixel bus (fw_bus.c): every function but the writes waits for its replies; 0 or a fault

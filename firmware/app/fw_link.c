@@ -1,5 +1,6 @@
 // fw_link.c: the general firmware application: any robot and any motion, sent at run time over the
-// host link (firmware/link, docs/host-link.md), on Dynamixel servos.
+// host link (firmware/link, docs/host-link.md), on Dynamixel servos (a UART, fw_bus.c) and CAN
+// motors (the board's CAN controller, fw_can.c: the MIT codec), both in one tick for a mixed arm.
 //
 // It boots idle with no robot. Every control period (one tick):
 //   1. the host's bytes: each good frame feeds the watchdog; requests are executed in order under
@@ -10,12 +11,14 @@
 //      a fault, telemetry); a frame of another version is answered with code -11;
 //   2. the watchdog: the host silent host_timeout_ms (LOAD_ROBOT) while torque is on: hold the
 //      desired pose from this tick on, and torque off reaction_time later;
-//   3. with torque on (homing, playing, holding): the fast sync read, the desired state (homing:
+//   3. with torque on (homing, playing, holding): the fast sync read of the Dynamixel servos and the
+//      CAN motors' answers to the last tick's frames, the desired state (homing:
 //      the minimum-jerk move to the motion's first knot; playing: the quintic between the ring's
 //      two knots around the motion's time, sd_trajectory_segment, the core's interpolation, and
 //      the knots' gains, linear between; holding: the pose at rest), then the controller step of
-//      fw_main.c (fw_step.c: observer, feed-forward + PD + friction, the guards) and the sync write
-//      of Goal Current. Any fault switches torque off and waits in the fault state for the host;
+//      fw_main.c (fw_step.c: observer, feed-forward + PD + friction, the guards), the sync write
+//      of Goal Current and each CAN motor's command frame. Any fault switches torque off (on both
+//      buses) and waits in the fault state for the host;
 //   4. TELEMETRY every N ticks (COMMAND telemetry N; 1 from HELLO on).
 // A tick that finds the ring without the knot after the motion's time holds the last knot and
 // sets STARVED: the motion's clock waits for the host. Past the last knot it holds it (DONE).
@@ -25,12 +28,15 @@
 // period_us=N (the clock's period instead of the robot's, the robot's own dt kept), tolerance_us=N
 // (a host OS: how far the loop may fall behind before the overrun fault, default none: the host
 // passes its OVERRUN_TOLERANCE), baud=N
-// (the Dynamixel bus, default 1000000). The report line's worst_work: the clock counts of the worst
-// tick that began with torque on, the link's work included (instructions under QEMU's -icount).
+// (the Dynamixel bus, default 1000000), can_bitrate=N (the CAN bus, default 1000000; the board's
+// CAN controller, if it has one, is opened at boot and HELLO_REPLY says so). The report line's
+// worst_work: the clock counts of the worst tick that began with torque on, the link's work
+// included (instructions under QEMU's -icount).
 #include <string.h>
 
 #include "board.h"
 #include "fw_app.h"
+#include "fw_can.h"
 #include "link.h"
 
 #ifndef FW_LINK_BOARD
@@ -40,7 +46,6 @@
 #define FW_TOLERATE_OVERRUN 0            // 1: a host OS: a late tick is counted, not a fault
 #endif
 #define FW_DEFAULT_PERIOD_US 1000u       // the idle clock, before a robot gives its period
-#define FW_BUSES (1u << LINK_BUS_DYNAMIXEL)
 
 typedef struct fw_link_app_ {
   link_decoder decoder;
@@ -50,7 +55,12 @@ typedef struct fw_link_app_ {
   fw_servo servo[SD_MAX_DOF];
   fw_guards guards;
   fw_step step;
-  fw_bus bus;
+  fw_bus bus;                          // the Dynamixel servos: ndxl of the joints
+  fw_servo dxl_servo[SD_MAX_DOF];      // their fw_servo, in bus order
+  int dxl_joint[SD_MAX_DOF];           // the joint of each
+  int ndxl;
+  fw_can can;                          // the CAN motors (can.n of the joints)
+  uint8_t buses;                       // bit (1 << link_bus_) per bus the board drives
   int njoint;
   int state;                           // a link_state_
   int torque;                          // 1: torque on (homing, playing, holding)
@@ -70,6 +80,7 @@ typedef struct fw_link_app_ {
   uint32_t period_us;
   sd_real dt;
   sd_real q[SD_MAX_DOF], qd[SD_MAX_DOF], current[SD_MAX_DOF];
+  int16_t effort[SD_MAX_DOF], goal[SD_MAX_DOF];   // by joint: measured and commanded, servo units
   sd_real q_d[SD_MAX_DOF], qd_d[SD_MAX_DOF], qdd_d[SD_MAX_DOF];
   sd_real q_from[SD_MAX_DOF], q_hold[SD_MAX_DOF];
   uint32_t work, work_max;             // clock counts of the last tick's work; the worst of a tick
@@ -114,23 +125,79 @@ static void send_result(const link_result* r) {
 //---------------------------------- torque and faults -------------------------------------------
 
 static void torque_off(int state) {
-  if (g.torque) fw_bus_torque_off(&g.bus);
+  if (g.torque && g.ndxl) fw_bus_torque_off(&g.bus);
+  if (g.torque && g.can.n) fw_can_torque_off(&g.can);
   g.torque = 0;
   g.state = state;
   g.stop_ticks = -1;
   g.silent_hold_ticks = -1;
 }
 
-static int joint_of_servo(int id) {
-  for (int i = 0; i < g.njoint; i++)
-    if (g.servo[i].id == id) return i;
+// the joint of a Dynamixel servo (by its id on that bus), -1 none
+static int dxl_joint_of(int id) {
+  for (int k = 0; k < g.ndxl; k++)
+    if (g.dxl_servo[k].id == id) return g.dxl_joint[k];
   return -1;
 }
 
-static void fault(int code, int servo_id) {
+static void fault(int code, int joint) {
   g.fault = code;
-  g.fault_joint = joint_of_servo(servo_id);
+  g.fault_joint = joint;
   torque_off(LINK_FAULT);
+}
+
+//---------------------------------- both buses --------------------------------------------------
+
+// Each bus set up, torque on: 0, or a fault code (g.fault_joint's joint through fault())
+static int buses_setup(int* joint) {
+  int err = g.ndxl ? fw_bus_setup(&g.bus) : FW_OK;
+  if (err) {
+    *joint = dxl_joint_of(g.bus.fault_servo);
+    return err;
+  }
+  err = g.can.n ? fw_can_setup(&g.can) : FW_OK;
+  *joint = g.can.fault_joint;
+  return err;
+}
+
+// Every joint's state, both buses. The CAN motors' answers first: when they are all in, the
+// motors have taken the last tick's frames, so the Dynamixel read that follows sees whatever those
+// frames started (a lock-stepped simulator advances its plant once both buses had their commands)
+static int buses_read(int* joint) {
+  if (g.can.n) {
+    int err = fw_can_read(&g.can, g.q, g.qd, g.current);
+    if (err) {
+      *joint = g.can.fault_joint;
+      return err;
+    }
+    for (int k = 0; k < g.can.n; k++) g.effort[g.can.motor[k].joint] = g.can.effort[g.can.motor[k].joint];
+  }
+  if (g.ndxl) {
+    sd_real q[SD_MAX_DOF], qd[SD_MAX_DOF], current[SD_MAX_DOF];
+    int err = fw_bus_read(&g.bus, q, qd, current);
+    if (err) {
+      *joint = dxl_joint_of(g.bus.fault_servo);
+      return err;
+    }
+    for (int k = 0; k < g.ndxl; k++) {
+      int i = g.dxl_joint[k];
+      g.q[i] = q[k], g.qd[i] = qd[k], g.current[i] = current[k], g.effort[i] = g.bus.current_units[k];
+    }
+  }
+  return FW_OK;
+}
+
+// The step's commands out, both buses: 0 or a fault code; *limited |= a CAN torque clamped
+static int buses_write(int* limited, int* joint) {
+  for (int i = 0; i < g.njoint; i++) g.goal[i] = g.step.goal[i];
+  if (g.ndxl) {
+    int16_t goal[SD_MAX_DOF];
+    for (int k = 0; k < g.ndxl; k++) goal[k] = g.step.goal[g.dxl_joint[k]];
+    fw_bus_write_goals(&g.bus, goal);
+  }
+  int err = g.can.n ? fw_can_write(&g.can, g.step.tau, g.goal, limited) : FW_OK;
+  *joint = g.can.fault_joint;
+  return err;
 }
 
 // hold the present desired pose, at rest, with the gains in force
@@ -144,7 +211,7 @@ static void hold_here(void) {
 // COMMIT accepted: the robot becomes the controller's (its model, servo map, gains and guards)
 static void install_robot(link_result* r) {
   const link_robot_head* h = &g.robot.head;
-  if (h->free_root) {                      // every dof must be a servo of the Dynamixel bus
+  if (h->free_root) {                      // every dof must be a servo or a motor
     r->stage = LINK_STAGE_SERVO, r->code = LINK_SERVO_BUS, r->index = 0;
     g.robot.ready = 0;
     return;
@@ -162,7 +229,18 @@ static void install_robot(link_result* r) {
                             .qd_max = j->qd_max, .friction_coulomb = j->friction_coulomb,
                             .friction_viscous = j->friction_viscous, .following_error = j->following_error,
                             .observer_gain = j->observer_gain, .observer_lowpass = j->observer_lowpass,
-                            .contact_threshold = j->contact_threshold};
+                            .contact_threshold = j->contact_threshold, .can = j->bus == LINK_BUS_CAN};
+  }
+  g.ndxl = 0;
+  fw_can_init(&g.can, g.servo);
+  for (int i = 0; i < g.njoint; i++) {
+    const link_joint* j = &g.robot.joint[i];
+    if (j->bus == LINK_BUS_CAN) {
+      fw_can_add(&g.can, i, j->id, j->reply_id, j->dialect, j->mit_range);
+    } else {
+      g.dxl_servo[g.ndxl] = g.servo[i];
+      g.dxl_joint[g.ndxl++] = i;
+    }
   }
   // seconds -> ticks as servodyn codegen counts them (ceil, at least 1)
   sd_real eps = SD_R(1e-4);
@@ -174,7 +252,7 @@ static void install_robot(link_result* r) {
   fw_step_init(&g.step, &g.robot.model, g.servo, g.njoint, &g.guards, g.dt, h->friction_speed);
   g.step.control = g.robot.control;        // mode, update_ticks, gains, limits, friction: checked
   g.step.oconfig = g.robot.observer;
-  fw_bus_init(&g.bus, g.servo, g.njoint);
+  fw_bus_init(&g.bus, g.dxl_servo, g.ndxl);
   link_ring_reset(&g.ring, g.njoint, SD_MAX_KNOT);
   g.timeout_ticks = (long)h->host_timeout_ms * 1000 / (long)h->period_us;
   g.reaction_ticks = (long)(h->reaction_time / g.dt + SD_R(0.5));
@@ -190,17 +268,18 @@ static void install_robot(link_result* r) {
 static int command_home(uint32_t ms) {
   if (g.state < LINK_LOADED || g.state == LINK_FAULT || g.state == LINK_PLAYING || !g.ring.count)
     return LINK_E_STATE;
+  int joint = -1;
   if (!g.torque) {
-    int err = fw_bus_setup(&g.bus);
+    int err = buses_setup(&joint);
     g.torque = 1;                          // some servos may have switched on: switch all off on a fault
     if (err) {
-      fault(err, g.bus.fault_servo);
+      fault(err, joint);
       return LINK_OK;                      // done, and faulted: the telemetry says why
     }
   }
-  int err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
+  int err = buses_read(&joint);
   if (err) {
-    fault(err, g.bus.fault_servo);
+    fault(err, joint);
     return LINK_OK;
   }
   for (int i = 0; i < g.njoint; i++) g.q_from[i] = g.q[i];
@@ -286,7 +365,7 @@ static void hello(uint8_t seq, const uint8_t* p, size_t n) {
   link_hello_reply a = {.nonce = h.nonce, .link_version = LINK_VERSION, .fw_major = LINK_FW_MAJOR,
                         .fw_minor = LINK_FW_MINOR, .fw_patch = LINK_FW_PATCH, .real_bytes = sizeof(sd_real),
                         .max_body = SD_MAX_BODY, .max_dof = SD_MAX_DOF, .knot_slots = SD_MAX_KNOT,
-                        .max_payload = LINK_MAX_PAYLOAD, .window = LINK_WINDOW, .buses = FW_BUSES,
+                        .max_payload = LINK_MAX_PAYLOAD, .window = LINK_WINDOW, .buses = g.buses,
                         .state = (uint8_t)g.state};
   strncpy(a.board, FW_LINK_BOARD, sizeof a.board);
   if (!g.telemetry_every) g.telemetry_every = 1;
@@ -335,7 +414,7 @@ static void execute(uint8_t seq, uint8_t type, const uint8_t* p, size_t n) {
       if (running() || n != 0) {
         r.code = running() ? LINK_E_STATE : LINK_E_PAYLOAD;
       } else {
-        link_robot_commit(&g.robot, FW_BUSES, &r);
+        link_robot_commit(&g.robot, g.buses, &r);
         if (r.code == LINK_OK && r.stage == LINK_STAGE_LINK) install_robot(&r);
       }
       break;
@@ -473,9 +552,10 @@ static void watchdog(void) {
 }
 
 static void control_tick(void) {
-  int err = fw_bus_read(&g.bus, g.q, g.qd, g.current);
+  int joint = -1;
+  int err = buses_read(&joint);
   if (err) {
-    fault(err, g.bus.fault_servo);
+    fault(err, joint);
     return;
   }
   if (g.state == LINK_HOMING && g.phase_tick >= g.home_ticks) {   // homed: this tick plays or holds
@@ -502,11 +582,15 @@ static void control_tick(void) {
   err = fw_step_control(&g.step, g.q_d, g.qd_d, g.qdd_d, g.q, g.qd);
   if (err == FW_OK) err = fw_step_finish(&g.step, g.q_d, g.q, g.qd, &limited);
   if (err) {
-    fault(err, g.step.fault_servo);
+    fault(err, g.step.fault_joint);
+    return;
+  }
+  err = buses_write(&limited, &joint);
+  if (err) {
+    fault(err, joint);
     return;
   }
   if (limited) g.flags |= LINK_TM_LIMITED;
-  fw_bus_write_goals(&g.bus, g.step.goal);
   fw_record_tick(g.tick, g.njoint, g.q_d, g.q, g.qd, g.step.tau, g.current);
   g.phase_tick++;
   if (g.stop_ticks >= 0 && g.stop_ticks-- == 0) torque_off(LINK_TORQUE_OFF);
@@ -528,8 +612,8 @@ static void telemetry(void) {
   for (int i = 0; i < t.njoint; i++) {
     link_joint_tm* j = &t.joint[i];
     j->q = g.q[i], j->qd = g.qd[i], j->q_d = g.q_d[i], j->tau = g.step.tau[i];
-    j->effort = g.bus.current_units[i];
-    j->command = g.step.goal[i];
+    j->effort = g.effort[i];
+    j->command = g.goal[i];
     j->residual = g.step.observer.rf[i];
   }
   uint8_t p[LINK_MAX_PAYLOAD];
@@ -583,6 +667,8 @@ int main(void) {
   link_server_reset(&g.server);
   board_link_init();
   board_uart_init((uint32_t)arg_value(line, "baud=", 1000000));
+  g.buses = (uint8_t)(1u << LINK_BUS_DYNAMIXEL);
+  if (board_can_open((uint32_t)arg_value(line, "can_bitrate=", 1000000))) g.buses |= 1u << LINK_BUS_CAN;
   board_clock_start((uint32_t)((uint64_t)g.period_us * BOARD_CPU_HZ / 1000000u));
   g.scheduled = 0;
   while (g.stop_after < 0 || g.tick < g.stop_after) {

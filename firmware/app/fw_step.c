@@ -29,7 +29,7 @@ void fw_step_init(fw_step* s, const sd_model* model, const fw_servo* servo, int 
   s->servo = servo;
   s->guards = guards;
   s->njoint = njoint;
-  s->fault_servo = s->contact_servo = -1;
+  s->fault_servo = s->contact_servo = s->fault_joint = -1;
   s->fault_value = 0;
   s->control.friction_speed = friction_speed;
   s->oconfig.dt = dt;
@@ -84,7 +84,7 @@ static int check_range(fw_step* s, const sd_real* q) {
   for (int i = 0; i < s->njoint; i++) {
     const fw_servo* v = &s->servo[i];
     if (!(q[i] > v->q_min - FW_RANGE_MARGIN && q[i] < v->q_max + FW_RANGE_MARGIN)) {
-      s->fault_servo = v->id;
+      s->fault_servo = v->id, s->fault_joint = i;
       return FW_FAULT_RANGE;
     }
   }
@@ -99,7 +99,7 @@ static int check_guards(fw_step* s, const sd_real* q_d, const sd_real* q, const 
     const fw_servo* v = &s->servo[i];
     sd_real error = q_d[i] - q[i];
     if (error > v->following_error || error < -v->following_error) {
-      s->fault_servo = v->id;
+      s->fault_servo = v->id, s->fault_joint = i;
       s->fault_value = error < 0 ? -error : error;
       return FW_FAULT_FOLLOWING_ERROR;
     }
@@ -108,7 +108,7 @@ static int check_guards(fw_step* s, const sd_real* q_d, const sd_real* q, const 
     int pressed = (tau >= limit || tau <= -limit) && qd[i] < g->stall_speed && qd[i] > -g->stall_speed;
     s->pressed[i] = pressed ? s->pressed[i] + 1 : 0;
     if (s->pressed[i] >= g->stall_ticks) {
-      s->fault_servo = v->id;
+      s->fault_servo = v->id, s->fault_joint = i;
       s->fault_value = tau < 0 ? -tau : tau;
       return FW_FAULT_STALL;
     }
@@ -134,17 +134,19 @@ static int check_contact(fw_step* s) {
   // ContactObserver's clock: t - t0 = the samples stepped since the reset (its tick) periods
   if (found < 0 || s->observer.tick < g->contact_arm_ticks) return FW_OK;
   sd_real r = s->observer.rf[found];
-  s->fault_servo = s->servo[found].id;
+  s->fault_servo = s->servo[found].id, s->fault_joint = found;
   s->fault_value = r < 0 ? -r : r;
   s->contact_servo = s->servo[last].id;
   return FW_FAULT_CONTACT;
 }
 
-// joint torque -> servo command units, clamped at each servo's current limit (limiting)
+// joint torque -> servo command units, clamped at each servo's current limit (limiting); a CAN
+// motor's command is its bus's (the MIT frame's torque field, fw_can_write)
 static int output(fw_step* s) {
   int limited = 0;
   for (int i = 0; i < s->njoint; i++) {
     const fw_servo* v = &s->servo[i];
+    if (v->can) continue;
     sd_real amps = s->tau[i] / v->nm_per_amp;
     if (amps > v->current_limit || amps < -v->current_limit) {
       amps = amps > 0 ? v->current_limit : -v->current_limit;

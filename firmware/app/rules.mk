@@ -22,7 +22,7 @@ FW_HIL ?= 1
 FW_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -Wdouble-promotion -Wfloat-conversion \
   -ffp-contract=fast -fno-math-errno -ffunction-sections -fdata-sections -fstack-usage \
   -fcallgraph-info=su -DSD_SINGLE $(if $(filter 1,$(FW_HIL)),-DBOARD_HIL) -include $(FW_GEN)/servodyn_gen.h \
-  -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -I$(FW_GEN)
+  -Ifirmware/core/include -Ifirmware/mcu -Ifirmware/app -Ihal/dynamixel/c -Ihal/can/c -I$(FW_GEN)
 FW_APP_C := firmware/app/fw_main.c firmware/app/fw_step.c firmware/app/fw_bus.c    # the compiled-in robot's application
 FW_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c $(FW_APP_C) \
   hal/dynamixel/c/dxl.c $(FW_GEN)/servodyn_gen.c
@@ -57,15 +57,17 @@ $(foreach b,$(FW_BOARDS),$(patsubst %.c,$(FW_DIR)/$(b)/%.o,$(FW_SRC))): | toolch
 .PHONY: fw
 fw: $(FW_ELFS)
 
-# The general application (fw_link.c, the host link on UART2: -serial #2) for mps2-an386, sized for
-# a microcontroller: build/fw/an386-link/servodyn-fw-link.elf
+# The general application (fw_link.c, the host link on UART2: -serial #2) for mps2-an386 (no CAN
+# controller: fw_can.c's weak board_can_* say so), sized for a microcontroller: build/fw/an386-link/servodyn-fw-link.elf
 FW_LINK_MCU_SIZES := -DSD_MAX_BODY=8 -DSD_MAX_DOF=8 -DSD_MAX_KNOT=32
 FW_LINK_ELF := $(FW_DIR)/an386-link/servodyn-fw-link.elf
 FW_LINK_CFLAGS := $(filter-out -include $(FW_GEN)/servodyn_gen.h,$(FW_CFLAGS)) $(FW_LINK_MCU_SIZES) \
   -DFW_LINK_BOARD='"mps2-an386"' -Ifirmware/link
 FW_LINK_SRC := $(CORE_C) firmware/mcu/startup.c firmware/mcu/board_io.c firmware/mcu/board_link.c firmware/app/fw_link.c \
-  firmware/app/fw_step.c firmware/app/fw_bus.c firmware/link/link.c hal/dynamixel/c/dxl.c
+  firmware/app/fw_step.c firmware/app/fw_bus.c firmware/app/fw_can.c firmware/link/link.c hal/dynamixel/c/dxl.c \
+  hal/can/c/canmotor.c
 FW_LINK_DEPS := $(CORE_H) $(wildcard firmware/mcu/*.h firmware/app/*.h firmware/link/*.h hal/dynamixel/c/*.h) \
+  hal/can/c/canmotor.h \
   $(FW_GEN)/fw_dynamixel.h firmware/app/rules.mk
 
 $(FW_DIR)/an386-link/%.o: %.c $(FW_LINK_DEPS) | toolchain

@@ -5,6 +5,7 @@
 
 #include <string.h>
 
+#include "canmotor.h"
 #include "dxl.h"
 
 //---------------------------------- framing ------------------------------------------------------
@@ -349,6 +350,9 @@ static void joint_io(io* c, link_joint* m) {
   io_real(c, NAME("observer_gain"), &m->observer_gain);
   io_real(c, NAME("observer_lowpass"), &m->observer_lowpass);
   io_real(c, NAME("contact_threshold"), &m->contact_threshold);
+  io_u8(c, NAME("dialect"), &m->dialect);
+  io_u16(c, NAME("reply_id"), &m->reply_id);
+  io_reals(c, NAME("mit_range"), m->mit_range, 5);
 }
 
 static void command_io(io* c, link_command* m) {
@@ -619,6 +623,13 @@ void link_robot_joint(link_robot* r, const link_joint* j, link_result* result) {
 
 static int finite_positive(sd_real x) { return SD_ISFINITE(x) && x > 0; }
 
+// a CAN motor's MIT ranges: each end within the codec's (hal/can/c/canmotor.h)
+static int can_ranges_ok(const sd_real* range) {
+  for (int k = 0; k < 5; k++)
+    if (!(SD_ISFINITE(range[k]) && range[k] >= CM_RANGE_MIN && range[k] <= CM_RANGE_MAX)) return 0;
+  return 1;
+}
+
 // the servo map and safety values of joint k (the core checks the rest)
 static int servo_error(const link_robot* r, int k, uint8_t buses) {
   const link_joint* j = &r->joint[k];
@@ -626,9 +637,13 @@ static int servo_error(const link_robot* r, int k, uint8_t buses) {
   if (unactuated) return j->bus == LINK_BUS_NONE ? 0 : LINK_SERVO_BUS;
   if (j->bus == LINK_BUS_NONE || j->bus > LINK_BUS_CAN || !(buses & (1u << j->bus))) return LINK_SERVO_BUS;
   if (j->direction != SD_R(1.0) && j->direction != SD_R(-1.0)) return LINK_SERVO_DIRECTION;
-  if (!finite_positive(j->gear_ratio) || !finite_positive(j->rad_per_tick) ||
-      !finite_positive(j->radps_per_unit) || !finite_positive(j->effort_per_unit) ||
-      !finite_positive(j->nm_per_effort) || !SD_ISFINITE(j->zero_offset))
+  int can = j->bus == LINK_BUS_CAN;
+  if (can != (j->dialect != LINK_DIALECT_NONE)) return can ? LINK_SERVO_CAN : LINK_SERVO_BUS;
+  if (can && (j->dialect >= LINK_NDIALECT || j->reply_id > 0x7FF || !can_ranges_ok(j->mit_range)))
+    return LINK_SERVO_CAN;
+  if (!finite_positive(j->gear_ratio) || !finite_positive(j->nm_per_effort) || !SD_ISFINITE(j->zero_offset) ||
+      (!can && (!finite_positive(j->rad_per_tick) || !finite_positive(j->radps_per_unit) ||
+                !finite_positive(j->effort_per_unit))))
     return LINK_SERVO_SCALE;
   if (!SD_ISFINITE(j->q_min) || !SD_ISFINITE(j->q_max) || !(j->q_min < j->q_max) ||
       !finite_positive(j->qd_max) || !finite_positive(j->effort_limit))

@@ -119,6 +119,7 @@ enum link_servo_error_ {
   LINK_SERVO_RANGE = -4,     // q_min >= q_max, a speed or effort limit not positive, not finite
   LINK_SERVO_SAFETY = -5,    // a following error or contact threshold not positive; a bad table
   LINK_SERVO_DUPLICATE = -6, // two joints on one servo (bus and id)
+  LINK_SERVO_CAN = -7,       // a CAN motor's dialect, reply id or MIT ranges (hal/can/c/canmotor.h's)
 };
 
 //---------------------------------- messages -----------------------------------------------------
@@ -131,6 +132,9 @@ typedef struct link_hello_ {
 } link_hello;
 
 enum link_bus_ { LINK_BUS_NONE = 0, LINK_BUS_DYNAMIXEL = 1, LINK_BUS_CAN = 2 };
+// a CAN motor's dialect (hal/can/dialects.py): how it answers, where, and what its status means
+enum link_dialect_ { LINK_DIALECT_NONE = 0, LINK_DIALECT_MIT = 1, LINK_DIALECT_DAMIAO = 2, LINK_DIALECT_CUBEMARS = 3,
+                     LINK_NDIALECT };
 enum link_state_ { LINK_IDLE = 0, LINK_LOADED = 1, LINK_HOMING = 2, LINK_PLAYING = 3, LINK_HOLDING = 4,
                    LINK_TORQUE_OFF = 5, LINK_FAULT = 6 };
 
@@ -176,7 +180,9 @@ typedef struct link_body_ {
 } link_body;
 
 // LOAD_JOINT: one dof: its frame and armature, its servo and units (fw_app.h's fw_servo), its
-// limits, friction, gains and safety values
+// limits, friction, gains and safety values. A CAN motor's units are its MIT ranges (mit_range;
+// rad_per_tick, radps_per_unit and effort_per_unit 0), its effort A (effort_limit, nm_per_effort:
+// the stall guard's torque limit); id its command id, reply_id the id it answers on.
 typedef struct link_joint_ {
   uint8_t index, bus, id;
   uint16_t model_number;
@@ -191,6 +197,9 @@ typedef struct link_joint_ {
   sd_real kp, kd, error_lowpass;
   sd_real following_error;                      // rad
   sd_real observer_gain, observer_lowpass, contact_threshold;   // 1/s, rad/s, N m
+  uint8_t dialect;                              // CAN: a link_dialect_; Dynamixel: LINK_DIALECT_NONE
+  uint16_t reply_id;                            // CAN: the id its answers come on (11 bits)
+  sd_real mit_range[5];                         // CAN: p_max, v_max, t_max, kp_max, kd_max (cm_ranges)
 } link_joint;
 
 // KNOTS: a stretch of the motion, knots first .. first + count - 1, each a time and the state the

@@ -6,10 +6,10 @@
 
 LINK_MCU_OBJ := $(MCU_DIR)/link/link.o
 
-$(LINK_MCU_OBJ): firmware/link/link.c firmware/link/link.h hal/dynamixel/c/dxl.h $(CORE_H) firmware/link/rules.mk \
+$(LINK_MCU_OBJ): firmware/link/link.c firmware/link/link.h hal/dynamixel/c/dxl.h hal/can/c/canmotor.h $(CORE_H) firmware/link/rules.mk \
                  | toolchain
 	@mkdir -p $(@D)
-	@$(MCU_CC) $(MCU_CFLAGS) -Ifirmware/link -Ihal/dynamixel/c -c -o $@ $<
+	@$(MCU_CC) $(MCU_CFLAGS) -Ifirmware/link -Ihal/dynamixel/c -Ihal/can/c -c -o $@ $<
 
 .PHONY: test-mcu-link
 test-mcu-link: $(LINK_MCU_OBJ)

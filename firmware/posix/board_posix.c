@@ -3,14 +3,16 @@
 //
 //   UART     a termios serial port in raw mode: a USB adapter (/dev/ttyUSB0, its latency timer
 //            asked down to 1 ms through ASYNC_LOW_LATENCY) or the simulated bus's pseudo-terminal
+//   CAN      an SLCAN adapter on a tty (can=PATH; board_slcan.c), the general application's
 //   SysTick  clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME) to each period's start (real time),
 //            or, in lock-step, a virtual clock that jumps to the next period at once and is held
 //            while the simulated bus answers (as the QEMU run's -icount clock): no deadline
 //   console  standard output; the exit status is the fault code
 //   priority SCHED_FIFO and mlockall in real time when the process may, one line when it may not
 //
-// Command line: servodyn-fw PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH] [period_us=N]
-// [nan_at=K] [ticks=N]; the last three are the application's (fw_main.c). log=FILE: one binary
+// Command line: servodyn-fw [PORT] [realtime] [log=FILE] [reply_ms=N] [link=PATH] [can=PATH]
+// [period_us=N] [nan_at=K] [ticks=N]; the last three are the application's (fw_main.c). PORT, the
+// Dynamixel bus, may be left out when the robot has none (a CAN arm: can=PATH, the SLCAN adapter). log=FILE: one binary
 // record per tick (fw_record_tick) for the host tools. link=PATH: the host link's line (fw_link.c,
 // build/fw/native/servodyn-fw-link), a pseudo-terminal (set raw) or a socket; in lock-step a tick
 // that did not use the bus waits for the host's bytes up to one period of real time, so an idle
@@ -32,6 +34,7 @@
 #include <unistd.h>
 
 #include "board.h"
+#include "board_posix.h"
 #include "fw_app.h"
 
 int fw_app_main(void);           // firmware/app/fw_main.c's main, renamed in this build
@@ -42,7 +45,10 @@ static int g_realtime;
 static long g_reply_ms = 250;    // a pseudo-terminal on a loaded machine can hold bytes ~140 ms
 static FILE* g_log;
 static int g_link_fd = -1;
-static int g_bus_used;           // the bus was written since the last wait (lock-step)
+static int g_bus_used;           // a bus was written since the last wait (lock-step)
+
+long board_posix_reply_ms(void) { return g_reply_ms; }
+void board_posix_bus_used(void) { g_bus_used = 1; }
 
 // the clock, in ns (BOARD_CPU_HZ is 1e9 in this build)
 static struct timespec g_start;
@@ -172,6 +178,7 @@ static speed_t speed_of(uint32_t baud) {
 }
 
 void board_uart_init(uint32_t baud) {
+  if (g_fd < 0) return;          // no Dynamixel bus: a robot with a servo on one faults at its set-up
   struct termios tio;
   if (tcgetattr(g_fd, &tio) != 0) {
     fprintf(stderr, "servodyn-fw: the port is not a serial port (%s)\n", strerror(errno));
@@ -203,6 +210,7 @@ void board_uart_init(uint32_t baud) {
 
 void board_uart_write(const uint8_t* data, size_t n) {
   g_bus_used = 1;
+  if (g_fd < 0) return;
   while (n > 0) {
     ssize_t w = write(g_fd, data, n);
     if (w < 0) {
@@ -216,7 +224,7 @@ void board_uart_write(const uint8_t* data, size_t n) {
 }
 
 static void pump(void) {          // what the port holds now, without waiting
-  if (g_rx_n >= RX_SIZE) return;
+  if (g_rx_n >= RX_SIZE || g_fd < 0) return;
   ssize_t r = read(g_fd, g_rx + g_rx_n, RX_SIZE - g_rx_n);
   if (r > 0) g_rx_n += (size_t)r;
 }
@@ -245,7 +253,7 @@ int board_uart_wait(size_t want) {
     pump();
     if (g_rx_n >= want) return 1;
     uint64_t now = mono_ns();
-    if (now >= deadline) return 0;
+    if (now >= deadline || g_fd < 0) return 0;
     struct pollfd p = {g_fd, POLLIN, 0};
     int ms = (int)((deadline - now + 999999u) / 1000000u);
     if (poll(&p, 1, ms) < 0 && errno != EINTR) return 0;
@@ -355,13 +363,14 @@ static int open_link_pty(void) {
 
 int main(int argc, char** argv) {
   if (argc < 2 || argv[1][0] == '-') {
-    fprintf(stderr, "usage: %s PORT [realtime] [log=FILE] [reply_ms=N] [link=PATH|pty] [period_us=N] [nan_at=K] "
-            "[ticks=N]\n",
+    fprintf(stderr, "usage: %s [PORT] [realtime] [log=FILE] [reply_ms=N] [link=PATH|pty] [can=PATH] [period_us=N] "
+            "[nan_at=K] [ticks=N]\n",
             argv[0]);
     return 2;
   }
+  const char* port = strchr(argv[1], '=') || strcmp(argv[1], "realtime") == 0 ? NULL : argv[1];
   size_t used = 0;
-  for (int k = 2; k < argc; k++) {
+  for (int k = port ? 2 : 1; k < argc; k++) {
     if (strcmp(argv[k], "realtime") == 0) {
       g_realtime = 1;
     } else if (strncmp(argv[k], "log=", 4) == 0) {
@@ -378,6 +387,8 @@ int main(int argc, char** argv) {
         fprintf(stderr, "servodyn-fw: the host link %s: cannot open (%s)\n", argv[k] + 5, strerror(errno));
         return 2;
       }
+    } else if (strncmp(argv[k], "can=", 4) == 0) {
+      if (board_posix_can_open(argv[k] + 4) != 0) return 2;
     } else if (strncmp(argv[k], "reply_ms=", 9) == 0) {
       g_reply_ms = atol(argv[k] + 9);
     } else {
@@ -389,9 +400,9 @@ int main(int argc, char** argv) {
       used += (size_t)w;
     }
   }
-  g_fd = open(argv[1], O_RDWR | O_NOCTTY | O_NONBLOCK);
-  if (g_fd < 0) {
-    fprintf(stderr, "servodyn-fw: %s: cannot open (%s)\n", argv[1], strerror(errno));
+  g_fd = port ? open(port, O_RDWR | O_NOCTTY | O_NONBLOCK) : -1;
+  if (port && g_fd < 0) {
+    fprintf(stderr, "servodyn-fw: %s: cannot open (%s)\n", port, strerror(errno));
     return 2;
   }
   if (g_realtime) realtime_setup();

@@ -7,7 +7,8 @@ float builds), framed as fuzz/link/stream.c reads its input:
 The stream seeds are one frame of every message (tests/test_host_link.py's examples, built by the
 Python codec, servodyn.hal.link, byte for byte the C codec), all of them in a row, and that row with
 a byte corrupted, a byte lost and junk in front. The robot seeds load the replica (its model and
-servos as the test sends them), committed, and the same with a body without mass.
+servos as the test sends them), committed, the same with a body without mass, and the mixed arm
+(CAN motors beside Dynamixel servos: LOAD_JOINT's dialects, reply ids and MIT ranges).
 
 Run `python fuzz/link/seeds.py` to write them; tests/test_fuzz.py checks the corpus in the
 repository is what this gives."""
@@ -47,6 +48,8 @@ def corpus() -> dict[str, dict[str, bytes]]:
     seeds["robot_replica"] = bytes([ROBOT]) + b"".join(map(_record, [*robot, messages.Commit()]))
     massless = [replace(m, mass=0.0) if isinstance(m, messages.Body) and m.index == 2 else m for m in robot]
     seeds["robot_massless_body"] = bytes([ROBOT]) + b"".join(map(_record, [*massless, messages.Commit()]))
+    mixed = replica_messages("replica_mixed")
+    seeds["robot_replica_mixed"] = bytes([ROBOT]) + b"".join(map(_record, [*mixed, messages.Commit()]))
     return {"stream": seeds}
 
 

@@ -52,7 +52,8 @@ LAYOUTS = {
         ("rot", "f32", 9), ("mass", "f32", 1), ("com", "f32", 3), ("inertia", "f32", 6))),
     LOAD_JOINT: ("Joint", (
         ("index", "u8", 1), ("bus", "u8", 1), ("id", "u8", 1), ("model_number", "u16", 1), ("dof_rot", "f32", 9),
-        *((name, "f32", 1) for name in JOINT_REALS))),
+        *((name, "f32", 1) for name in JOINT_REALS), ("dialect", "u8", 1), ("reply_id", "u16", 1),
+        ("mit_range", "f32", 5))),
     COMMIT: ("Commit", ()),
     COMMAND: ("Command", (("command", "u8", 1), ("arg", "u32", 1))),
     RESULT: ("Result", (
@@ -70,6 +71,7 @@ JOINT_TELEMETRY = (("q", "fix_q", 1), ("qd", "fix_qd", 1), ("q_d", "fix_q", 1), 
 COMMANDS = {"keepalive": 0, "home": 1, "play": 2, "hold": 3, "stop": 4, "torque_off": 5, "clear_fault": 6,
             "telemetry": 7}
 BUSES = {"none": 0, "dynamixel": 1, "can": 2}
+DIALECTS = ("none", "mit", "damiao", "cubemars")      # a CAN motor's (hal/can/dialects.py); none: a Dynamixel servo
 STATES = ("idle", "loaded", "homing", "playing", "holding", "torque_off", "fault")
 REACTIONS = ("hold", "float", "retract", "torque_off")    # hal/safety.py's REACTIONS, in this order
 STAGES = ("link", "model", "control", "observer", "servo")
@@ -81,7 +83,8 @@ LINK_CODES = {0: "done", -1: "an unknown request type", -2: "a payload of the wr
 SERVO_CODES = {-1: "a bus the controller has not (or none for an actuated joint)", -2: "direction not +1 or -1",
                -3: "a unit scale zero or not finite", -4: "a range or limit that is empty or not positive",
                -5: "a safety value not positive (following error, contact threshold, the table)",
-               -6: "two joints on one servo"}
+               -6: "two joints on one servo",
+               -7: "a CAN motor's dialect, reply id or MIT ranges (the codec's 1e-6 .. 1e6)"}
 E_ORDER = -5
 
 

@@ -67,10 +67,12 @@ def parse_controller(text: str) -> ControllerChoice:
 
 
 class NativeController:
-    """The general application as a Linux process on `bus_port`, its host link on a pseudo-terminal."""
+    """The general application as a Linux process on its buses, its host link on a pseudo-terminal."""
 
-    def __init__(self, bus_port: str, baud: int, *, realtime: bool, tolerance_us: int | None = None,
-                 reply_ms: int | None = None, exe: Path | None = None, extra: tuple = ()):
+    def __init__(self, arguments: list, *, realtime: bool, tolerance_us: int | None = None,
+                 exe: Path | None = None):
+        """arguments: the process's bus arguments (its Dynamixel port first, baud=N, can=PATH, reply_ms=N:
+        servodyn.loop.native_link.bus_arguments)."""
         exe = Path(exe) if exe else NATIVE_LINK
         if not exe.is_file():
             raise FirmwareError(f"no native controller at {exe} (build it with `make fw`)")
@@ -78,13 +80,11 @@ class NativeController:
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
-        command = [str(exe), bus_port, f"link={os.ttyname(self.slave)}", f"baud={baud}", "once=1", *extra]
+        command = [str(exe), *arguments, f"link={os.ttyname(self.slave)}", "once=1"]
         if realtime:
             command.append("realtime")
             if tolerance_us is not None:
                 command.append(f"tolerance_us={tolerance_us}")
-        if reply_ms is not None:
-            command.append(f"reply_ms={reply_ms}")
         self.proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True)
         self.fd = self.master

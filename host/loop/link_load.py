@@ -28,7 +28,7 @@ from ..control.trajectory import MotionPath, Trajectory
 from ..errors import InputError
 from ..hal.backend import joint_sensors
 from ..hal.dynamixel.pwm import pwm_driven
-from ..hal.dynamixel.units import ServoMap
+from ..hal.dynamixel.units import current_unit
 from ..hal.link import messages as ms
 from ..hal.safety import STALL_SPEED_RAD_S, STALL_TORQUE_SHARE
 from ..model.layout import model_fields
@@ -42,18 +42,26 @@ MIN_KNOT_GAP = 0.005       # s: no gain knot closer than this to a keyframe or a
 
 
 def servo_table(config) -> list[dict]:
-    """Each joint's servo (model dof order) in the firmware's fw_servo fields: its id, units, range,
-    friction, following-error limit and the contact observer's constants."""
-    units = ServoMap.from_joints(config.joints)
+    """Each joint's servo (model dof order) in the firmware's fw_servo fields: its bus, id, units,
+    range, friction, following-error limit and the contact observer's constants. A CAN motor's units
+    are its MIT ranges (`mit_range`; the unit scales 0), with its dialect and reply id."""
     observer = contact_observer(config)
     rows = []
     for k, j in enumerate(config.joints):
+        can = config.buses[j.bus].kind == "can"
+        if can:
+            r = j.options["ranges"]
+            units = {"model_number": 0, "rad_per_tick": 0.0, "radps_per_unit": 0.0, "amp_per_unit": 0.0,
+                     "dialect": ms.DIALECTS.index(j.options["dialect"]), "reply_id": j.options["feedback_id"],
+                     "mit_range": (r.p_max, r.v_max, r.t_max, r.kp_max, r.kd_max)}
+        else:
+            units = {"model_number": j.servo.model_number, "rad_per_tick": 2 * math.pi / j.servo.ticks_per_rev,
+                     "radps_per_unit": 2 * math.pi / 60 * j.servo.velocity_unit, "amp_per_unit": float(current_unit(j)),
+                     "dialect": 0, "reply_id": 0, "mit_range": (0.0,) * 5}
         rows.append({
-            "id": j.id, "model_number": j.servo.model_number, "direction": float(j.direction),
+            "bus": "can" if can else "dynamixel", "id": j.id, **units, "direction": float(j.direction),
             "zero_offset": float(j.zero_offset), "gear_ratio": float(j.gear_ratio),
-            "rad_per_tick": 2 * math.pi / j.servo.ticks_per_rev,
-            "radps_per_unit": 2 * math.pi / 60 * j.servo.velocity_unit,
-            "amp_per_unit": float(units.current_unit[k]), "nm_per_amp": j.torque_constant * j.gear_ratio,
+            "nm_per_amp": j.torque_constant * j.gear_ratio,
             "current_limit": float(j.current_limit), "q_min": float(j.position_limits[0]),
             "q_max": float(j.position_limits[1]), "qd_max": float(j.velocity_limit),
             "friction_coulomb": float(j.friction_coulomb), "friction_viscous": float(j.friction_viscous),
@@ -63,25 +71,37 @@ def servo_table(config) -> list[dict]:
     return rows
 
 
+def buses_refused(config) -> str | None:
+    """Why the controller's application cannot drive `config`'s buses, in words (None: it can)."""
+    kinds = [bus.kind for bus in config.buses.values()]
+    if any(kind not in ("dynamixel", "can") for kind in kinds) or kinds.count("dynamixel") > 1 or kinds.count("can") > 1:
+        return f"a Dynamixel bus, a CAN bus or one of each; '{config.name}' has {', '.join(kinds)}"
+    return None
+
+
 def check_config(config) -> None:
-    """InputError unless the general application can drive `config`: hinge joints on Dynamixel
-    Protocol 2.0 buses, every servo in Current Control Mode (fw_bus.c writes Goal Current)."""
+    """InputError unless the general application can drive `config`: hinge joints on a Dynamixel
+    Protocol 2.0 bus (every servo in Current Control Mode: fw_bus.c writes Goal Current), a CAN
+    bus of MIT motors, or one of each."""
     model = config.model
     if model.free_root or any(b.ball for b in model.bodies):
         raise InputError(f"host link: the controller drives hinge joints only; '{config.model_ref}' has a free root "
                          "or ball joints")
-    kinds = {bus.kind for bus in config.buses.values()}
-    if kinds != {"dynamixel"}:
-        raise InputError(f"host link: the controller's application drives Dynamixel buses; '{config.name}' has "
-                         f"{', '.join(sorted(kinds))}")
-    old = sorted(name for name, bus in config.buses.items() if bus.protocol != 2.0)
+    why = buses_refused(config)
+    if why:
+        raise InputError(f"host link: the controller's application drives {why}")
+    old = sorted(name for name, bus in config.buses.items() if bus.kind == "dynamixel" and bus.protocol != 2.0)
     if old:
         raise InputError(f"host link: the controller speaks Dynamixel Protocol 2.0; '{config.name}' has bus "
                          f"'{old[0]}' on Protocol {config.buses[old[0]].protocol:.1f}")
-    pwm = [j.dof for j in config.joints if pwm_driven(j)]
+    pwm = [j.dof for j in config.joints if config.buses[j.bus].kind == "dynamixel" and pwm_driven(j)]
     if pwm:
         raise InputError(f"host link: the controller drives servos by Goal Current; '{config.name}' drives {pwm[0]} "
                          "through PWM (its servo has no current control)")
+    wide = [j.dof for j in config.joints if config.buses[j.bus].kind == "can" and j.id > 0xFF]
+    if wide:
+        raise InputError(f"host link: a CAN motor's command id is one byte on the link; joint '{wide[0]}' has "
+                         "a wider one")
 
 
 def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TIMEOUT_MS) -> list:
@@ -107,7 +127,7 @@ def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TI
                            inertia=tuple(f["body_inertia"][i])))
     for k, s in enumerate(servo_table(config)):
         out.append(ms.Joint(
-            index=k, bus=ms.BUSES["dynamixel"], id=s["id"], model_number=s["model_number"],
+            index=k, bus=ms.BUSES[s["bus"]], id=s["id"], model_number=s["model_number"],
             dof_rot=tuple(f["dof_rot"][k]), armature=float(f["dof_armature"][k]), direction=s["direction"],
             zero_offset=s["zero_offset"], gear_ratio=s["gear_ratio"], rad_per_tick=s["rad_per_tick"],
             radps_per_unit=s["radps_per_unit"], effort_per_unit=s["amp_per_unit"], nm_per_effort=s["nm_per_amp"],
@@ -115,7 +135,8 @@ def robot_messages(config, kp, kd, error_lowpass, host_timeout_ms: int = HOST_TI
             friction_coulomb=s["friction_coulomb"], friction_viscous=s["friction_viscous"], kp=float(kp[k]),
             kd=float(kd[k]), error_lowpass=float(error_lowpass[k]), following_error=s["following_error"],
             observer_gain=s["observer_gain"], observer_lowpass=s["observer_lowpass"],
-            contact_threshold=s["contact_threshold"]))
+            contact_threshold=s["contact_threshold"], dialect=s["dialect"], reply_id=s["reply_id"],
+            mit_range=s["mit_range"]))
     return out
 
 

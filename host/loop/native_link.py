@@ -3,7 +3,10 @@
 loads the configuration and streams the motion's knots over the host link (a pseudo-terminal),
 commands home and play, and builds the Python loop's log and summary from the telemetry
 (servodyn.loop.link_log). Unlike `--native` (the generated firmware: the replica and the forehand
-only), any Dynamixel configuration and keyframed motion plays.
+only), any configuration on a Dynamixel bus, a CAN bus or one of each, and any keyframed motion,
+plays: the Dynamixel bus on its serial port (the process's PORT), the CAN bus through an SLCAN
+adapter on a tty (can=PATH: a CANable's /dev/ttyACM0, or the simulator's, which serves one for
+this controller).
 """
 
 from __future__ import annotations
@@ -17,14 +20,14 @@ from ..errors import ExitCode, InputError, ServodynError
 from ..hal.link import messages as ms
 from ..hal.realtime import LOOP_PRIORITY, collector_paused, realtime_priority
 from . import summarize, write_summary
+from .agreement import agreement
+from .link_controllers import NativeController, PortController
 from .link_load import HOST_TIMEOUT_MS, check_config, plan
 from .link_log import telemetry_log
 from .link_session import ControllerRefused, LinkSession
-from ..sim.robot import SimulatedRobot
-from .agreement import agreement
-from .link_controllers import NativeController, PortController
 from .native import FirmwareError, parse_report
 from .qemu import QemuController
+from ..sim.robot import SimulatedRobot
 
 QUIET = ("servodyn-fw: ", "servodyn-board: ", "qemu-system-arm: -serial")   # the report, QEMU's socket set-up
 QEMU_ANSWER_TIMEOUT = 1.0      # s: emulated, lock-stepped ticks are slower than the wall clock's
@@ -32,6 +35,7 @@ LOCKSTEP_ANSWER_TIMEOUT = 0.25  # s between retransmissions in lock-step: 2.25 s
 LOCKSTEP_TIMEOUT_MS = 60000    # lock-step runs as fast as the bus answers: the watchdog counts its ticks
 KEEPALIVE = 0.02               # s between two frames of the host when it has nothing else to send
 STOP_TIMEOUT = 10.0            # s the controller has to end after torque off
+SERVED_PATIENCE = 2.0          # s the simulator has to serve the controller's last bytes (its torque off)
 
 
 class Declined(ServodynError):
@@ -45,9 +49,10 @@ def check_link(config, choice, motion: str, mode: str, fault_at, contacts=()) ->
         check_config(config)
     except InputError as err:
         raise FirmwareError(f"--controller {choice}: {str(err).removeprefix('host link: ')}") from None
-    if choice.kind == "qemu" and len(config.buses) > 1:
-        raise FirmwareError(f"--controller {choice}: the board's image drives one Dynamixel bus; '{config.name}' "
-                            f"has {len(config.buses)}")
+    if choice.kind == "qemu" and any(bus.kind != "dynamixel" for bus in config.buses.values()):
+        raise FirmwareError(f"--controller {choice}: QEMU models no CAN controller; the board's image under it drives "
+                            f"its Dynamixel bus alone, and '{config.name}' has a CAN bus (--controller native plays it "
+                            "through an SLCAN adapter)")
     if mode != "feedforward_pd" or fault_at is not None:
         raise FirmwareError(f"--controller {choice} runs feed-forward + PD and injects no fault")
     if contacts:
@@ -85,20 +90,36 @@ def _play(session: LinkSession, p, controller, timeout: float) -> None:
             raise FirmwareError(f"the {controller.name} controller's run did not end within {timeout:g} s")
 
 
-def start_controller(choice, server, bus_port: str | None, run):
-    """The controller `choice` names (link_controllers.parse_controller) for this run, started."""
+def bus_arguments(config, buses: dict) -> list[str]:
+    """The process's bus arguments: the Dynamixel bus's port and baud, the CAN bus's SLCAN tty and
+    bit rate, the longest reply time a simulated bus asks for; `buses`: each bus's options (the run's)."""
+    out = []
+    for name, bus in config.buses.items():
+        port = buses[name]["port"]
+        if bus.kind == "can":
+            if not str(port).startswith("/dev/"):
+                raise FirmwareError(f"--controller native reaches a CAN bus through an SLCAN adapter on a tty "
+                                    f"(/dev/ttyACM0, ...); bus '{name}' is on {port}")
+            out += [f"can={port}", f"can_bitrate={bus.baud}"]
+        else:
+            out = [port, *out, f"baud={bus.baud}"]
+    replies = [options["reply_timeout"] for options in buses.values() if "reply_timeout" in options]
+    if replies:
+        out.append(f"reply_ms={round(max(replies) * 1e3)}")
+    return out
+
+
+def start_controller(choice, buses: dict | None, run):
+    """The controller `choice` names (link_controllers.parse_controller) for this run, started;
+    `buses`: each bus's options (the native controller's ports)."""
     config = run.config
-    baud = next(iter(config.buses.values())).baud
     if choice.kind == "native":
         tolerance = run.options.overrun_tolerance
-        reply_ms = (round(server.buses[next(iter(server.buses))]["reply_timeout"] * 1e3)
-                    if server is not None else None)
-        return NativeController(bus_port, baud, realtime=run.realtime,
-                                tolerance_us=round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6),
-                                reply_ms=reply_ms)
+        return NativeController(bus_arguments(config, buses), realtime=run.realtime,
+                                tolerance_us=round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6))
     if choice.kind == "qemu":
         arm = SimulatedRobot(config, obstacles=run.options.obstacles).port()
-        return QemuController(choice.board, arm, baud)
+        return QemuController(choice.board, arm, next(iter(config.buses.values())).baud)
     return PortController(choice.path)
 
 
@@ -144,18 +165,20 @@ def drive(controller, p, home_ms: int, realtime: bool, before_home=None, qemu: b
     return session, error, code
 
 
-def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
-    """The run played by the general application that `choice` names (the Python loop's summary keys)."""
+def link_swing(choice, server, buses: dict | None, run, out: Path) -> dict:
+    """The run played by the general application that `choice` names (the Python loop's summary
+    keys); `buses`: each bus's options, its port first (the native controller's)."""
     config, say = run.config, run.say
     realtime = run.realtime and choice.kind != "qemu"
     p = plan(config, run.motion, HOST_TIMEOUT_MS if realtime else LOCKSTEP_TIMEOUT_MS, time_scale=run.scale)
-    where = {"native": f"the native controller on {bus_port}", "qemu": f"the controller under QEMU ({choice})",
+    ports = ", ".join(str(b["port"]) for b in (buses or {}).values())
+    where = {"native": f"the native controller on {ports}", "qemu": f"the controller under QEMU ({choice})",
              "port": f"the controller on {choice.path}"}[choice.kind]
     say(f"{where} over the host link ({'real time' if realtime else 'lock-step'}) ...")
     controller = None
     sim = None
     try:
-        controller = start_controller(choice, server, bus_port, run)
+        controller = start_controller(choice, buses, run)
         def before_home():
             if choice.kind == "port" or (choice.kind == "native" and server is None):     # a real arm
                 say(f"{where} will switch torque on, home the arm to the start pose of {run.verdict.path.name} "
@@ -168,7 +191,7 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
     finally:
         if controller is not None:
             controller.close()
-        sim = server.status() if server is not None else None
+        sim = served_status(server) if server is not None else None
         if server is not None:
             server.stop()
     report = parse_report(notes)
@@ -202,6 +225,18 @@ def link_swing(choice, server, bus_port: str | None, run, out: Path) -> dict:
     run.log = log
     write_summary(out, summary)
     return summary
+
+
+def served_status(server, patience: float = SERVED_PATIENCE) -> dict:
+    """The simulator's status once it has served the controller's last bytes: the torque-off
+    packet and frames the controller sent before it ended are read by the simulator's threads a
+    moment later (every device off, or `patience` s)."""
+    deadline = time.monotonic() + patience
+    status = server.status()
+    while not all(status["torque_off"]) and time.monotonic() < deadline:
+        time.sleep(0.01)
+        status = server.status()
+    return status
 
 
 def ms_fault(code: int) -> str:

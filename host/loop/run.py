@@ -216,8 +216,10 @@ class Run:
                 raise RunError(f"'{self.config.name}' has no port: its buses are simulated, and this run was "
                                "given no simulator")
             clock = "real time" if self.realtime else "lock-step"
+            # the native controller reaches a CAN bus through an SLCAN adapter: the simulator serves one
+            slcan = {"can": "slcan"} if self.controller.kind == "native" else {}
             server = self.serve(self.config, "realtime" if self.realtime else "lockstep",
-                                obstacles=self.options.obstacles)
+                                obstacles=self.options.obstacles, **slcan)
             for line in server.describe(self.config, clock):
                 self.say(line)
             return server, server.buses
@@ -255,7 +257,7 @@ class Run:
             if self.options.native:
                 return native_swing(server, per_bus[next(iter(self.config.buses))]["port"], self, out)
             if self.controller.kind == "native":
-                return link_swing(self.controller, server, per_bus[next(iter(self.config.buses))]["port"], self, out)
+                return link_swing(self.controller, server, per_bus, self, out)
             return self._play(server, per_bus, out)
 
     def _play(self, server, per_bus: dict, out: Path) -> dict:

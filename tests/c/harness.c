@@ -76,6 +76,7 @@ static const struct {
   {"test_control.c", sdt_control_tests},
   {"test_dxl.c", sdt_dxl_tests},
   {"test_link.c", sdt_link_tests},
+  {"test_fw_can.c", sdt_fw_can_tests},
 };
 
 int main(int argc, char** argv) {

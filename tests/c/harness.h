@@ -24,6 +24,7 @@ extern const sdt_test sdt_trajectory_tests[];
 extern const sdt_test sdt_control_tests[];
 extern const sdt_test sdt_dxl_tests[];      // the firmware's Dynamixel codec (hal/dynamixel/c)
 extern const sdt_test sdt_link_tests[];     // the host link (firmware/link)
+extern const sdt_test sdt_fw_can_tests[];   // the application's CAN bus (firmware/app/fw_can.c)
 
 // Describe the case under test (printf-style); failures print it. Cleared before each test.
 void sdt_context(const char* fmt, ...) __attribute__((format(printf, 1, 2)));

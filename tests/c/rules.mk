@@ -4,14 +4,17 @@
 #   build/c-float/test_core    sd_real = float, as on the microcontroller (-DSD_SINGLE)
 #
 # with the tests of the firmware's Dynamixel codec (hal/dynamixel/c, test_dxl.c) and of the host
-# link (firmware/link, test_link.c) in both.
+# link (firmware/link, test_link.c) and of the general application's CAN bus (firmware/app/fw_can.c
+# with the MIT codec, test_fw_can.c) in both.
 
 CC ?= cc
 CTEST_CFLAGS := -std=c11 -O2 -Wall -Wextra -Werror -ffp-contract=off -Ifirmware/core/include \
-  -Itests/c -Ihal/dynamixel/c -Ifirmware/link
+  -Itests/c -Ihal/dynamixel/c -Ihal/can/c -Ifirmware/link -Ifirmware/app -Ifirmware/mcu
 CTEST_FLOAT_CFLAGS := -DSD_SINGLE -Wdouble-promotion -Wfloat-conversion
-CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c firmware/link/link.c
-CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h firmware/link/link.h
+CTEST_SRC := $(wildcard tests/c/*.c) $(CORE_C) hal/dynamixel/c/dxl.c firmware/link/link.c firmware/app/fw_can.c \
+  hal/can/c/canmotor.c
+CTEST_DEPS := $(CTEST_SRC) $(wildcard tests/c/*.h) $(CORE_H) hal/dynamixel/c/dxl.h hal/can/c/canmotor.h firmware/link/link.h \
+  firmware/app/fw_can.h firmware/app/fw_app.h
 
 build/c-double/test_core: $(CTEST_DEPS)
 	@mkdir -p $(@D)

@@ -282,12 +282,17 @@ static void messages_round_trip(void) {
   j.direction = -1;
   j.kp = SD_R(12.5);
   j.contact_threshold = SD_R(0.75);
+  j.dialect = LINK_DIALECT_CUBEMARS;
+  j.reply_id = 0x7FF;
+  j.mit_range[4] = SD_R(5.0);
   n = link_pack_joint(p, sizeof p, &j);
-  EXPECT_INT(n, 129, "LOAD_JOINT is 129 bytes");
+  EXPECT_INT(n, 152, "LOAD_JOINT is 152 bytes");
   EXPECT_INT(link_unpack_joint(p, n, &j2), LINK_OK, "it unpacks");
   EXPECT_INT(repacks(p, n, link_pack_joint(q, sizeof q, &j2), q), 1, "every field back");
   EXPECT_NEAR(j2.kp + j2.contact_threshold + j2.direction + j2.model_number, 12.5 + 0.75 - 1 + 1020, 0,
               "fields in place");
+  EXPECT_INT(p[129] * 100000 + (p[130] | p[131] << 8), 3 * 100000 + 0x7FF, "dialect at 129, reply_id at 130, LE");
+  EXPECT_NEAR(j2.mit_range[4] + j2.dialect + j2.reply_id, 5.0 + 3 + 0x7FF, 0, "the CAN fields back");
 
   link_command c = {LINK_CMD_HOME, 2500}, c2;
   n = link_pack_command(p, sizeof p, &c);
@@ -599,6 +604,47 @@ static void a_robot_is_checked_by_the_cores_checks(void) {
   r->joint_seen[5] = 0;
   commit(r, dxl, &res);
   EXPECT_INT(res.code * 100 + res.index, LINK_E_NO_JOINT * 100 + 5, "a joint missing");
+
+  // a CAN motor: its dialect, reply id and MIT ranges (the codec's limits), no Dynamixel unit scales
+  const uint8_t both = dxl | 1u << LINK_BUS_CAN;
+  const sd_real dm4340[5] = {SD_R(12.5), SD_R(8.0), SD_R(28.0), SD_R(500.0), SD_R(5.0)};
+  load_chain3(r, &res);
+  link_joint* m = &r->joint[2];
+  m->bus = LINK_BUS_CAN, m->dialect = LINK_DIALECT_DAMIAO, m->reply_id = 0x13;
+  m->rad_per_tick = m->radps_per_unit = m->effort_per_unit = 0;
+  for (int k = 0; k < 5; k++) m->mit_range[k] = dm4340[k];
+  commit(r, both, &res);
+  EXPECT_INT(res.stage * 100 + res.code, 0, "a Damiao motor beside the Dynamixel servos, both buses: accepted");
+  commit(r, dxl, &res);
+  EXPECT_INT(res.stage * 100 + res.code + res.index, LINK_STAGE_SERVO * 100 + LINK_SERVO_BUS + 2,
+             "a controller without a CAN bus refuses it, naming the joint");
+  m->id = r->joint[1].id;
+  commit(r, both, &res);
+  EXPECT_INT(res.stage * 100 + res.code, 0, "a CAN id equal to a Dynamixel id: another bus, no duplicate");
+  m->mit_range[2] = SD_R(2e6);
+  commit(r, both, &res);
+  EXPECT_INT(res.stage * 100 + res.code + res.index, LINK_STAGE_SERVO * 100 + LINK_SERVO_CAN + 2,
+             "t_max over the codec's 1e6: refused");
+  m->mit_range[2] = dm4340[2];
+  m->reply_id = 0x800;
+  commit(r, both, &res);
+  EXPECT_INT(res.code, LINK_SERVO_CAN, "a reply id over 11 bits");
+  m->reply_id = 0x13, m->dialect = LINK_NDIALECT;
+  commit(r, both, &res);
+  EXPECT_INT(res.code, LINK_SERVO_CAN, "an unknown dialect");
+  m->dialect = LINK_DIALECT_NONE;
+  commit(r, both, &res);
+  EXPECT_INT(res.code, LINK_SERVO_CAN, "a CAN joint without a dialect");
+  r->joint[0].dialect = LINK_DIALECT_MIT, m->dialect = LINK_DIALECT_MIT;
+  commit(r, both, &res);
+  EXPECT_INT(res.code * 100 + res.index, LINK_SERVO_BUS * 100, "a Dynamixel joint with a CAN dialect");
+  r->joint[0].dialect = LINK_DIALECT_NONE;
+  m->effort_per_unit = SD_R(0.1);
+  commit(r, both, &res);
+  EXPECT_INT(res.stage * 100 + res.code, 0, "a CAN motor's unit scales are not looked at");
+  r->joint[1].rad_per_tick = 0;
+  commit(r, both, &res);
+  EXPECT_INT(res.code * 100 + res.index, LINK_SERVO_SCALE * 100 + 1, "a Dynamixel servo's are");
 
   link_robot_head big = {SD_MAX_BODY > 200 ? 0 : SD_MAX_BODY + 1, 1, 0, 0, 0, 0, 0, 1, 1, 1, {0}, 0, 0, 0, 0, 0, 0};
   link_robot_begin(r, &big, &res);
