@@ -11,14 +11,14 @@ Writes out/bench/controllers.md and .json.
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from ..excite import run as run_excite
-from ..mocap import run_retarget
 from ...hal.config import builtin_configs, load_config
 from ...hil import link_agreement, run_link
 from ...loop.link_controllers import QEMU_LINK_BOARDS
@@ -36,16 +36,26 @@ EXCITATION_S = 10.0
 REALTIME_RUNS = 10
 
 
+def _servodyn(*args) -> None:
+    """A servodyn command, as a user runs it (the bench uses commands, not their modules)."""
+    result = subprocess.run([sys.executable, "-m", "servodyn.tools.cli", *map(str, args)], capture_output=True,
+                            text=True)
+    if result.returncode not in (0, 1):
+        raise RuntimeError(f"servodyn {' '.join(map(str, args))}: {result.stderr.strip()[-300:]}")
+
+
 def motions(config, tmp: Path) -> dict:
     """name -> (motion, time scale or None) for `config`."""
     out = {"forehand": (config.swing_motion, None)}
     excitation = tmp / f"{config.name}_excitation.csv"
-    run_excite(config.name, EXCITATION_S, None, excitation, say=lambda *a, **k: None)
+    _servodyn("excite", "--config", config.name, "--duration", EXCITATION_S, "-o", excitation)
     out["excitation"] = (str(excitation), 1.0)
     if CLIP.exists():
-        clip = tmp / f"{config.name}_clip.csv"
-        report = run_retarget(str(CLIP), config=config, time=CLIP_WINDOW, output=clip, say=lambda *a, **k: None)
-        out["clip"] = (str(clip), CLIP_MARGIN * report["validate"]["fit_time_scale"])
+        clip, report = tmp / f"{config.name}_clip.csv", tmp / f"{config.name}_retarget"
+        _servodyn("retarget", CLIP, "--config", config.name, "--time", f"{CLIP_WINDOW[0]:g}:{CLIP_WINDOW[1]:g}",
+                  "-o", clip, "--report", report)
+        fit = json.loads((report / "report.json").read_text())["validate"]["fit_time_scale"]
+        out["clip"] = (str(clip), CLIP_MARGIN * fit)
     return out
 
 
