@@ -377,24 +377,35 @@ static void frame_in(const link_decoder* d) {
   }
 }
 
+// The host's bytes of this tick: at most FW_LINK_BYTES_PER_TICK, the rest waits in the line's
+// receive buffer for the next ticks, so that a burst of requests (a window of KNOTS frames, up to
+// 8 x 250 bytes) is decoded over many ticks instead of in one: a KNOTS frame's decoding (about 20
+// instructions a byte) never lands whole on the inverse-dynamics tick. 64 bytes a tick is 0.64 Mbit/s
+// at 1 kHz: a whole window sent back to back on a 2 Mbps line (10 ms) leaves at most 1,360 bytes
+// waiting in the microcontroller's 2 KB receive ring (firmware/mcu/board_link_ring.h); the host's
+// steady traffic (a knot as a credit frees, keepalives) is a small part of it.
+#ifndef FW_LINK_BYTES_PER_TICK
+#define FW_LINK_BYTES_PER_TICK 64u
+#endif
+
 static void poll_link(void) {
-  uint8_t chunk[128];
-  size_t n;
-  while ((n = board_link_take(chunk, sizeof chunk)) > 0) {
-    g.bytes_in += (uint32_t)n;
-    for (size_t k = 0; k < n; k++) {
-      int v = link_decoder_feed(&g.decoder, chunk[k]);
-      if (v == LINK_FRAME) {
-        frame_in(&g.decoder);
-      } else if (v == LINK_BAD_VERSION) {    // answered in this controller's version
-        g.frames_bad++;
-        link_result r = {.seq = g.decoder.seq, .type = g.decoder.type, .stage = LINK_STAGE_LINK,
-                         .code = LINK_E_VERSION, .index = -1,
-                         .credits = g.state == LINK_IDLE ? 0 : link_ring_free(&g.ring)};
-        send_result(&r);
-      } else if (v != LINK_MORE) {
-        g.frames_bad++;
-      }
+  uint8_t chunk[FW_LINK_BYTES_PER_TICK];
+  size_t n = board_link_take(chunk, sizeof chunk);
+  g.bytes_in += (uint32_t)n;
+  for (size_t k = 0; k < n;) {
+    size_t used;
+    int v = link_decoder_feed_bytes(&g.decoder, chunk + k, n - k, &used);
+    k += used;
+    if (v == LINK_FRAME) {
+      frame_in(&g.decoder);
+    } else if (v == LINK_BAD_VERSION) {    // answered in this controller's version
+      g.frames_bad++;
+      link_result r = {.seq = g.decoder.seq, .type = g.decoder.type, .stage = LINK_STAGE_LINK,
+                       .code = LINK_E_VERSION, .index = -1,
+                       .credits = g.state == LINK_IDLE ? 0 : link_ring_free(&g.ring)};
+      send_result(&r);
+    } else if (v != LINK_MORE) {
+      g.frames_bad++;
     }
   }
 }

@@ -7,9 +7,11 @@
 #ifndef MCU_BOARD_LINK_RING_H
 #define MCU_BOARD_LINK_RING_H
 
+#include <string.h>
+
 #include "board.h"
 
-#define LINK_RX_SIZE 1024u             // a window of requests: 8 frames of up to 250 bytes fit
+#define LINK_RX_SIZE 2048u             // a window of requests: 8 frames of up to 250 bytes fit
 
 static uint8_t g_link_rx[LINK_RX_SIZE];
 static volatile uint32_t g_link_head, g_link_tail;   // written by the ISR, read by the tick
@@ -25,11 +27,14 @@ static inline void link_rx_push(uint8_t byte) {
   else g_link_overruns++;
 }
 
+// at most two contiguous stretches of the ring, each one memcpy
 size_t board_link_take(uint8_t* out, size_t cap) {
-  size_t n = 0;
-  uint32_t tail = g_link_tail, head = g_link_head;
-  while (n < cap && tail != head) out[n++] = g_link_rx[tail++ % LINK_RX_SIZE];
-  g_link_tail = tail;
+  uint32_t tail = g_link_tail, held = g_link_head - tail;
+  size_t n = held < cap ? held : cap;
+  size_t at = tail % LINK_RX_SIZE, first = n < LINK_RX_SIZE - at ? n : LINK_RX_SIZE - at;
+  memcpy(out, g_link_rx + at, first);
+  memcpy(out + first, g_link_rx, n - first);
+  g_link_tail = tail + (uint32_t)n;
   return n;
 }
 
