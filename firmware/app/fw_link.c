@@ -519,8 +519,30 @@ static void control_tick(void) {
   if (g.stop_ticks >= 0 && g.stop_ticks-- == 0) torque_off(LINK_TORQUE_OFF);
 }
 
-static void telemetry(void) {
-  if (!g.telemetry_every || g.tick % (long)g.telemetry_every) return;
+// The tick's heavy part: its control step runs the inverse dynamics (sd_control_step's rule: every
+// update_ticks-th step since the controller's reset, or after a refused one), or it starts the
+// motion, which resets the controller. Known before the tick's work, so the link's own work keeps
+// off it: that tick takes none of the host's bytes, and decimated telemetry waits a tick.
+static int heavy_tick(void) {
+  if (!g.torque) return 0;
+  if (g.state == LINK_HOMING && g.phase_tick >= g.home_ticks && g.play_after_home) return 1;
+  return g.step.cstate.refresh || g.step.cstate.tick % g.step.control.update_ticks == 0;
+}
+
+// Telemetry every telemetry_every ticks: every tick (the host's log needs them all), or, decimated
+// (N > 1), N ticks after the last frame, postponed past a heavy tick; then that tick takes none of
+// the host's bytes either. 1: this tick sends it.
+static uint32_t g_since_telemetry;     // ticks since the last frame (decimated)
+
+static int telemetry_due(int heavy) {
+  if (!g.telemetry_every) return 0;
+  return g.telemetry_every == 1 || (g_since_telemetry + 1 >= g.telemetry_every && !heavy);
+}
+
+static void telemetry(int due) {
+  g_since_telemetry++;
+  if (!due) return;
+  g_since_telemetry = 0;
   static link_telemetry t;
   t.tick = (uint32_t)g.tick;
   uint64_t us = (uint64_t)g.work * 1000000u / BOARD_CPU_HZ;
@@ -597,12 +619,13 @@ int main(void) {
     uint32_t c0 = board_clock_now();
     int was_running = g.torque;
     g.flags = 0;
-    poll_link();
+    int heavy = heavy_tick(), due = telemetry_due(heavy);
+    if (!heavy && !(due && g.telemetry_every > 1)) poll_link();
     watchdog();
     uint32_t c1 = board_clock_now();
     if (g.torque) control_tick();
     uint32_t c2 = board_clock_now();
-    telemetry();
+    telemetry(due);
     uint32_t c3 = board_clock_now();
     g.work = c3 - c0;
     if (was_running) {
