@@ -85,6 +85,22 @@ def controller(exe):
     c.close()
 
 
+def assert_goals_agree(record, p, config: str = "replica") -> int:
+    """Every Goal Current the controller wrote within 1 unit of the host's double controller fed the
+    same measured states (hil.replay, the generated firmware's oracle) over homing then the motion,
+    homing with the joints' gains, the motion with the knots' (the host's schedule); the largest
+    difference, in servo units."""
+    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], HOME_DURATION, SMALL_TIME_STEP), p.hold_gains),
+                           Segment("motion", p.swing, p.swing_gains))
+    twin = replay(config, record, segments)
+    n = len(twin["goals"])
+    assert n == HOME_TICKS + len(p.swing.t), f"the replay covers homing and the motion ({n} ticks)"
+    assert len(record.goals) >= n
+    diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
+    assert diff.max() <= 1, f"goals differ by up to {diff.max()} units from the host's controller"
+    return int(diff.max())
+
+
 def play_until(c: Controller, p, done, timeout: float = 300.0):
     """Pump the link and stream the knots until done(telemetry) or the timeout (s of wall time)."""
     deadline = time.monotonic() + timeout
@@ -130,14 +146,7 @@ def test_the_forehand_streamed_over_the_link_is_the_host_controllers(controller)
     c.close()
     record = c.bus.record
     nswing = len(p.swing.t)
-    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], HOME_DURATION, SMALL_TIME_STEP), p.hold_gains),
-                           Segment("motion", p.swing, p.swing_gains))
-    twin = replay("replica", record, segments)
-    n = len(twin["goals"])
-    assert n == HOME_TICKS + nswing, f"the replay covers homing and the motion ({n} ticks)"
-    assert len(record.goals) >= n
-    diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
-    assert diff.max() <= 1, f"goals differ by up to {diff.max()} units from the host's controller"
+    assert_goals_agree(record, p)
     assert record.torque_off and all(not s.torque_enabled for s in c.arm.servos), "torque off on every servo"
     # the run's log from the telemetry, summarized as the Python loop's
     log = telemetry_log(c.config, c.link.telemetry)
@@ -318,13 +327,7 @@ def test_the_link_application_under_qemu():
     assert build.returncode == 0, build.stderr
     report, record, session, p = run_qemu_link(icount_shift=7, args="period_us=3000", timeout=900)
     assert (report["result"], report["exit_code"]) == ("done", 0), report
-    segments = lambda q0: (Segment("home", homing(q0, p.swing.q[0], HOME_DURATION, SMALL_TIME_STEP), p.hold_gains),
-                           Segment("motion", p.swing, p.swing_gains))
-    twin = replay("replica", record, segments)
-    n = len(twin["goals"])
-    assert n == HOME_TICKS + len(p.swing.t), f"the replay covers homing and the motion ({n} ticks)"
-    diff = np.abs(np.array(record.goals[:n]) - twin["goals"])
-    assert diff.max() <= 1, f"goals differ by up to {diff.max()} units"
+    assert_goals_agree(record, p)
     per_count = 1e9 / SYSTICK_HZ["an386"] / 2 ** 7
     worst = {k: round(report[k] * per_count) for k in ("worst_work", "worst_link", "worst_control", "mean_control")}
     print(f"worst tick instructions: {worst}, stack {report['stack']} bytes")

@@ -456,24 +456,35 @@ static void frame_in(const link_decoder* d) {
   }
 }
 
+// The host's bytes of this tick: at most FW_LINK_BYTES_PER_TICK, the rest waits in the line's
+// receive buffer for the next ticks, so that a burst of requests (a window of KNOTS frames, up to
+// 8 x 250 bytes) is decoded over many ticks instead of in one: a KNOTS frame's decoding (about 20
+// instructions a byte) never lands whole on the inverse-dynamics tick. 64 bytes a tick is 0.64 Mbit/s
+// at 1 kHz: a whole window sent back to back on a 2 Mbps line (10 ms) leaves at most 1,360 bytes
+// waiting in the microcontroller's 2 KB receive ring (firmware/mcu/board_link_ring.h); the host's
+// steady traffic (a knot as a credit frees, keepalives) is a small part of it.
+#ifndef FW_LINK_BYTES_PER_TICK
+#define FW_LINK_BYTES_PER_TICK 64u
+#endif
+
 static void poll_link(void) {
-  uint8_t chunk[128];
-  size_t n;
-  while ((n = board_link_take(chunk, sizeof chunk)) > 0) {
-    g.bytes_in += (uint32_t)n;
-    for (size_t k = 0; k < n; k++) {
-      int v = link_decoder_feed(&g.decoder, chunk[k]);
-      if (v == LINK_FRAME) {
-        frame_in(&g.decoder);
-      } else if (v == LINK_BAD_VERSION) {    // answered in this controller's version
-        g.frames_bad++;
-        link_result r = {.seq = g.decoder.seq, .type = g.decoder.type, .stage = LINK_STAGE_LINK,
-                         .code = LINK_E_VERSION, .index = -1,
-                         .credits = g.state == LINK_IDLE ? 0 : link_ring_free(&g.ring)};
-        send_result(&r);
-      } else if (v != LINK_MORE) {
-        g.frames_bad++;
-      }
+  uint8_t chunk[FW_LINK_BYTES_PER_TICK];
+  size_t n = board_link_take(chunk, sizeof chunk);
+  g.bytes_in += (uint32_t)n;
+  for (size_t k = 0; k < n;) {
+    size_t used;
+    int v = link_decoder_feed_bytes(&g.decoder, chunk + k, n - k, &used);
+    k += used;
+    if (v == LINK_FRAME) {
+      frame_in(&g.decoder);
+    } else if (v == LINK_BAD_VERSION) {    // answered in this controller's version
+      g.frames_bad++;
+      link_result r = {.seq = g.decoder.seq, .type = g.decoder.type, .stage = LINK_STAGE_LINK,
+                       .code = LINK_E_VERSION, .index = -1,
+                       .credits = g.state == LINK_IDLE ? 0 : link_ring_free(&g.ring)};
+      send_result(&r);
+    } else if (v != LINK_MORE) {
+      g.frames_bad++;
     }
   }
 }
@@ -596,8 +607,30 @@ static void control_tick(void) {
   if (g.stop_ticks >= 0 && g.stop_ticks-- == 0) torque_off(LINK_TORQUE_OFF);
 }
 
-static void telemetry(void) {
-  if (!g.telemetry_every || g.tick % (long)g.telemetry_every) return;
+// The tick's heavy part: its control step runs the inverse dynamics (sd_control_step's rule: every
+// update_ticks-th step since the controller's reset, or after a refused one), or it starts the
+// motion, which resets the controller. Known before the tick's work, so the link's own work keeps
+// off it: that tick takes none of the host's bytes, and decimated telemetry waits a tick.
+static int heavy_tick(void) {
+  if (!g.torque) return 0;
+  if (g.state == LINK_HOMING && g.phase_tick >= g.home_ticks && g.play_after_home) return 1;
+  return g.step.cstate.refresh || g.step.cstate.tick % g.step.control.update_ticks == 0;
+}
+
+// Telemetry every telemetry_every ticks: every tick (the host's log needs them all), or, decimated
+// (N > 1), N ticks after the last frame, postponed past a heavy tick; then that tick takes none of
+// the host's bytes either. 1: this tick sends it.
+static uint32_t g_since_telemetry;     // ticks since the last frame (decimated)
+
+static int telemetry_due(int heavy) {
+  if (!g.telemetry_every) return 0;
+  return g.telemetry_every == 1 || (g_since_telemetry + 1 >= g.telemetry_every && !heavy);
+}
+
+static void telemetry(int due) {
+  g_since_telemetry++;
+  if (!due) return;
+  g_since_telemetry = 0;
   static link_telemetry t;
   t.tick = (uint32_t)g.tick;
   uint64_t us = (uint64_t)g.work * 1000000u / BOARD_CPU_HZ;
@@ -676,12 +709,13 @@ int main(void) {
     uint32_t c0 = board_clock_now();
     int was_running = g.torque;
     g.flags = 0;
-    poll_link();
+    int heavy = heavy_tick(), due = telemetry_due(heavy);
+    if (!heavy && !(due && g.telemetry_every > 1)) poll_link();
     watchdog();
     uint32_t c1 = board_clock_now();
     if (g.torque) control_tick();
     uint32_t c2 = board_clock_now();
-    telemetry();
+    telemetry(due);
     uint32_t c3 = board_clock_now();
     g.work = c3 - c0;
     if (was_running) {

@@ -10,55 +10,45 @@
 
 //---------------------------------- framing ------------------------------------------------------
 
-// COBS written on the fly: out[code_at] is the current block's code byte, filled in when it ends
+// COBS written on the fly, in one pass with the CRC: out[code_at] is the current block's code byte,
+// filled in when a 00 (or the frame) ends it. A raw frame is at most LINK_MAX_RAW < 254 bytes, so a
+// block never reaches COBS's 254 data bytes: the overhead is one byte, and a frame's wire length is
+// known before it is written.
+_Static_assert(LINK_MAX_RAW < 254, "one COBS block a frame");
+
 typedef struct cobs_ {
   uint8_t* out;
-  size_t cap, n, code_at;
-  uint8_t code;
-  int bad;
+  size_t n, code_at;
 } cobs;
 
-static void cobs_open_block(cobs* c) {
-  if (c->n >= c->cap) {
-    c->bad = 1;
-    return;
+static uint16_t cobs_crc_run(cobs* c, const uint8_t* p, size_t k, uint16_t crc) {
+  uint8_t* out = c->out;
+  size_t n = c->n, at = c->code_at;
+  for (size_t i = 0; i < k; i++) {
+    uint8_t b = p[i];
+    crc = dxl_crc_byte(crc, b);
+    if (b) {
+      out[n++] = b;
+    } else {
+      out[at] = (uint8_t)(n - at);
+      at = n++;
+    }
   }
-  c->code_at = c->n++;
-  c->code = 1;
-}
-
-static void cobs_put(cobs* c, uint8_t b) {
-  if (c->bad) return;
-  if (b == 0) {
-    c->out[c->code_at] = c->code;
-    cobs_open_block(c);
-    return;
-  }
-  if (c->n >= c->cap) {
-    c->bad = 1;
-    return;
-  }
-  c->out[c->n++] = b;
-  if (++c->code == 0xFF) {       // 254 data bytes: a block without an implied zero
-    c->out[c->code_at] = c->code;
-    cobs_open_block(c);
-  }
+  c->n = n;
+  c->code_at = at;
+  return crc;
 }
 
 size_t link_frame(uint8_t* out, size_t cap, uint8_t seq, uint8_t ack, uint8_t type,
                   const uint8_t* payload, size_t n) {
-  if (n > LINK_MAX_PAYLOAD) return 0;
+  if (n > LINK_MAX_PAYLOAD || cap < LINK_HEADER + n + LINK_CRC + 2u) return 0;
   uint8_t head[LINK_HEADER] = {LINK_VERSION, seq, ack, type, (uint8_t)n, (uint8_t)(n >> 8)};
-  cobs c = {out, cap, 0, 0, 0, 0};
-  cobs_open_block(&c);
-  uint16_t crc = dxl_crc(0, head, LINK_HEADER);
-  if (n) crc = dxl_crc(crc, payload, n);
-  for (size_t i = 0; i < LINK_HEADER; i++) cobs_put(&c, head[i]);
-  for (size_t i = 0; i < n; i++) cobs_put(&c, payload[i]);
-  cobs_put(&c, (uint8_t)(crc >> 8));
-  cobs_put(&c, (uint8_t)crc);
-  if (c.bad || c.n >= cap) return 0;
-  out[c.code_at] = c.code;
+  cobs c = {out, 1, 0};
+  uint16_t crc = cobs_crc_run(&c, head, LINK_HEADER, 0);
+  if (n) crc = cobs_crc_run(&c, payload, n, crc);
+  uint8_t tail[LINK_CRC] = {(uint8_t)(crc >> 8), (uint8_t)crc};
+  cobs_crc_run(&c, tail, LINK_CRC, 0);
+  out[c.code_at] = (uint8_t)(c.n - c.code_at);
   out[c.n++] = 0;
   return c.n;
 }
@@ -69,15 +59,6 @@ void link_decoder_reset(link_decoder* d) {
   d->block = 0;
   d->code = 0;
   d->dropping = 0;
-}
-
-static void decoded(link_decoder* d, uint8_t b) {
-  if (d->n >= LINK_MAX_RAW) {
-    d->dropping = 1;
-    return;
-  }
-  d->raw[d->n++] = b;
-  d->crc = dxl_crc(d->crc, &b, 1);
 }
 
 // the frame ended by a delimiter: its verdict
@@ -96,22 +77,54 @@ static int frame_end(link_decoder* d) {
   return LINK_FRAME;
 }
 
+// The decoder's state lives in locals through the bytes given (a tick takes its host's bytes in
+// one call): one table lookup and a store a byte, whatever the COBS blocks' lengths (a knot's float
+// zeros make them short). Every 00 ends a frame; an implied zero is a block's end, not a 00 byte.
+int link_decoder_feed_bytes(link_decoder* d, const uint8_t* data, size_t n, size_t* used) {
+  unsigned k = d->n, crc = d->crc, block = d->block, code = d->code, dropping = d->dropping;
+  const uint16_t* table = dxl_crc_table;
+  uint8_t* raw = d->raw;
+  int verdict = LINK_MORE;
+  size_t i = 0;
+  while (i < n) {
+    unsigned b = data[i++];
+    if (b == 0) {
+      d->n = (uint16_t)k, d->crc = (uint16_t)crc, d->block = (uint8_t)block, d->code = (uint8_t)code;
+      d->dropping = (uint8_t)dropping;
+      verdict = code == 0 && !dropping ? LINK_MORE : frame_end(d);
+      link_decoder_reset(d);     // raw, so the payload, stays until the next frame's data bytes
+      if (verdict != LINK_MORE) break;
+      k = 0, crc = 0, block = 0, code = 0, dropping = 0;
+      continue;
+    }
+    if (dropping) continue;
+    if (block == 0) {            // a code byte: the previous block's implied zero, then a new block
+      unsigned implied = code != 0 && code != 0xFF;
+      code = b;
+      block = b - 1;
+      if (!implied) continue;
+      b = 0;
+    } else {
+      block--;
+    }
+    if (k >= LINK_MAX_RAW) {
+      dropping = 1;
+      continue;
+    }
+    raw[k++] = (uint8_t)b;
+    crc = ((crc << 8) ^ table[(crc >> 8) ^ b]) & 0xFFFFu;   // dxl_crc_byte, the table held in a register
+  }
+  if (verdict == LINK_MORE) {
+    d->n = (uint16_t)k, d->crc = (uint16_t)crc, d->block = (uint8_t)block, d->code = (uint8_t)code;
+    d->dropping = (uint8_t)dropping;
+  }
+  *used = i;
+  return verdict;
+}
+
 int link_decoder_feed(link_decoder* d, uint8_t byte) {
-  if (byte == 0) {
-    int verdict = d->code == 0 && !d->dropping ? LINK_MORE : frame_end(d);
-    link_decoder_reset(d);       // raw, so the payload, stays until the next frame's data bytes
-    return verdict;
-  }
-  if (d->dropping) return LINK_MORE;
-  if (d->block == 0) {           // a code byte: the previous block's implied zero, then a new block
-    if (d->code != 0 && d->code != 0xFF) decoded(d, 0);
-    d->code = byte;
-    d->block = (uint8_t)(byte - 1);
-  } else {
-    decoded(d, byte);
-    d->block--;
-  }
-  return LINK_MORE;
+  size_t used;
+  return link_decoder_feed_bytes(d, &byte, 1, &used);
 }
 
 //---------------------------------- fields -------------------------------------------------------

@@ -84,6 +84,9 @@ typedef struct link_decoder_ {
 
 void link_decoder_reset(link_decoder* d);
 int link_decoder_feed(link_decoder* d, uint8_t byte);
+// The same on n bytes: feeds them until a verdict other than LINK_MORE, which it returns, and *used
+// the bytes taken (all n with LINK_MORE). The bytes inside a COBS block go in one tight loop.
+int link_decoder_feed_bytes(link_decoder* d, const uint8_t* data, size_t n, size_t* used);
 
 //---------------------------------- result codes -------------------------------------------------
 // A RESULT names the stage that refused a request and that stage's own code: the link's below,

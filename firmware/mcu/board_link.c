@@ -15,8 +15,7 @@
 #define UART_BAUDDIV_MIN 16u        // the CMSDK UART's smallest divider
 
 // CMSDK APB UART2 (-serial #2 under QEMU; IRQ 4 its receive): each byte its interrupt takes goes
-// into a ring the tick empties (QEMU's model hands over the next byte only once one is read, so a
-// polled receiver would take one byte a tick).
+// into the ring the tick empties (board_link_ring.h), transmit polled.
 #define UART2_BASE 0x40006000u
 #define UART2_DATA (*(volatile uint32_t*)(UART2_BASE + 0x00u))
 #define UART2_STATE (*(volatile uint32_t*)(UART2_BASE + 0x04u))
@@ -24,23 +23,18 @@
 #define UART2_INTCLEAR (*(volatile uint32_t*)(UART2_BASE + 0x0Cu))
 #define UART2_BAUDDIV (*(volatile uint32_t*)(UART2_BASE + 0x10u))
 #define IRQ_UART2_RX 4
-#define LINK_RX_SIZE 1024u             // a window of requests: 8 frames of up to 250 bytes fit
 
-static uint8_t g_link_rx[LINK_RX_SIZE];
-static volatile uint32_t g_link_head, g_link_tail;   // written by the ISR, read by the tick
+#include "board_link_ring.h"
 
 void board_uart2_rx_isr(void) {
   UART2_INTCLEAR = UART_INT_RX;
-  while (UART2_STATE & UART_STATE_RXFULL) {
-    uint8_t byte = (uint8_t)UART2_DATA;
-    if (g_link_head - g_link_tail < LINK_RX_SIZE) g_link_rx[g_link_head++ % LINK_RX_SIZE] = byte;
-  }
+  while (UART2_STATE & UART_STATE_RXFULL) link_rx_push((uint8_t)UART2_DATA);
 }
 
 void board_link_init(void) {
   UART2_CTRL = 0;
   UART2_BAUDDIV = UART_BAUDDIV_MIN;
-  g_link_head = g_link_tail = 0;
+  link_rx_reset();
   UART2_CTRL = UART_CTRL_TXEN | UART_CTRL_RXEN | UART_CTRL_RXINTEN;
   (void)UART2_DATA;                 // as for UART0: QEMU asks its backend again on a read
   NVIC_ISER0 = 1u << IRQ_UART2_RX;
@@ -53,10 +47,4 @@ int board_link_write(const uint8_t* data, size_t n) {
     UART2_DATA = data[k];
   }
   return 1;
-}
-
-size_t board_link_take(uint8_t* out, size_t cap) {
-  size_t n = 0;
-  while (n < cap && g_link_tail != g_link_head) out[n++] = g_link_rx[g_link_tail++ % LINK_RX_SIZE];
-  return n;
 }

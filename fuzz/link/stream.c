@@ -2,7 +2,8 @@
 // (sd_real = double) and build/fuzz/link32_stream (-DSD_SINGLE, the firmware's float). The input's first
 // byte chooses what to do:
 //
-//   even  the rest is a byte stream from the line, fed to the decoder a byte at a time. Every frame
+//   even  the rest is a byte stream from the line, fed to the decoder a byte at a time (and, in chunks,
+//         to another: the same verdicts at the same bytes, the same frames). Every frame
 //         it takes has its length within bounds and, framed again with link_frame, decodes to the
 //         same fields and payload; its payload, given to every message's unpack, either is refused
 //         or packs back to the same bytes; a payload taken as a request goes through the controller's
@@ -59,7 +60,35 @@ static void check_payload(uint8_t type, const uint8_t* p, size_t n) {
   if (rc == LINK_OK) CHECK(m == n && (n == 0 || memcmp(again, p, n) == 0));
 }
 
+// The same bytes fed in chunks (link_decoder_feed_bytes, the controller's way; the chunk sizes
+// taken from the bytes): the same verdicts at the same bytes, the same frames.
+static void chunked(const uint8_t* data, size_t n) {
+  static link_decoder one, bulk;
+  link_decoder_reset(&one);
+  link_decoder_reset(&bulk);
+  size_t j = 0;                    // bytes the chunked decoder has taken
+  for (size_t k = 0; k < n; k++) {
+    int v = link_decoder_feed(&one, data[k]);
+    if (v == LINK_MORE) continue;
+    int w = LINK_MORE;
+    while (w == LINK_MORE && j < n) {
+      size_t chunk = 1u + data[j] % 97u, used = 0;
+      if (chunk > n - j) chunk = n - j;
+      w = link_decoder_feed_bytes(&bulk, data + j, chunk, &used);
+      CHECK(used <= chunk && (w != LINK_MORE || used == chunk));
+      j += used;
+    }
+    CHECK(w == v && j == k + 1);
+    if (v == LINK_FRAME || v == LINK_BAD_VERSION)
+      CHECK(bulk.version == one.version && bulk.seq == one.seq && bulk.ack == one.ack && bulk.type == one.type &&
+            bulk.len == one.len && (v != LINK_FRAME || memcmp(bulk.payload, one.payload, one.len) == 0));
+  }
+  size_t used = 0;
+  if (j < n) CHECK(link_decoder_feed_bytes(&bulk, data + j, n - j, &used) == LINK_MORE && used == n - j);
+}
+
 static void stream(input* in) {
+  chunked(in->p, in->n);
   link_decoder_reset(&g_decoder);
   link_server_reset(&g_server);
   link_ring_reset(&g_ring, 7, 16);

@@ -24,8 +24,6 @@
 #define DIR_PIN 8u                     // PA8
 #define TC_POLLS 100000u               // a disabled USART never sets TC: do not hang on it
 #define CONSOLE_BAUD 115200u
-#define APB1_HZ 42000000u
-#define APB2_HZ 84000000u
 
 // The reply timeout: about 1 ms at 168 MHz (a poll is about 8 cycles), a control period. The
 // replica's largest reply, 106 bytes at 4 Mbps, takes 265 us. (The MPS2's 30,000,000 polls last
@@ -68,13 +66,13 @@ void f405_usart2_isr(void) {
   }
 }
 
-static uint32_t brr(uint32_t pclk, uint32_t baud) {
+uint32_t f405_brr(uint32_t pclk, uint32_t baud) {
   uint32_t d = (pclk + baud / 2u) / baud;
   return d < 16u ? 16u : d;            // OVER8 = 0: the divider is at least 16
 }
 
 // mode (2 bits), alternate function (4 bits) of pin n of a GPIO port, read-modify-write
-static void pin_mode(uint32_t port, uint32_t n, uint32_t mode, uint32_t af) {
+void f405_pin(uint32_t port, uint32_t n, uint32_t mode, uint32_t af) {
   GPIO_MODER(port) = (GPIO_MODER(port) & ~(3u << 2 * n)) | mode << 2 * n;
   GPIO_OSPEEDR(port) |= 3u << 2 * n;   // very high speed: 4 Mbps edges
   if (mode != GPIO_MODE_AF) return;
@@ -83,10 +81,10 @@ static void pin_mode(uint32_t port, uint32_t n, uint32_t mode, uint32_t af) {
 }
 
 void f405_console_init(void) {
-  pin_mode(GPIOA_BASE, 2, GPIO_MODE_AF, 7);
-  pin_mode(GPIOA_BASE, 3, GPIO_MODE_AF, 7);
+  f405_pin(GPIOA_BASE, 2, GPIO_MODE_AF, 7);
+  f405_pin(GPIOA_BASE, 3, GPIO_MODE_AF, 7);
   USART_CR1(USART2_BASE) = 0;
-  USART_BRR(USART2_BASE) = brr(APB1_HZ, CONSOLE_BAUD);
+  USART_BRR(USART2_BASE) = f405_brr(F405_APB1_HZ, CONSOLE_BAUD);
   USART_CR1(USART2_BASE) = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | USART_CR1_RXNEIE;
   (void)USART_DR(USART2_BASE);         // QEMU asks its backend for input again on a DR read
 }
@@ -101,12 +99,12 @@ void f405_console_write(const char* text) {
 
 void board_uart_init(uint32_t baud) {
   GPIO_BSRR(GPIOA_BASE) = 1u << (DIR_PIN + 16);       // receive
-  pin_mode(GPIOA_BASE, DIR_PIN, GPIO_MODE_OUTPUT, 0);
-  pin_mode(GPIOA_BASE, 9, GPIO_MODE_AF, 7);
+  f405_pin(GPIOA_BASE, DIR_PIN, GPIO_MODE_OUTPUT, 0);
+  f405_pin(GPIOA_BASE, 9, GPIO_MODE_AF, 7);
   GPIO_OTYPER(GPIOA_BASE) |= 1u << 9;                  // open drain
   GPIO_PUPDR(GPIOA_BASE) = (GPIO_PUPDR(GPIOA_BASE) & ~(3u << 18)) | 1u << 18;   // weak pull-up
   USART_CR1(USART1_BASE) = 0;
-  USART_BRR(USART1_BASE) = brr(APB2_HZ, baud);
+  USART_BRR(USART1_BASE) = f405_brr(F405_APB2_HZ, baud);
   USART_CR3(USART1_BASE) = USART_CR3_HDSEL;
   g_rx_head = g_rx_tail = 0;
   USART_CR1(USART1_BASE) = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | USART_CR1_RXNEIE;

@@ -118,6 +118,7 @@ static void f405_fault(void) {
 void board_systick_isr(void) __attribute__((weak, alias("f405_fault")));
 void f405_usart1_isr(void) __attribute__((weak, alias("f405_fault")));
 void f405_usart2_isr(void) __attribute__((weak, alias("f405_fault")));
+void f405_usart3_isr(void) __attribute__((weak, alias("f405_fault")));   // the host link (board_link.c)
 
 // the Cortex-M4 system vectors, then the F405's 82 interrupts (RM0090 table 61)
 __attribute__((section(".vectors"), used))
@@ -138,5 +139,6 @@ static void (*const g_vectors[16 + 82])(void) = {
   [16 ... 16 + 36] = f405_fault,        // IRQ 0..36 (CAN1 19..22 polled: can.c)
   [16 + IRQ_USART1] = f405_usart1_isr,  // IRQ 37: the Dynamixel bus
   [16 + IRQ_USART2] = f405_usart2_isr,  // IRQ 38: the sync line (BOARD_HIL) / console
-  [16 + 39 ... 16 + 81] = f405_fault,
+  [16 + IRQ_USART3] = f405_usart3_isr,  // IRQ 39: the host link (the general application)
+  [16 + 40 ... 16 + 81] = f405_fault,
 };

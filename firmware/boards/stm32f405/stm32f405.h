@@ -55,6 +55,7 @@
 #define RCC_AHB1ENR_CCMRAM (1u << 20)
 #define RCC_APB1ENR_TIM2 (1u << 0)
 #define RCC_APB1ENR_USART2 (1u << 17)
+#define RCC_APB1ENR_USART3 (1u << 18)
 #define RCC_APB1ENR_CAN1 (1u << 25)
 #define RCC_APB2ENR_USART1 (1u << 4)
 #define FLASH_ACR F405_REG(0x40023C00u, 0x00)
@@ -77,12 +78,15 @@
 #define GPIO_AFRH(b) F405_REG(b, 0x24)
 #define GPIO_MODE_OUTPUT 1u
 #define GPIO_MODE_AF 2u
+#define GPIO_PULL_UP 1u
 
 //---------------------------------- USART (RM0090 30) -------------------------------------------
 #define USART1_BASE 0x40011000u        // APB2 (84 MHz), IRQ 37, QEMU -serial #0
 #define USART2_BASE 0x40004400u        // APB1 (42 MHz), IRQ 38, QEMU -serial #1
+#define USART3_BASE 0x40004800u        // APB1 (42 MHz), IRQ 39, QEMU -serial #2
 #define IRQ_USART1 37u
 #define IRQ_USART2 38u
+#define IRQ_USART3 39u
 #define USART_SR(b) F405_REG(b, 0x00)
 #define USART_DR(b) F405_REG(b, 0x04)
 #define USART_BRR(b) F405_REG(b, 0x08)

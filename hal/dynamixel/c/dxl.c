@@ -5,7 +5,7 @@
 //---------------------------------- CRC-16 -------------------------------------------------------
 
 // CRC of each byte value for poly 0x8005 (table-driven: one lookup per byte, 512 bytes of flash)
-static const uint16_t crc_table[256] = {
+const uint16_t dxl_crc_table[256] = {
     0x0000, 0x8005, 0x800F, 0x000A, 0x801B, 0x001E, 0x0014, 0x8011,
     0x8033, 0x0036, 0x003C, 0x8039, 0x0028, 0x802D, 0x8027, 0x0022,
     0x8063, 0x0066, 0x006C, 0x8069, 0x0078, 0x807D, 0x8077, 0x0072,
@@ -42,40 +42,9 @@ static const uint16_t crc_table[256] = {
 
 uint16_t dxl_crc(uint16_t crc, const uint8_t* data, size_t n) {
   for (size_t i = 0; i < n; i++) {
-    crc = (uint16_t)(crc << 8) ^ crc_table[((crc >> 8) ^ data[i]) & 0xFF];
+    crc = dxl_crc_byte(crc, data[i]);
   }
   return crc;
-}
-
-//---------------------------------- little-endian fields -----------------------------------------
-
-void dxl_put_u16(uint8_t* p, uint16_t v) {
-  p[0] = (uint8_t)v;
-  p[1] = (uint8_t)(v >> 8);
-}
-
-void dxl_put_u32(uint8_t* p, uint32_t v) {
-  dxl_put_u16(p, (uint16_t)v);
-  dxl_put_u16(p + 2, (uint16_t)(v >> 16));
-}
-
-uint16_t dxl_get_u16(const uint8_t* p) {
-  return (uint16_t)(p[0] | p[1] << 8);
-}
-
-uint32_t dxl_get_u32(const uint8_t* p) {
-  return (uint32_t)dxl_get_u16(p) | (uint32_t)dxl_get_u16(p + 2) << 16;
-}
-
-// two's complement by value, not by a cast of an out-of-range unsigned (implementation-defined)
-int16_t dxl_get_i16(const uint8_t* p) {
-  uint16_t u = dxl_get_u16(p);
-  return u < 0x8000u ? (int16_t)u : (int16_t)(-(int32_t)(0x10000u - u));
-}
-
-int32_t dxl_get_i32(const uint8_t* p) {
-  uint32_t u = dxl_get_u32(p);
-  return u < 0x80000000u ? (int32_t)u : -(int32_t)(0xFFFFFFFFu - u) - 1;
 }
 
 //---------------------------------- instruction packets ------------------------------------------
@@ -321,7 +290,7 @@ static int on_crc(dxl_reader* r, uint8_t high) {
 }
 
 static int step(dxl_reader* r, uint8_t byte) {
-  if (r->state < ST_CRC_L) r->crc = dxl_crc(r->crc, &byte, 1);
+  if (r->state < ST_CRC_L) r->crc = dxl_crc_byte(r->crc, byte);
   switch (r->state) {
     case ST_ID:
       return on_id(r, byte);
@@ -366,7 +335,7 @@ static size_t raw_run(dxl_reader* r, const uint8_t* data, size_t n) {
   uint16_t crc = r->crc;
   uint8_t* out = r->param + r->nparam;
   for (size_t i = 0; i < run; i++) {
-    crc = (uint16_t)(crc << 8) ^ crc_table[((crc >> 8) ^ data[i]) & 0xFF];
+    crc = dxl_crc_byte(crc, data[i]);
     out[i] = data[i];
   }
   r->crc = crc;

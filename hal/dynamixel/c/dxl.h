@@ -39,6 +39,11 @@ enum dxl_instruction_ {
 
 // CRC-16 of the e-manual (poly 0x8005, init 0, MSB first, no reflection), continuing from crc.
 uint16_t dxl_crc(uint16_t crc, const uint8_t* data, size_t n);
+// The same, one byte, inline: a table lookup (the CRC of each byte value, 512 bytes of flash)
+extern const uint16_t dxl_crc_table[256];
+static inline uint16_t dxl_crc_byte(uint16_t crc, uint8_t byte) {
+  return (uint16_t)((uint16_t)(crc << 8) ^ dxl_crc_table[((crc >> 8) ^ byte) & 0xFF]);
+}
 
 //---------------------------------- instruction packets ------------------------------------------
 // Every builder writes one complete frame to out and returns its length in bytes, or 0 (out then
@@ -68,12 +73,36 @@ size_t dxl_fast_bulk_read(uint8_t* out, size_t cap, const uint8_t* ids, const ui
 
 //---------------------------------- little-endian fields -----------------------------------------
 
-void dxl_put_u16(uint8_t* p, uint16_t v);
-void dxl_put_u32(uint8_t* p, uint32_t v);
-int16_t dxl_get_i16(const uint8_t* p);
-int32_t dxl_get_i32(const uint8_t* p);
-uint16_t dxl_get_u16(const uint8_t* p);
-uint32_t dxl_get_u32(const uint8_t* p);
+// inline: every register value and every field of the host link goes through them, in the tick
+
+static inline void dxl_put_u16(uint8_t* p, uint16_t v) {
+  p[0] = (uint8_t)v;
+  p[1] = (uint8_t)(v >> 8);
+}
+
+static inline void dxl_put_u32(uint8_t* p, uint32_t v) {
+  dxl_put_u16(p, (uint16_t)v);
+  dxl_put_u16(p + 2, (uint16_t)(v >> 16));
+}
+
+static inline uint16_t dxl_get_u16(const uint8_t* p) {
+  return (uint16_t)(p[0] | p[1] << 8);
+}
+
+static inline uint32_t dxl_get_u32(const uint8_t* p) {
+  return (uint32_t)dxl_get_u16(p) | (uint32_t)dxl_get_u16(p + 2) << 16;
+}
+
+// two's complement by value, not by a cast of an out-of-range unsigned (implementation-defined)
+static inline int16_t dxl_get_i16(const uint8_t* p) {
+  uint16_t u = dxl_get_u16(p);
+  return u < 0x8000u ? (int16_t)u : (int16_t)(-(int32_t)(0x10000u - u));
+}
+
+static inline int32_t dxl_get_i32(const uint8_t* p) {
+  uint32_t u = dxl_get_u32(p);
+  return u < 0x80000000u ? (int32_t)u : -(int32_t)(0xFFFFFFFFu - u) - 1;
+}
 
 //---------------------------------- the reader ---------------------------------------------------
 // Feed the received bytes one at a time. It finds the header after any garbage, checks ID, LEN
