@@ -149,6 +149,12 @@ class Served(SimulatedBuses):
                 f"'{config.name}' on {where} ({clock})" for name, where in self.where.items()]
 
 
+def simulated_arm(config: RobotConfig, obstacles=()):
+    """A simulated arm's one bus, in this process, to be served by its caller (QEMU's controller:
+    servodyn.loop.qemu.FirmwareLink on the emulator's UART)."""
+    return SimulatedRobot(config, obstacles=obstacles).port()
+
+
 def serve(config: RobotConfig, mode: str = "lockstep", *, process: bool | None = None, can: str = "virtual",
           q0=None, start: bool = True, lab: Lab | None = None, obstacles=()) -> SimulatedBuses:
     """The configuration's buses simulated and served (`mode`: "lockstep" or "realtime"): a

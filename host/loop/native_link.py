@@ -27,7 +27,6 @@ from .link_log import telemetry_log
 from .link_session import ControllerRefused, LinkSession
 from .native import FirmwareError, parse_report
 from .qemu import QemuController
-from ..sim.robot import SimulatedRobot
 
 QUIET = ("servodyn-fw: ", "servodyn-board: ", "qemu-system-arm: -serial")   # the report, QEMU's socket set-up
 QEMU_ANSWER_TIMEOUT = 1.0      # s: emulated, lock-stepped ticks are slower than the wall clock's
@@ -118,7 +117,9 @@ def start_controller(choice, buses: dict | None, run):
         return NativeController(bus_arguments(config, buses), realtime=run.realtime,
                                 tolerance_us=round((OVERRUN_TOLERANCE if tolerance is None else tolerance) * 1e6))
     if choice.kind == "qemu":
-        arm = SimulatedRobot(config, obstacles=run.options.obstacles).port()
+        if run.arm is None:
+            raise FirmwareError(f"--controller {choice}: this run was given no simulated arm to serve QEMU")
+        arm = run.arm(config, run.options.obstacles)
         return QemuController(choice.board, arm, next(iter(config.buses.values())).baud)
     return PortController(choice.path)
 

@@ -126,12 +126,15 @@ class Run:
     the simulated buses when the configuration's are simulated (servodyn.sim.serve.serve); say
     takes every progress line; confirm(question) is asked, with each joint's homing distance,
     before torque goes on at a real arm (None: not asked); observer is called by the loop with
-    every tick's state; log: the RunLog to fill (default a new one)."""
+    every tick's state; log: the RunLog to fill (default a new one). arm(config, obstacles): a
+    simulated arm's bus port, for a controller that serves it itself (QEMU's;
+    servodyn.sim.serve.simulated_arm)."""
 
     def __init__(self, config: str | RobotConfig, options: RunOptions = RunOptions(), *, serve=None, say=print,
-                 confirm=None, observer=None, log: RunLog | None = None):
+                 confirm=None, observer=None, log: RunLog | None = None, arm=None):
         self.config = config if isinstance(config, RobotConfig) else load_config(config)
         self.options, self.serve, self.say, self.confirm, self.observer = options, serve, say, confirm, observer
+        self.arm = arm
         self.log = log
         o = options
         self.motion = o.motion or self.config.swing_motion

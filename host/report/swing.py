@@ -15,7 +15,7 @@ from ..hal.backend import joint_sensors
 from ..hal.config import RobotConfig
 from ..loop import CHATTER_CUTOFF_HZ, RunLog
 from ..loop.run import Run, RunOptions
-from ..sim.serve import serve
+from ..sim.serve import serve, simulated_arm
 from .plots import tracking_figure
 
 
@@ -23,7 +23,7 @@ def play(config: str | RobotConfig, options: RunOptions, out: Path, *, say=print
          log: RunLog | None = None, figure: bool = True) -> dict:
     """Run `config` with `options` (servodyn.loop.run) — its simulated buses, where it has no port,
     served by servodyn.sim.serve — and report it in OUT; the summary."""
-    run = Run(config, options, serve=serve, say=say, confirm=confirm, observer=observer, log=log)
+    run = Run(config, options, serve=serve, say=say, confirm=confirm, observer=observer, log=log, arm=simulated_arm)
     summary = run.play(Path(out))
     report_run(Path(out), run.log, summary, run.config, say, figure)
     return summary
