@@ -123,6 +123,9 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
     return report, bus.record, session, p
 
 
+LOCKSTEP_REPLY_MS = 5000     # a lock-stepped simulator on a busy machine may be this late; a silent servo is later
+
+
 @dataclass
 class LinkRun:
     """A motion played by the general application over the host link against a simulated arm whose
@@ -147,7 +150,7 @@ def run_link(kind: str = "native", config: str = "replica", motion: str | None =
         bus = FirmwareLink(arm)
         server = PtyServer(arm, "lockstep")
         server.start()
-        controller = NativeController([server.path, f"baud={baud}", "reply_ms=1000"], realtime=False)
+        controller = NativeController([server.path, f"baud={baud}", f"reply_ms={LOCKSTEP_REPLY_MS}"], realtime=False)
         record = bus.record
     else:
         controller = QemuController(board, arm, baud)

@@ -60,7 +60,7 @@ class Controller:
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         baud = next(iter(self.config.buses.values())).baud     # the bus's rate is the board's, not the link's
-        self.proc = subprocess.Popen([str(exe), self.server.path, f"link={os.ttyname(self.slave)}", "reply_ms=1000",
+        self.proc = subprocess.Popen([str(exe), self.server.path, f"link={os.ttyname(self.slave)}", "reply_ms=5000",
                                       f"baud={baud}"],
                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True)

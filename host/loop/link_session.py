@@ -101,7 +101,9 @@ class LinkSession:
             timeout = self.sender.timeout
             self.sender.timeout = max(timeout, SLOW_COMMAND / self.sender.retries)
             try:
-                result = self.request(ms.Command(command=ms.COMMANDS[name], arg=arg), timeout=SLOW_COMMAND + 1)
+                # the sender gives up after its retries; this wait outlasts them
+                result = self.request(ms.Command(command=ms.COMMANDS[name], arg=arg),
+                                      timeout=self.sender.timeout * (self.sender.retries + 1) + 1)
             finally:
                 self.sender.timeout = timeout
         else:

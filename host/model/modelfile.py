@@ -27,6 +27,11 @@ SOLID_DIMS = {
 }
 
 
+
+def _shown(name) -> str:
+    """A name from the file as an error shows it: on one line (a newline in it escaped)."""
+    return str(name).encode("unicode_escape").decode("ascii")
+
 def _volume(kind: str, dims: list[float]) -> float:
     if kind == "cylinder":
         return math.pi * dims[0] ** 2 * dims[1]
@@ -224,12 +229,12 @@ def model_from_dict(data: dict, origin: str = "model", folder: Path | None = Non
         name = entry.get("name")
         if not isinstance(name, str) or not name:
             raise ModelError(f"{origin}: body #{n + 1} needs a 'name'")
-        where = f"body '{name}'"
+        where = f"body '{_shown(name)}'"
         if "from" in entry:
             entry = _body_from(entry, where, folder)
         parent_name = entry.get("parent", "base")
         if not isinstance(parent_name, str) or (parent_name != "base" and parent_name not in index):
-            raise ModelError(f"{where}: parent '{parent_name}' is not an earlier body")
+            raise ModelError(f"{where}: parent '{_shown(parent_name)}' is not an earlier body")
         dofs = []
         for k, dof in enumerate(_tables(entry.get("dof", []), f"{where}: dof")):
             dname = dof.get("name")
