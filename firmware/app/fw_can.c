@@ -88,6 +88,16 @@ static int fault_at(fw_can* c, int k, int code) {
   return code;
 }
 
+// One frame taken (1); or none there, and the bus waited on with the control clock held (0: try
+// again; -1: nothing came within the board's reply time, a time-out)
+static int take_or_wait(uint16_t* id, uint8_t* d, uint8_t* len) {
+  if (board_can_take(id, d, len)) return 1;
+  board_clock_hold();
+  int came = board_can_wait();
+  board_clock_release();
+  return came ? 0 : -1;
+}
+
 static int first_pending(const fw_can* c) {
   for (int k = 0; k < c->n; k++)
     if (c->pending[k]) return k;
@@ -103,13 +113,9 @@ static int collect(fw_can* c, int check) {
     if (k < 0) return FW_OK;
     uint16_t id;
     uint8_t d[8], len;
-    if (!board_can_take(&id, d, &len)) {
-      board_clock_hold();
-      int came = board_can_wait();
-      board_clock_release();
-      if (!came) return fault_at(c, k, FW_FAULT_TIMEOUT);
-      continue;
-    }
+    int got = take_or_wait(&id, d, &len);
+    if (got < 0) return fault_at(c, k, FW_FAULT_TIMEOUT);
+    if (!got) continue;
     k = route(c, id, d, len);
     if (k < 0) {
       int reply_id = 0;
@@ -166,13 +172,9 @@ static int reg(fw_can* c, int k, uint8_t cmd, uint8_t rid, uint32_t value, uint3
   if (!board_can_send(CM_DAMIAO_REGISTER_ID, d, 8)) return fault_at(c, k, FW_FAULT_TIMEOUT);
   for (;;) {
     uint16_t id;
-    if (!board_can_take(&id, d, &len)) {
-      board_clock_hold();
-      int came = board_can_wait();
-      board_clock_release();
-      if (!came) return fault_at(c, k, FW_FAULT_TIMEOUT);
-      continue;
-    }
+    int got = take_or_wait(&id, d, &len);
+    if (got < 0) return fault_at(c, k, FW_FAULT_TIMEOUT);
+    if (!got) continue;
     if (id == m->reply_id && len == 8 && cm_unpack_register(d, len, &g) == CM_OK && g.can_id == m->id &&
         g.cmd == cmd && g.rid == rid) {
       *out = g.value;

@@ -219,7 +219,6 @@ def link_swing(choice, server, buses: dict | None, run, out: Path) -> dict:
         summary["torque_off"] = controller.record.torque_off
         # what crossed the simulated bus: each command against the host's double controller
         summary["agreement"] = agreement(config, p, controller.record)
-    run.record = getattr(controller, "record", None)       # what crossed a simulated bus (qemu)
     if error:
         say(f"{error} — torque off on every servo")
     log.write_csv(out / "swing_log.csv")
