@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,8 +24,8 @@ from .loop.link_session import LinkSession
 from .loop.agreement import agreement, replay
 from .loop.link_controllers import NativeController
 from .loop.native import FirmwareError, parse_report
-from .loop.native_link import LOCKSTEP_TIMEOUT_MS, STOP_TIMEOUT, drive
-from .loop.qemu import (BOARDS, ROOT, SYSTICK_HZ, FirmwareLink, QemuController, Record, connect, free_ports,
+from .loop.native_link import LOCKSTEP_TIMEOUT_MS, QEMU_ANSWER_TIMEOUT, STOP_TIMEOUT, drive
+from .loop.qemu import (BOARDS, SYSTICK_HZ, FirmwareLink, QemuController, Record, connect, free_ports,
                         default_elf, image, qemu_command, to_instructions)
 from .sim.robot import SimulatedRobot
 from .sim.transport.pty import PtyServer
@@ -75,24 +74,13 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
     fresh simulated arm: the host loads `config`, streams its motion's knots, homes and plays, then
     switches torque off, which ends the run (once=1). (report, record, session, plan): the report's
     worst_work is the worst tick with torque on in clock counts, the link's work included."""
-    elf = Path(elf) if elf else ROOT / "build" / "fw" / f"{board}-link" / "servodyn-fw-link.elf"
-    elf = image(board, elf)
     loaded = load_config(config)
-    arm = SimulatedRobot(loaded).port()
-    bus = FirmwareLink(arm)
-    port, sync_port, link_port = free_ports(3)
     baud = next(iter(loaded.buses.values())).baud
-    extra = ("-serial", f"tcp:127.0.0.1:{link_port},server=on,wait=on,nodelay=on")
-    proc = subprocess.Popen(qemu_command(board, elf, port, icount_shift, f"once=1 baud={baud} {args}", sync_port, extra),
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + timeout
+    controller = QemuController(board, SimulatedRobot(loaded).port(), baud, icount_shift, args, timeout, elf=elf)
+    deadline = controller.deadline
     try:
-        sock, sync, host = (connect(proc, p, deadline) for p in (port, sync_port, link_port))
-        serving = threading.Thread(target=bus.serve, args=(sock, deadline, sync), daemon=True)
-        serving.start()
-        host.setblocking(False)
-        session = LinkSession(host.fileno())
-        session.sender.timeout = 1.0        # emulated, lock-stepped ticks are slower than the wall clock's
+        session = LinkSession(controller.fd)
+        session.sender.timeout = QEMU_ANSWER_TIMEOUT
         p = link_plan(loaded, host_timeout_ms=host_timeout_ms)
         session.hello()
         session.command("telemetry", telemetry_every)
@@ -106,21 +94,15 @@ def run_qemu_link(board: str = "an386", elf: Path | None = None, config: str = "
             session.pump(0.005)
             session.stream(p)
         session.command("torque_off")
-        serving.join(max(1.0, deadline - time.monotonic()))
-        out, err = proc.communicate(timeout=max(1.0, deadline - time.monotonic()))
-        for s in (sock, sync, host):
-            s.close()
-    except subprocess.TimeoutExpired:
-        raise FirmwareError("QEMU did not exit after the firmware's run") from None
+        output = controller.finish(max(1.0, deadline - time.monotonic()))
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    report = parse_report(out + "\n" + err)
+        controller.close()
+    report = parse_report(output)
     if "result" not in report:
-        raise FirmwareError(f"the firmware gave no report (QEMU exit {proc.returncode}): {(out + err).strip()[-300:]}")
-    report["exit_code"] = proc.returncode
-    return report, bus.record, session, p
+        raise FirmwareError(f"the firmware gave no report (QEMU exit {controller.proc.returncode}): "
+                            f"{output.strip()[-300:]}")
+    report["exit_code"] = controller.proc.returncode
+    return report, controller.record, session, p
 
 
 LOCKSTEP_REPLY_MS = 5000     # a lock-stepped simulator on a busy machine may be this late; a silent servo is later

@@ -213,9 +213,8 @@ class QemuController:
     arguments (once=1 baud=N are added)."""
 
     def __init__(self, board: str, arm, baud: int, icount_shift: int = QEMU_ICOUNT_SHIFT, args: str = "",
-                 timeout: float = 600.0,
-                 on_tick=None):
-        elf = link_image(board)
+                 timeout: float = 600.0, on_tick=None, elf=None):
+        elf = image(board, elf) if elf else link_image(board)
         if shutil.which("qemu-system-arm") is None:
             raise FirmwareError("qemu-system-arm not found (`make toolchain` installs it)")
         self.name = f"qemu:{board}"
